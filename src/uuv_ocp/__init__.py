@@ -1,0 +1,47 @@
+"""uuv_ocp: optimal control of unmanned underwater vehicles with CasADi.
+
+One symbolic formulation (:class:`TrackingProblem`), many solvers chosen by name
+(:func:`solve`, :func:`available_solvers`), one judge (:func:`score`), and a closed loop
+(:class:`NMPC`, :func:`simulate`).
+"""
+
+from uuv_ocp.disturbances import Current, GaussMarkov, MeasurementNoise
+from uuv_ocp.integrators import rk4_step
+from uuv_ocp.mpc import NMPC, StepOutput
+from uuv_ocp.problem import TrackingProblem, Weights, score
+from uuv_ocp.references import PAPER_REFERENCES, Reference
+from uuv_ocp.simulation import ClosedLoopResult, simulate
+from uuv_ocp.solvers import (
+    Iterate,
+    SolveResult,
+    available_solvers,
+    get_solver,
+    register_solver,
+    solve,
+)
+from uuv_ocp.vehicles import Vehicle
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "PAPER_REFERENCES",
+    "ClosedLoopResult",
+    "Current",
+    "GaussMarkov",
+    "Iterate",
+    "MeasurementNoise",
+    "NMPC",
+    "Reference",
+    "SolveResult",
+    "StepOutput",
+    "TrackingProblem",
+    "Vehicle",
+    "Weights",
+    "available_solvers",
+    "get_solver",
+    "register_solver",
+    "rk4_step",
+    "score",
+    "simulate",
+    "solve",
+]

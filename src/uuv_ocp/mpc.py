@@ -1,0 +1,130 @@
+"""Receding-horizon NMPC around any registered solver.
+
+Warm starting is explicit: the controller keeps the last :class:`~uuv_ocp.solvers.Iterate`
+and shifts it by one interval before the next solve (primal and, for exact solvers, duals;
+for swarms the shifted best plan seeds the next population).  :meth:`NMPC.reset` forgets it,
+so the same state and time always give the same control after a reset.
+
+Fallback (documented contract): when a solve reports ``success=False`` or returns non-finite
+controls, the controller applies the next control of its previous plan (the shifted plan) if
+it has one, otherwise it holds the last applied control.  The step is counted in
+``ClosedLoopResult.failures`` and the closed loop never stops on a solver failure.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from uuv_ocp import _validation as check
+from uuv_ocp.problem import TrackingProblem
+from uuv_ocp.solvers import get_solver
+from uuv_ocp.solvers.result import Iterate, SolveResult
+
+
+@dataclass(frozen=True)
+class StepOutput:
+    """What one controller step returns.
+
+    Parameters
+    ----------
+    control : numpy.ndarray, shape (3,)
+        Control to apply (N, N, N·m).
+    result : SolveResult or None
+        The solver's result (``None`` if the solver raised).
+    fallback : bool
+        Whether ``control`` comes from the fallback rather than the fresh solution.
+    """
+
+    control: np.ndarray
+    result: SolveResult | None
+    fallback: bool
+
+
+class NMPC:
+    """Nonlinear MPC controller for a :class:`TrackingProblem`.
+
+    Parameters
+    ----------
+    problem : TrackingProblem
+    solver : str
+        Any name from :func:`uuv_ocp.available_solvers`.
+    options : dict, optional
+        Backend options.
+    seed : int, optional
+        Seed of the controller's ``numpy.random.Generator`` (swarm solvers).
+    warm_start : bool
+        Shift the previous solution into the next solve.
+    """
+
+    def __init__(
+        self,
+        problem: TrackingProblem,
+        solver: str = "ipopt",
+        *,
+        options: dict[str, Any] | None = None,
+        seed: int | None = None,
+        warm_start: bool = True,
+    ) -> None:
+        self.problem = problem
+        self.solver_name = solver
+        self.backend = get_solver(problem, solver, options)
+        if seed is not None:
+            seed = check.positive_int("seed", seed, minimum=0)
+        self.seed = seed
+        self.use_warm_start = bool(warm_start)
+        self._rng = np.random.default_rng(seed)
+        self._iterate: Iterate | None = None
+        self._plan: np.ndarray | None = None
+
+    def reset(self) -> None:
+        """Forget the warm start and the previous plan; restart the random generator."""
+        self._iterate = None
+        self._plan = None
+        self._rng = np.random.default_rng(self.seed)
+
+    @property
+    def iterate(self) -> Iterate | None:
+        """The warm start the next :meth:`step` will use (already shifted)."""
+        return self._iterate
+
+    def step(
+        self,
+        x: object,
+        t: float,
+        u_prev: object | None = None,
+        current: object | None = None,
+    ) -> StepOutput:
+        """Solve at state ``x`` and time ``t`` and return the control to apply."""
+        problem = self.problem
+        p = problem.parameters(x, t, u_prev, current)
+        warm = self._iterate if self.use_warm_start else None
+        try:
+            result = self.backend.solve(p, warm, rng=self._rng)
+        except Exception as error:  # a backend crash must never stop a closed loop
+            result = None
+            failure_reason = f"exception: {error}"
+        else:
+            failure_reason = (
+                "" if result.success and np.all(np.isfinite(result.controls)) else result.status
+            )
+        if not failure_reason:
+            self._plan = result.controls
+            self._iterate = result.iterate.shift()
+            return StepOutput(result.controls[0].copy(), result, False)
+        control = self._fallback_control(u_prev)
+        if self._iterate is not None:
+            self._iterate = self._iterate.shift()
+        return StepOutput(control, result, True)
+
+    def _fallback_control(self, u_prev: object | None) -> np.ndarray:
+        if self._plan is not None and self._plan.shape[0] > 1:
+            self._plan = np.vstack([self._plan[1:], self._plan[-1:]])
+            return self._plan[0].copy()
+        if u_prev is None:
+            return np.zeros(3)
+        return np.clip(
+            np.asarray(u_prev, dtype=float), -self.problem.max_thrust, self.problem.max_thrust
+        )

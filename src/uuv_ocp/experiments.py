@@ -1,0 +1,138 @@
+"""Reproduction jobs: track the paper's references and tabulate the results.
+
+Every finished run is written to ``<out>/runs/<reference>_<solver>.npz`` before the next one
+starts, so an interrupted job loses at most the run in progress and a rerun resumes from the
+saved files (pass ``fresh=True`` to recompute).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from uuv_ocp.mpc import NMPC
+from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
+from uuv_ocp.problem import TrackingProblem
+from uuv_ocp.references import PAPER_REFERENCES, Reference
+from uuv_ocp.simulation import ClosedLoopResult, simulate
+from uuv_ocp.vehicles import Vehicle
+
+
+@dataclass(frozen=True)
+class TrackingRow:
+    """One line of the tracking table."""
+
+    reference: str
+    solver: str
+    metrics: dict
+    duration: float
+    reference_speed_max: float
+    note: str
+
+
+def reference_speed_note(
+    reference: Reference, vehicle: Vehicle, t0: float, duration: float
+) -> tuple[float, str]:
+    """Largest path speed on the run (m/s) and a note if it exceeds the vehicle's top speed."""
+    times = np.linspace(t0, t0 + duration, 301)
+    speed = reference.evaluate(times)[:, 3]
+    top = float(np.min(vehicle.max_speed()[:2]))
+    over = times[speed > top]
+    if over.size:
+        return float(
+            speed.max()
+        ), f"path speed > {top:.2f} m/s (vehicle top speed) from t = {over[0]:.1f} s"
+    return float(speed.max()), ""
+
+
+def track_references(
+    names: Sequence[str] = PAPER_REFERENCES,
+    solver: str = "ipopt",
+    *,
+    duration: float = 30.0,
+    horizon: int = 20,
+    dt: float = 0.1,
+    vehicle: Vehicle | None = None,
+    out_dir: str | Path = "out",
+    fresh: bool = False,
+    progress: bool = True,
+    figures: bool = True,
+    solver_options: dict | None = None,
+) -> list[TrackingRow]:
+    """Closed-loop NMPC on each named reference, from rest on the path; resumable.
+
+    Returns one :class:`TrackingRow` per reference and writes ``<ref>_xoy.png`` and
+    ``<ref>_errors.png`` into ``out_dir`` when ``figures`` is true.
+    """
+    vehicle = vehicle or Vehicle.rexrov()
+    out_dir = Path(out_dir)
+    runs_dir = out_dir / "runs"
+    runs_dir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for name in names:
+        reference = Reference.paper(name)
+        problem = TrackingProblem(vehicle, reference, horizon=horizon, dt=dt)
+        t0 = reference.t_start
+        run_duration = min(duration, problem.latest_start() - t0)
+        path = runs_dir / f"{name}_{solver}.npz"
+        if path.exists() and not fresh:
+            run = ClosedLoopResult.load(str(path))
+        else:
+            controller = NMPC(problem, solver, options=solver_options)
+            run = simulate(
+                controller,
+                reference.initial_state(t0),
+                run_duration,
+                progress=progress,
+                label=f"{name} {solver}",
+            )
+            if run.interrupted:
+                raise KeyboardInterrupt(
+                    f"interrupted during {name}; finished runs are in {runs_dir}"
+                )
+            run.save(str(path))
+        speed_max, note = reference_speed_note(reference, vehicle, t0, run_duration)
+        if figures:
+            save_figure(
+                xoy_figure(run, f"{name}: {reference.description}"), out_dir / f"{name}_xoy.png"
+            )
+            save_figure(
+                error_figure(run, f"{name}: tracking error"), out_dir / f"{name}_errors.png"
+            )
+        rows.append(TrackingRow(name, solver, run.metrics(), run_duration, speed_max, note))
+    return rows
+
+
+def format_tracking_table(rows: Sequence[TrackingRow]) -> str:
+    """Plain-text table of :func:`track_references` rows (errors in m, times in ms)."""
+    columns = [
+        ("ref", 4, lambda r: r.reference),
+        ("solver", 7, lambda r: r.solver),
+        ("T(s)", 5, lambda r: f"{r.duration:.1f}"),
+        ("max|ex|", 8, lambda r: f"{r.metrics['max_abs_ex']:.3f}"),
+        ("max|ey|", 8, lambda r: f"{r.metrics['max_abs_ey']:.3f}"),
+        ("|ex|t>5", 9, lambda r: _fmt(r.metrics["max_abs_ex_settled"])),
+        ("|ey|t>5", 9, lambda r: _fmt(r.metrics["max_abs_ey_settled"])),
+        ("rms_ex", 7, lambda r: f"{r.metrics['rms_ex']:.3f}"),
+        ("rms_ey", 7, lambda r: f"{r.metrics['rms_ey']:.3f}"),
+        ("med ms", 7, lambda r: f"{1e3 * r.metrics['solve_time_median']:.2f}"),
+        ("p90 ms", 7, lambda r: f"{1e3 * r.metrics['solve_time_p90']:.2f}"),
+        ("fail", 4, lambda r: str(int(r.metrics["failures"]))),
+        ("soft", 4, lambda r: str(int(r.metrics["relaxed_steps"]))),
+    ]
+    header = " ".join(f"{title:>{width}}" for title, width, _ in columns) + "  note"
+    lines = [header, "-" * len(header)]
+    for row in rows:
+        cells = " ".join(f"{cell(row):>{width}}" for _, width, cell in columns)
+        lines.append(f"{cells}  {row.note}")
+    return "\n".join(lines)
+
+
+def _fmt(value: float) -> str:
+    if not math.isfinite(value):
+        return "nan"
+    return f"{value:.2e}" if value < 1e-2 else f"{value:.3f}"

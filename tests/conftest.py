@@ -1,0 +1,21 @@
+"""Shared fixtures: small problems built once per session."""
+
+import numpy as np
+import pytest
+
+import uuv_ocp as uo
+
+
+@pytest.fixture(scope="session")
+def s2_problem():
+    """The paper's s2 problem on the RexROV, N = 20, dt = 0.1 s, terminal equality."""
+    return uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"))
+
+
+@pytest.fixture(scope="session")
+def feasible_start():
+    """A state slightly off the s2 reference at t0 = 3 s, moving: terminal equality feasible."""
+    reference = uo.Reference.paper("s2")
+    state = reference.evaluate([3.0])[0]
+    state += np.array([0.05, -0.04, 0.02, 0.03, 0.01, -0.01])
+    return state, 3.0

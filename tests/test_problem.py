@@ -1,0 +1,151 @@
+"""The formulation: NLP objective = condensed cost = score, gradients, parameters, validation."""
+
+import math
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import uuv_ocp as uo
+from uuv_ocp.solvers.nlp import IpoptSolver
+
+
+def nlp_objective_at_rollout(problem, scaled, p):
+    """Evaluate the hard NLP's objective at the point built from a rollout of ``scaled``."""
+    built = problem.build()
+    solver = IpoptSolver(problem)
+    _, _, u_prev, _ = problem.parameter_parts(p)
+    states = np.array(built.rollout(scaled, p)).T
+    primal = solver.compose_primal(
+        "hard", states, scaled.reshape(-1, 3), u_prev / problem.max_thrust
+    )
+    data = built.hard
+    # tube slacks at their optimal value max(0, |e| - tube)
+    if problem.position_tube is not None:
+        _, reference, _, _ = problem.parameter_parts(p)
+        labels = {label: i for i, label in enumerate(data.variable_labels)}
+        for k in range(problem.horizon):
+            excess = np.maximum(
+                0.0, np.abs(states[k, :2] - reference[k, :2]) - problem.position_tube
+            )
+            for i in range(2):
+                primal[labels[f"tube_{k}[{i}]"]] = excess[i]
+    f = ca.Function("f", [data.nlp["x"], data.nlp["p"]], [data.nlp["f"], data.nlp["g"]])
+    objective, constraints = f(primal, p)
+    return float(objective), np.array(constraints).ravel(), data
+
+
+@pytest.mark.parametrize("terminal", ["equality", "cost", "none"])
+@pytest.mark.parametrize("tube", [None, 0.05])
+def test_nlp_objective_equals_condensed_cost_and_score(terminal, tube):
+    reference = uo.Reference.paper("s8")
+    problem = uo.TrackingProblem(
+        uo.Vehicle.rexrov(), reference, horizon=8, terminal=terminal, position_tube=tube
+    )
+    rng = np.random.default_rng(3)
+    x0 = reference.evaluate([2.0])[0] + rng.normal(scale=0.1, size=6)
+    for _ in range(5):
+        u_prev = rng.uniform(-1500, 1500, size=3)
+        p = problem.parameters(x0, 2.0, u_prev=u_prev, current=[0.1, -0.2])
+        scaled = rng.uniform(-1, 1, size=problem.control_dim)
+        objective, constraints, data = nlp_objective_at_rollout(problem, scaled, p)
+        condensed, _penalty = problem.build().cost(scaled, p)
+        cost, _violation = uo.score(
+            problem,
+            problem.controls_from_scaled(scaled),
+            x0,
+            2.0,
+            u_prev=u_prev,
+            current=[0.1, -0.2],
+        )
+        assert objective == pytest.approx(float(condensed), rel=1e-9)
+        assert objective == pytest.approx(cost, rel=1e-9)
+        # the rollout point satisfies the dynamics constraints exactly
+        dynamics = np.array(
+            [label.startswith(("dynamics", "initial")) for label in data.constraint_labels]
+        )
+        assert np.max(np.abs(constraints[dynamics])) < 1e-10
+
+
+def test_condensed_gradient_matches_finite_differences(s2_problem, feasible_start):
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0)
+    cost = s2_problem.build().cost
+    scaled = np.random.default_rng(1).uniform(-0.5, 0.5, s2_problem.control_dim)
+    symbol = ca.SX.sym("U", s2_problem.control_dim)
+    objective = cost(symbol, p)[0]
+    gradient = np.array(
+        ca.Function("g", [symbol], [ca.gradient(objective, symbol)])(scaled)
+    ).ravel()
+    step = 1e-6
+    for index in [0, 7, 31, 59]:
+        bump = np.zeros_like(scaled)
+        bump[index] = step
+        central = (float(cost(scaled + bump, p)[0]) - float(cost(scaled - bump, p)[0])) / (2 * step)
+        assert gradient[index] == pytest.approx(central, rel=1e-5, abs=1e-4)
+
+
+def test_score_reports_terminal_and_rate_violations(s2_problem, feasible_start):
+    x0, t0 = feasible_start
+    zero = np.zeros((s2_problem.horizon, 3))
+    cost, violation = uo.score(s2_problem, zero, x0, t0)
+    p = s2_problem.parameters(x0, t0)
+    states = s2_problem.rollout(zero, p)
+    _, reference, _, _ = s2_problem.parameter_parts(p)
+    assert violation == pytest.approx(np.max(np.abs(states[-1] - reference[-1])), rel=1e-12)
+    jump = zero.copy()
+    jump[0, 0] = 2000.0  # 1.0 scaled in one step, bound is 0.2
+    _, rate_violation = uo.score(s2_problem.replace(terminal="none"), jump, x0, t0)
+    assert rate_violation == pytest.approx(0.8, rel=1e-12)
+
+
+def test_reference_heading_is_aligned_with_the_vehicle(s2_problem):
+    reference = uo.Reference.paper("s2")
+    x0 = reference.initial_state(1.0)
+    x0[2] += 4 * math.pi
+    _, window, _, _ = s2_problem.parameter_parts(s2_problem.parameters(x0, 1.0))
+    assert window[0, 2] == pytest.approx(x0[2])
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "name"),
+    [
+        ({"horizon": -3}, "horizon"),
+        ({"horizon": 0}, "horizon"),
+        ({"horizon": 2.5}, "horizon"),
+        ({"dt": 0.0}, "dt"),
+        ({"dt": -0.1}, "dt"),
+        ({"terminal": "hard"}, "terminal"),
+        ({"position_tube": -1.0}, "position_tube"),
+        ({"substeps": 0}, "substeps"),
+    ],
+)
+def test_bad_problem_arguments_raise(kwargs, name):
+    with pytest.raises(ValueError, match=name):
+        uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), **kwargs)
+
+
+@pytest.mark.parametrize(
+    ("x0", "match"),
+    [
+        (np.zeros(5), r"x0 must have shape \(6,\)"),
+        (np.array([0, 0, np.nan, 0, 0, 0]), "x0 must be finite"),
+        ("abc", "x0"),
+    ],
+)
+def test_bad_state_raises_before_solving(s2_problem, x0, match):
+    with pytest.raises(ValueError, match=match):
+        uo.solve(s2_problem, "ipopt", x0=x0, t0=0.0)
+
+
+def test_bad_start_time_raises(s2_problem):
+    x0 = uo.Reference.paper("s2").initial_state()
+    with pytest.raises(ValueError, match="t0"):
+        uo.solve(s2_problem, "ipopt", x0=x0, t0=-1.0)
+
+
+def test_weights_validation():
+    with pytest.raises(ValueError, match="weights.pose"):
+        uo.Weights(pose=(1.0, -1.0, 1.0))
+    with pytest.raises(ValueError, match="weights.terminal_penalty"):
+        uo.Weights(terminal_penalty=0.0)

@@ -1,0 +1,92 @@
+"""Exact backends agree with each other; the terminal fallback; failures are reported."""
+
+import numpy as np
+import pytest
+
+import uuv_ocp as uo
+
+EXACT = ["ipopt", "sqp", "fatrop"]
+
+
+@pytest.fixture(scope="module")
+def results(s2_problem, feasible_start):
+    x0, t0 = feasible_start
+    return {name: uo.solve(s2_problem, name, x0=x0, t0=t0) for name in EXACT}
+
+
+@pytest.mark.parametrize("name", EXACT)
+def test_exact_backends_reach_the_same_optimum(results, name):
+    reference = results["ipopt"]
+    result = results[name]
+    assert result.success, result.status
+    assert not result.terminal_relaxed
+    assert result.cost == pytest.approx(reference.cost, rel=1e-6)
+    assert result.max_violation <= 1e-6
+    assert np.all(
+        np.abs(result.controls) <= np.asarray(uo.Vehicle.rexrov().max_thrust) * (1 + 1e-6)
+    )
+    np.testing.assert_allclose(result.controls, reference.controls, atol=1e-2 * 2000)
+
+
+def test_result_states_are_the_model_rollout(s2_problem, feasible_start, results):
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0)
+    rollout = s2_problem.rollout(results["ipopt"].controls, p)
+    np.testing.assert_allclose(results["ipopt"].states, rollout, atol=1e-6)
+
+
+def test_soft_formulation_is_exact_when_the_hard_one_is_feasible(
+    s2_problem, feasible_start, results
+):
+    x0, t0 = feasible_start
+    soft = uo.solve(s2_problem, "ipopt", x0=x0, t0=t0, options={"terminal_strategy": "soft"})
+    assert not soft.terminal_relaxed
+    assert soft.cost == pytest.approx(results["ipopt"].cost, rel=1e-6)
+
+
+@pytest.mark.parametrize("name", EXACT)
+def test_infeasible_terminal_equality_falls_back_to_the_soft_problem(s2_problem, name):
+    x0 = uo.Reference.paper("s2").initial_state(0.0)  # at rest: x_N = x_R,N is unreachable
+    result = uo.solve(s2_problem, name, x0=x0, t0=0.0)
+    assert result.success
+    assert result.terminal_relaxed
+    assert result.status.startswith("soft_terminal")
+    assert result.max_violation > 1e-3  # the residual is reported honestly
+
+
+def test_warm_start_from_previous_result_converges_faster(s2_problem, feasible_start, results):
+    x0, t0 = feasible_start
+    again = uo.solve(s2_problem, "ipopt", x0=x0, t0=t0, warm_start=results["ipopt"].iterate)
+    assert again.success
+    assert again.iterations < results["ipopt"].iterations
+    assert again.cost == pytest.approx(results["ipopt"].cost, rel=1e-8)
+
+
+def test_solver_failure_is_reported_not_raised(s2_problem, feasible_start):
+    x0, t0 = feasible_start
+    result = uo.solve(
+        s2_problem,
+        "ipopt",
+        x0=x0,
+        t0=t0,
+        options={"max_iter": 1, "terminal_strategy": "hard-first"},
+    )
+    assert not result.success
+    assert result.status
+
+
+def test_unknown_solver_lists_valid_names(s2_problem, feasible_start):
+    x0, t0 = feasible_start
+    with pytest.raises(ValueError, match="ipopt") as error:
+        uo.solve(s2_problem, "newton", x0=x0, t0=t0)
+    assert "newton" in str(error.value)
+
+
+def test_unknown_option_raises(s2_problem, feasible_start):
+    x0, t0 = feasible_start
+    with pytest.raises(ValueError, match="bogus"):
+        uo.solve(s2_problem, "ipopt", x0=x0, t0=t0, options={"bogus": 1})
+
+
+def test_available_solvers_lists_exact_backends():
+    assert set(EXACT) <= set(uo.available_solvers())

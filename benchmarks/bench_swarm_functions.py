@@ -1,0 +1,238 @@
+"""Swarm optimisers of :mod:`uuv_ocp.solvers.swarm` against mealpy's reference implementations.
+
+For every test function × dimension × method the script runs our optimiser and mealpy's at the
+*same number of objective evaluations* over ``seeds`` seeds and prints one table: median final
+error (``f(x) - f*``), the ratio ours/mealpy (errors below ``FLOOR`` count as ``FLOOR``), the
+measured evaluation counts and the mean wall time per run.  It also saves the paper's Figure 5
+(convergence-factor shapes) to ``out/igwo_convergence_factor.png``.
+
+Budgets are the paper's population × iterations per method (igwo 20×30, gwo 30×40, ssa 50×80,
+pso 30×40); ``igwo`` has no mealpy counterpart (mealpy's ``IGWO`` is a different algorithm), so
+it is compared with mealpy's ``OriginalGWO`` at igwo's budget; ``igwo-alpha`` is igwo with
+``options={"frame": "alpha"}`` (an extension, see
+:func:`uuv_ocp.solvers.swarm.igwo_update`).  ``shifted_rastrigin`` moves the optimum away
+from the origin (and off the diagonal) to expose any origin bias.
+
+Run from the repository root::
+
+    python -m benchmarks.bench_swarm_functions
+
+mealpy is a benchmark-only dependency (``pip install -e ".[bench]"``).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+
+from uuv_ocp.solvers.swarm import (
+    ALGORITHMS,
+    PAPER_CONVERGENCE_LABELS,
+    convergence_factor,
+    minimize,
+)
+
+FLOOR = 1e-8
+OUT = Path("out")
+
+
+# -- test functions (vectorised over rows; all have f* = 0) -------------------------------------
+
+
+def sphere(X: np.ndarray) -> np.ndarray:
+    return np.sum(X * X, axis=1)
+
+
+def rastrigin(X: np.ndarray) -> np.ndarray:
+    return 10.0 * X.shape[1] + np.sum(X * X - 10.0 * np.cos(2.0 * np.pi * X), axis=1)
+
+
+def rosenbrock(X: np.ndarray) -> np.ndarray:
+    return np.sum(100.0 * (X[:, 1:] - X[:, :-1] ** 2) ** 2 + (1.0 - X[:, :-1]) ** 2, axis=1)
+
+
+def ackley(X: np.ndarray) -> np.ndarray:
+    d = X.shape[1]
+    return (
+        -20.0 * np.exp(-0.2 * np.sqrt(np.sum(X * X, axis=1) / d))
+        - np.exp(np.sum(np.cos(2.0 * np.pi * X), axis=1) / d)
+        + 20.0
+        + np.e
+    )
+
+
+def _shift(dim: int) -> np.ndarray:
+    return np.random.default_rng(12345).uniform(-4.0, 4.0, dim)
+
+
+def shifted_rastrigin(X: np.ndarray) -> np.ndarray:
+    return rastrigin(X - _shift(X.shape[1]))
+
+
+#: name -> (function, half-width of the box [-b, b]^d)
+FUNCTIONS: dict[str, tuple[Callable[[np.ndarray], np.ndarray], float]] = {
+    "sphere": (sphere, 100.0),
+    "rastrigin": (rastrigin, 5.12),
+    "rosenbrock": (rosenbrock, 30.0),
+    "ackley": (ackley, 32.768),
+    "shifted_rastrigin": (shifted_rastrigin, 5.12),
+}
+
+#: our method -> mealpy class path
+MEALPY_REFERENCE = {
+    "igwo": ("GWO", "OriginalGWO"),
+    "gwo": ("GWO", "OriginalGWO"),
+    "ssa": ("SSA", "OriginalSSA"),
+    "pso": ("PSO", "OriginalPSO"),
+}
+
+
+#: table row -> (method, options); "igwo-alpha" is igwo with the alpha-anchored inertia
+VARIANTS: dict[str, dict | None] = {
+    "igwo": None,
+    "igwo-alpha": {"frame": "alpha"},
+    "gwo": None,
+    "ssa": None,
+    "pso": None,
+}
+
+
+def mealpy_epochs(method: str, population: int, budget: int) -> int:
+    """Epochs of the mealpy reference that use at most ``budget`` evaluations.
+
+    GWO and PSO evaluate ``population`` points per epoch; SSA evaluates the swarm and then
+    ``population - int(0.1 population)`` danger-aware sparrows again.
+    """
+    per_epoch = population
+    if method == "ssa":
+        per_epoch = population + population - int(0.1 * population)
+    return max(1, (budget - population) // per_epoch)
+
+
+def run_mealpy(
+    method: str,
+    fun: Callable[[np.ndarray], np.ndarray],
+    lower: np.ndarray,
+    upper: np.ndarray,
+    population: int,
+    budget: int,
+    seed: int,
+) -> tuple[float, int]:
+    """Best cost and the evaluation count of mealpy's reference at (at most) ``budget``."""
+    import importlib
+
+    from mealpy import FloatVar
+
+    module, cls = MEALPY_REFERENCE[method]
+    optimizer_cls = getattr(importlib.import_module(f"mealpy.swarm_based.{module}"), cls)
+    count = [0]
+
+    def objective(x: np.ndarray) -> float:
+        count[0] += 1
+        return float(fun(np.asarray(x, dtype=float)[None, :])[0])
+
+    problem = {
+        "bounds": FloatVar(lb=lower.tolist(), ub=upper.tolist()),
+        "minmax": "min",
+        "obj_func": objective,
+        "log_to": None,
+    }
+    model = optimizer_cls(epoch=mealpy_epochs(method, population, budget), pop_size=population)
+    best = model.solve(problem, seed=seed)
+    return float(best.target.fitness), count[0]
+
+
+def ratio(ours: float, reference: float, floor: float = FLOOR) -> float:
+    """``max(ours, floor) / max(reference, floor)`` (< 1: ours better)."""
+    return max(ours, floor) / max(reference, floor)
+
+
+def plot_convergence_factor(path: Path = OUT / "igwo_convergence_factor.png") -> Path:
+    """Save the paper's Figure 5: a(t) for the linear and three nonlinear schedules."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    T = 500
+    t = np.arange(T + 1)
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for kind in ("linear", "faster", "slower", "cosine"):
+        ax.plot(t, convergence_factor(t, T, kind), label=PAPER_CONVERGENCE_LABELS[kind])
+    ax.set_xlabel("iteration t")
+    ax.set_ylabel("convergence factor a")
+    ax.set_xlim(0, T)
+    ax.set_ylim(0, 2.05)
+    ax.legend()
+    ax.grid(alpha=0.3)
+    ax.set_title("Decay of the convergence factor (T = 500)")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def main(seeds: int = 20, dims: tuple[int, ...] = (10, 30)) -> list[dict]:
+    """Run the comparison, print one table and return its rows."""
+    rows: list[dict] = []
+    header = (
+        f"{'function':<18}{'dim':>4} {'method':<11}{'budget':>7}{'nfe ref':>8}"
+        f"{'ours':>11}{'mealpy':>11}{'ratio':>9}{'ms ours':>9}{'ms ref':>9}"
+    )
+    print(header)
+    print("-" * len(header))
+    for name, (fun, bound) in FUNCTIONS.items():
+        for dim in dims:
+            lower, upper = -bound * np.ones(dim), bound * np.ones(dim)
+            for method, options in VARIANTS.items():
+                cls = ALGORITHMS[method.split("-")[0]]
+                n, T = cls.default_population, cls.default_iterations
+                budget = n * (T + 1)
+                ours, theirs, t_ours, t_ref, nfe_ref = [], [], 0.0, 0.0, []
+                for seed in range(seeds):
+                    start = time.perf_counter()
+                    ours.append(
+                        minimize(fun, lower, upper, cls.name, seed=seed, options=options).fun
+                    )
+                    t_ours += time.perf_counter() - start
+                    start = time.perf_counter()
+                    best, nfe = run_mealpy(cls.name, fun, lower, upper, n, budget, seed)
+                    t_ref += time.perf_counter() - start
+                    theirs.append(best)
+                    nfe_ref.append(nfe)
+                row = {
+                    "function": name,
+                    "dim": dim,
+                    "method": method,
+                    "reference": ".".join(MEALPY_REFERENCE[cls.name]),
+                    "budget": budget,
+                    "evaluations_reference": int(np.max(nfe_ref)),
+                    "median_ours": float(np.median(ours)),
+                    "median_mealpy": float(np.median(theirs)),
+                    "ratio": ratio(float(np.median(ours)), float(np.median(theirs))),
+                    "ms_per_run_ours": 1e3 * t_ours / seeds,
+                    "ms_per_run_mealpy": 1e3 * t_ref / seeds,
+                }
+                rows.append(row)
+                print(
+                    f"{name:<18}{dim:>4} {method:<11}{budget:>7}{row['evaluations_reference']:>8}"
+                    f"{row['median_ours']:>11.3g}{row['median_mealpy']:>11.3g}"
+                    f"{row['ratio']:>9.3g}{row['ms_per_run_ours']:>9.1f}"
+                    f"{row['ms_per_run_mealpy']:>9.1f}",
+                    flush=True,
+                )
+    print(
+        f"\nmedian over {seeds} seeds of f(x_best) - f*; ratio = ours/mealpy with errors "
+        f"< {FLOOR:g} counted as equal; igwo rows are compared with mealpy OriginalGWO at "
+        "igwo's budget."
+    )
+    print(f"figure: {plot_convergence_factor()}")
+    return rows
+
+
+if __name__ == "__main__":
+    main()

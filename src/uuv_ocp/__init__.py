@@ -13,9 +13,11 @@ from uuv_ocp.references import PAPER_REFERENCES, Reference
 from uuv_ocp.simulation import ClosedLoopResult, simulate
 from uuv_ocp.solvers import (
     Iterate,
+    MinimizeResult,
     SolveResult,
     available_solvers,
     get_solver,
+    minimize,
     register_solver,
     solve,
 )
@@ -29,6 +31,7 @@ __all__ = [
     "Current",
     "GaussMarkov",
     "Iterate",
+    "MinimizeResult",
     "MeasurementNoise",
     "NMPC",
     "Reference",
@@ -39,6 +42,7 @@ __all__ = [
     "Weights",
     "available_solvers",
     "get_solver",
+    "minimize",
     "register_solver",
     "rk4_step",
     "score",

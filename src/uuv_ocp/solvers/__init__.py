@@ -14,7 +14,9 @@ from typing import Any
 
 from uuv_ocp.problem import TrackingProblem
 from uuv_ocp.solvers.nlp import FatropSolver, IpoptSolver, NlpSolver, SqpSolver
+from uuv_ocp.solvers.population import SwarmSolver, swarm_factory
 from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.swarm import ALGORITHMS, MinimizeResult, minimize
 
 SolverFactory = Callable[[TrackingProblem, dict[str, Any] | None], Any]
 
@@ -22,7 +24,9 @@ _BUILTIN: dict[str, SolverFactory] = {
     "ipopt": IpoptSolver,
     "fatrop": FatropSolver,
     "sqp": SqpSolver,
+    **{method: swarm_factory(method) for method in ALGORITHMS},
 }
+EXACT_SOLVERS = ("fatrop", "ipopt", "sqp")
 
 
 class SolverRegistry:
@@ -40,8 +44,9 @@ class SolverRegistry:
         self._factories[name] = factory
 
     def names(self) -> list[str]:
-        """Sorted list of registered names."""
-        return sorted(self._factories)
+        """Sorted list of registered names, including the ``"<swarm>+<exact>"`` hybrids."""
+        hybrids = [f"{swarm}+{exact}" for swarm in ALGORITHMS for exact in EXACT_SOLVERS]
+        return sorted([*self._factories, *hybrids])
 
     def factory(self, name: str) -> SolverFactory:
         """The factory for ``name``; ``ValueError`` listing valid names otherwise."""
@@ -51,7 +56,7 @@ class SolverRegistry:
             from uuv_ocp.solvers.hybrid import hybrid_factory
 
             first, _, second = name.partition("+")
-            if first in self._factories and second in self._factories:
+            if first in ALGORITHMS and second in EXACT_SOLVERS:
                 return hybrid_factory(name, self._factories[first], self._factories[second])
         raise ValueError(
             f"solver must be one of {self.names()} (or '<swarm>+<exact>'), got {name!r}"
@@ -143,6 +148,9 @@ __all__ = [
     "SolveResult",
     "SolverRegistry",
     "SqpSolver",
+    "SwarmSolver",
+    "MinimizeResult",
+    "minimize",
     "available_solvers",
     "get_solver",
     "register_solver",

@@ -1,0 +1,210 @@
+"""Derivative-free backends: IGWO, GWO, SSA, PSO on the condensed cost of the problem.
+
+The swarm searches the scaled control sequence ``U ∈ [-1, 1]^{3N}``.  Its fitness is the
+condensed objective ``J(U; p)`` of :mod:`uuv_ocp.problem` (rollout of the **same** RK4
+Function as the NLP) plus the exact penalty of what a box search cannot hold by construction::
+
+    fitness(U) = J(U; p) + ρ_T Σ|x_N − x_R,N| (terminal="equality") + ρ_R Σ max(0, |Δz| − Δz_max)
+
+with ``ρ_T = Weights.terminal_penalty`` and ``ρ_R = Weights.rate_penalty``.  The population is
+evaluated in one call of the cost mapped over the population (``Function.map``), never in a
+Python loop over individuals.  ``SolveResult.cost``/``max_violation`` come from
+:func:`uuv_ocp.problem.score_parameters`, like every other backend.
+
+Search coordinates (``search`` option).  The paper's IGWO update contracts positions toward the
+origin of the search space (``w < 1`` multiplies the leaders' mean), which is a strong prior
+toward whatever the origin means.  With ``search="deviation"`` (default) the swarm searches the
+deviation ``δ = U − U_c`` from a centre plan ``U_c`` — the shifted previous plan in a closed
+loop, otherwise the last applied control held over the horizon — in the box
+``[-1 − U_c, 1 − U_c]`` (the same feasible set).  ``search="absolute"`` searches ``U`` itself.
+With ``seed_warm_start=True`` (default) the centre itself (δ = 0) is one of the initial wolves,
+the rest are uniform in the box.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from uuv_ocp import _validation as check
+from uuv_ocp.problem import TrackingProblem, score_parameters
+from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.swarm import ALGORITHMS, minimize
+
+SEARCH_MODES = ("deviation", "absolute")
+
+
+def batched_fitness(
+    problem: TrackingProblem, population: int, parallelization: str = "serial"
+) -> ca.Function:
+    """``fitness(U[3N × population], p) -> (1 × population)``: objective + penalty, mapped."""
+    cost = problem.build().cost
+    mapped = cost.map("cost_batch", parallelization, population, [1], [])
+    candidates = ca.MX.sym("U", problem.control_dim, population)
+    p = ca.MX.sym("p", problem.parameter_dim)
+    objective, penalty = mapped(candidates, p)
+    return ca.Function(
+        "fitness_batch", [candidates, p], [objective + penalty], ["U", "p"], ["fitness"]
+    )
+
+
+class SwarmSolver:
+    """A population optimiser from :mod:`uuv_ocp.solvers.swarm` as a tracking-problem backend.
+
+    Parameters
+    ----------
+    problem : TrackingProblem
+    options : dict, optional
+        ``population``, ``iterations``, ``max_evaluations`` (defaults: the paper's budgets per
+        method), ``seed`` (used when the caller passes no generator; default 0),
+        ``search`` ("deviation" | "absolute"), ``seed_warm_start`` (bool),
+        ``parallelization`` ("serial" | "thread" for the mapped cost), ``algorithm_options``
+        (dict passed to the algorithm).
+    method : str
+        ``"igwo"``, ``"gwo"``, ``"ssa"`` or ``"pso"``.
+    """
+
+    def __init__(
+        self, problem: TrackingProblem, options: dict[str, Any] | None = None, *, method: str
+    ) -> None:
+        options = dict(options or {})
+        check.choice("method", method, sorted(ALGORITHMS))
+        algorithm = ALGORITHMS[method]
+        self.name = method
+        self.problem = problem
+        self.method = method
+        self.population = check.positive_int(
+            "options['population']",
+            options.pop("population", algorithm.default_population),
+            minimum=4,
+        )
+        self.iterations = check.positive_int(
+            "options['iterations']", options.pop("iterations", algorithm.default_iterations)
+        )
+        max_evaluations = options.pop("max_evaluations", None)
+        self.max_evaluations = (
+            None
+            if max_evaluations is None
+            else check.positive_int(
+                "options['max_evaluations']", max_evaluations, minimum=self.population
+            )
+        )
+        self.seed = check.positive_int("options['seed']", options.pop("seed", 0), minimum=0)
+        self.search = check.choice(
+            "options['search']", options.pop("search", "deviation"), SEARCH_MODES
+        )
+        self.seed_warm_start = options.pop("seed_warm_start", True)
+        if not isinstance(self.seed_warm_start, bool):
+            raise ValueError(
+                f"options['seed_warm_start'] must be True or False, got {self.seed_warm_start!r}"
+            )
+        self.parallelization = check.choice(
+            "options['parallelization']",
+            options.pop("parallelization", "serial"),
+            ("serial", "thread"),
+        )
+        self.algorithm_options = options.pop("algorithm_options", None)
+        self.compiled = options.pop("compiled", False)
+        if options:
+            valid = [
+                "algorithm_options", "compiled", "iterations", "max_evaluations",
+                "parallelization", "population", "search", "seed", "seed_warm_start",
+            ]  # fmt: skip
+            raise ValueError(f"unknown options for solver {method!r}: {sorted(options)}; valid: {valid}")
+        # validate algorithm options now, before any solve
+        minimize(
+            lambda x: np.zeros(x.shape[0]),
+            -np.ones(1),
+            np.ones(1),
+            method,
+            population=4,
+            iterations=1,
+            options=self.algorithm_options,
+        )
+        self.fitness = self._fitness_function()
+
+    def _fitness_function(self) -> ca.Function:
+        if self.compiled:
+            from uuv_ocp.codegen import compiled_fitness
+
+            return compiled_fitness(self.problem, self.population, self.parallelization)
+        return batched_fitness(self.problem, self.population, self.parallelization)
+
+    def _center(self, p: np.ndarray, warm_start: Iterate | None) -> np.ndarray:
+        problem = self.problem
+        if warm_start is not None:
+            return np.clip(np.asarray(warm_start.scaled_controls, dtype=float).ravel(), -1.0, 1.0)
+        _, _, u_prev, _ = problem.parameter_parts(p)
+        return np.tile(np.clip(u_prev / problem.max_thrust, -1.0, 1.0), problem.horizon)
+
+    def solve(
+        self,
+        p: np.ndarray,
+        warm_start: Iterate | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> SolveResult:
+        """One swarm solve of the instance with parameter vector ``p``."""
+        start = time.perf_counter()
+        problem = self.problem
+        center = self._center(p, warm_start)
+        offset = center if self.search == "deviation" else np.zeros_like(center)
+        lower, upper = -1.0 - offset, 1.0 - offset
+        seeds = None
+        if self.seed_warm_start and (warm_start is not None or self.search == "deviation"):
+            seeds = (center - offset)[None, :]
+        fitness, population = self.fitness, self.population
+
+        def objective(candidates: np.ndarray) -> np.ndarray:
+            # minimize() always passes whole populations: one call of the mapped cost
+            return np.array(fitness((candidates + offset).T, p), dtype=float).ravel()
+
+        outcome = minimize(
+            objective,
+            lower,
+            upper,
+            self.method,
+            population=population,
+            iterations=self.iterations,
+            max_evaluations=self.max_evaluations,
+            seed=rng if rng is not None else self.seed,
+            initial_population=seeds,
+            options=self.algorithm_options,
+        )
+        scaled = np.clip(outcome.x + offset, -1.0, 1.0)
+        cost, violation = score_parameters(problem, scaled, p)
+        states = np.array(problem.build().rollout(scaled, p), dtype=float).T
+        controls = problem.controls_from_scaled(scaled)
+        iterate = Iterate(
+            scaled_controls=scaled.reshape(problem.horizon, -1),
+            states=states,
+            population=np.clip(outcome.population + offset, -1.0, 1.0),
+        )
+        return SolveResult(
+            solver=self.name,
+            controls=controls,
+            states=states,
+            cost=cost,
+            max_violation=violation,
+            success=bool(np.isfinite(outcome.fun)),
+            status=outcome.message,
+            solve_time=time.perf_counter() - start,
+            iterations=outcome.iterations,
+            evaluations=outcome.evaluations,
+            terminal_relaxed=problem.terminal == "equality" and violation > 1e-6,
+            iterate=iterate,
+            history=outcome.history,
+            details={"fitness": outcome.fun},
+        )
+
+
+def swarm_factory(method: str):
+    """Factory ``(problem, options) -> SwarmSolver`` for the registry."""
+
+    def factory(problem: TrackingProblem, options: dict[str, Any] | None = None) -> SwarmSolver:
+        return SwarmSolver(problem, options, method=method)
+
+    factory.__name__ = f"{method}_factory"
+    return factory

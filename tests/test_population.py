@@ -1,0 +1,107 @@
+"""Swarm backends on the tracking problem: batched cost, quality, hybrids, options."""
+
+import numpy as np
+import pytest
+
+import uuv_ocp as uo
+from uuv_ocp.problem import score_parameters
+from uuv_ocp.solvers.population import batched_fitness
+
+SWARMS = ["igwo", "gwo", "ssa", "pso"]
+
+
+@pytest.fixture(scope="module")
+def instance(s2_problem, feasible_start):
+    x0, t0 = feasible_start
+    return s2_problem, x0, t0, s2_problem.parameters(x0, t0)
+
+
+def test_batched_fitness_equals_per_individual_score_and_penalty(instance):
+    problem, _, _, p = instance
+    rng = np.random.default_rng(7)
+    candidates = rng.uniform(-1, 1, size=(problem.control_dim, 20))
+    batched = np.array(batched_fitness(problem, 20)(candidates, p)).ravel()
+    weights = problem.weights
+    for index in range(20):
+        objective, penalty = (float(v) for v in problem.build().cost(candidates[:, index], p))
+        cost, _ = score_parameters(problem, candidates[:, index], p)
+        assert objective == pytest.approx(cost, rel=1e-12)
+        # independent penalty: rollout terminal residual and rate excess recomputed in numpy
+        states = problem.rollout(problem.controls_from_scaled(candidates[:, index]), p)
+        _, reference, u_prev, _ = problem.parameter_parts(p)
+        scaled = candidates[:, index].reshape(-1, 3)
+        previous = np.vstack([u_prev / problem.max_thrust, scaled[:-1]])
+        excess = np.maximum(0.0, np.abs(scaled - previous) - problem.rate_step_bound)
+        expected_penalty = weights.terminal_penalty * np.sum(np.abs(states[-1] - reference[-1]))
+        expected_penalty += weights.rate_penalty * np.sum(excess)
+        assert penalty == pytest.approx(expected_penalty, rel=1e-9)
+        assert batched[index] == pytest.approx(objective + penalty, rel=1e-12)
+
+
+@pytest.mark.parametrize("method", SWARMS)
+def test_swarm_beats_random_search_at_equal_budget(instance, method):
+    problem, x0, t0, p = instance
+    result = uo.solve(problem, method, x0=x0, t0=t0, options={"seed": 3})
+    assert result.success
+    fitness = batched_fitness(problem, result.evaluations)
+    rng = np.random.default_rng(3)
+    center = np.zeros(problem.control_dim)  # the swarm's own centre (u_prev = 0 held)
+    random_candidates = np.clip(
+        center[:, None] + rng.uniform(-1, 1, (problem.control_dim, result.evaluations)), -1, 1
+    )
+    best_random = float(np.min(np.array(fitness(random_candidates, p))))
+    assert result.details["fitness"] < best_random
+
+
+def test_same_seed_gives_identical_results(instance):
+    problem, x0, t0, _ = instance
+    first = uo.solve(problem, "igwo", x0=x0, t0=t0, options={"seed": 5})
+    second = uo.solve(problem, "igwo", x0=x0, t0=t0, options={"seed": 5})
+    np.testing.assert_array_equal(first.controls, second.controls)
+    np.testing.assert_array_equal(first.history, second.history)
+
+
+def test_history_and_evaluations_follow_the_budget(instance):
+    problem, x0, t0, _ = instance
+    result = uo.solve(problem, "igwo", x0=x0, t0=t0, options={"population": 8, "iterations": 5})
+    assert result.evaluations == 8 * 6
+    assert result.history.shape == (6,)
+    assert np.all(np.diff(result.history) <= 0)
+
+
+def test_igwo_plus_ipopt_reaches_the_ipopt_optimum(instance):
+    problem, x0, t0, _ = instance
+    exact = uo.solve(problem, "ipopt", x0=x0, t0=t0)
+    hybrid = uo.solve(problem, "igwo+ipopt", x0=x0, t0=t0)
+    assert hybrid.success and hybrid.solver == "igwo+ipopt"
+    assert hybrid.cost == pytest.approx(exact.cost, rel=1e-6)
+    assert hybrid.max_violation <= 1e-6
+    assert hybrid.evaluations > 620  # swarm evaluations are counted
+
+
+@pytest.mark.parametrize(
+    ("options", "name"),
+    [
+        ({"population": 3}, "population"),
+        ({"population": 10.5}, "population"),
+        ({"iterations": 0}, "iterations"),
+        ({"iterations": True}, "iterations"),
+        ({"search": "polar"}, "search"),
+        ({"max_evaluations": 2}, "max_evaluations"),
+        ({"colour": 1}, "colour"),
+    ],
+)
+def test_bad_swarm_options_raise_naming_them(instance, options, name):
+    problem, x0, t0, _ = instance
+    with pytest.raises(ValueError, match=name):
+        uo.solve(problem, "igwo", x0=x0, t0=t0, options=options)
+
+
+def test_closed_loop_with_igwo_warm_start_runs(s2_problem):
+    reference = s2_problem.reference
+    controller = uo.NMPC(s2_problem, "igwo", seed=2, options={"population": 10, "iterations": 10})
+    run = uo.simulate(controller, reference.initial_state(0.0), 1.0)
+    again = uo.simulate(controller, reference.initial_state(0.0), 1.0)  # reset() restarts the rng
+    assert run.failures == 0
+    np.testing.assert_array_equal(run.controls, again.controls)
+    assert np.all(np.abs(run.controls) <= s2_problem.max_thrust)

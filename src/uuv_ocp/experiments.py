@@ -40,7 +40,7 @@ def reference_speed_note(
     """Largest path speed on the run (m/s) and a note if it exceeds the vehicle's top speed."""
     times = np.linspace(t0, t0 + duration, 301)
     speed = reference.evaluate(times)[:, 3]
-    top = float(np.min(vehicle.max_speed()[:2]))
+    top = float(vehicle.max_speed()[0])  # the reference has v_R = 0: it is flown in surge
     over = times[speed > top]
     if over.size:
         return float(

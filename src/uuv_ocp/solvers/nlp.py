@@ -243,6 +243,7 @@ class NlpSolver:
             "status": str(stats.get("return_status", "unknown")),
             "iterations": int(stats.get("iter_count", 0) or 0),
             "evaluations": int(stats.get("n_call_nlp_f", 0) or 0),
+            "plugin_time": float(stats.get("t_wall_total", np.nan)),
         }
 
     def _slack(self, attempt: dict[str, Any]) -> float:
@@ -325,7 +326,10 @@ class NlpSolver:
             evaluations=sum(a["evaluations"] for a in attempts),
             terminal_relaxed=relaxed,
             iterate=iterate,
-            details={"attempts": [(a["variant"], a["status"], a["iterations"]) for a in attempts]},
+            details={
+                "attempts": [(a["variant"], a["status"], a["iterations"]) for a in attempts],
+                "plugin_time": sum(a["plugin_time"] for a in attempts),
+            },
         )
 
 
@@ -389,7 +393,7 @@ class SqpSolver(NlpSolver):
             "options['hessian']", options.pop("hessian", "gauss-newton"), ("gauss-newton", "exact")
         )
         self.levenberg_marquardt = check.nonnegative_float(
-            "options['levenberg_marquardt']", options.pop("levenberg_marquardt", 1e-6)
+            "options['levenberg_marquardt']", options.pop("levenberg_marquardt", 1e-7)
         )
         super().__init__(problem, options)
 

@@ -3,7 +3,8 @@
 Every backend runs the same 30 s closed loop from rest (warm-started, terminal equality with
 the sticky soft fallback) in this one process, so the ratios to IPOPT are measured together.
 ``step`` is the wall time of ``NMPC.step`` (parameters, solve, bookkeeping); ``plugin`` is
-CasADi's own ``t_wall_total`` of the solver call(s), so ``step - plugin`` is our overhead.
+the wall time of the bare ``casadi.nlpsol`` call(s) inside it, so ``step - plugin`` is the
+wrapper's overhead.
 
 Run: ``python -m benchmarks.bench_exact`` (or ``make bench``).
 """

@@ -242,8 +242,11 @@ class TrackingProblem:
         The heading is shifted by a multiple of 2π so that its first value is the one closest
         to ``heading`` (the vehicle's), which keeps the terminal equality wrap-safe.
         """
-        times = t0 + self.dt * np.arange(self.horizon + 1)
-        window = self.reference.evaluate(np.minimum(times, self.reference.t_end))
+        times = np.minimum(t0 + self.dt * np.arange(self.horizon + 1), self.reference.t_end)
+        if self.dt <= 0.1 and times[-1] > times[-2]:
+            window = self.reference.evaluate_grid(times)
+        else:
+            window = self.reference.evaluate(times)
         if heading is not None:
             turns = np.round((heading - window[0, 2]) / (2.0 * math.pi))
             window[:, 2] += 2.0 * math.pi * turns

@@ -79,6 +79,7 @@ class Reference:
     t_end: float = math.inf
     description: str = ""
     _function: ca.Function = field(init=False, repr=False, compare=False)
+    _maps: dict = field(init=False, repr=False, compare=False, default_factory=dict)
 
     def __post_init__(self) -> None:
         if not callable(self.path_x):
@@ -162,7 +163,10 @@ class Reference:
         return self._function
 
     def _raw(self, times: np.ndarray) -> np.ndarray:
-        return np.array(self._function(times[None, :]), dtype=float).T
+        size = times.size
+        if size not in self._maps:  # CasADi would build a new map on every horzcat call
+            self._maps[size] = self._function.map(size)
+        return np.array(self._maps[size](times[None, :]), dtype=float).T
 
     def evaluate(self, times: object) -> np.ndarray:
         """Reference state at the given times, with a continuous heading.
@@ -193,7 +197,9 @@ class Reference:
                 f"got t = {bad}"
             )
         dense = _refined_grid(times)
-        states = self._raw(dense)
+        midpoints = 0.5 * (dense[:-1] + dense[1:])
+        both = self._raw(np.concatenate([dense, midpoints]))  # one call for grid and midpoints
+        states, mid_rate = both[: dense.size], both[dense.size :, 5]
         bad_rows = ~np.all(np.isfinite(states), axis=1) | (states[:, 3] < MIN_PATH_SPEED)
         if np.any(bad_rows):
             bad = dense[bad_rows][0]
@@ -201,22 +207,25 @@ class Reference:
                 f"reference {self.name!r} has a vanishing or non-finite speed at t = {bad} s "
                 f"(speed {states[bad_rows][0, 3]!r} m/s): its heading is undefined there"
             )
-        states[:, 2] = self._unwrapped_heading(dense, states)
+        states[:, 2] = _unwrapped_heading(dense, states[:, 2], states[:, 5], mid_rate)
+        if dense.size == times.size:
+            return states
         return states[np.searchsorted(dense, times)]
 
-    def _unwrapped_heading(self, dense: np.ndarray, states: np.ndarray) -> np.ndarray:
-        heading = states[:, 2].copy()
-        if dense.size < 2:
-            return heading
-        midpoints = 0.5 * (dense[:-1] + dense[1:])
-        mid_rate = self._raw(midpoints)[:, 5]
-        rate = states[:, 5]
-        predicted = np.diff(dense) / 6.0 * (rate[:-1] + 4.0 * mid_rate + rate[1:])
-        for index in range(1, dense.size):
-            guess = heading[index - 1] + predicted[index - 1]
-            correction = np.angle(np.exp(1j * (states[index, 2] - guess)))
-            heading[index] = guess + correction
-        return heading
+    def evaluate_grid(self, times: np.ndarray) -> np.ndarray:
+        """Fast :meth:`evaluate` for a grid the caller has already checked.
+
+        ``times`` must be strictly increasing, inside the window, with gaps <= 0.1 s (the
+        closed loop's reference windows).  Falls back to :meth:`evaluate` (and its error
+        messages) if the speed vanishes or is not finite.
+        """
+        midpoints = 0.5 * (times[:-1] + times[1:])
+        both = self._raw(np.concatenate([times, midpoints]))
+        states, mid_rate = both[: times.size], both[times.size :, 5]
+        if not np.all(states[:, 3] > MIN_PATH_SPEED):  # also False for NaN
+            return self.evaluate(times)
+        states[:, 2] = _unwrapped_heading(times, states[:, 2], states[:, 5], mid_rate)
+        return states
 
     def initial_state(self, t0: float | None = None) -> np.ndarray:
         """State on the reference pose at ``t0`` (default ``t_start``), at rest: shape (6,)."""
@@ -230,8 +239,28 @@ class Reference:
         return dataclasses.replace(self, t_start=t_start, t_end=t_end)
 
 
+def _unwrapped_heading(
+    times: np.ndarray, wrapped: np.ndarray, rate: np.ndarray, mid_rate: np.ndarray
+) -> np.ndarray:
+    """Continuous heading from wrapped values and the yaw rate at nodes and midpoints.
+
+    Each increment is the Simpson prediction ``∫ r dt`` corrected by the wrapped difference
+    between the prediction and the observed change, ``Δ = pred + wrap(Δψ_wrapped − pred)``:
+    exact as long as the prediction error stays below π.
+    """
+    if times.size < 2:
+        return wrapped.copy()
+    predicted = np.diff(times) / 6.0 * (rate[:-1] + 4.0 * mid_rate + rate[1:])
+    mismatch = np.diff(wrapped) - predicted
+    increments = predicted + (mismatch + np.pi) % (2.0 * np.pi) - np.pi
+    return wrapped[0] + np.concatenate([[0.0], np.cumsum(increments)])
+
+
 def _refined_grid(times: np.ndarray) -> np.ndarray:
     """``times`` plus extra points so that no gap exceeds ``_UNWRAP_STEP``; sorted, unique."""
+    gaps = np.diff(times)
+    if np.all((gaps > 0) & (gaps <= _UNWRAP_STEP)):
+        return times  # already strictly increasing and fine enough
     unique = np.unique(times)
     if unique.size < 2:
         return unique

@@ -113,7 +113,8 @@ class SwarmSolver:
                 "algorithm_options", "compiled", "iterations", "max_evaluations",
                 "parallelization", "population", "search", "seed", "seed_warm_start",
             ]  # fmt: skip
-            raise ValueError(f"unknown options for solver {method!r}: {sorted(options)}; valid: {valid}")
+            unknown = sorted(options)
+            raise ValueError(f"unknown options for solver {method!r}: {unknown}; valid: {valid}")
         # validate algorithm options now, before any solve
         minimize(
             lambda x: np.zeros(x.shape[0]),

@@ -87,13 +87,17 @@ def closed_loop(problem: uo.TrackingProblem, method: str, steps: int = 100) -> d
         control = output.control
         state = np.array(plant(state, control, np.zeros(2))).ravel()
     errors = state[:2] - reference.evaluate([steps * problem.dt])[0][:2]
-    return {"times": np.array(times), "ratios": np.array(ratios), "final_error": float(np.hypot(*errors))}
+    return {
+        "times": np.array(times),
+        "ratios": np.array(ratios),
+        "final_error": float(np.hypot(*errors)),
+    }
 
 
 def mealpy_cold_step(problem: uo.TrackingProblem, seeds: int = 3) -> dict | None:
     """mealpy OriginalGWO, 20 × 30, objective called once per individual."""
     try:
-        from mealpy import FloatVar, GWO
+        from mealpy import GWO, FloatVar
     except ImportError:
         return None
     x0 = problem.reference.evaluate([3.0])[0]

@@ -195,9 +195,7 @@ def main(seeds: int = 20, dims: tuple[int, ...] = (10, 30)) -> list[dict]:
                 ours, theirs, t_ours, t_ref, nfe_ref = [], [], 0.0, 0.0, []
                 for seed in range(seeds):
                     start = time.perf_counter()
-                    ours.append(
-                        minimize(fun, lower, upper, cls.name, seed=seed, options=options).fun
-                    )
+                    ours.append(minimize(fun, lower, upper, cls.name, seed=seed, options=options).fun)
                     t_ours += time.perf_counter() - start
                     start = time.perf_counter()
                     best, nfe = run_mealpy(cls.name, fun, lower, upper, n, budget, seed)

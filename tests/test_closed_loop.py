@@ -28,9 +28,7 @@ def test_applied_controls_respect_thrust_and_rate_bounds(s2_run, s2_problem):
     bounds = s2_problem.max_thrust * (1 + 1e-6)
     assert np.all(np.abs(s2_run.controls) <= bounds)
     steps = np.diff(np.vstack([np.zeros(3), s2_run.controls]), axis=0)
-    assert np.all(
-        np.abs(steps) <= np.asarray(uo.Vehicle.rexrov().max_thrust_rate) * 0.1 * (1 + 1e-6)
-    )
+    assert np.all(np.abs(steps) <= np.asarray(uo.Vehicle.rexrov().max_thrust_rate) * 0.1 * (1 + 1e-6))
 
 
 def test_plant_trajectory_is_reproduced_by_an_independent_integrator(s2_run, s2_problem):

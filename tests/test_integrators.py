@@ -49,9 +49,7 @@ def test_substeps_equal_repeated_steps():
     single = uo.rk4_step(f, 0.05, 1)
     double = uo.rk4_step(f, 0.1, 2)
     twice = single(single(STATE, CONTROL, CURRENT), CONTROL, CURRENT)
-    np.testing.assert_allclose(
-        np.array(double(STATE, CONTROL, CURRENT)), np.array(twice), rtol=1e-14
-    )
+    np.testing.assert_allclose(np.array(double(STATE, CONTROL, CURRENT)), np.array(twice), rtol=1e-14)
 
 
 @pytest.mark.parametrize(("dt", "substeps"), [(0.0, 1), (-0.1, 1), (0.1, 0), (0.1, 1.5)])

@@ -16,18 +16,14 @@ def nlp_objective_at_rollout(problem, scaled, p):
     solver = IpoptSolver(problem)
     _, _, u_prev, _ = problem.parameter_parts(p)
     states = np.array(built.rollout(scaled, p)).T
-    primal = solver.compose_primal(
-        "hard", states, scaled.reshape(-1, 3), u_prev / problem.max_thrust
-    )
+    primal = solver.compose_primal("hard", states, scaled.reshape(-1, 3), u_prev / problem.max_thrust)
     data = built.hard
     # tube slacks at their optimal value max(0, |e| - tube)
     if problem.position_tube is not None:
         _, reference, _, _ = problem.parameter_parts(p)
         labels = {label: i for i, label in enumerate(data.variable_labels)}
         for k in range(problem.horizon):
-            excess = np.maximum(
-                0.0, np.abs(states[k, :2] - reference[k, :2]) - problem.position_tube
-            )
+            excess = np.maximum(0.0, np.abs(states[k, :2] - reference[k, :2]) - problem.position_tube)
             for i in range(2):
                 primal[labels[f"tube_{k}[{i}]"]] = excess[i]
     f = ca.Function("f", [data.nlp["x"], data.nlp["p"]], [data.nlp["f"], data.nlp["g"]])
@@ -61,9 +57,7 @@ def test_nlp_objective_equals_condensed_cost_and_score(terminal, tube):
         assert objective == pytest.approx(float(condensed), rel=1e-9)
         assert objective == pytest.approx(cost, rel=1e-9)
         # the rollout point satisfies the dynamics constraints exactly
-        dynamics = np.array(
-            [label.startswith(("dynamics", "initial")) for label in data.constraint_labels]
-        )
+        dynamics = np.array([label.startswith(("dynamics", "initial")) for label in data.constraint_labels])
         assert np.max(np.abs(constraints[dynamics])) < 1e-10
 
 
@@ -74,9 +68,7 @@ def test_condensed_gradient_matches_finite_differences(s2_problem, feasible_star
     scaled = np.random.default_rng(1).uniform(-0.5, 0.5, s2_problem.control_dim)
     symbol = ca.SX.sym("U", s2_problem.control_dim)
     objective = cost(symbol, p)[0]
-    gradient = np.array(
-        ca.Function("g", [symbol], [ca.gradient(objective, symbol)])(scaled)
-    ).ravel()
+    gradient = np.array(ca.Function("g", [symbol], [ca.gradient(objective, symbol)])(scaled)).ravel()
     step = 1e-6
     for index in [0, 7, 31, 59]:
         bump = np.zeros_like(scaled)

@@ -22,9 +22,7 @@ def test_exact_backends_reach_the_same_optimum(results, name):
     assert not result.terminal_relaxed
     assert result.cost == pytest.approx(reference.cost, rel=1e-6)
     assert result.max_violation <= 1e-6
-    assert np.all(
-        np.abs(result.controls) <= np.asarray(uo.Vehicle.rexrov().max_thrust) * (1 + 1e-6)
-    )
+    assert np.all(np.abs(result.controls) <= np.asarray(uo.Vehicle.rexrov().max_thrust) * (1 + 1e-6))
     np.testing.assert_allclose(result.controls, reference.controls, atol=1e-2 * 2000)
 
 
@@ -35,9 +33,7 @@ def test_result_states_are_the_model_rollout(s2_problem, feasible_start, results
     np.testing.assert_allclose(results["ipopt"].states, rollout, atol=1e-6)
 
 
-def test_soft_formulation_is_exact_when_the_hard_one_is_feasible(
-    s2_problem, feasible_start, results
-):
+def test_soft_formulation_is_exact_when_the_hard_one_is_feasible(s2_problem, feasible_start, results):
     x0, t0 = feasible_start
     soft = uo.solve(s2_problem, "ipopt", x0=x0, t0=t0, options={"terminal_strategy": "soft"})
     assert not soft.terminal_relaxed

@@ -156,9 +156,7 @@ def test_same_seed_bit_identical(method):
 @pytest.mark.parametrize("method", METHODS)
 def test_max_evaluations_respected_exactly(method):
     f = Recorder(sphere)
-    result = minimize(
-        f, LOWER, UPPER, method, population=10, iterations=50, max_evaluations=55, seed=0
-    )
+    result = minimize(f, LOWER, UPPER, method, population=10, iterations=50, max_evaluations=55, seed=0)
     assert f.rows == 50 == result.evaluations  # 10 initial + 4 × 10; a 5th iteration → 60 > 55
     assert len(f.shapes) == 5
     assert result.iterations == 4
@@ -166,9 +164,7 @@ def test_max_evaluations_respected_exactly(method):
     assert "max_evaluations" in result.message
 
     f = Recorder(sphere)
-    result = minimize(
-        f, LOWER, UPPER, method, population=10, iterations=6, max_evaluations=70, seed=0
-    )
+    result = minimize(f, LOWER, UPPER, method, population=10, iterations=6, max_evaluations=70, seed=0)
     assert f.rows == 70 == result.evaluations
     assert result.iterations == 6
 
@@ -186,9 +182,7 @@ def test_fun_called_once_per_iteration_with_whole_population(method):
 def test_initial_population_seed_is_evaluated(method):
     seeds = np.vstack([CENTRE, CENTRE + 1.0])
     f = Recorder(shifted_sphere)
-    result = minimize(
-        f, LOWER, UPPER, method, population=8, iterations=5, seed=0, initial_population=seeds
-    )
+    result = minimize(f, LOWER, UPPER, method, population=8, iterations=5, seed=0, initial_population=seeds)
     assert result.fun == 0.0
     assert result.history[0] == 0.0
     assert np.array_equal(result.x, CENTRE)
@@ -285,12 +279,7 @@ def test_update_functions_elementwise_formula():
     assert np.allclose(igwo_update(X, P, *L, g, a, w, r), expected, rtol=1e-14, atol=1e-15)
     # frame centred on the anchor: GWO moves and inertia act on X - anchor
     Lc, Xc = L - L[0], X - L[0]
-    Gc = (
-        sum(
-            Lc[j] - (2 * a * r[2 * j] - a) * np.abs(2 * r[2 * j + 1] * Lc[j] - Xc) for j in range(3)
-        )
-        / 3
-    )
+    Gc = sum(Lc[j] - (2 * a * r[2 * j] - a) * np.abs(2 * r[2 * j + 1] * Lc[j] - Xc) for j in range(3)) / 3
     anchored = L[0] + w * Gc + 0.5 * r[6] * (P - X) + 0.5 * r[7] * (g - X)
     got = igwo_update(X, P, *L, g, a, w, r, anchor=L[0])
     assert np.allclose(got, anchored, rtol=1e-13, atol=1e-14)
@@ -452,9 +441,7 @@ def test_against_mealpy_reference(method):
     seeds = 20
     floor = 1e-8
     # reduced budgets (the benchmark script runs the paper's): population × iterations
-    population, iterations = {"igwo": (20, 30), "gwo": (20, 30), "ssa": (30, 30), "pso": (20, 30)}[
-        method
-    ]
+    population, iterations = {"igwo": (20, 30), "gwo": (20, 30), "ssa": (30, 30), "pso": (20, 30)}[method]
     budget = population * (iterations + 1)
     failures = []
     for fun, bound in [(sphere, 100.0), (rastrigin, 5.12), (rosenbrock, 30.0), (ackley, 32.768)]:

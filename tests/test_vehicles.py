@@ -62,10 +62,7 @@ def test_vehicle_drifting_with_the_current_feels_no_force():
 def test_max_speed_balances_damping_and_thrust():
     vehicle = uo.Vehicle.rexrov()
     speed = vehicle.max_speed()
-    damping = (
-        np.asarray(vehicle.linear_damping) * speed
-        + np.asarray(vehicle.quadratic_damping) * speed**2
-    )
+    damping = np.asarray(vehicle.linear_damping) * speed + np.asarray(vehicle.quadratic_damping) * speed**2
     np.testing.assert_allclose(damping, vehicle.max_thrust, rtol=1e-12)
 
 

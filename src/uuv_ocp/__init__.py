@@ -5,7 +5,9 @@ One symbolic formulation (:class:`TrackingProblem`), many solvers chosen by name
 (:class:`NMPC`, :func:`simulate`).
 """
 
+from uuv_ocp.codegen import GeneratedCode, generate_c
 from uuv_ocp.disturbances import Current, GaussMarkov, MeasurementNoise
+from uuv_ocp.experiments import compare, format_comparison
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.mpc import NMPC, StepOutput
 from uuv_ocp.problem import TrackingProblem, Weights, score
@@ -29,6 +31,7 @@ __all__ = [
     "PAPER_REFERENCES",
     "ClosedLoopResult",
     "Current",
+    "GeneratedCode",
     "GaussMarkov",
     "Iterate",
     "MinimizeResult",
@@ -41,6 +44,9 @@ __all__ = [
     "Vehicle",
     "Weights",
     "available_solvers",
+    "compare",
+    "format_comparison",
+    "generate_c",
     "get_solver",
     "minimize",
     "register_solver",

@@ -76,9 +76,7 @@ def finite_array(name: str, value: object, shape: Sequence[int]) -> np.ndarray:
     try:
         array = np.array(value, dtype=float)
     except (TypeError, ValueError) as error:
-        raise ValueError(
-            f"{name} must be a real array of shape {tuple(shape)}, got {value!r}"
-        ) from error
+        raise ValueError(f"{name} must be a real array of shape {tuple(shape)}, got {value!r}") from error
     if array.shape != tuple(shape):
         raise ValueError(f"{name} must have shape {tuple(shape)}, got shape {array.shape}")
     if not np.all(np.isfinite(array)):

@@ -13,14 +13,10 @@ from uuv_ocp.solvers import available_solvers
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="uuv-ocp", description="Optimal control of UUVs with CasADi."
-    )
+    parser = argparse.ArgumentParser(prog="uuv-ocp", description="Optimal control of UUVs with CasADi.")
     commands = parser.add_subparsers(dest="command")
 
-    demo = commands.add_parser(
-        "demo", help="track all ten paper references with NMPC + IPOPT for 30 s"
-    )
+    demo = commands.add_parser("demo", help="track all ten paper references with NMPC + IPOPT for 30 s")
     demo.add_argument("--out", default="out", help="output folder (figures, saved runs)")
     demo.add_argument("--fresh", action="store_true", help="recompute runs already saved in --out")
 
@@ -36,7 +32,50 @@ def _parser() -> argparse.ArgumentParser:
     track.add_argument("--fresh", action="store_true", help="recompute saved runs")
 
     commands.add_parser("solvers", help="list the registered solver names")
+
+    compare = commands.add_parser("compare", help="one instance, several solvers, one judge")
+    compare.add_argument("--reference", "-r", default="s2")
+    compare.add_argument(
+        "--solvers", nargs="+", default=["ipopt", "sqp", "fatrop", "igwo", "gwo", "ssa", "pso"]
+    )
+    compare.add_argument("--t0", type=float, default=3.0, help="start time on the reference (s)")
+    compare.add_argument("--seed", type=int, default=1)
+
+    codegen = commands.add_parser("codegen", help="generate, compile and verify C for a problem")
+    codegen.add_argument("--reference", "-r", default="s2")
+    codegen.add_argument("--out", default="build", help="output folder")
+    codegen.add_argument("--horizon", type=int, default=20)
+    codegen.add_argument("--population", type=int, default=20)
     return parser
+
+
+def _problem(name: str, horizon: int = 20):
+    from uuv_ocp import TrackingProblem, Vehicle
+    from uuv_ocp.references import Reference
+
+    return TrackingProblem(Vehicle.rexrov(), Reference.paper(name), horizon=horizon)
+
+
+def _run_compare(args: argparse.Namespace) -> int:
+    from uuv_ocp.experiments import compare, format_comparison
+
+    problem = _problem(args.reference)
+    x0 = problem.reference.evaluate([args.t0])[0]
+    rows = compare(problem, args.solvers, x0=x0, t0=args.t0, seed=args.seed)
+    print(f"{args.reference} at t0 = {args.t0} s, on the reference (moving); cost from uuv_ocp.score()")
+    print(format_comparison(rows))
+    return 0
+
+
+def _run_codegen(args: argparse.Namespace) -> int:
+    from uuv_ocp.codegen import generate_c
+
+    generated = generate_c(_problem(args.reference, args.horizon), args.out, population=args.population)
+    print(f"library   {generated.library}{' (reused from cache)' if generated.reused else ''}")
+    print(f"source    {generated.source}\nheader    {generated.header}")
+    for name, error in generated.max_error.items():
+        print(f"verified  {name:<11} max relative difference compiled vs symbolic {error:.1e}")
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -46,6 +85,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     if command == "solvers":
         print("\n".join(available_solvers()))
         return 0
+    if command in ("compare", "codegen"):
+        if args.reference not in PAPER_REFERENCES:
+            print(
+                f"error: --reference must be one of {list(PAPER_REFERENCES)}, got {args.reference!r}",
+                file=sys.stderr,
+            )
+            return 2
+        try:
+            return _run_compare(args) if command == "compare" else _run_codegen(args)
+        except (ValueError, RuntimeError) as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
     if command == "demo":
         names, solver, duration, horizon, dt = PAPER_REFERENCES, "ipopt", 30.0, 20, 0.1
     else:

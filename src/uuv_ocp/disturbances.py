@@ -56,11 +56,7 @@ class GaussMarkov:
         draws = rng.standard_normal(steps) if self.noise > 0 else np.zeros(steps)
         root_dt = math.sqrt(dt)
         for k in range(steps):
-            step = (
-                values[k]
-                - self.decay * (values[k] - self.mean) * dt
-                + self.noise * root_dt * draws[k]
-            )
+            step = values[k] - self.decay * (values[k] - self.mean) * dt + self.noise * root_dt * draws[k]
             values[k + 1] = min(max(step, self.minimum), self.maximum)
         return values
 
@@ -93,9 +89,7 @@ class Current:
     def __post_init__(self) -> None:
         object.__setattr__(self, "speed", check.nonnegative_float("speed", self.speed))
         object.__setattr__(self, "direction", check.finite_float("direction", self.direction))
-        object.__setattr__(
-            self, "speed_noise", check.nonnegative_float("speed_noise", self.speed_noise)
-        )
+        object.__setattr__(self, "speed_noise", check.nonnegative_float("speed_noise", self.speed_noise))
         object.__setattr__(
             self,
             "direction_noise",

@@ -43,9 +43,7 @@ def reference_speed_note(
     top = float(vehicle.max_speed()[0])  # the reference has v_R = 0: it is flown in surge
     over = times[speed > top]
     if over.size:
-        return float(
-            speed.max()
-        ), f"path speed > {top:.2f} m/s (vehicle top speed) from t = {over[0]:.1f} s"
+        return float(speed.max()), f"path speed > {top:.2f} m/s (vehicle top speed) from t = {over[0]:.1f} s"
     return float(speed.max()), ""
 
 
@@ -91,18 +89,12 @@ def track_references(
                 label=f"{name} {solver}",
             )
             if run.interrupted:
-                raise KeyboardInterrupt(
-                    f"interrupted during {name}; finished runs are in {runs_dir}"
-                )
+                raise KeyboardInterrupt(f"interrupted during {name}; finished runs are in {runs_dir}")
             run.save(str(path))
         speed_max, note = reference_speed_note(reference, vehicle, t0, run_duration)
         if figures:
-            save_figure(
-                xoy_figure(run, f"{name}: {reference.description}"), out_dir / f"{name}_xoy.png"
-            )
-            save_figure(
-                error_figure(run, f"{name}: tracking error"), out_dir / f"{name}_errors.png"
-            )
+            save_figure(xoy_figure(run, f"{name}: {reference.description}"), out_dir / f"{name}_xoy.png")
+            save_figure(error_figure(run, f"{name}: tracking error"), out_dir / f"{name}_errors.png")
         rows.append(TrackingRow(name, solver, run.metrics(), run_duration, speed_max, note))
     return rows
 
@@ -136,3 +128,71 @@ def _fmt(value: float) -> str:
     if not math.isfinite(value):
         return "nan"
     return f"{value:.2e}" if value < 1e-2 else f"{value:.3f}"
+
+
+@dataclass(frozen=True)
+class ComparisonRow:
+    """One solver on one instance, judged by :func:`uuv_ocp.score`."""
+
+    solver: str
+    cost: float
+    max_violation: float
+    solve_time: float
+    evaluations: int
+    success: bool
+    ratio: float
+    history: np.ndarray | None
+
+
+def compare(
+    problem: TrackingProblem,
+    solvers: Sequence[str],
+    *,
+    x0: object,
+    t0: float = 0.0,
+    seed: int = 0,
+    options: dict[str, dict] | None = None,
+) -> list[ComparisonRow]:
+    """Solve one instance with every named solver; ``ratio`` is cost / best cost found.
+
+    Each solver is built (and, for NLPs, run once) before timing, so ``solve_time`` is the
+    steady-state cost of one solve.  Swarms get ``seed``.
+    """
+    from uuv_ocp.solvers import REGISTRY, get_solver
+
+    for name in solvers:
+        REGISTRY.factory(name)  # unknown names raise before anything runs
+    p = problem.parameters(x0, t0)
+    results = []
+    for name in solvers:
+        solver_options = dict((options or {}).get(name, {}))
+        backend = get_solver(problem, name, solver_options or None)
+        backend.solve(p, None, np.random.default_rng(seed))  # build outside the timing
+        results.append(backend.solve(p, None, np.random.default_rng(seed)))
+    best = min(result.cost for result in results if np.isfinite(result.cost))
+    return [
+        ComparisonRow(
+            r.solver,
+            r.cost,
+            r.max_violation,
+            r.solve_time,
+            r.evaluations,
+            r.success,
+            r.cost / best,
+            r.history,
+        )
+        for r in results
+    ]
+
+
+def format_comparison(rows: Sequence[ComparisonRow]) -> str:
+    """Plain-text table of :func:`compare` rows."""
+    lines = [
+        f"{'solver':<12}{'cost':>14}{'max viol.':>11}{'time ms':>9}{'evals':>8}{'ok':>4}{'cost/best':>11}"
+    ]
+    for row in rows:
+        lines.append(
+            f"{row.solver:<12}{row.cost:>14.6g}{row.max_violation:>11.2e}{1e3 * row.solve_time:>9.2f}"
+            f"{row.evaluations:>8d}{'y' if row.success else 'n':>4}{row.ratio:>11.3g}"
+        )
+    return "\n".join(lines)

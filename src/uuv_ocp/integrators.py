@@ -29,9 +29,7 @@ def rk4_step(dynamics: ca.Function, dt: float, substeps: int = 1, name: str = "r
     """
     dt = check.positive_float("dt", dt)
     substeps = check.positive_int("substeps", substeps)
-    inputs = [
-        ca.SX.sym(dynamics.name_in(i), dynamics.sparsity_in(i)) for i in range(dynamics.n_in())
-    ]
+    inputs = [ca.SX.sym(dynamics.name_in(i), dynamics.sparsity_in(i)) for i in range(dynamics.n_in())]
     state, held = inputs[0], inputs[1:]
     step = dt / substeps
     for _ in range(substeps):

@@ -107,9 +107,7 @@ class NMPC:
             result = None
             failure_reason = f"exception: {error}"
         else:
-            failure_reason = (
-                "" if result.success and np.all(np.isfinite(result.controls)) else result.status
-            )
+            failure_reason = "" if result.success and np.all(np.isfinite(result.controls)) else result.status
         if not failure_reason:
             self._plan = result.controls
             self._iterate = result.iterate.shift()
@@ -125,6 +123,4 @@ class NMPC:
             return self._plan[0].copy()
         if u_prev is None:
             return np.zeros(3)
-        return np.clip(
-            np.asarray(u_prev, dtype=float), -self.problem.max_thrust, self.problem.max_thrust
-        )
+        return np.clip(np.asarray(u_prev, dtype=float), -self.problem.max_thrust, self.problem.max_thrust)

@@ -78,13 +78,9 @@ class Weights:
     def __post_init__(self) -> None:
         set_field = object.__setattr__
         set_field(self, "pose", check.vector("weights.pose", self.pose, 3, nonnegative=True))
-        set_field(
-            self, "velocity", check.vector("weights.velocity", self.velocity, 3, nonnegative=True)
-        )
+        set_field(self, "velocity", check.vector("weights.velocity", self.velocity, 3, nonnegative=True))
         set_field(self, "rate", check.vector("weights.rate", self.rate, 3, nonnegative=True))
-        set_field(
-            self, "terminal", check.vector("weights.terminal", self.terminal, 6, nonnegative=True)
-        )
+        set_field(self, "terminal", check.vector("weights.terminal", self.terminal, 6, nonnegative=True))
         for name in ("terminal_penalty", "rate_penalty", "tube_penalty"):
             set_field(self, name, check.positive_float(f"weights.{name}", getattr(self, name)))
 
@@ -163,13 +159,9 @@ class TrackingProblem:
 
     def __post_init__(self) -> None:
         if not isinstance(self.vehicle, Vehicle):
-            raise ValueError(
-                f"vehicle must be a uuv_ocp.Vehicle, got {type(self.vehicle).__name__}"
-            )
+            raise ValueError(f"vehicle must be a uuv_ocp.Vehicle, got {type(self.vehicle).__name__}")
         if not isinstance(self.reference, Reference):
-            raise ValueError(
-                f"reference must be a uuv_ocp.Reference, got {type(self.reference).__name__}"
-            )
+            raise ValueError(f"reference must be a uuv_ocp.Reference, got {type(self.reference).__name__}")
         object.__setattr__(self, "horizon", check.positive_int("horizon", self.horizon))
         object.__setattr__(self, "dt", check.positive_float("dt", self.dt))
         check.choice("terminal", self.terminal, TERMINAL_MODES)
@@ -286,9 +278,7 @@ class TrackingProblem:
         window = self.reference_window(t0, heading=x0[2])
         return np.concatenate([x0, window.ravel(), u_prev, current.ravel()])
 
-    def parameter_parts(
-        self, p: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def parameter_parts(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Numeric ``p`` -> (x0 (6,), reference (N+1, 6), u_prev (3,), current (N, 2))."""
         n = self.horizon
         offsets = np.cumsum([0, STATE_DIM, STATE_DIM * (n + 1), CONTROL_DIM, CURRENT_DIM * n])
@@ -340,9 +330,7 @@ def _build(problem: TrackingProblem) -> _Built:
     hard = _build_nlp(problem, step, pieces, soft=False)
     soft = _build_nlp(problem, step, pieces, soft=True) if problem.soft_terminal_available else None
     cost, rollout, score_terms = _build_condensed(problem, step, pieces)
-    return _Built(
-        step=step, hard=hard, soft=soft, cost=cost, rollout=rollout, score_terms=score_terms
-    )
+    return _Built(step=step, hard=hard, soft=soft, cost=cost, rollout=rollout, score_terms=score_terms)
 
 
 class _CostPieces:
@@ -370,9 +358,7 @@ class _CostPieces:
         self.terminal_residual = weighted("terminal_residual", weights.terminal)
         rate_residual = ca.sqrt(ca.DM(weights.rate)) * (scaled - scaled_prev)
         self.rate_residual = ca.Function("rate_residual", [scaled, scaled_prev], [rate_residual])
-        self.node = ca.Function(
-            "node_cost", [state, ref], [ca.sumsqr(self.node_residual(state, ref))]
-        )
+        self.node = ca.Function("node_cost", [state, ref], [ca.sumsqr(self.node_residual(state, ref))])
         self.rate = ca.Function("rate_cost", [scaled, scaled_prev], [ca.sumsqr(rate_residual)])
         self.position_error = ca.Function("position_error", [state, ref], [error[:2]])
 
@@ -389,9 +375,7 @@ class _CostPieces:
         return ca.sumsqr(self.final_residual(problem, state, ref))
 
 
-def _build_nlp(
-    problem: TrackingProblem, step: ca.Function, pieces: _CostPieces, soft: bool
-) -> NlpData:
+def _build_nlp(problem: TrackingProblem, step: ca.Function, pieces: _CostPieces, soft: bool) -> NlpData:
     n = problem.horizon
     max_thrust = ca.DM(problem.max_thrust)
     p = ca.SX.sym("p", problem.parameter_dim)
@@ -409,9 +393,7 @@ def _build_nlp(
             variables.append((f"{label}[{i}]", symbol[i], lower, upper))
         return symbol
 
-    def add_constraint(
-        label: str, expression: ca.SX, lower: float, upper: float, equality: bool
-    ) -> None:
+    def add_constraint(label: str, expression: ca.SX, lower: float, upper: float, equality: bool) -> None:
         for i in range(expression.numel()):
             constraints.append((f"{label}[{i}]", expression[i], lower, upper, equality))
 
@@ -529,12 +511,10 @@ def _build_condensed(
         terminal_residual = ca.SX.zeros(STATE_DIM)
     rate_excess_vector = ca.vertcat(*rate_excess) if rate_excess else ca.SX.zeros(1)
     bound_excess = ca.fmax(0, ca.fabs(scaled_all) - 1)
-    penalty = weights.terminal_penalty * ca.sum1(
-        ca.fabs(terminal_residual)
-    ) + weights.rate_penalty * ca.sum1(rate_excess_vector)
-    cost = ca.Function(
-        "cost", [scaled_all, p], [objective, penalty], ["U", "p"], ["objective", "penalty"]
+    penalty = weights.terminal_penalty * ca.sum1(ca.fabs(terminal_residual)) + weights.rate_penalty * ca.sum1(
+        rate_excess_vector
     )
+    cost = ca.Function("cost", [scaled_all, p], [objective, penalty], ["U", "p"], ["objective", "penalty"])
     rollout = ca.Function("rollout", [scaled_all, p], [ca.horzcat(*states)], ["U", "p"], ["X"])
     score_terms = ca.Function(
         "score_terms",
@@ -578,9 +558,7 @@ def score(
     return score_parameters(problem, problem.scaled_from_controls(controls), p)
 
 
-def score_parameters(
-    problem: TrackingProblem, scaled: np.ndarray, p: np.ndarray
-) -> tuple[float, float]:
+def score_parameters(problem: TrackingProblem, scaled: np.ndarray, p: np.ndarray) -> tuple[float, float]:
     """:func:`score` on a flat scaled control vector and a ready parameter vector."""
     objective, terminal, rate, bound = problem.build().score_terms(scaled, p)
     violation = max(

@@ -25,9 +25,7 @@ class ProgressBar:
         Where to write (standard error by default).
     """
 
-    def __init__(
-        self, total: int, label: str = "", enabled: bool = True, stream: TextIO | None = None
-    ):
+    def __init__(self, total: int, label: str = "", enabled: bool = True, stream: TextIO | None = None):
         self.total = max(int(total), 1)
         self.label = label
         self.enabled = enabled

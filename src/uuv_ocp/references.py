@@ -83,13 +83,9 @@ class Reference:
 
     def __post_init__(self) -> None:
         if not callable(self.path_x):
-            raise ValueError(
-                f"path_x must be a callable of a casadi SX time symbol, got {self.path_x!r}"
-            )
+            raise ValueError(f"path_x must be a callable of a casadi SX time symbol, got {self.path_x!r}")
         if not callable(self.path_y):
-            raise ValueError(
-                f"path_y must be a callable of a casadi SX time symbol, got {self.path_y!r}"
-            )
+            raise ValueError(f"path_y must be a callable of a casadi SX time symbol, got {self.path_y!r}")
         t_start = check.finite_float("t_start", self.t_start)
         if isinstance(self.t_end, bool) or not isinstance(self.t_end, (int, float)):
             raise ValueError(f"t_end must be a number (s), got {self.t_end!r}")
@@ -141,9 +137,7 @@ class Reference:
             ) from error
         for label, expression in (("path_x", position_x), ("path_y", position_y)):
             if expression.shape != (1, 1):
-                raise ValueError(
-                    f"{label} must return a scalar expression, got shape {expression.shape}"
-                )
+                raise ValueError(f"{label} must return a scalar expression, got shape {expression.shape}")
         velocity_x = ca.jacobian(position_x, time)
         velocity_y = ca.jacobian(position_y, time)
         acceleration_x = ca.jacobian(velocity_x, time)
@@ -151,9 +145,7 @@ class Reference:
         speed_squared = velocity_x**2 + velocity_y**2
         heading = ca.atan2(velocity_y, velocity_x)
         yaw_rate = (velocity_x * acceleration_y - velocity_y * acceleration_x) / speed_squared
-        outputs = ca.vertcat(
-            position_x, position_y, heading, ca.sqrt(speed_squared), 0 * time, yaw_rate
-        )
+        outputs = ca.vertcat(position_x, position_y, heading, ca.sqrt(speed_squared), 0 * time, yaw_rate)
         return ca.Function(f"reference_{self.name}", [time], [outputs], ["t"], ["state"])
 
     # -------------------------------------------------------------- evaluation
@@ -193,8 +185,7 @@ class Reference:
         if np.any(outside):
             bad = times[outside][0]
             raise ValueError(
-                f"reference {self.name!r} is defined on t in [{self.t_start}, {self.t_end}] s, "
-                f"got t = {bad}"
+                f"reference {self.name!r} is defined on t in [{self.t_start}, {self.t_end}] s, got t = {bad}"
             )
         dense = _refined_grid(times)
         midpoints = 0.5 * (dense[:-1] + dense[1:])

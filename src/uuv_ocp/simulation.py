@@ -200,9 +200,7 @@ def simulate(
     u_prev = np.zeros(3)
     completed = 0
     interrupted = False
-    with ProgressBar(
-        steps, label or f"{problem.reference.name}/{controller.solver_name}", progress
-    ) as bar:
+    with ProgressBar(steps, label or f"{problem.reference.name}/{controller.solver_name}", progress) as bar:
         try:
             for k in range(steps):
                 measured = states[k] + (noise.sample(rng) if noise is not None else 0.0)

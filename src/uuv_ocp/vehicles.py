@@ -75,9 +75,7 @@ class Vehicle:
         set_field = object.__setattr__
         set_field(self, "mass", check.positive_float("mass", self.mass))
         set_field(self, "inertia", check.positive_float("inertia", self.inertia))
-        set_field(
-            self, "added_mass", check.vector("added_mass", self.added_mass, 3, nonnegative=True)
-        )
+        set_field(self, "added_mass", check.vector("added_mass", self.added_mass, 3, nonnegative=True))
         set_field(
             self,
             "linear_damping",
@@ -187,12 +185,8 @@ class Vehicle:
         m_x, m_y, m_psi = (float(value) for value in self.inertia_diagonal)
         x_u, y_v, n_r = self.linear_damping
         x_uu, y_vv, n_rr = self.quadratic_damping
-        u_rel_dot = (
-            m_y * v_rel * r - x_u * u_rel - x_uu * u_rel * ca.fabs(u_rel) + control[0]
-        ) / m_x
-        v_rel_dot = (
-            -m_x * u_rel * r - y_v * v_rel - y_vv * v_rel * ca.fabs(v_rel) + control[1]
-        ) / m_y
+        u_rel_dot = (m_y * v_rel * r - x_u * u_rel - x_uu * u_rel * ca.fabs(u_rel) + control[0]) / m_x
+        v_rel_dot = (-m_x * u_rel * r - y_v * v_rel - y_vv * v_rel * ca.fabs(v_rel) + control[1]) / m_y
         r_dot = ((m_x - m_y) * u_rel * v_rel - n_r * r - n_rr * r * ca.fabs(r) + control[2]) / m_psi
         return ca.vertcat(
             u * cos_psi - v * sin_psi,

@@ -58,9 +58,7 @@ class SolverRegistry:
             first, _, second = name.partition("+")
             if first in ALGORITHMS and second in EXACT_SOLVERS:
                 return hybrid_factory(name, self._factories[first], self._factories[second])
-        raise ValueError(
-            f"solver must be one of {self.names()} (or '<swarm>+<exact>'), got {name!r}"
-        )
+        raise ValueError(f"solver must be one of {self.names()} (or '<swarm>+<exact>'), got {name!r}")
 
 
 REGISTRY = SolverRegistry(_BUILTIN)
@@ -133,9 +131,7 @@ def solve(
     backend = get_solver(problem, solver, options)
     p = problem.parameters(x0, t0, u_prev, current)
     if warm_start is not None and not isinstance(warm_start, Iterate):
-        raise ValueError(
-            f"warm_start must be a uuv_ocp Iterate or None, got {type(warm_start).__name__}"
-        )
+        raise ValueError(f"warm_start must be a uuv_ocp Iterate or None, got {type(warm_start).__name__}")
     return backend.solve(p, warm_start)
 
 

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import re
 import time
+import warnings
 from typing import Any
 
 import casadi as ca
@@ -57,9 +58,7 @@ def _transfer_map(source_labels: tuple[str, ...], target_labels: tuple[str, ...]
     return np.array([position.get(label, -1) for label in target_labels], dtype=int)
 
 
-def _transfer(
-    values: np.ndarray | None, mapping: np.ndarray, fill: float = 0.0
-) -> np.ndarray | None:
+def _transfer(values: np.ndarray | None, mapping: np.ndarray, fill: float = 0.0) -> np.ndarray | None:
     if values is None:
         return None
     result = np.full(mapping.shape, fill, dtype=float)
@@ -101,17 +100,18 @@ class NlpSolver:
             options.pop("objective_scale", self.default_objective_scale),
         )
         max_iter = options.pop("max_iter", None)
-        self.max_iter = (
-            None if max_iter is None else check.positive_int("options['max_iter']", max_iter)
-        )
+        self.max_iter = None if max_iter is None else check.positive_int("options['max_iter']", max_iter)
+        self.compiled = options.pop("compiled", False)
+        if not isinstance(self.compiled, bool):
+            raise ValueError(f"options['compiled'] must be True or False, got {self.compiled!r}")
         plugin_options = options.pop("plugin_options", {})
         if not isinstance(plugin_options, dict):
             raise ValueError(f"options['plugin_options'] must be a dict, got {plugin_options!r}")
         if options:
             raise ValueError(
                 f"unknown options for solver {self.name!r}: {sorted(options)}; valid: "
-                "['max_iter', 'objective_scale', 'plugin_options', 'slack_tolerance', "
-                "'terminal_strategy']"
+                "['compiled', 'max_iter', 'objective_scale', 'plugin_options', "
+                "'slack_tolerance', 'terminal_strategy']"
             )
         self.plugin_options = plugin_options
         built = problem.build()
@@ -123,9 +123,7 @@ class NlpSolver:
             name: (_shift_map(data.variable_labels), _shift_map(data.constraint_labels))
             for name, data in self.variants.items()
         }
-        self._lifted_index = {
-            name: self._lifted_positions(data) for name, data in self.variants.items()
-        }
+        self._lifted_index = {name: self._lifted_positions(data) for name, data in self.variants.items()}
 
     # --------------------------------------------------------------- plumbing
     @staticmethod
@@ -133,10 +131,7 @@ class NlpSolver:
         position = {label: i for i, label in enumerate(data.variable_labels)}
         horizon = data.control_index.shape[0]
         return np.array(
-            [
-                [position[f"X_{k}[{i}]"] for i in range(STATE_DIM + CONTROL_DIM)]
-                for k in range(horizon + 1)
-            ]
+            [[position[f"X_{k}[{i}]"] for i in range(STATE_DIM + CONTROL_DIM)] for k in range(horizon + 1)]
         )
 
     def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
@@ -172,10 +167,33 @@ class NlpSolver:
             options.update(self.plugin_options)
             nlp = dict(data.nlp)
             nlp["f"] = nlp["f"] * self.objective_scale
-            self._solvers[variant] = ca.nlpsol(
-                f"{self.plugin}_{variant}", self.plugin, nlp, options
-            )
+            name = f"{self.plugin}_{variant}"
+            if self.compiled:
+                self._solvers[variant] = self._compiled_nlpsol(name, nlp, options)
+            else:
+                self._solvers[variant] = ca.nlpsol(name, self.plugin, nlp, options)
         return self._solvers[variant]
+
+    def _compiled_nlpsol(self, name: str, nlp: dict, options: dict) -> ca.Function:
+        """NLP functions compiled to C by CasADi's JIT (system compiler); VM if that fails."""
+        from uuv_ocp.codegen import CompilerNotFoundError, find_c_compiler
+
+        try:
+            compiler = find_c_compiler()
+            jit = {
+                "jit": True,
+                "compiler": "shell",
+                "jit_options": {"compiler": compiler, "flags": ["-O2"], "verbose": False},
+            }
+            return ca.nlpsol(name, self.plugin, nlp, {**options, **jit})
+        except (CompilerNotFoundError, RuntimeError) as error:
+            warnings.warn(
+                f"compiled=True unavailable for {self.name} ({error}); using CasADi's virtual machine",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+            self.compiled = False
+            return ca.nlpsol(name, self.plugin, nlp, options)
 
     def compose_primal(
         self, variant: str, states: np.ndarray, scaled: np.ndarray, scaled_prev: np.ndarray
@@ -211,9 +229,7 @@ class NlpSolver:
                 _transfer(warm_start.lam_g, g_map),
                 _transfer(warm_start.lam_x, x_map),
             )
-        primal = self.compose_primal(
-            variant, warm_start.states, warm_start.scaled_controls, scaled_prev
-        )
+        primal = self.compose_primal(variant, warm_start.states, warm_start.scaled_controls, scaled_prev)
         return primal, None, None
 
     def _attempt(self, variant: str, p: np.ndarray, warm_start: Iterate | None) -> dict[str, Any]:
@@ -244,7 +260,7 @@ class NlpSolver:
             "success": bool(stats.get("success", False)),
             "status": str(stats.get("return_status", "unknown")),
             "iterations": int(stats.get("iter_count", 0) or 0),
-            "evaluations": int(stats.get("n_call_nlp_f", 0) or 0),
+            "evaluations": int(stats.get("n_call_nlp_f", 0) or stats.get("n_call_nlp_fg", 0) or 0),
             "plugin_time": plugin_time,
         }
 

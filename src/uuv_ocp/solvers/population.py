@@ -32,7 +32,7 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.problem import TrackingProblem, score_parameters
 from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.solvers.swarm import ALGORITHMS, minimize
+from uuv_ocp.solvers.swarm import ALGORITHMS, MinimizeResult, minimize
 
 SEARCH_MODES = ("deviation", "absolute")
 
@@ -46,9 +46,7 @@ def batched_fitness(
     candidates = ca.MX.sym("U", problem.control_dim, population)
     p = ca.MX.sym("p", problem.parameter_dim)
     objective, penalty = mapped(candidates, p)
-    return ca.Function(
-        "fitness_batch", [candidates, p], [objective + penalty], ["U", "p"], ["fitness"]
-    )
+    return ca.Function("fitness_batch", [candidates, p], [objective + penalty], ["U", "p"], ["fitness"])
 
 
 class SwarmSolver:
@@ -88,14 +86,10 @@ class SwarmSolver:
         self.max_evaluations = (
             None
             if max_evaluations is None
-            else check.positive_int(
-                "options['max_evaluations']", max_evaluations, minimum=self.population
-            )
+            else check.positive_int("options['max_evaluations']", max_evaluations, minimum=self.population)
         )
         self.seed = check.positive_int("options['seed']", options.pop("seed", 0), minimum=0)
-        self.search = check.choice(
-            "options['search']", options.pop("search", "deviation"), SEARCH_MODES
-        )
+        self.search = check.choice("options['search']", options.pop("search", "deviation"), SEARCH_MODES)
         self.seed_warm_start = options.pop("seed_warm_start", True)
         if not isinstance(self.seed_warm_start, bool):
             raise ValueError(
@@ -125,14 +119,30 @@ class SwarmSolver:
             iterations=1,
             options=self.algorithm_options,
         )
+        if not isinstance(self.compiled, bool):
+            raise ValueError(f"options['compiled'] must be True or False, got {self.compiled!r}")
+        self.native = None
         self.fitness = self._fitness_function()
 
     def _fitness_function(self) -> ca.Function:
         if self.compiled:
-            from uuv_ocp.codegen import compiled_fitness
+            from uuv_ocp.codegen import NativeIgwo, compiled_build
 
-            return compiled_fitness(self.problem, self.population, self.parallelization)
+            build = compiled_build(self.problem, self.population)  # warns once if no compiler
+            if build is not None:
+                if self.method == "igwo" and self._native_compatible():
+                    self.native = NativeIgwo(build)
+                return build["cost_batch"]
         return batched_fitness(self.problem, self.population, self.parallelization)
+
+    def _native_compatible(self) -> bool:
+        options = dict(ALGORITHMS["igwo"].default_options)
+        options.update(self.algorithm_options or {})
+        return (
+            options["frame"] == "origin"
+            and options["convergence"] == "cosine"
+            and self.max_evaluations is None
+        )
 
     def _center(self, p: np.ndarray, warm_start: Iterate | None) -> np.ndarray:
         problem = self.problem
@@ -162,18 +172,21 @@ class SwarmSolver:
             # minimize() always passes whole populations: one call of the mapped cost
             return np.array(fitness((candidates + offset).T, p), dtype=float).ravel()
 
-        outcome = minimize(
-            objective,
-            lower,
-            upper,
-            self.method,
-            population=population,
-            iterations=self.iterations,
-            max_evaluations=self.max_evaluations,
-            seed=rng if rng is not None else self.seed,
-            initial_population=seeds,
-            options=self.algorithm_options,
-        )
+        if self.native is not None:
+            outcome = self._native_minimize(p, offset, lower, upper, seeds, rng)
+        else:
+            outcome = minimize(
+                objective,
+                lower,
+                upper,
+                self.method,
+                population=population,
+                iterations=self.iterations,
+                max_evaluations=self.max_evaluations,
+                seed=rng if rng is not None else self.seed,
+                initial_population=seeds,
+                options=self.algorithm_options,
+            )
         scaled = np.clip(outcome.x + offset, -1.0, 1.0)
         cost, violation = score_parameters(problem, scaled, p)
         states = np.array(problem.build().rollout(scaled, p), dtype=float).T
@@ -198,6 +211,32 @@ class SwarmSolver:
             iterate=iterate,
             history=outcome.history,
             details={"fitness": outcome.fun},
+        )
+
+    def _native_minimize(self, p, offset, lower, upper, seeds, rng) -> MinimizeResult:
+        """The all-C IGWO step with exactly the random draws the Python loop would use."""
+        from uuv_ocp.solvers.swarm import ImprovedGreyWolf
+
+        generator = rng if rng is not None else np.random.default_rng(self.seed)
+        algorithm = ImprovedGreyWolf(lower, upper, self.population, self.iterations, self.algorithm_options)
+        seeds = np.empty((0, lower.size)) if seeds is None else seeds
+        uniform = generator.random((self.population - seeds.shape[0], lower.size))
+        positions = np.vstack([np.clip(seeds, lower, upper), lower + uniform * algorithm.width])
+        draws = generator.random((self.iterations, 8, self.population, lower.size))
+        steps = range(self.iterations)
+        a = np.array([algorithm._a(t) for t in steps])
+        w = np.array([algorithm._w(t) for t in steps])
+        options = algorithm.options
+        out = self.native.run(p, offset, lower, upper, positions, draws, a, w, options["c1"], options["c2"])
+        return MinimizeResult(
+            x=out["x"],
+            fun=out["fun"],
+            history=out["history"],
+            evaluations=self.population * (self.iterations + 1),
+            iterations=self.iterations,
+            method="igwo",
+            population=out["population"],
+            message=f"reached the iteration budget ({self.iterations}) in the compiled C step",
         )
 
 

@@ -251,9 +251,7 @@ def igwo_update(
         centred = [v - anchor for v in (positions, pbest, alpha, beta, delta, gbest)]
         return anchor + igwo_update(*centred, a, w, draws, c1, c2)
     grey = gwo_update(positions, alpha, beta, delta, a, draws)
-    return (w * grey + (c1 * draws[6]) * (pbest - positions)) + (c2 * draws[7]) * (
-        gbest - positions
-    )
+    return (w * grey + (c1 * draws[6]) * (pbest - positions)) + (c2 * draws[7]) * (gbest - positions)
 
 
 # --------------------------------------------------------------------------------------------
@@ -368,9 +366,7 @@ class PopulationAlgorithm:
 
     # -- hooks ---------------------------------------------------------------------------------
 
-    def initialize(
-        self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator
-    ) -> None:
+    def initialize(self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator) -> None:
         """Set the algorithm state from the evaluated initial population."""
         raise NotImplementedError
 
@@ -410,9 +406,7 @@ class PopulationAlgorithm:
         n = self.population
         seeds = np.empty((0, self.dim)) if initial_population is None else initial_population
         uniform = rng.random((n - seeds.shape[0], self.dim))
-        positions = np.vstack(
-            [np.clip(seeds, self.lower, self.upper), self.lower + uniform * self.width]
-        )
+        positions = np.vstack([np.clip(seeds, self.lower, self.upper), self.lower + uniform * self.width])
         costs = self._evaluate(fun, positions)
         evaluations = n
         self.positions = positions
@@ -506,9 +500,7 @@ class GreyWolf(PopulationAlgorithm):
         self.leaders = pool_x[top].copy()
         self.leader_costs = pool_f[top].copy()
 
-    def initialize(
-        self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator
-    ) -> None:
+    def initialize(self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator) -> None:
         self.leaders = np.empty((0, self.dim))
         self.leader_costs = np.empty(0)
         self._update_leaders(positions, costs)
@@ -577,9 +569,7 @@ class ImprovedGreyWolf(GreyWolf):
         w0, w1 = self.options["w_initial"], self.options["w_final"]
         return (T - t) / T * (w0 - w1) + w1
 
-    def initialize(
-        self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator
-    ) -> None:
+    def initialize(self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator) -> None:
         super().initialize(positions, costs, rng)
         self.pbest = positions.copy()
         self.pbest_costs = costs.copy()
@@ -663,9 +653,7 @@ class SparrowSearch(PopulationAlgorithm):
         self.n_producers = min(n - 1, max(1, round(self.options["producers"] * n)))
         self.n_scouts = min(n, max(1, round(self.options["scouts"] * n)))
 
-    def initialize(
-        self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator
-    ) -> None:
+    def initialize(self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator) -> None:
         self.memory = positions.copy()
         self.memory_costs = costs.copy()
 
@@ -705,9 +693,7 @@ class SparrowSearch(PopulationAlgorithm):
         safe_move = best + beta * np.abs(ranked[scouts] - best)
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             denom = (ranked_f[scouts] - f_worst) + self.eps
-            edge_move = (
-                ranked[scouts] + k[:, None] * np.abs(ranked[scouts] - worst) / denom[:, None]
-            )
+            edge_move = ranked[scouts] + k[:, None] * np.abs(ranked[scouts] - worst) / denom[:, None]
         edge_move = np.where(np.isfinite(edge_move), edge_move, ranked[scouts])
         new[scouts] = np.where(at_risk[:, None], safe_move, edge_move)
 
@@ -753,9 +739,7 @@ class ParticleSwarm(PopulationAlgorithm):
         self.chi = 2.0 / abs(2.0 - phi - math.sqrt(phi * phi - 4.0 * phi))
         self.v_max = self.options["velocity_clamp"] * self.width
 
-    def initialize(
-        self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator
-    ) -> None:
+    def initialize(self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator) -> None:
         target = self.lower + rng.random((self.population, self.dim)) * self.width
         self.velocity = np.clip(0.5 * (target - positions), -self.v_max, self.v_max)
         self.pbest = positions.copy()
@@ -813,9 +797,7 @@ def _bounds(lower: object, upper: object) -> tuple[np.ndarray, np.ndarray]:
         )
     for name, array in (("lower", lo), ("upper", up)):
         if array.ndim > 1 or (array.ndim == 1 and array.shape[0] < 1):
-            raise ValueError(
-                f"{name} must be a scalar or a 1-D array with dim >= 1, got shape {array.shape}"
-            )
+            raise ValueError(f"{name} must be a scalar or a 1-D array with dim >= 1, got shape {array.shape}")
     if lo.ndim == 1 and up.ndim == 1 and lo.shape != up.shape:
         raise ValueError(f"lower and upper must have equal shapes, got {lo.shape} and {up.shape}")
     lo, up = np.broadcast_arrays(lo, up)
@@ -825,8 +807,7 @@ def _bounds(lower: object, upper: object) -> tuple[np.ndarray, np.ndarray]:
     if np.any(lo >= up):
         bad = int(np.argmax(lo >= up))
         raise ValueError(
-            f"lower must be < upper element-wise, got lower[{bad}]={lo[bad]!r} >= "
-            f"upper[{bad}]={up[bad]!r}"
+            f"lower must be < upper element-wise, got lower[{bad}]={lo[bad]!r} >= upper[{bad}]={up[bad]!r}"
         )
     return lo, up
 
@@ -897,8 +878,7 @@ def minimize(
     if max_evaluations is not None:
         if isinstance(max_evaluations, bool) or not isinstance(max_evaluations, numbers.Integral):
             raise ValueError(
-                f"max_evaluations must be an integer >= population ({n}) or None, "
-                f"got {max_evaluations!r}"
+                f"max_evaluations must be an integer >= population ({n}) or None, got {max_evaluations!r}"
             )
         if max_evaluations < n:
             raise ValueError(

@@ -1,0 +1,122 @@
+"""Virtual machine vs compiled C on the s2 problem (N = 20): cost throughput and step times.
+
+* evaluations/s of the swarm fitness for 1, 20 and 100 candidates per call, from Python;
+* IGWO 20 × 30 NMPC step: Python loop over the VM cost, Python loop over the compiled cost,
+  the all-C step (``uuv_ocp_igwo``) including Python's random draws, and the C call alone
+  (evaluations/s *inside* the C step);
+* exact backends with and without compiled NLP functions (CasADi's ``jit`` with the system
+  compiler), one warm-started solve at the same feasible state.
+
+Run: ``python -m benchmarks.bench_codegen``.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+
+import numpy as np
+
+import uuv_ocp as uo
+from uuv_ocp.codegen import generate_c
+from uuv_ocp.solvers.population import batched_fitness
+
+
+def _time(function, repeats: int) -> float:
+    function()
+    start = time.perf_counter()
+    for _ in range(repeats):
+        function()
+    return (time.perf_counter() - start) / repeats
+
+
+def main() -> dict:
+    """Print the tables; return the measurements."""
+    os.environ.setdefault("UUV_OCP_CACHE", tempfile.mkdtemp(prefix="uuv_ocp_bench_"))
+    reference = uo.Reference.paper("s2")
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), reference, horizon=20)
+    x0 = reference.evaluate([3.0])[0]
+    p = problem.parameters(x0, 3.0)
+    rng = np.random.default_rng(0)
+    results: dict = {"throughput": {}}
+    print("\nCode generation, s2, N = 20 (3N = 60 scaled controls)")
+    print(f"{'candidates/call':<16}{'VM evals/s':>14}{'compiled evals/s':>18}{'speed-up':>10}")
+    for population in (1, 20, 100):
+        candidates = rng.uniform(-1, 1, (problem.control_dim, population))
+        vm = batched_fitness(problem, population)
+        compiled = generate_c(
+            problem, os.environ["UUV_OCP_CACHE"], functions=("cost_batch",), population=population
+        )["cost_batch"]
+        repeats = max(20, 2000 // population)
+        vm_rate = population / _time(lambda vm=vm, c=candidates: vm(c, p), repeats)
+        c_rate = population / _time(lambda f=compiled, c=candidates: f(c, p), repeats)
+        results["throughput"][population] = (vm_rate, c_rate)
+        print(f"{population:<16}{vm_rate:>14,.0f}{c_rate:>18,.0f}{c_rate / vm_rate:>10.1f}")
+
+    python_vm = uo.get_solver(problem, "igwo")
+    compiled_loop = uo.get_solver(
+        problem, "igwo", {"compiled": True, "algorithm_options": {"frame": "origin", "c1": 0.5}}
+    )
+    compiled_loop.native = None  # force the Python loop over the compiled cost
+    all_c = uo.get_solver(problem, "igwo", {"compiled": True})
+    steps = {
+        "python loop, VM cost": python_vm,
+        "python loop, compiled cost": compiled_loop,
+        "all-C step (incl. draws)": all_c,
+    }
+    print("\nIGWO 20 x 30 NMPC step at a fixed state (median of 30, ms)")
+    timings = {}
+    for label, solver in steps.items():
+        samples = []
+        for seed in range(31):
+            start = time.perf_counter()
+            solver.solve(p, None, np.random.default_rng(seed))
+            samples.append(time.perf_counter() - start)
+        timings[label] = float(np.median(samples[1:]))
+        print(f"  {label:<30}{1e3 * timings[label]:>8.2f}")
+    native = all_c.native
+    dim, n, iterations = problem.control_dim, 20, 30
+    positions = rng.uniform(-1, 1, (n, dim))
+    draws = rng.random((iterations, 8, n, dim))
+    a, w = np.linspace(2, 0, iterations), np.linspace(0.9, 0.1, iterations)
+    bounds = (np.zeros(dim), -np.ones(dim), np.ones(dim))
+    c_only = _time(lambda: native.run(p, *bounds, positions, draws, a, w), 50)
+    timings["C call alone"] = c_only
+    rate = n * (iterations + 1) / c_only
+    print(f"  {'C call alone':<30}{1e3 * c_only:>8.2f}   ({rate:,.0f} evaluations/s inside C)")
+    results["igwo"] = timings
+
+    print("\nExact backends, one warm-started solve at the same state (median of 30, ms)")
+    exact = {}
+    for name in ("ipopt", "fatrop", "sqp"):
+        row = []
+        for jit in (False, True):
+            options = (
+                {
+                    "plugin_options": {
+                        "jit": True,
+                        "compiler": "shell",
+                        "jit_options": {"flags": ["-O2"]},
+                    }
+                }
+                if jit
+                else None
+            )
+            solver = uo.get_solver(problem, name, options)
+            first = solver.solve(p)
+            warm = first.iterate
+            samples = []
+            for _ in range(30):
+                start = time.perf_counter()
+                solver.solve(p, warm)
+                samples.append(time.perf_counter() - start)
+            row.append(float(np.median(samples)))
+        exact[name] = row
+        print(f"  {name:<8} VM {1e3 * row[0]:7.2f}   jit-compiled {1e3 * row[1]:7.2f}")
+    results["exact"] = exact
+    return results
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,357 @@
+"""C code generation of a :class:`TrackingProblem`: generate, compile, load back, verify.
+
+``generate_c(problem, directory)`` writes one C file (CasADi ``CodeGenerator``) holding
+
+* ``cost(U, p) -> (objective, penalty)``: the condensed cost of the problem,
+* ``cost_batch(U[3N × population], p) -> fitness[1 × population]``: the swarm fitness mapped
+  over a population,
+* ``dynamics(x, tau, current) -> xdot`` and ``model_step(x, tau, current) -> x_next``,
+* ``uuv_ocp_igwo(...)``: the whole IGWO step of the paper as a C loop around ``cost_batch``
+  (random draws and the a(t), w(t) schedules are inputs, so the same draws give the same
+  result as the Python IGWO),
+
+compiles it with the system C compiler into a shared library, loads the CasADi functions back
+with ``casadi.external`` and checks every one against its symbolic twin on random inputs.
+Builds are cached by a SHA-256 of the generated source, the compiler and its flags: a closed
+loop or a campaign compiles once.
+
+Compiler: ``$CC`` if set, else the first of ``cc``, ``gcc``, ``clang`` on ``PATH``.  Without one
+:class:`CompilerNotFoundError` names what was looked for; the solvers' ``compiled=True`` path
+then warns once and falls back to CasADi's virtual machine.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from uuv_ocp.problem import TrackingProblem
+
+DEFAULT_FLAGS = ("-O3", "-fPIC", "-shared", "-ffp-contract=off")
+FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step")
+_IGWO_SOURCE = Path(__file__).with_name("igwo_step.c")
+
+
+class CompilerNotFoundError(RuntimeError):
+    """No usable C compiler: the message names the ``CC`` value and the names searched."""
+
+
+class CompilationError(RuntimeError):
+    """The compiler failed: the message holds the command and the compiler's output."""
+
+
+class VerificationError(RuntimeError):
+    """A compiled function differs from its symbolic twin beyond the tolerance."""
+
+
+def find_c_compiler(environment: dict[str, str] | None = None) -> str:
+    """Path of the C compiler: ``$CC`` if set (must exist), else ``cc``/``gcc``/``clang``."""
+    environment = os.environ if environment is None else environment
+    requested = environment.get("CC")
+    if requested:
+        found = shutil.which(requested, path=environment.get("PATH"))
+        if found is None:
+            raise CompilerNotFoundError(
+                f"C compiler from CC={requested!r} not found or not executable; unset CC to "
+                "search PATH for cc, gcc, clang"
+            )
+        return found
+    for name in ("cc", "gcc", "clang"):
+        found = shutil.which(name, path=environment.get("PATH"))
+        if found:
+            return found
+    raise CompilerNotFoundError(
+        f"no C compiler found: CC is not set and none of cc, gcc, clang is on PATH "
+        f"({environment.get('PATH', '')!r})"
+    )
+
+
+@dataclass(frozen=True)
+class GeneratedCode:
+    """What :func:`generate_c` produced.
+
+    Parameters
+    ----------
+    directory : Path
+        Folder of the sources and the library.
+    source, header : Path
+        Generated C source and header.
+    library : Path or None
+        The compiled shared library (``None`` with ``compile=False``).
+    functions : dict
+        Name -> ``casadi.Function`` loaded from the library (empty with ``compile=False``).
+    max_error : dict
+        Name -> largest relative difference compiled vs symbolic found by the verification.
+    population : int
+        Population size ``cost_batch`` and the IGWO step are built for.
+    digest : str
+        SHA-256 of source + compiler + flags (the cache key).
+    reused : bool
+        Whether an existing library was reused from the cache.
+    """
+
+    directory: Path
+    source: Path
+    header: Path
+    library: Path | None
+    functions: dict = field(default_factory=dict)
+    max_error: dict = field(default_factory=dict)
+    population: int = 20
+    digest: str = ""
+    reused: bool = False
+
+    def __getitem__(self, name: str) -> ca.Function:
+        return self.functions[name]
+
+
+def symbolic_functions(problem: TrackingProblem, population: int = 20) -> dict[str, ca.Function]:
+    """The problem's Functions that :func:`generate_c` emits, by name."""
+    from uuv_ocp.solvers.population import batched_fitness
+
+    built = problem.build()
+    dynamics = problem.vehicle.dynamics_function()
+    return {
+        "cost": built.cost,
+        # not expanded: the generated code loops over one compiled cost (compact, cache-friendly)
+        "cost_batch": _renamed(batched_fitness(problem, population), "cost_batch"),
+        "dynamics": dynamics,
+        "model_step": ca.Function("model_step", *_io(built.step)),
+    }
+
+
+def _renamed(function: ca.Function, name: str) -> ca.Function:
+    symbols = [ca.MX.sym(function.name_in(i), function.sparsity_in(i)) for i in range(function.n_in())]
+    outputs = function(*symbols)
+    outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
+    return ca.Function(
+        name,
+        symbols,
+        outputs,
+        [function.name_in(i) for i in range(function.n_in())],
+        [function.name_out(i) for i in range(function.n_out())],
+    )
+
+
+def _io(function: ca.Function) -> tuple:
+    symbols = [ca.SX.sym(function.name_in(i), function.sparsity_in(i)) for i in range(function.n_in())]
+    return (
+        symbols,
+        function(*symbols) if function.n_out() > 1 else [function(*symbols)],
+        [function.name_in(i) for i in range(function.n_in())],
+        [function.name_out(i) for i in range(function.n_out())],
+    )
+
+
+def generate_c(
+    problem: TrackingProblem,
+    directory: str | Path,
+    *,
+    functions: tuple[str, ...] = FUNCTION_NAMES,
+    population: int = 20,
+    compile: bool = True,
+    verify: bool = True,
+    flags: tuple[str, ...] = DEFAULT_FLAGS,
+    seed: int = 0,
+    tolerance: float = 1e-12,
+) -> GeneratedCode:
+    """Generate C for ``problem``, compile it, load it back and verify it.
+
+    Parameters
+    ----------
+    problem : TrackingProblem
+    directory : str or Path
+        Output folder (created).
+    functions : tuple of str
+        Any of ``"cost"``, ``"cost_batch"``, ``"dynamics"``, ``"model_step"``; the IGWO step is
+        added whenever ``"cost_batch"`` is present.
+    population : int
+        Population size of ``cost_batch`` and the IGWO step (>= 1; the IGWO needs >= 4).
+    compile : bool
+        Compile and load (otherwise only write the sources).
+    verify : bool
+        Compare every compiled function with its symbolic twin on random inputs.
+    flags : tuple of str
+        Compiler flags (``-ffp-contract=off`` keeps results identical to the virtual machine).
+    seed : int
+        Seed of the verification inputs.
+    tolerance : float
+        Largest accepted relative difference in the verification.
+    """
+    unknown = sorted(set(functions) - set(FUNCTION_NAMES))
+    if unknown or not functions:
+        raise ValueError(f"functions must be a non-empty subset of {list(FUNCTION_NAMES)}, got {functions!r}")
+    if isinstance(population, bool) or not isinstance(population, int) or population < 1:
+        raise ValueError(f"population must be an integer >= 1, got {population!r}")
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    symbolic = {
+        name: function
+        for name, function in symbolic_functions(problem, population).items()
+        if name in functions
+    }
+    name = "uuv_ocp_gen"
+    generator = ca.CodeGenerator(f"{name}.c", {"with_header": True, "casadi_int": "long long"})
+    for function in symbolic.values():
+        generator.add(function)
+    with tempfile.TemporaryDirectory() as scratch:
+        generator.generate(scratch + os.sep)
+        source_text = Path(scratch, f"{name}.c").read_text()
+        header_text = Path(scratch, f"{name}.h").read_text()
+    if "cost_batch" in symbolic:
+        source_text += "\n" + _IGWO_SOURCE.read_text()
+    compiler = find_c_compiler() if compile else ""
+    digest = hashlib.sha256("\n".join([source_text, compiler, *flags]).encode()).hexdigest()
+    source = directory / f"{name}_{digest[:16]}.c"
+    header = directory / f"{name}.h"
+    _write_if_changed(source, source_text)
+    _write_if_changed(header, header_text)
+    if not compile:
+        return GeneratedCode(directory, source, header, None, population=population, digest=digest)
+    library = directory / f"{name}_{digest[:16]}.so"
+    reused = library.exists()
+    if not reused:
+        _compile(compiler, flags, source, library)
+    loaded = {key: ca.external(key, str(library)) for key in symbolic}
+    errors = _verify(symbolic, loaded, seed, tolerance) if verify else {}
+    return GeneratedCode(directory, source, header, library, loaded, errors, population, digest, reused)
+
+
+def _write_if_changed(path: Path, text: str) -> None:
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)
+
+
+def _compile(compiler: str, flags: tuple[str, ...], source: Path, library: Path) -> None:
+    partial = library.with_suffix(f".{os.getpid()}.tmp")
+    command = [compiler, *flags, str(source), "-o", str(partial), "-lm"]
+    completed = subprocess.run(command, capture_output=True, text=True, check=False)
+    if completed.returncode != 0:
+        partial.unlink(missing_ok=True)
+        raise CompilationError(
+            f"compilation failed (exit {completed.returncode}): {' '.join(command)}\n"
+            f"{completed.stderr.strip() or completed.stdout.strip()}"
+        )
+    os.replace(partial, library)  # atomic: concurrent builds never see a half-written library
+
+
+def _verify(symbolic: dict, loaded: dict, seed: int, tolerance: float) -> dict[str, float]:
+    rng = np.random.default_rng(seed)
+    errors = {}
+    for name, function in symbolic.items():
+        inputs = [rng.uniform(-1, 1, function.size_in(i)) for i in range(function.n_in())]
+        expected = function(*inputs)
+        actual = loaded[name](*inputs)
+        expected = expected if isinstance(expected, (list, tuple)) else [expected]
+        actual = actual if isinstance(actual, (list, tuple)) else [actual]
+        error = 0.0
+        for want, got in zip(expected, actual, strict=True):
+            want, got = np.array(want, dtype=float), np.array(got, dtype=float)
+            error = max(error, float(np.max(np.abs(got - want) / np.maximum(1.0, np.abs(want)))))
+        errors[name] = error
+        if not error <= tolerance:
+            raise VerificationError(
+                f"compiled {name!r} differs from the symbolic one by {error:.3e} (> {tolerance})"
+            )
+    return errors
+
+
+# ------------------------------------------------------------------ cached build for solvers
+def default_cache_directory() -> Path:
+    """``$UUV_OCP_CACHE`` or ``~/.cache/uuv_ocp``: where solver builds are kept."""
+    return Path(os.environ.get("UUV_OCP_CACHE", Path.home() / ".cache" / "uuv_ocp"))
+
+
+def compiled_build(problem: TrackingProblem, population: int) -> GeneratedCode | None:
+    """Compiled cost_batch + IGWO step for ``problem`` (cached), or ``None`` with one warning."""
+    cache = problem._cache.setdefault("codegen", {})
+    if population not in cache:
+        try:
+            cache[population] = generate_c(
+                problem, default_cache_directory(), functions=("cost_batch",), population=population
+            )
+        except (CompilerNotFoundError, CompilationError) as error:
+            warnings.warn(
+                f"compiled=True unavailable ({error}); using CasADi's virtual machine instead",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            cache[population] = None
+    return cache[population]
+
+
+def compiled_fitness(
+    problem: TrackingProblem, population: int, parallelization: str = "serial"
+) -> ca.Function:
+    """The swarm fitness as compiled code, falling back to the virtual machine."""
+    from uuv_ocp.solvers.population import batched_fitness
+
+    build = compiled_build(problem, population)
+    if build is None:
+        return batched_fitness(problem, population, parallelization)
+    return build["cost_batch"]
+
+
+class NativeIgwo:
+    """The all-C IGWO step of a compiled build, called through ``ctypes``.
+
+    ``run(p, offset, lower, upper, positions, draws, a, w, c1, c2)`` mirrors the Python IGWO
+    (``solvers/swarm.py``) operation by operation; inputs are float64 arrays.
+    """
+
+    def __init__(self, build: GeneratedCode) -> None:
+        self.build = build
+        self.library = ctypes.CDLL(str(build.library))
+        function = self.library.uuv_ocp_igwo
+        pointer = ctypes.POINTER(ctypes.c_double)
+        function.argtypes = (
+            [pointer] * 8 + [ctypes.c_double, ctypes.c_double] + [ctypes.c_int] * 3 + [pointer] * 4
+        )
+        function.restype = ctypes.c_int
+        self._function = function
+
+    def run(
+        self,
+        p: np.ndarray,
+        offset: np.ndarray,
+        lower: np.ndarray,
+        upper: np.ndarray,
+        positions: np.ndarray,
+        draws: np.ndarray,
+        a: np.ndarray,
+        w: np.ndarray,
+        c1: float = 0.5,
+        c2: float = 0.5,
+    ) -> dict:
+        """One IGWO run; returns ``x``, ``fun``, ``history``, ``population``."""
+        population, dim = positions.shape
+        iterations = a.shape[0]
+        arrays = [
+            np.ascontiguousarray(v, dtype=float) for v in (p, offset, lower, upper, positions, draws, a, w)
+        ]
+        best_x = np.empty(dim)
+        best_f = np.empty(1)
+        history = np.empty(iterations + 1)
+        final = np.empty((population, dim))
+        pointer = ctypes.POINTER(ctypes.c_double)
+        status = self._function(
+            *[v.ctypes.data_as(pointer) for v in arrays],
+            c1,
+            c2,
+            population,
+            dim,
+            iterations,
+            *[v.ctypes.data_as(pointer) for v in (best_x, best_f, history, final)],
+        )
+        if status != 0:
+            raise RuntimeError(f"uuv_ocp_igwo returned status {status}")
+        return {"x": best_x, "fun": float(best_f[0]), "history": history, "population": final}

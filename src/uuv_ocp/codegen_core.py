@@ -1,0 +1,569 @@
+"""Generic C code generation for CasADi Functions: generate, compile, cache, load back, verify.
+
+This is the problem-agnostic layer under ``generate_c``: it knows nothing about vehicles or
+references, only about :class:`casadi.Function` objects.
+
+* :func:`find_c_compiler` -- ``$CC`` if set, else the first of ``cc``, ``gcc``, ``clang`` on
+  ``PATH``; :class:`CompilerNotFoundError` names exactly what was looked for.
+* :func:`compile_functions` -- one :class:`casadi.CodeGenerator` (one ``.c`` and one ``.h``)
+  holding all functions, compiled into a content-addressed shared library
+  ``{name}_{digest[:16]}.so`` (SHA-256 of the C source, the compiler and its flags), loaded back
+  with :func:`casadi.external` and checked against the symbolic functions on random inputs.
+* :func:`load_or_fallback` -- the same, but without a working compiler it warns once and hands
+  back the symbolic functions (CasADi's virtual machine).
+* :func:`batched` -- map a one-candidate function over the columns of a population matrix.
+
+Files are written atomically (temporary name, then :func:`os.replace`), so several processes may
+share one build directory.  Because a library's file name is a digest of its content, a path is
+never reused for different code: ``dlopen`` (which caches libraries by path) can never hand back
+stale code.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import os
+import re
+import secrets
+import shlex
+import shutil
+import subprocess
+import sys
+import tempfile
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+__all__ = [
+    "COMPILER_CANDIDATES",
+    "DEFAULT_FLAGS",
+    "CodegenError",
+    "CompilationError",
+    "CompiledLibrary",
+    "CompilerNotFoundError",
+    "VerificationError",
+    "batched",
+    "compile_functions",
+    "find_c_compiler",
+    "load_or_fallback",
+]
+
+COMPILER_CANDIDATES: tuple[str, ...] = ("cc", "gcc", "clang")
+"""Names searched on ``PATH`` (in this order) when ``CC`` is not set."""
+
+DEFAULT_FLAGS: tuple[str, ...] = ("-O3", "-fPIC", "-shared")
+"""Default compiler flags of :func:`compile_functions`."""
+
+_PARALLELIZATIONS = ("serial", "unroll", "thread", "openmp")
+_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
+_THREAD_WORKER = re.compile(r"^struct casadi_thread_worker(\d+)_args_t \{", re.MULTILINE)
+
+
+class CodegenError(RuntimeError):
+    """Base class of the errors raised by this module."""
+
+
+class CompilerNotFoundError(CodegenError):
+    """No usable C compiler; the message names the ``CC`` value or the names searched."""
+
+
+class CompilationError(CodegenError):
+    """The compiler failed (or its library could not be loaded); the message holds the command
+    and the compiler's standard error."""
+
+
+class VerificationError(CodegenError):
+    """A compiled function disagrees with its symbolic twin beyond the tolerance."""
+
+
+@dataclass(frozen=True)
+class CompiledLibrary:
+    """A generated (and normally compiled and loaded) set of CasADi functions.
+
+    Attributes
+    ----------
+    path : pathlib.Path or None
+        The shared library ``{name}_{digest[:16]}.so``; ``None`` when only sources were generated.
+    source : pathlib.Path
+        The generated C source ``{name}.c``.
+    header : pathlib.Path
+        The generated header ``{name}.h``.
+    functions : dict[str, casadi.Function]
+        Name -> function loaded from ``path`` with :func:`casadi.external` (empty without
+        compilation).
+    digest : str
+        Hex SHA-256 of the C source, the compiler and the flags (the cache key).
+    compiler : str
+        The compiler used (``""`` when only sources were generated).
+    max_error : dict[str, float]
+        Name -> largest relative error, compiled vs symbolic, measured by the verification
+        (empty when not verified).
+    """
+
+    path: Path | None
+    source: Path
+    header: Path
+    functions: dict[str, ca.Function]
+    digest: str
+    compiler: str
+    max_error: dict[str, float]
+
+    def __getitem__(self, name: str) -> ca.Function:
+        """Return the loaded function called ``name``.
+
+        Raises
+        ------
+        KeyError
+            If no such function was loaded; the message lists the loaded names.
+        """
+        try:
+            return self.functions[name]
+        except KeyError:
+            raise KeyError(f"no compiled function {name!r}; loaded: {sorted(self.functions)}") from None
+
+
+def _resolve_executable(command: str, search_path: str) -> str | None:
+    """Absolute path of ``command`` (a name searched on ``search_path`` or a path), or ``None``."""
+    found = shutil.which(command, path=search_path)
+    return str(Path(found).absolute()) if found else None
+
+
+def find_c_compiler(env: Mapping[str, str] | None = None) -> str:
+    """Find the C compiler: ``CC`` if set, else the first of ``cc``, ``gcc``, ``clang`` on PATH.
+
+    Parameters
+    ----------
+    env : Mapping[str, str], optional
+        Environment to read ``CC`` and ``PATH`` from; defaults to :data:`os.environ`.  A mapping
+        without ``PATH`` searches :data:`os.defpath`.
+
+    Returns
+    -------
+    str
+        Absolute path of the compiler executable.
+
+    Raises
+    ------
+    CompilerNotFoundError
+        If ``CC`` is set but is not an executable (no fallback to ``PATH`` then: an explicit
+        choice is never silently replaced), or if ``CC`` is unset (or empty) and none of
+        ``cc``, ``gcc``, ``clang`` is on ``PATH``.  The message names what was looked for.
+    """
+    environment = os.environ if env is None else env
+    search_path = environment.get("PATH", os.defpath)
+    requested = environment.get("CC", "").strip()
+    if requested:
+        found = _resolve_executable(requested, search_path)
+        if found is None:
+            raise CompilerNotFoundError(
+                f"C compiler not found: CC={requested!r} is not an executable file "
+                f"(nor a command on PATH={search_path!r}); fix or unset CC"
+            )
+        return found
+    for candidate in COMPILER_CANDIDATES:
+        found = _resolve_executable(candidate, search_path)
+        if found is not None:
+            return found
+    raise CompilerNotFoundError(
+        "C compiler not found: CC is not set and none of "
+        f"{', '.join(COMPILER_CANDIDATES)} is on PATH={search_path!r}; "
+        "install a C compiler or set CC"
+    )
+
+
+def _digest(source_text: str, compiler: str, command_flags: Sequence[str]) -> str:
+    """SHA-256 of the source text, the compiler and the flags (NUL separated)."""
+    hasher = hashlib.sha256()
+    for part in (source_text, compiler, *command_flags):
+        hasher.update(part.encode("utf-8"))
+        hasher.update(b"\0")
+    return hasher.hexdigest()
+
+
+def _install(temporary: Path, final: Path) -> None:
+    """Move ``temporary`` onto ``final`` atomically, unless ``final`` already has its content."""
+    with contextlib.suppress(OSError):
+        if final.read_bytes() == temporary.read_bytes():
+            return
+    os.replace(temporary, final)
+
+
+def _install_copy(staged: Path, final: Path) -> None:
+    """Like :func:`_install` but keeps ``staged`` (it is still to be compiled)."""
+    copy = staged.with_name(staged.name + ".copy")
+    shutil.copyfile(staged, copy)
+    _install(copy, final)
+
+
+def _link_flags(source_text: str) -> list[str]:
+    """Libraries to link: libm always; POSIX threads when a ``"thread"`` map was generated."""
+    flags = ["-lm"]
+    if "#include <pthread.h>" in source_text and not sys.platform.startswith("win"):
+        flags.append("-pthread")
+    return flags
+
+
+def _compile(command: list[str], temporary: Path, final: Path) -> None:
+    """Run ``command`` (which writes ``temporary``) and move the result onto ``final``."""
+    try:
+        completed = subprocess.run(command, capture_output=True, text=True, check=False)
+    except OSError as error:
+        temporary.unlink(missing_ok=True)
+        raise CompilationError(f"could not run the C compiler: {shlex.join(command)}\n{error}") from error
+    if completed.returncode != 0:
+        temporary.unlink(missing_ok=True)
+        raise CompilationError(
+            f"C compilation failed (exit status {completed.returncode}): {shlex.join(command)}\n"
+            f"--- compiler stderr ---\n{completed.stderr.strip()}"
+        )
+    os.replace(temporary, final)
+
+
+def _load(names: Sequence[str], library: Path) -> dict[str, ca.Function]:
+    """Load every function of ``library`` with :func:`casadi.external`."""
+    try:
+        # An absolute path: a bare file name would make dlopen search the library path instead.
+        return {name: ca.external(name, str(library.absolute())) for name in names}
+    except RuntimeError as error:
+        raise CompilationError(f"could not load {library} with casadi.external: {error}") from error
+
+
+def _relative_error(compiled: np.ndarray, symbolic: np.ndarray) -> float:
+    """Largest ``|compiled - symbolic| / max(1, |symbolic|)``; NaN/inf must match exactly."""
+    if compiled.size == 0:
+        return 0.0
+    same_nonfinite = ~np.isfinite(symbolic) & (
+        (np.isnan(symbolic) & np.isnan(compiled)) | (symbolic == compiled)
+    )
+    with np.errstate(invalid="ignore", over="ignore"):
+        error = np.abs(compiled - symbolic) / np.maximum(1.0, np.abs(symbolic))
+    error = np.where(same_nonfinite, 0.0, error)
+    error = np.where(np.isnan(error), np.inf, error)
+    return float(np.max(error))
+
+
+def _verify(
+    symbolic: Sequence[ca.Function],
+    compiled: Mapping[str, ca.Function],
+    rng: np.random.Generator,
+    tolerance: float,
+) -> dict[str, float]:
+    """Evaluate each compiled function and its symbolic twin on the same random dense inputs."""
+    errors: dict[str, float] = {}
+    for function in symbolic:
+        name = function.name()
+        arguments = [ca.DM(rng.uniform(-1.0, 1.0, size=function.size_in(i))) for i in range(function.n_in())]
+        expected = function.call(arguments)
+        obtained = compiled[name].call(arguments)
+        error = max(
+            (
+                _relative_error(np.asarray(got.full()), np.asarray(want.full()))
+                for got, want in zip(obtained, expected, strict=True)
+            ),
+            default=0.0,
+        )
+        errors[name] = error
+        if not error <= tolerance:
+            raise VerificationError(
+                f"compiled function {name!r} disagrees with its symbolic twin: max relative "
+                f"error {error:.3e} > tolerance {tolerance:.1e}"
+            )
+    return errors
+
+
+def _check_thread_workers(
+    source_text: str, staged_source: Path, source: Path, staged_header: Path, header: Path
+) -> None:
+    """Refuse a source that CasADi generated with clashing ``"thread"`` map workers.
+
+    CasADi 3.8 names the worker of a ``"thread"`` map after the mapped function, so two thread
+    maps of the *same* function (e.g. two population sizes) in one file define the same worker
+    twice and the C code does not compile.  :func:`batched` avoids it by mapping a distinct copy;
+    maps built directly with ``Function.map`` can still hit it.  The sources are installed
+    anyway, for inspection.
+    """
+    workers = _THREAD_WORKER.findall(source_text)
+    clashing = sorted({w for w in workers if workers.count(w) > 1})
+    if clashing:
+        _install(staged_source, source)
+        _install(staged_header, header)
+        raise CompilationError(
+            f"{source}: CasADi generated duplicate thread-map workers "
+            f"({', '.join('casadi_thread_worker' + w for w in clashing)}): two 'thread' maps of "
+            "the same function cannot share one C file; build them with uuv_ocp.codegen_core."
+            "batched (which maps a distinct copy) or use 'serial' for one of them"
+        )
+
+
+def _check_functions(functions: Sequence[ca.Function], name: str) -> list[ca.Function]:
+    """Validate the arguments of :func:`compile_functions`."""
+    if not _IDENTIFIER.fullmatch(name):
+        raise ValueError(f"name must be a C identifier, got {name!r}")
+    functions = list(functions)
+    if not functions:
+        raise ValueError("no functions to generate")
+    names: set[str] = set()
+    for function in functions:
+        if not isinstance(function, ca.Function):
+            raise TypeError(f"expected casadi.Function, got {type(function).__name__}")
+        if function.name() in names:
+            raise ValueError(f"two functions are called {function.name()!r}")
+        names.add(function.name())
+    return functions
+
+
+def compile_functions(
+    functions: Sequence[ca.Function],
+    directory: str | os.PathLike[str],
+    *,
+    name: str = "uuv_ocp_gen",
+    compile: bool = True,
+    verify: bool = True,
+    rng: np.random.Generator | None = None,
+    cc: str | None = None,
+    flags: Sequence[str] = DEFAULT_FLAGS,
+    tolerance: float = 1e-12,
+) -> CompiledLibrary:
+    """Generate C code for ``functions``, compile it (cached), load it back and verify it.
+
+    Parameters
+    ----------
+    functions : Sequence[casadi.Function]
+        Functions to put in one C file; their names (unique, C identifiers) become the C symbols
+        and the names passed to :func:`casadi.external`.
+    directory : path-like
+        Output directory (created if missing); receives ``{name}.c``, ``{name}.h`` and
+        ``{name}_{digest[:16]}.so``.
+    name : str, default ``"uuv_ocp_gen"``
+        Base name of the generated files (a C identifier).
+    compile : bool, default True
+        If False, only write the sources: no compiler is looked for, ``path`` is ``None``,
+        ``functions`` and ``max_error`` are empty and ``compiler`` is ``""``.
+    verify : bool, default True
+        Evaluate every compiled function and its symbolic twin on the same random dense inputs
+        (uniform in [-1, 1], shapes ``f.size_in(i)``) and compare.
+    rng : numpy.random.Generator, optional
+        Source of the verification inputs; default ``numpy.random.default_rng(0)``.
+    cc : str, optional
+        Compiler (name on ``PATH`` or path); default :func:`find_c_compiler`.
+    flags : Sequence[str], default ``("-O3", "-fPIC", "-shared")``
+        Compiler flags; the command is ``[cc, *flags, source, "-o", library, "-lm"]``
+        (plus ``-pthread`` when a ``"thread"`` map was generated).
+    tolerance : float, default 1e-12
+        Largest accepted ``|compiled - symbolic| / max(1, |symbolic|)``, element-wise.
+
+    Returns
+    -------
+    CompiledLibrary
+        Paths, loaded functions, digest, compiler and measured errors.
+
+    Raises
+    ------
+    CompilerNotFoundError
+        No compiler (see :func:`find_c_compiler`); ``cc`` not executable.
+    CompilationError
+        The compiler failed (message: command and compiler stderr) or the library did not load.
+    VerificationError
+        A compiled function differs from its symbolic twin by more than ``tolerance``.
+    ValueError, TypeError
+        Invalid arguments (no functions, duplicate names, non-identifier ``name``).
+
+    Notes
+    -----
+    The library is content addressed: if ``{name}_{digest[:16]}.so`` already exists it is loaded
+    without recompiling.  The digest covers the source text, the compiler path and the flags, not
+    the compiler's version: after upgrading a compiler in place, clear the directory.
+    """
+    functions = _check_functions(functions, name)
+    directory = Path(directory)
+    directory.mkdir(parents=True, exist_ok=True)
+    flags = tuple(flags)
+
+    generator = ca.CodeGenerator(f"{name}.c", {"with_header": True})
+    for function in functions:
+        generator.add(function)
+
+    source = directory / f"{name}.c"
+    header = directory / f"{name}.h"
+    staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=directory))
+    try:
+        # The prefix is pasted in front of the file names: it needs the trailing separator.
+        generator.generate(str(staging) + os.sep)
+        staged_source, staged_header = staging / source.name, staging / header.name
+        source_text = staged_source.read_text()
+
+        if not compile:
+            _install(staged_source, source)
+            _install(staged_header, header)
+            return CompiledLibrary(
+                path=None,
+                source=source,
+                header=header,
+                functions={},
+                digest=_digest(source_text, "", flags),
+                compiler="",
+                max_error={},
+            )
+
+        _check_thread_workers(source_text, staged_source, source, staged_header, header)
+        if cc is None:
+            compiler = find_c_compiler()
+        else:
+            compiler = _resolve_executable(cc, os.environ.get("PATH", os.defpath))
+            if compiler is None:
+                raise CompilerNotFoundError(f"C compiler not found: cc={cc!r} is not executable")
+        link = _link_flags(source_text)
+        digest = _digest(source_text, compiler, (*flags, *link))
+        library = directory / f"{name}_{digest[:16]}.so"
+        if not library.exists():
+            # A unique name, not pre-created (mkstemp's 0600 mode would leak into the library).
+            temporary = directory / f".{library.stem}-{os.getpid()}-{secrets.token_hex(6)}.so.tmp"
+            command = [compiler, *flags, str(staged_source), "-o", str(temporary), *link]
+            _install_copy(staged_source, source)  # installed first: inspectable on failure
+            _install_copy(staged_header, header)
+            try:
+                _compile(command, temporary, library)
+            except CompilationError as error:
+                raise CompilationError(f"{error}\n(generated source kept at {source})") from None
+        _install(staged_source, source)
+        _install(staged_header, header)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+
+    loaded = _load([function.name() for function in functions], library)
+    errors: dict[str, float] = {}
+    if verify:
+        generator_rng = np.random.default_rng(0) if rng is None else rng
+        errors = _verify(functions, loaded, generator_rng, tolerance)
+    return CompiledLibrary(
+        path=library,
+        source=source,
+        header=header,
+        functions=loaded,
+        digest=digest,
+        compiler=compiler,
+        max_error=errors,
+    )
+
+
+def load_or_fallback(
+    functions: Sequence[ca.Function],
+    directory: str | os.PathLike[str],
+    **kw,
+) -> tuple[dict[str, ca.Function], CompiledLibrary | None]:
+    """Compiled functions when possible, else the symbolic ones (CasADi's virtual machine).
+
+    Parameters
+    ----------
+    functions : Sequence[casadi.Function]
+        As for :func:`compile_functions`.
+    directory : path-like
+        As for :func:`compile_functions`.
+    **kw
+        Keyword arguments of :func:`compile_functions`.
+
+    Returns
+    -------
+    functions : dict[str, casadi.Function]
+        Name -> compiled function, or name -> symbolic function on fallback (or when
+        ``compile=False``).
+    library : CompiledLibrary or None
+        The build, or ``None`` on fallback.
+
+    Warns
+    -----
+    RuntimeWarning
+        Once per call, when no compiler is found, compilation or loading fails, the compiled
+        code fails verification, or the directory cannot be written: the compiled path is
+        unavailable and the virtual machine is used.
+
+    Notes
+    -----
+    Environment failures never propagate; invalid arguments (see :func:`compile_functions`)
+    still raise.
+    """
+    functions = list(functions)
+    symbolic = {function.name(): function for function in functions}
+    try:
+        library = compile_functions(functions, directory, **kw)
+    except (CodegenError, OSError) as error:
+        warnings.warn(
+            f"compiled C path unavailable ({type(error).__name__}: {error}); using CasADi's "
+            f"virtual machine for {sorted(symbolic)}",
+            RuntimeWarning,
+            stacklevel=2,
+        )
+        return symbolic, None
+    if library.path is None:
+        return symbolic, library
+    return dict(library.functions), library
+
+
+def batched(
+    f: ca.Function,
+    population: int,
+    parallelization: str = "serial",
+    *,
+    shared_inputs: Sequence[int] = (),
+) -> ca.Function:
+    """Map a one-candidate function over the columns of a population matrix.
+
+    CasADi's :meth:`casadi.Function.map` concatenates horizontally: an input of shape
+    ``(dim, 1)`` becomes ``(dim, population)`` (column ``k`` = candidate ``k``), and an output of
+    shape ``(m, 1)`` becomes ``(m, population)`` (a scalar cost gives a ``1 x population`` row).
+
+    Parameters
+    ----------
+    f : casadi.Function
+        Function whose batched inputs are column vectors.
+    population : int
+        Number of candidates (columns), at least 1.
+    parallelization : {"serial", "thread", "unroll", "openmp"}, default "serial"
+        Evaluation strategy of the map.
+    shared_inputs : Sequence[int], default ()
+        Indices of inputs common to all candidates (e.g. the problem parameters ``p``); they
+        keep their shape instead of being repeated (``reduce_in`` of ``Function.map``).
+
+    Returns
+    -------
+    casadi.Function
+        Named ``f.name() + f"_batch{population}"``.
+
+    Raises
+    ------
+    ValueError
+        Bad ``population``, ``parallelization`` or ``shared_inputs``, or a batched input that is
+        not a column vector.
+    """
+    if isinstance(population, bool) or not isinstance(population, int | np.integer):
+        raise ValueError(f"population must be an int, got {population!r}")
+    if population < 1:
+        raise ValueError(f"population must be at least 1, got {population}")
+    if parallelization not in _PARALLELIZATIONS:
+        raise ValueError(f"parallelization must be one of {_PARALLELIZATIONS}, got {parallelization!r}")
+    shared = sorted({int(i) for i in shared_inputs})
+    if any(i < 0 or i >= f.n_in() for i in shared):
+        raise ValueError(f"shared_inputs {shared} out of range for {f.n_in()} inputs")
+    for i in range(f.n_in()):
+        if i not in shared and f.size2_in(i) != 1:
+            raise ValueError(
+                f"input {i} ({f.name_in(i)!r}) of {f.name()!r} has shape {f.size_in(i)}: batched "
+                "inputs must be column vectors (or list the input in shared_inputs)"
+            )
+    name = f"{f.name()}_batch{int(population)}"
+    if parallelization == "thread":
+        # CasADi 3.8 names a thread map's C worker after the mapped function: two thread maps of
+        # one function in one C file clash.  A distinct copy per population avoids it.
+        f = _copy(f, f"{f.name()}_cand{int(population)}")
+    return f.map(name, parallelization, int(population), shared, [])
+
+
+def _copy(f: ca.Function, name: str) -> ca.Function:
+    """A new Function object computing ``f`` (SX: inlined expressions; MX: a call node)."""
+    inputs = f.sx_in() if f.is_a("SXFunction") else f.mx_in()
+    return ca.Function(name, inputs, f.call(inputs), f.name_in(), f.name_out())

@@ -1,0 +1,30 @@
+"""Command line and the resumable reproduction job."""
+
+from uuv_ocp import cli
+from uuv_ocp.experiments import track_references
+
+
+def test_solvers_lists_names(capsys):
+    assert cli.main(["solvers"]) == 0
+    names = capsys.readouterr().out.split()
+    assert {"ipopt", "sqp", "fatrop", "igwo", "igwo+ipopt"} <= set(names)
+
+
+def test_track_writes_figures_and_resumes(tmp_path, capsys):
+    assert cli.main(["track", "-r", "s2", "--duration", "1.0", "--out", str(tmp_path)]) == 0
+    output = capsys.readouterr().out
+    assert "s2" in output and "ipopt" in output
+    for name in ("s2_xoy.png", "s2_errors.png", "runs/s2_ipopt.npz"):
+        assert (tmp_path / name).exists()
+    saved = (tmp_path / "runs" / "s2_ipopt.npz").stat().st_mtime_ns
+    rows = track_references(["s2"], out_dir=tmp_path, duration=1.0, progress=False, figures=False)
+    assert (tmp_path / "runs" / "s2_ipopt.npz").stat().st_mtime_ns == saved  # resumed, not rerun
+    assert rows[0].metrics["steps"] == 10
+
+
+def test_bad_arguments_exit_with_a_message(capsys):
+    assert cli.main(["track", "-r", "s42"]) == 2
+    assert "s42" in capsys.readouterr().err
+    assert cli.main(["track", "-s", "newton"]) == 2
+    assert "newton" in capsys.readouterr().err
+    assert cli.main(["compare", "--solvers", "newton"]) == 2

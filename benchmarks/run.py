@@ -7,7 +7,12 @@ import platform
 import sys
 import time
 
-BENCHMARKS = ("benchmarks.bench_exact", "benchmarks.bench_swarm", "benchmarks.bench_codegen")
+BENCHMARKS = (
+    "benchmarks.bench_exact",
+    "benchmarks.bench_swarm",
+    "benchmarks.bench_codegen",
+    "benchmarks.bench_swarm_functions",
+)
 
 
 def main() -> int:

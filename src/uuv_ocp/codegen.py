@@ -23,11 +23,7 @@ then warns once and falls back to CasADi's virtual machine.
 from __future__ import annotations
 
 import ctypes
-import hashlib
 import os
-import shutil
-import subprocess
-import tempfile
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,45 +31,35 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from uuv_ocp.codegen_core import (
+    DEFAULT_FLAGS as CORE_FLAGS,
+)
+from uuv_ocp.codegen_core import (
+    CompilationError,
+    CompilerNotFoundError,
+    VerificationError,
+    compile_functions,
+    find_c_compiler,
+)
 from uuv_ocp.problem import TrackingProblem
 
-DEFAULT_FLAGS = ("-O3", "-fPIC", "-shared", "-ffp-contract=off")
+#: ``-ffp-contract=off`` keeps compiled results identical to CasADi's virtual machine.
+DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off")
 FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step")
 _IGWO_SOURCE = Path(__file__).with_name("igwo_step.c")
 
-
-class CompilerNotFoundError(RuntimeError):
-    """No usable C compiler: the message names the ``CC`` value and the names searched."""
-
-
-class CompilationError(RuntimeError):
-    """The compiler failed: the message holds the command and the compiler's output."""
-
-
-class VerificationError(RuntimeError):
-    """A compiled function differs from its symbolic twin beyond the tolerance."""
-
-
-def find_c_compiler(environment: dict[str, str] | None = None) -> str:
-    """Path of the C compiler: ``$CC`` if set (must exist), else ``cc``/``gcc``/``clang``."""
-    environment = os.environ if environment is None else environment
-    requested = environment.get("CC")
-    if requested:
-        found = shutil.which(requested, path=environment.get("PATH"))
-        if found is None:
-            raise CompilerNotFoundError(
-                f"C compiler from CC={requested!r} not found or not executable; unset CC to "
-                "search PATH for cc, gcc, clang"
-            )
-        return found
-    for name in ("cc", "gcc", "clang"):
-        found = shutil.which(name, path=environment.get("PATH"))
-        if found:
-            return found
-    raise CompilerNotFoundError(
-        f"no C compiler found: CC is not set and none of cc, gcc, clang is on PATH "
-        f"({environment.get('PATH', '')!r})"
-    )
+__all__ = [
+    "CompilationError",
+    "CompilerNotFoundError",
+    "GeneratedCode",
+    "NativeIgwo",
+    "VerificationError",
+    "compiled_build",
+    "compiled_fitness",
+    "find_c_compiler",
+    "generate_c",
+    "symbolic_functions",
+]
 
 
 @dataclass(frozen=True)
@@ -193,76 +179,31 @@ def generate_c(
     if isinstance(population, bool) or not isinstance(population, int) or population < 1:
         raise ValueError(f"population must be an integer >= 1, got {population!r}")
     directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
-    symbolic = {
-        name: function
-        for name, function in symbolic_functions(problem, population).items()
-        if name in functions
-    }
-    name = "uuv_ocp_gen"
-    generator = ca.CodeGenerator(f"{name}.c", {"with_header": True, "casadi_int": "long long"})
-    for function in symbolic.values():
-        generator.add(function)
-    with tempfile.TemporaryDirectory() as scratch:
-        generator.generate(scratch + os.sep)
-        source_text = Path(scratch, f"{name}.c").read_text()
-        header_text = Path(scratch, f"{name}.h").read_text()
-    if "cost_batch" in symbolic:
-        source_text += "\n" + _IGWO_SOURCE.read_text()
-    compiler = find_c_compiler() if compile else ""
-    digest = hashlib.sha256("\n".join([source_text, compiler, *flags]).encode()).hexdigest()
-    source = directory / f"{name}_{digest[:16]}.c"
-    header = directory / f"{name}.h"
-    _write_if_changed(source, source_text)
-    _write_if_changed(header, header_text)
-    if not compile:
-        return GeneratedCode(directory, source, header, None, population=population, digest=digest)
-    library = directory / f"{name}_{digest[:16]}.so"
-    reused = library.exists()
-    if not reused:
-        _compile(compiler, flags, source, library)
-    loaded = {key: ca.external(key, str(library)) for key in symbolic}
-    errors = _verify(symbolic, loaded, seed, tolerance) if verify else {}
-    return GeneratedCode(directory, source, header, library, loaded, errors, population, digest, reused)
-
-
-def _write_if_changed(path: Path, text: str) -> None:
-    if not path.exists() or path.read_text() != text:
-        path.write_text(text)
-
-
-def _compile(compiler: str, flags: tuple[str, ...], source: Path, library: Path) -> None:
-    partial = library.with_suffix(f".{os.getpid()}.tmp")
-    command = [compiler, *flags, str(source), "-o", str(partial), "-lm"]
-    completed = subprocess.run(command, capture_output=True, text=True, check=False)
-    if completed.returncode != 0:
-        partial.unlink(missing_ok=True)
-        raise CompilationError(
-            f"compilation failed (exit {completed.returncode}): {' '.join(command)}\n"
-            f"{completed.stderr.strip() or completed.stdout.strip()}"
-        )
-    os.replace(partial, library)  # atomic: concurrent builds never see a half-written library
-
-
-def _verify(symbolic: dict, loaded: dict, seed: int, tolerance: float) -> dict[str, float]:
-    rng = np.random.default_rng(seed)
-    errors = {}
-    for name, function in symbolic.items():
-        inputs = [rng.uniform(-1, 1, function.size_in(i)) for i in range(function.n_in())]
-        expected = function(*inputs)
-        actual = loaded[name](*inputs)
-        expected = expected if isinstance(expected, (list, tuple)) else [expected]
-        actual = actual if isinstance(actual, (list, tuple)) else [actual]
-        error = 0.0
-        for want, got in zip(expected, actual, strict=True):
-            want, got = np.array(want, dtype=float), np.array(got, dtype=float)
-            error = max(error, float(np.max(np.abs(got - want) / np.maximum(1.0, np.abs(want)))))
-        errors[name] = error
-        if not error <= tolerance:
-            raise VerificationError(
-                f"compiled {name!r} differs from the symbolic one by {error:.3e} (> {tolerance})"
-            )
-    return errors
+    symbolic = symbolic_functions(problem, population)
+    chosen = [symbolic[name] for name in FUNCTION_NAMES if name in functions]
+    extra = _IGWO_SOURCE.read_text() if "cost_batch" in functions else ""
+    existing = set(directory.glob("*.so")) if directory.exists() else set()
+    library = compile_functions(
+        chosen,
+        directory,
+        compile=compile,
+        verify=verify,
+        rng=np.random.default_rng(seed),
+        flags=flags,
+        tolerance=tolerance,
+        extra_source=extra,
+    )
+    return GeneratedCode(
+        directory=directory,
+        source=library.source,
+        header=library.header,
+        library=library.path,
+        functions=library.functions,
+        max_error=library.max_error,
+        population=population,
+        digest=library.digest,
+        reused=library.path in existing,
+    )
 
 
 # ------------------------------------------------------------------ cached build for solvers

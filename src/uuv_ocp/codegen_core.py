@@ -328,6 +328,7 @@ def compile_functions(
     cc: str | None = None,
     flags: Sequence[str] = DEFAULT_FLAGS,
     tolerance: float = 1e-12,
+    extra_source: str = "",
 ) -> CompiledLibrary:
     """Generate C code for ``functions``, compile it (cached), load it back and verify it.
 
@@ -356,6 +357,9 @@ def compile_functions(
         (plus ``-pthread`` when a ``"thread"`` map was generated).
     tolerance : float, default 1e-12
         Largest accepted ``|compiled - symbolic| / max(1, |symbolic|)``, element-wise.
+    extra_source : str, default ""
+        Hand-written C appended to the generated source (it may call the generated functions,
+        e.g. the all-C IGWO step); part of the digest.
 
     Returns
     -------
@@ -396,6 +400,9 @@ def compile_functions(
         generator.generate(str(staging) + os.sep)
         staged_source, staged_header = staging / source.name, staging / header.name
         source_text = staged_source.read_text()
+        if extra_source:
+            source_text = f"{source_text}\n{extra_source}"
+            staged_source.write_text(source_text)
 
         if not compile:
             _install(staged_source, source)

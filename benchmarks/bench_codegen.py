@@ -4,8 +4,9 @@
 * IGWO 20 × 30 NMPC step: Python loop over the VM cost, Python loop over the compiled cost,
   the all-C step (``uuv_ocp_igwo``) including Python's random draws, and the C call alone
   (evaluations/s *inside* the C step);
-* exact backends with and without compiled NLP functions (CasADi's ``jit`` with the system
-  compiler), one warm-started solve at the same feasible state.
+* exact backends with and without compiled NLP functions (``options={"compiled": True}``:
+  CasADi's JIT with the system compiler; ~30 s of compilation per NLP variant, excluded),
+  per-step times of the 300-step s2 closed loop from rest.
 
 Run: ``python -m benchmarks.bench_codegen``.
 """
@@ -19,6 +20,7 @@ import time
 import numpy as np
 
 import uuv_ocp as uo
+from benchmarks.bench_exact import closed_loop_times
 from uuv_ocp.codegen import generate_c
 from uuv_ocp.solvers.population import batched_fitness
 
@@ -87,33 +89,19 @@ def main() -> dict:
     print(f"  {'C call alone':<30}{1e3 * c_only:>8.2f}   ({rate:,.0f} evaluations/s inside C)")
     results["igwo"] = timings
 
-    print("\nExact backends, one warm-started solve at the same state (median of 30, ms)")
+    print("\nExact backends, 300-step closed loop on s2 from rest (ms per step)")
+    print(
+        f"  {'solver':<8}{'VM median':>10}{'VM p90':>8}{'compiled median':>17}{'compiled p90':>14}{'fail':>6}"
+    )
     exact = {}
     for name in ("ipopt", "fatrop", "sqp"):
-        row = []
-        for jit in (False, True):
-            options = (
-                {
-                    "plugin_options": {
-                        "jit": True,
-                        "compiler": "shell",
-                        "jit_options": {"flags": ["-O2"]},
-                    }
-                }
-                if jit
-                else None
-            )
-            solver = uo.get_solver(problem, name, options)
-            first = solver.solve(p)
-            warm = first.iterate
-            samples = []
-            for _ in range(30):
-                start = time.perf_counter()
-                solver.solve(p, warm)
-                samples.append(time.perf_counter() - start)
-            row.append(float(np.median(samples)))
-        exact[name] = row
-        print(f"  {name:<8} VM {1e3 * row[0]:7.2f}   jit-compiled {1e3 * row[1]:7.2f}")
+        plain = closed_loop_times(name)
+        compiled = closed_loop_times(name, options={"compiled": True})
+        exact[name] = (plain, compiled)
+        print(
+            f"  {name:<8}{plain['median_ms']:>10.2f}{plain['p90_ms']:>8.2f}{compiled['median_ms']:>17.2f}"
+            f"{compiled['p90_ms']:>14.2f}{compiled['failures']:>6d}"
+        )
     results["exact"] = exact
     return results
 

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uuv_ocp.solvers.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
 from uuv_ocp.solvers.swarm import (
     ALGORITHMS,
     PAPER_CONVERGENCE_LABELS,
@@ -42,34 +43,11 @@ OUT = Path("out")
 # -- test functions (vectorised over rows; all have f* = 0) -------------------------------------
 
 
-def sphere(X: np.ndarray) -> np.ndarray:
-    return np.sum(X * X, axis=1)
-
-
-def rastrigin(X: np.ndarray) -> np.ndarray:
-    return 10.0 * X.shape[1] + np.sum(X * X - 10.0 * np.cos(2.0 * np.pi * X), axis=1)
-
-
-def rosenbrock(X: np.ndarray) -> np.ndarray:
-    return np.sum(100.0 * (X[:, 1:] - X[:, :-1] ** 2) ** 2 + (1.0 - X[:, :-1]) ** 2, axis=1)
-
-
-def ackley(X: np.ndarray) -> np.ndarray:
-    d = X.shape[1]
-    return (
-        -20.0 * np.exp(-0.2 * np.sqrt(np.sum(X * X, axis=1) / d))
-        - np.exp(np.sum(np.cos(2.0 * np.pi * X), axis=1) / d)
-        + 20.0
-        + np.e
-    )
-
-
 def _shift(dim: int) -> np.ndarray:
     return np.random.default_rng(12345).uniform(-4.0, 4.0, dim)
 
 
-def shifted_rastrigin(X: np.ndarray) -> np.ndarray:
-    return rastrigin(X - _shift(X.shape[1]))
+shifted_rastrigin = shifted(rastrigin, _shift)
 
 
 #: name -> (function, half-width of the box [-b, b]^d)

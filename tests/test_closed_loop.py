@@ -124,24 +124,15 @@ def test_current_mismatch_and_noise_run_and_save(tmp_path):
     problem = uo.TrackingProblem(uo.Vehicle.rexrov_controller_model(), reference, horizon=10)
     current = uo.Current(speed=0.3, direction=0.5, speed_noise=0.05, direction_noise=0.05)
     noise = uo.MeasurementNoise(std=(0.01, 0.01, 0.005, 0.01, 0.01, 0.005))
-    run = uo.simulate(
-        uo.NMPC(problem, "ipopt"),
-        reference.initial_state(0.0),
-        3.0,
-        current=current,
-        noise=noise,
-        plant=uo.Vehicle.rexrov(),
-        seed=4,
-    )
-    again = uo.simulate(
-        uo.NMPC(problem, "ipopt"),
-        reference.initial_state(0.0),
-        3.0,
-        current=current,
-        noise=noise,
-        plant=uo.Vehicle.rexrov(),
-        seed=4,
-    )
+
+    def run_once():
+        controller = uo.NMPC(problem, "ipopt")
+        x0 = reference.initial_state(0.0)
+        return uo.simulate(
+            controller, x0, 3.0, current=current, noise=noise, plant=uo.Vehicle.rexrov(), seed=4
+        )
+
+    run, again = run_once(), run_once()
     np.testing.assert_array_equal(run.currents, again.currents)  # seeded
     assert np.all(np.isfinite(run.states))
     assert 0.2 < np.median(np.hypot(*run.currents.T)) < 0.4

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from uuv_ocp.solvers import swarm
+from uuv_ocp.solvers.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
 from uuv_ocp.solvers.swarm import (
     MinimizeResult,
     available_methods,
@@ -22,34 +23,8 @@ LOWER, UPPER = -5.0 * np.ones(DIM), 5.0 * np.ones(DIM)
 CENTRE = np.linspace(-2.5, 3.1, DIM)
 
 
-def sphere(X: np.ndarray) -> np.ndarray:
-    return np.sum(X * X, axis=1)
-
-
-def shifted_sphere(X: np.ndarray) -> np.ndarray:
-    return np.sum((X - CENTRE) ** 2, axis=1)
-
-
-def rastrigin(X: np.ndarray) -> np.ndarray:
-    return 10.0 * X.shape[1] + np.sum(X * X - 10.0 * np.cos(2.0 * np.pi * X), axis=1)
-
-
-def shifted_rastrigin(X: np.ndarray) -> np.ndarray:
-    return rastrigin(X - 0.5 * CENTRE)
-
-
-def rosenbrock(X: np.ndarray) -> np.ndarray:
-    return np.sum(100.0 * (X[:, 1:] - X[:, :-1] ** 2) ** 2 + (1.0 - X[:, :-1]) ** 2, axis=1)
-
-
-def ackley(X: np.ndarray) -> np.ndarray:
-    d = X.shape[1]
-    return (
-        -20.0 * np.exp(-0.2 * np.sqrt(np.sum(X * X, axis=1) / d))
-        - np.exp(np.sum(np.cos(2.0 * np.pi * X), axis=1) / d)
-        + 20.0
-        + np.e
-    )
+shifted_sphere = shifted(sphere, CENTRE)
+shifted_rastrigin = shifted(rastrigin, 0.5 * CENTRE)
 
 
 class Recorder:

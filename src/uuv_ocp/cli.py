@@ -41,6 +41,17 @@ def _parser() -> argparse.ArgumentParser:
     compare.add_argument("--t0", type=float, default=3.0, help="start time on the reference (s)")
     compare.add_argument("--seed", type=int, default=1)
 
+    campaign = commands.add_parser("campaign", help="Monte Carlo trials with currents, noise, mismatch")
+    campaign.add_argument("--reference", "-r", default="s2")
+    campaign.add_argument("--solver", "-s", default="ipopt")
+    campaign.add_argument("--trials", type=int, default=50)
+    campaign.add_argument("--duration", type=float, default=30.0)
+    campaign.add_argument("--max-current", type=float, default=0.5, help="m/s")
+    campaign.add_argument("--seed", type=int, default=0)
+    campaign.add_argument("--executor", choices=["local", "process"], default="local")
+    campaign.add_argument("--workers", type=int, default=2)
+    campaign.add_argument("--out", default="out/campaigns")
+
     codegen = commands.add_parser("codegen", help="generate, compile and verify C for a problem")
     codegen.add_argument("--reference", "-r", default="s2")
     codegen.add_argument("--out", default="build", help="output folder")
@@ -84,6 +95,31 @@ def main(argv: Sequence[str] | None = None) -> int:
     command = args.command or "demo"
     if command == "solvers":
         print("\n".join(available_solvers()))
+        return 0
+    if command == "campaign":
+        from uuv_ocp.campaign import CampaignConfig, format_summary, run_campaign
+
+        try:
+            config = CampaignConfig(
+                reference=args.reference,
+                solver=args.solver,
+                trials=args.trials,
+                duration=args.duration,
+                max_current=args.max_current,
+                seed=args.seed,
+            )
+            available = available_solvers()
+            if args.solver not in available:
+                raise ValueError(f"--solver must be one of {available}, got {args.solver!r}")
+            result = run_campaign(config, args.out, executor=args.executor, workers=args.workers)
+        except ValueError as error:
+            print(f"error: {error}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt:
+            print("\ninterrupted: finished trials are saved; rerun the command to resume", file=sys.stderr)
+            return 130
+        print(format_summary(result))
+        print(f"trials saved in {result.directory}")
         return 0
     if command in ("compare", "codegen"):
         if args.reference not in PAPER_REFERENCES:

@@ -105,3 +105,15 @@ def test_closed_loop_with_igwo_warm_start_runs(s2_problem):
     assert run.failures == 0
     np.testing.assert_array_equal(run.controls, again.controls)
     assert np.all(np.abs(run.controls) <= s2_problem.max_thrust)
+
+
+def test_buffered_fitness_is_bit_identical_to_an_ordinary_call(instance):
+    from uuv_ocp.solvers.population import BufferedFitness
+
+    problem, _, _, p = instance
+    function = batched_fitness(problem, 6)
+    buffered = BufferedFitness(function, 6, problem.control_dim, problem.parameter_dim)
+    candidates = np.random.default_rng(9).uniform(-1, 1, (6, problem.control_dim))
+    np.testing.assert_array_equal(buffered(candidates, p), np.array(function(candidates.T, p)).ravel())
+    second = buffered(-candidates, p)  # the buffer is reused, results are copies
+    np.testing.assert_array_equal(second, np.array(function(-candidates.T, p)).ravel())

@@ -86,3 +86,26 @@ def test_unknown_option_raises(s2_problem, feasible_start):
 
 def test_available_solvers_lists_exact_backends():
     assert set(EXACT) <= set(uo.available_solvers())
+
+
+def test_solver_specific_terminal_penalty_keeps_the_soft_problem_exact(s2_problem, feasible_start, results):
+    x0, t0 = feasible_start
+    soft = uo.solve(
+        s2_problem, "ipopt", x0=x0, t0=t0, options={"terminal_strategy": "soft", "terminal_penalty": 1e6}
+    )
+    assert not soft.terminal_relaxed
+    # ρ = 1e6 scales the slack multipliers: IPOPT's complementarity tolerance leaves ~2e-6
+    assert soft.cost == pytest.approx(results["ipopt"].cost, rel=1e-5)
+    with pytest.raises(ValueError, match="terminal_penalty"):
+        uo.solve(s2_problem, "ipopt", x0=x0, t0=t0, options={"terminal_penalty": -1.0})
+
+
+def test_failed_soft_solves_escalate_the_penalty(s2_problem):
+    x0 = uo.Reference.paper("s2").initial_state(0.0)
+    options = {"max_iter": 1, "penalty_escalation": [100.0, 1e4]}
+    result = uo.solve(s2_problem, "ipopt", x0=x0, t0=0.0, options=options)
+    variants = [attempt[0] for attempt in result.details["attempts"]]
+    assert variants == ["hard", "soft", "soft_x100", "soft_x10000"]
+    assert not result.success  # one iteration is not enough: reported, not raised
+    sqp = uo.get_solver(s2_problem, "sqp")
+    assert sqp._escalations == ["soft_x100"]

@@ -20,6 +20,7 @@ accelerates from rest.  Every exact backend therefore handles ``terminal="equali
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import time
 import warnings
@@ -82,6 +83,8 @@ class NlpSolver:
     plugin = ""
     uses_duals = True
     default_objective_scale = 1.0
+    default_terminal_penalty: float | None = None  # None: the problem's Weights.terminal_penalty
+    default_penalty_escalation: tuple[float, ...] = ()
     levenberg_marquardt = 0.0
 
     def __init__(self, problem: TrackingProblem, options: dict[str, Any] | None = None) -> None:
@@ -99,6 +102,12 @@ class NlpSolver:
             "options['objective_scale']",
             options.pop("objective_scale", self.default_objective_scale),
         )
+        penalty_escalation = tuple(options.pop("penalty_escalation", self.default_penalty_escalation))
+        for factor in penalty_escalation:
+            check.positive_float("options['penalty_escalation'] entries", factor)
+        terminal_penalty = options.pop("terminal_penalty", self.default_terminal_penalty)
+        if terminal_penalty is not None:
+            terminal_penalty = check.positive_float("options['terminal_penalty']", terminal_penalty)
         max_iter = options.pop("max_iter", None)
         self.max_iter = None if max_iter is None else check.positive_int("options['max_iter']", max_iter)
         self.compiled = options.pop("compiled", False)
@@ -110,14 +119,27 @@ class NlpSolver:
         if options:
             raise ValueError(
                 f"unknown options for solver {self.name!r}: {sorted(options)}; valid: "
-                "['compiled', 'max_iter', 'objective_scale', 'plugin_options', "
-                "'slack_tolerance', 'terminal_strategy']"
+                "['compiled', 'max_iter', 'objective_scale', 'penalty_escalation', "
+                "'plugin_options', 'slack_tolerance', 'terminal_penalty', 'terminal_strategy']"
             )
         self.plugin_options = plugin_options
-        built = problem.build()
+        # the soft NLP's exact-penalty weight may be the solver's own: only the soft variant
+        # changes, the hard NLP and the judge (score) stay those of ``problem``
+        nlp_problem = problem
+        if terminal_penalty is not None and terminal_penalty != problem.weights.terminal_penalty:
+            weights = dataclasses.replace(problem.weights, terminal_penalty=terminal_penalty)
+            nlp_problem = problem.replace(weights=weights)
+        built = nlp_problem.build()
         self.variants: dict[str, NlpData] = {"hard": built.hard}
+        self._escalations: list[str] = []
         if built.soft is not None:
             self.variants["soft"] = built.soft
+            base = nlp_problem.weights.terminal_penalty
+            for factor in penalty_escalation:
+                weights = dataclasses.replace(nlp_problem.weights, terminal_penalty=base * factor)
+                name = f"soft_x{factor:g}"
+                self.variants[name] = nlp_problem.replace(weights=weights).build().soft
+                self._escalations.append(name)
         self._solvers: dict[str, ca.Function] = {}
         self._shift = {
             name: (_shift_map(data.variable_labels), _shift_map(data.constraint_labels))
@@ -287,8 +309,11 @@ class NlpSolver:
         soft_first = strategy == "soft" or (
             strategy == "sticky" and warm_start is not None and warm_start.terminal_relaxed
         )
+        soft_variant = "soft"
+        if soft_first and warm_start is not None and warm_start.variant in self._escalations:
+            soft_variant = warm_start.variant  # stay at the escalated penalty while relaxed
         if soft_first:
-            attempts.append(self._attempt("soft", p, warm_start))
+            attempts.append(self._attempt(soft_variant, p, warm_start))
         else:
             attempts.append(self._attempt("hard", p, warm_start))
             if not attempts[-1]["success"] and soft_available:
@@ -297,8 +322,14 @@ class NlpSolver:
             # A warm start can sit in a bad region (e.g. after a burst of saturation): one
             # retry from the reference-based cold guess, same NLP variant.
             attempts.append(self._attempt(attempts[-1]["variant"], p, None))
+        start_index = self._escalations.index(soft_variant) + 1 if soft_variant != "soft" else 0
+        for variant in self._escalations[start_index:]:
+            if attempts[-1]["success"] or not attempts[-1]["variant"].startswith("soft"):
+                break
+            # classic exact-penalty update: a larger ρ, warm-started from the closest iterate
+            attempts.append(self._attempt(variant, p, warm_start))
         final = attempts[-1]
-        relaxed = final["variant"] == "soft" and self._slack(final) > self.slack_tolerance
+        relaxed = final["variant"].startswith("soft") and self._slack(final) > self.slack_tolerance
         elapsed = time.perf_counter() - start
         return self._result(p, final, attempts, relaxed, elapsed)
 
@@ -317,7 +348,7 @@ class NlpSolver:
         states = primal[data.state_index]
         cost, violation = score_parameters(problem, scaled.ravel(), p)
         status = final["status"]
-        if final["variant"] == "soft":
+        if final["variant"].startswith("soft"):
             status = f"soft_terminal: {status}" if relaxed else f"soft_terminal_held: {status}"
         shift_x, shift_g = self._shift[final["variant"]]
         iterate = Iterate(
@@ -404,6 +435,11 @@ class SqpSolver(NlpSolver):
     name = "sqp"
     plugin = "sqpmethod"
     default_objective_scale = 1e-3
+    # On references the vehicle cannot follow (s8, s9) the soft problem is solved at every
+    # step; with ρ = 1e4 sqpmethod cycles between two points (failed line searches) on 135 of
+    # 300 steps of s8, with ρ = 1e6 on 50 — but ρ = 1e6 from the start costs failures on the
+    # trackable references (measured).  So ρ = 1e4 first, escalated ×100 only on failure.
+    default_penalty_escalation = (100.0,)
 
     def __init__(self, problem: TrackingProblem, options: dict[str, Any] | None = None) -> None:
         options = dict(options or {})

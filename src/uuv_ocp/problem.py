@@ -35,7 +35,7 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.integrators import rk4_step
-from uuv_ocp.references import Reference
+from uuv_ocp.references import UNWRAP_STEP, Reference
 from uuv_ocp.vehicles import CONTROL_DIM, CURRENT_DIM, STATE_DIM, Vehicle
 
 TERMINAL_MODES = ("equality", "cost", "none")
@@ -116,7 +116,6 @@ class _Built:
     cost: ca.Function
     rollout: ca.Function
     score_terms: ca.Function
-    extras: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -235,7 +234,7 @@ class TrackingProblem:
         to ``heading`` (the vehicle's), which keeps the terminal equality wrap-safe.
         """
         times = np.minimum(t0 + self.dt * np.arange(self.horizon + 1), self.reference.t_end)
-        if self.dt <= 0.1 and times[-1] > times[-2]:
+        if self.dt <= UNWRAP_STEP and times[-1] > times[-2]:
             window = self.reference.evaluate_grid(times)
         else:
             window = self.reference.evaluate(times)

@@ -28,7 +28,7 @@ PathFunction = Callable[[ca.SX], object]
 #: Speed (m/s) below which the heading of a path is undefined.
 MIN_PATH_SPEED = 1e-6
 #: Largest gap (s) between the samples used to unwrap the heading.
-_UNWRAP_STEP = 0.1
+UNWRAP_STEP = 0.1
 
 
 def _paper_catalogue() -> dict[str, tuple[PathFunction, float, float, str]]:
@@ -248,15 +248,15 @@ def _unwrapped_heading(
 
 
 def _refined_grid(times: np.ndarray) -> np.ndarray:
-    """``times`` plus extra points so that no gap exceeds ``_UNWRAP_STEP``; sorted, unique."""
+    """``times`` plus extra points so that no gap exceeds ``UNWRAP_STEP``; sorted, unique."""
     gaps = np.diff(times)
-    if np.all((gaps > 0) & (gaps <= _UNWRAP_STEP)):
+    if np.all((gaps > 0) & (gaps <= UNWRAP_STEP)):
         return times  # already strictly increasing and fine enough
     unique = np.unique(times)
     if unique.size < 2:
         return unique
     gaps = np.diff(unique)
-    pieces = np.maximum(1, np.ceil(gaps / _UNWRAP_STEP).astype(int))
+    pieces = np.maximum(1, np.ceil(gaps / UNWRAP_STEP).astype(int))
     if np.all(pieces == 1):
         return unique
     extra = [

@@ -28,3 +28,14 @@ def test_compare_solvers_example(tmp_path):
     )
     assert by_name["igwo"].ratio >= 1.0 and by_name["ipopt"].ratio <= 1.0 + 1e-6
     assert (tmp_path / "compare_convergence.png").stat().st_size > 1000
+
+
+def test_readme_ten_line_example_runs():
+    import re
+
+    readme = (EXAMPLES.parent / "README.md").read_text()
+    code = re.search(r"## In ten lines\n\n```python\n(.*?)```", readme, re.S).group(1)
+    namespace = {}
+    exec(compile(code.replace("duration=10.0", "duration=1.0"), "README.md", "exec"), namespace)
+    assert namespace["run"].failures == 0
+    assert namespace["res"].controls.shape == (20, 3)

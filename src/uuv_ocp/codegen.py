@@ -111,7 +111,7 @@ def symbolic_functions(problem: TrackingProblem, population: int = 20) -> dict[s
         # not expanded: the generated code loops over one compiled cost (compact, cache-friendly)
         "cost_batch": _renamed(batched_fitness(problem, population), "cost_batch"),
         "dynamics": dynamics,
-        "model_step": ca.Function("model_step", *_io(built.step)),
+        "model_step": _renamed(built.step, "model_step"),
     }
 
 
@@ -123,16 +123,6 @@ def _renamed(function: ca.Function, name: str) -> ca.Function:
         name,
         symbols,
         outputs,
-        [function.name_in(i) for i in range(function.n_in())],
-        [function.name_out(i) for i in range(function.n_out())],
-    )
-
-
-def _io(function: ca.Function) -> tuple:
-    symbols = [ca.SX.sym(function.name_in(i), function.sparsity_in(i)) for i in range(function.n_in())]
-    return (
-        symbols,
-        function(*symbols) if function.n_out() > 1 else [function(*symbols)],
         [function.name_in(i) for i in range(function.n_in())],
         [function.name_out(i) for i in range(function.n_out())],
     )

@@ -13,7 +13,6 @@ spirals never jump by 2π.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -188,17 +187,15 @@ class Reference:
                 f"reference {self.name!r} is defined on t in [{self.t_start}, {self.t_end}] s, got t = {bad}"
             )
         dense = _refined_grid(times)
-        midpoints = 0.5 * (dense[:-1] + dense[1:])
-        both = self._raw(np.concatenate([dense, midpoints]))  # one call for grid and midpoints
-        states, mid_rate = both[: dense.size], both[dense.size :, 5]
-        bad_rows = ~np.all(np.isfinite(states), axis=1) | (states[:, 3] < MIN_PATH_SPEED)
-        if np.any(bad_rows):
-            bad = dense[bad_rows][0]
+        states = self._states_on_grid(dense)
+        if states is None:
+            raw = self._raw(dense)
+            bad_rows = ~np.all(np.isfinite(raw), axis=1) | (raw[:, 3] < MIN_PATH_SPEED)
             raise ValueError(
-                f"reference {self.name!r} has a vanishing or non-finite speed at t = {bad} s "
-                f"(speed {states[bad_rows][0, 3]!r} m/s): its heading is undefined there"
+                f"reference {self.name!r} has a vanishing or non-finite speed at t = "
+                f"{dense[bad_rows][0]} s (speed {raw[bad_rows][0, 3]!r} m/s): its heading is "
+                "undefined there"
             )
-        states[:, 2] = _unwrapped_heading(dense, states[:, 2], states[:, 5], mid_rate)
         if dense.size == times.size:
             return states
         return states[np.searchsorted(dense, times)]
@@ -210,12 +207,18 @@ class Reference:
         closed loop's reference windows).  Falls back to :meth:`evaluate` (and its error
         messages) if the speed vanishes or is not finite.
         """
-        midpoints = 0.5 * (times[:-1] + times[1:])
-        both = self._raw(np.concatenate([times, midpoints]))
-        states, mid_rate = both[: times.size], both[times.size :, 5]
-        if not np.all(states[:, 3] > MIN_PATH_SPEED):  # also False for NaN
-            return self.evaluate(times)
-        states[:, 2] = _unwrapped_heading(times, states[:, 2], states[:, 5], mid_rate)
+        states = self._states_on_grid(times)
+        return self.evaluate(times) if states is None else states
+
+    def _states_on_grid(self, grid: np.ndarray) -> np.ndarray | None:
+        """States with unwrapped heading on a fine increasing grid; ``None`` if the path speed
+        vanishes or is not finite somewhere on it."""
+        midpoints = 0.5 * (grid[:-1] + grid[1:])
+        both = self._raw(np.concatenate([grid, midpoints]))  # one call for grid and midpoints
+        states, mid_rate = both[: grid.size], both[grid.size :, 5]
+        if not (np.all(np.isfinite(states)) and np.all(states[:, 3] >= MIN_PATH_SPEED)):
+            return None
+        states[:, 2] = _unwrapped_heading(grid, states[:, 2], states[:, 5], mid_rate)
         return states
 
     def initial_state(self, t0: float | None = None) -> np.ndarray:
@@ -224,10 +227,6 @@ class Reference:
         state = self.evaluate([t0])[0]
         state[3:] = 0.0
         return state
-
-    def with_window(self, t_start: float, t_end: float) -> Reference:
-        """A copy valid on a narrower window ``[t_start, t_end]`` (s)."""
-        return dataclasses.replace(self, t_start=t_start, t_end=t_end)
 
 
 def _unwrapped_heading(

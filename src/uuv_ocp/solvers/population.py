@@ -135,16 +135,8 @@ class SwarmSolver:
             ]  # fmt: skip
             unknown = sorted(options)
             raise ValueError(f"unknown options for solver {method!r}: {unknown}; valid: {valid}")
-        # validate algorithm options now, before any solve
-        minimize(
-            lambda x: np.zeros(x.shape[0]),
-            -np.ones(1),
-            np.ones(1),
-            method,
-            population=4,
-            iterations=1,
-            options=self.algorithm_options,
-        )
+        # validate algorithm options now, before any solve (the constructor checks them)
+        algorithm(-np.ones(1), np.ones(1), self.population, self.iterations, self.algorithm_options)
         if not isinstance(self.compiled, bool):
             raise ValueError(f"options['compiled'] must be True or False, got {self.compiled!r}")
         self.native = None

@@ -50,7 +50,7 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from uuv_ocp._validation import positive_int
+from uuv_ocp._validation import choice, positive_int
 
 __all__ = [
     "ALGORITHMS",
@@ -476,11 +476,7 @@ class GreyWolf(PopulationAlgorithm):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        kind = self.options["convergence"]
-        if kind not in CONVERGENCE_FACTORS:
-            raise ValueError(
-                f"options['convergence'] must be one of {sorted(CONVERGENCE_FACTORS)}, got {kind!r}"
-            )
+        choice("options['convergence']", self.options["convergence"], sorted(CONVERGENCE_FACTORS))
 
     def _a(self, t: int) -> float:
         return float(
@@ -560,9 +556,7 @@ class ImprovedGreyWolf(GreyWolf):
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
-        frame = self.options["frame"]
-        if frame not in ("origin", "alpha"):
-            raise ValueError(f"options['frame'] must be one of ['alpha', 'origin'], got {frame!r}")
+        choice("options['frame']", self.options["frame"], ["alpha", "origin"])
 
     def _w(self, t: int) -> float:
         T = self.iterations

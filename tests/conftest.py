@@ -1,5 +1,7 @@
 """Shared fixtures: small problems built once per session."""
 
+import os
+
 import numpy as np
 import pytest
 
@@ -19,3 +21,13 @@ def feasible_start():
     state = reference.evaluate([3.0])[0]
     state += np.array([0.05, -0.04, 0.02, 0.03, 0.01, -0.01])
     return state, 3.0
+
+
+needs_compiler = pytest.mark.skipif(
+    not any(
+        os.path.exists(os.path.join(d, c))
+        for d in os.environ.get("PATH", "").split(os.pathsep)
+        for c in ("cc", "gcc")
+    ),
+    reason="no C compiler on this machine",
+)

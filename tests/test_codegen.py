@@ -1,6 +1,5 @@
 """C code generation: compiled = symbolic, cache, all-C IGWO = Python IGWO, standalone C program."""
 
-import os
 import re
 import stat
 import subprocess
@@ -14,16 +13,10 @@ import uuv_ocp as uo
 from uuv_ocp import codegen
 from uuv_ocp.solvers.swarm import minimize
 
+from conftest import needs_compiler
+
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "c"
 
-needs_compiler = pytest.mark.skipif(
-    not any(
-        os.path.exists(os.path.join(d, c))
-        for d in os.environ.get("PATH", "").split(os.pathsep)
-        for c in ("cc", "gcc")
-    ),
-    reason="no C compiler on this machine",
-)
 
 
 @pytest.fixture(autouse=True)

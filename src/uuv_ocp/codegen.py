@@ -3,8 +3,10 @@
 ``generate_c(problem, directory)`` writes one C file (CasADi ``CodeGenerator``) holding
 
 * ``cost(U, p) -> (objective, penalty)``: the condensed cost of the problem,
-* ``cost_batch(U[3N × population], p) -> fitness[1 × population]``: the swarm fitness mapped
-  over a population,
+* ``cost_batch(U[3N × population], p) -> fitness[1 × population]``: the swarm fitness of a
+  population, as a SIMD kernel (:mod:`uuv_ocp.codegen_simd`: one operation for 8 candidates
+  at a time with AVX-512; sin/cos within a few ulp of libm), and ``cost_batch_exact``, CasADi's
+  mapped code of the same fitness (bit-identical to the virtual machine),
 * ``dynamics(x, tau, current) -> xdot`` and ``model_step(x, tau, current) -> x_next``,
 * ``uuv_ocp_igwo(...)``: the whole IGWO step of the paper as a C loop around ``cost_batch``
   (random draws and the a(t), w(t) schedules are inputs, so the same draws give the same
@@ -41,11 +43,16 @@ from uuv_ocp.codegen_core import (
     compile_functions,
     find_c_compiler,
 )
+from uuv_ocp.codegen_simd import UnsupportedOperation, batch_kernel_source
 from uuv_ocp.problem import TrackingProblem
 
-#: ``-ffp-contract=off`` keeps compiled results identical to CasADi's virtual machine.
-DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off")
+#: ``-ffp-contract=off`` keeps compiled arithmetic identical to CasADi's virtual machine;
+#: ``-march=native`` gives the SIMD kernel this processor's vector width (3x on AVX-512,
+#: measured) and makes the processor part of the cache key.
+DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off", "-march=native")
 FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step")
+#: generated along with ``cost_batch``: CasADi's own (scalar, mapped) code of the same fitness
+EXACT_BATCH = "cost_batch_exact"
 _IGWO_SOURCE = Path(__file__).with_name("igwo_step.c")
 
 __all__ = [
@@ -56,6 +63,7 @@ __all__ = [
     "VerificationError",
     "compiled_build",
     "compiled_fitness",
+    "uses_pcg64",
     "find_c_compiler",
     "generate_c",
     "symbolic_functions",
@@ -75,7 +83,8 @@ class GeneratedCode:
     library : Path or None
         The compiled shared library (``None`` with ``compile=False``).
     functions : dict
-        Name -> ``casadi.Function`` loaded from the library (empty with ``compile=False``).
+        Name -> ``casadi.Function`` loaded from the library (empty with ``compile=False``);
+        with ``cost_batch`` comes ``cost_batch_exact``.
     max_error : dict
         Name -> largest relative difference compiled vs symbolic found by the verification.
     population : int
@@ -84,6 +93,9 @@ class GeneratedCode:
         SHA-256 of source + compiler + flags (the cache key).
     reused : bool
         Whether an existing library was reused from the cache.
+    simd : bool
+        Whether ``cost_batch`` is the SIMD kernel (else CasADi's mapped code: the problem's cost
+        has an operation the kernel emitter does not support).
     """
 
     directory: Path
@@ -95,6 +107,7 @@ class GeneratedCode:
     population: int = 20
     digest: str = ""
     reused: bool = False
+    simd: bool = False
 
     def __getitem__(self, name: str) -> ca.Function:
         return self.functions[name]
@@ -105,14 +118,25 @@ def symbolic_functions(problem: TrackingProblem, population: int = 20) -> dict[s
     from uuv_ocp.solvers.population import batched_fitness
 
     built = problem.build()
-    dynamics = problem.vehicle.dynamics_function()
+    batch = batched_fitness(problem, population)
     return {
         "cost": built.cost,
-        # not expanded: the generated code loops over one compiled cost (compact, cache-friendly)
-        "cost_batch": _renamed(batched_fitness(problem, population), "cost_batch"),
-        "dynamics": dynamics,
+        "cost_batch": _renamed(batch, "cost_batch"),
+        EXACT_BATCH: _renamed(batch, EXACT_BATCH),
+        "dynamics": problem.vehicle.dynamics_function(),
         "model_step": _renamed(built.step, "model_step"),
     }
+
+
+def _batch_sources(problem: TrackingProblem, population: int) -> tuple[str, bool]:
+    """C of the SIMD ``cost_batch`` (or ``""`` if unsupported) and whether it is SIMD."""
+    from uuv_ocp.solvers.population import candidate_fitness
+
+    try:
+        kernel = batch_kernel_source(candidate_fitness(problem), "cost_batch", population, EXACT_BATCH)
+    except UnsupportedOperation:
+        return "", False
+    return kernel, True
 
 
 def _renamed(function: ca.Function, name: str) -> ca.Function:
@@ -157,7 +181,8 @@ def generate_c(
     verify : bool
         Compare every compiled function with its symbolic twin on random inputs.
     flags : tuple of str
-        Compiler flags (``-ffp-contract=off`` keeps results identical to the virtual machine).
+        Compiler flags (``-ffp-contract=off`` keeps arithmetic identical to the virtual machine,
+        ``-march=native`` sets the SIMD width).
     seed : int
         Seed of the verification inputs.
     tolerance : float
@@ -171,7 +196,15 @@ def generate_c(
     directory = Path(directory)
     symbolic = symbolic_functions(problem, population)
     chosen = [symbolic[name] for name in FUNCTION_NAMES if name in functions]
-    extra = _IGWO_SOURCE.read_text() if "cost_batch" in functions else ""
+    external = []
+    extra = ""
+    simd = False
+    if "cost_batch" in functions:
+        kernel, simd = _batch_sources(problem, population)
+        if simd:  # CasADi's mapped code becomes cost_batch_exact; cost_batch is the kernel
+            chosen = [symbolic[EXACT_BATCH] if f.name() == "cost_batch" else f for f in chosen]
+            external = [symbolic["cost_batch"]]
+        extra = kernel + _IGWO_SOURCE.read_text()
     existing = set(directory.glob("*.so")) if directory.exists() else set()
     library = compile_functions(
         chosen,
@@ -182,6 +215,7 @@ def generate_c(
         flags=flags,
         tolerance=tolerance,
         extra_source=extra,
+        external=external,
     )
     return GeneratedCode(
         directory=directory,
@@ -193,6 +227,7 @@ def generate_c(
         population=population,
         digest=library.digest,
         reused=library.path in existing,
+        simd=simd,
     )
 
 
@@ -236,19 +271,27 @@ class NativeIgwo:
     """The all-C IGWO step of a compiled build, called through ``ctypes``.
 
     ``run(p, offset, lower, upper, positions, draws, a, w, c1, c2)`` mirrors the Python IGWO
-    (``solvers/swarm.py``) operation by operation; inputs are float64 arrays.
+    (``solvers/swarm.py``) operation by operation; ``draws`` is either the array
+    ``(iterations, 8, population, dim)`` of uniform numbers or a ``numpy.random.Generator``
+    on PCG64 (numpy's default), from which the C code draws exactly the numbers
+    ``draws.random((iterations, 8, population, dim))`` would give, and advances it as that
+    call would.  Inputs are float64 arrays.
     """
 
     def __init__(self, build: GeneratedCode) -> None:
         self.build = build
         self.library = ctypes.CDLL(str(build.library))
-        function = self.library.uuv_ocp_igwo
         pointer = ctypes.POINTER(ctypes.c_double)
-        function.argtypes = (
-            [pointer] * 8 + [ctypes.c_double, ctypes.c_double] + [ctypes.c_int] * 3 + [pointer] * 4
-        )
-        function.restype = ctypes.c_int
-        self._function = function
+        tail = [ctypes.c_double, ctypes.c_double] + [ctypes.c_int] * 3 + [pointer] * 4
+        self._given = self.library.uuv_ocp_igwo
+        self._given.argtypes = [pointer] * 8 + tail
+        self._drawing = self.library.uuv_ocp_igwo_pcg64
+        self._drawing.argtypes = [pointer] * 5 + [ctypes.POINTER(ctypes.c_uint64)] + [pointer] * 2 + tail
+        for function in (self._given, self._drawing):
+            function.restype = ctypes.c_int
+        self.random = self.library.uuv_ocp_pcg64_random
+        self.random.argtypes = [ctypes.c_uint64] * 4 + [pointer, ctypes.c_size_t]
+        self.random.restype = None
 
     def run(
         self,
@@ -257,7 +300,7 @@ class NativeIgwo:
         lower: np.ndarray,
         upper: np.ndarray,
         positions: np.ndarray,
-        draws: np.ndarray,
+        draws: np.ndarray | np.random.Generator,
         a: np.ndarray,
         w: np.ndarray,
         c1: float = 0.5,
@@ -266,23 +309,36 @@ class NativeIgwo:
         """One IGWO run; returns ``x``, ``fun``, ``history``, ``population``."""
         population, dim = positions.shape
         iterations = a.shape[0]
-        arrays = [
-            np.ascontiguousarray(v, dtype=float) for v in (p, offset, lower, upper, positions, draws, a, w)
-        ]
-        best_x = np.empty(dim)
-        best_f = np.empty(1)
-        history = np.empty(iterations + 1)
-        final = np.empty((population, dim))
         pointer = ctypes.POINTER(ctypes.c_double)
-        status = self._function(
-            *[v.ctypes.data_as(pointer) for v in arrays],
-            c1,
-            c2,
-            population,
-            dim,
-            iterations,
-            *[v.ctypes.data_as(pointer) for v in (best_x, best_f, history, final)],
-        )
+
+        def data(array: np.ndarray) -> ctypes._Pointer:
+            return array.ctypes.data_as(pointer)
+
+        inputs = [np.ascontiguousarray(v, dtype=float) for v in (p, offset, lower, upper, positions)]
+        schedules = [np.ascontiguousarray(v, dtype=float) for v in (a, w)]
+        best_x, best_f = np.empty(dim), np.empty(1)
+        history, final = np.empty(iterations + 1), np.empty((population, dim))
+        tail = (c1, c2, population, dim, iterations, *map(data, (best_x, best_f, history, final)))
+        if isinstance(draws, np.random.Generator):
+            if not uses_pcg64(draws):
+                raise ValueError(f"draws must use PCG64, got {type(draws.bit_generator).__name__}")
+            state = draws.bit_generator.state
+            words = (ctypes.c_uint64 * 4)(*_split(state["state"]["state"]), *_split(state["state"]["inc"]))
+            status = self._drawing(*map(data, inputs), words, *map(data, schedules), *tail)
+            state["state"]["state"] = (words[0] << 64) | words[1]
+            draws.bit_generator.state = state
+        else:
+            block = np.ascontiguousarray(draws, dtype=float)
+            status = self._given(*map(data, inputs), data(block), *map(data, schedules), *tail)
         if status != 0:
             raise RuntimeError(f"uuv_ocp_igwo returned status {status}")
         return {"x": best_x, "fun": float(best_f[0]), "history": history, "population": final}
+
+
+def uses_pcg64(generator: np.random.Generator) -> bool:
+    """Whether ``generator`` runs on numpy's PCG64, the stream the C step reproduces."""
+    return type(generator.bit_generator) is np.random.PCG64
+
+
+def _split(value: int) -> tuple[int, int]:
+    return value >> 64, value & 0xFFFFFFFFFFFFFFFF

@@ -24,6 +24,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import os
+import platform
 import re
 import secrets
 import shlex
@@ -185,6 +186,22 @@ def _digest(source_text: str, compiler: str, command_flags: Sequence[str]) -> st
     return hasher.hexdigest()
 
 
+def _machine_key(flags: Sequence[str]) -> tuple[str, ...]:
+    """The processor's identity when ``flags`` tune for it (``-march=native``), else nothing.
+
+    A library built for this processor's instruction set may not run on another one: the
+    processor joins the cache key, so a shared cache directory never hands it to a different CPU.
+    """
+    if not any(flag.endswith("=native") for flag in flags):
+        return ()
+    identity = [platform.machine(), platform.processor()]
+    with contextlib.suppress(OSError):
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+        for key in ("model name", "flags", "Features"):
+            identity.extend(line for line in lines[:64] if line.startswith(key))
+    return ("\n".join(dict.fromkeys(identity)),)
+
+
 def _install(temporary: Path, final: Path) -> None:
     """Move ``temporary`` onto ``final`` atomically, unless ``final`` already has its content."""
     with contextlib.suppress(OSError):
@@ -329,6 +346,7 @@ def compile_functions(
     flags: Sequence[str] = DEFAULT_FLAGS,
     tolerance: float = 1e-12,
     extra_source: str = "",
+    external: Sequence[ca.Function] = (),
 ) -> CompiledLibrary:
     """Generate C code for ``functions``, compile it (cached), load it back and verify it.
 
@@ -360,6 +378,10 @@ def compile_functions(
     extra_source : str, default ""
         Hand-written C appended to the generated source (it may call the generated functions,
         e.g. the all-C IGWO step); part of the digest.
+    external : Sequence[casadi.Function], default ()
+        Symbolic twins of functions that ``extra_source`` defines under CasADi's
+        external-function ABI (e.g. a SIMD kernel): loaded and verified like the generated
+        ones, under the twin's name.
 
     Returns
     -------
@@ -384,6 +406,8 @@ def compile_functions(
     the compiler's version: after upgrading a compiler in place, clear the directory.
     """
     functions = _check_functions(functions, name)
+    external = list(external)
+    _check_functions([*functions, *external], name)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     flags = tuple(flags)
@@ -425,7 +449,7 @@ def compile_functions(
             if compiler is None:
                 raise CompilerNotFoundError(f"C compiler not found: cc={cc!r} is not executable")
         link = _link_flags(source_text)
-        digest = _digest(source_text, compiler, (*flags, *link))
+        digest = _digest(source_text, compiler, (*flags, *link, *_machine_key(flags)))
         library = directory / f"{name}_{digest[:16]}.so"
         if not library.exists():
             # A unique name, not pre-created (mkstemp's 0600 mode would leak into the library).
@@ -442,11 +466,11 @@ def compile_functions(
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
-    loaded = _load([function.name() for function in functions], library)
+    loaded = _load([function.name() for function in (*functions, *external)], library)
     errors: dict[str, float] = {}
     if verify:
         generator_rng = np.random.default_rng(0) if rng is None else rng
-        errors = _verify(functions, loaded, generator_rng, tolerance)
+        errors = _verify([*functions, *external], loaded, generator_rng, tolerance)
     return CompiledLibrary(
         path=library,
         source=source,

@@ -34,6 +34,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp.buffered import BufferedFunction
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.references import UNWRAP_STEP, Reference
 from uuv_ocp.vehicles import CONTROL_DIM, CURRENT_DIM, STATE_DIM, Vehicle
@@ -317,8 +318,19 @@ class TrackingProblem:
 
     def rollout(self, controls: object, p: np.ndarray) -> np.ndarray:
         """States ``(N+1, 6)`` from the prediction model under physical ``controls`` (N, 3)."""
-        scaled = self.scaled_from_controls(controls)
-        return np.array(self.build().rollout(scaled, p), dtype=float).T
+        return self.rollout_scaled(self.scaled_from_controls(controls), p)
+
+    def rollout_scaled(self, scaled: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """States ``(N+1, 6)`` under flat scaled controls ``(3N,)`` (no validation: hot path)."""
+        (states,) = self.buffered("rollout")(scaled, p)
+        return states.reshape(self.horizon + 1, STATE_DIM)
+
+    def buffered(self, name: str) -> BufferedFunction:
+        """Zero-copy caller of the built Function ``name`` (``"rollout"``, ``"score_terms"``, …)."""
+        callers = self._cache.setdefault("buffered", {})
+        if name not in callers:
+            callers[name] = BufferedFunction(getattr(self.build(), name))
+        return callers[name]
 
 
 # ============================================================================ building
@@ -559,10 +571,6 @@ def score(
 
 def score_parameters(problem: TrackingProblem, scaled: np.ndarray, p: np.ndarray) -> tuple[float, float]:
     """:func:`score` on a flat scaled control vector and a ready parameter vector."""
-    objective, terminal, rate, bound = problem.build().score_terms(scaled, p)
-    violation = max(
-        float(np.max(np.abs(np.array(terminal)))),
-        float(np.max(np.array(rate))),
-        float(np.max(np.array(bound))),
-    )
-    return float(objective), violation
+    objective, terminal, rate, bound = problem.buffered("score_terms")(scaled, p)
+    violation = max(float(np.max(np.abs(terminal))), float(np.max(rate)), float(np.max(bound)))
+    return float(objective[0]), violation

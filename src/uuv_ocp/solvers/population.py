@@ -30,6 +30,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp.buffered import BufferedFunction
 from uuv_ocp.problem import TrackingProblem, score_parameters
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.solvers.swarm import ALGORITHMS, MinimizeResult, minimize
@@ -37,42 +38,41 @@ from uuv_ocp.solvers.swarm import ALGORITHMS, MinimizeResult, minimize
 SEARCH_MODES = ("deviation", "absolute")
 
 
+def candidate_fitness(problem: TrackingProblem) -> ca.Function:
+    """``fitness(U[3N], p) -> objective + penalty`` of one candidate, as an SX Function."""
+    cost = problem.build().cost
+    scaled = ca.SX.sym("U", problem.control_dim)
+    p = ca.SX.sym("p", problem.parameter_dim)
+    objective, penalty = cost(scaled, p)
+    return ca.Function("fitness", [scaled, p], [objective + penalty], ["U", "p"], ["fitness"])
+
+
 def batched_fitness(
     problem: TrackingProblem, population: int, parallelization: str = "serial"
 ) -> ca.Function:
     """``fitness(U[3N × population], p) -> (1 × population)``: objective + penalty, mapped."""
-    cost = problem.build().cost
-    mapped = cost.map("cost_batch", parallelization, population, [1], [])
-    candidates = ca.MX.sym("U", problem.control_dim, population)
-    p = ca.MX.sym("p", problem.parameter_dim)
-    objective, penalty = mapped(candidates, p)
-    return ca.Function("fitness_batch", [candidates, p], [objective + penalty], ["U", "p"], ["fitness"])
+    return candidate_fitness(problem).map("fitness_batch", parallelization, population, [1], [])
 
 
 class BufferedFitness:
-    """Zero-copy caller of a population fitness Function (``Function.buffer``).
+    """Zero-copy population fitness (:class:`uuv_ocp.buffered.BufferedFunction`).
 
-    CasADi's ordinary call converts numpy arrays to ``DM`` and back on every call (≈ 150 µs
-    for 20 × 60 candidates); the buffer interface reads and writes numpy memory directly.
-    Same Function, same arithmetic: results are bit-identical to an ordinary call (tested).
+    ``candidates`` (population, dim) in row-major order are the (dim, population) column-major
+    nonzeros the mapped Function takes.
     """
 
     def __init__(self, function: ca.Function, population: int, dim: int, parameter_dim: int) -> None:
+        if function.size_in(0) != (dim, population) or function.nnz_in(1) != parameter_dim:
+            raise ValueError(
+                f"function must take U ({dim} x {population}) and p ({parameter_dim}), got "
+                f"{function.size_in(0)} and {function.size_in(1)}"
+            )
         self.function = function
-        self._candidates = np.zeros(dim * population)  # (population, dim) row-major = (dim, population) F
-        self._parameters = np.zeros(parameter_dim)
-        self._costs = np.zeros(population)
-        self._buffer, self._trigger = function.buffer()
-        self._buffer.set_arg(0, memoryview(self._candidates))
-        self._buffer.set_arg(1, memoryview(self._parameters))
-        self._buffer.set_res(0, memoryview(self._costs))
+        self._call = BufferedFunction(function)
 
     def __call__(self, candidates: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Fitness of ``candidates`` (population, dim) for parameters ``p``: (population,)."""
-        self._candidates[:] = candidates.ravel()
-        self._parameters[:] = p
-        self._trigger()
-        return self._costs.copy()
+        return self._call(candidates, p)[0]
 
 
 class SwarmSolver:
@@ -140,6 +140,7 @@ class SwarmSolver:
         if not isinstance(self.compiled, bool):
             raise ValueError(f"options['compiled'] must be True or False, got {self.compiled!r}")
         self.native = None
+        self._schedules: tuple[np.ndarray, np.ndarray] | None = None  # IGWO's a(t), w(t) for the C step
         self.fitness = self._fitness_function()
         self._evaluate = BufferedFitness(
             self.fitness, self.population, problem.control_dim, problem.parameter_dim
@@ -210,7 +211,7 @@ class SwarmSolver:
             )
         scaled = np.clip(outcome.x + offset, -1.0, 1.0)
         cost, violation = score_parameters(problem, scaled, p)
-        states = np.array(problem.build().rollout(scaled, p), dtype=float).T
+        states = problem.rollout_scaled(scaled, p)
         controls = problem.controls_from_scaled(scaled)
         iterate = Iterate(
             scaled_controls=scaled.reshape(problem.horizon, -1),
@@ -236,6 +237,7 @@ class SwarmSolver:
 
     def _native_minimize(self, p, offset, lower, upper, seeds, rng) -> MinimizeResult:
         """The all-C IGWO step with exactly the random draws the Python loop would use."""
+        from uuv_ocp.codegen import uses_pcg64
         from uuv_ocp.solvers.swarm import ImprovedGreyWolf
 
         generator = rng if rng is not None else np.random.default_rng(self.seed)
@@ -243,10 +245,17 @@ class SwarmSolver:
         seeds = np.empty((0, lower.size)) if seeds is None else seeds
         uniform = generator.random((self.population - seeds.shape[0], lower.size))
         positions = np.vstack([np.clip(seeds, lower, upper), lower + uniform * algorithm.width])
-        draws = generator.random((self.iterations, 8, self.population, lower.size))
-        steps = range(self.iterations)
-        a = np.array([algorithm._a(t) for t in steps])
-        w = np.array([algorithm._w(t) for t in steps])
+        if uses_pcg64(generator):
+            draws = generator  # drawn inside the C step, the same numbers in the same order
+        else:
+            draws = generator.random((self.iterations, 8, self.population, lower.size))
+        if self._schedules is None:
+            steps = range(self.iterations)
+            self._schedules = (
+                np.array([algorithm._a(t) for t in steps]),
+                np.array([algorithm._w(t) for t in steps]),
+            )
+        a, w = self._schedules
         options = algorithm.options
         out = self.native.run(p, offset, lower, upper, positions, draws, a, w, options["c1"], options["c2"])
         return MinimizeResult(

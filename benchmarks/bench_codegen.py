@@ -1,9 +1,11 @@
 """Virtual machine vs compiled C on the s2 problem (N = 20): cost throughput and step times.
 
 * evaluations/s of the swarm fitness for 1, 20 and 100 candidates per call, from Python;
+* the SIMD kernel ``cost_batch`` vs CasADi's mapped C (``cost_batch_exact``), zero-copy calls;
 * IGWO 20 × 30 NMPC step: Python loop over the VM cost, Python loop over the compiled cost,
-  the all-C step (``uuv_ocp_igwo``) including Python's random draws, and the C call alone
-  (evaluations/s *inside* the C step);
+  the all-C step (``uuv_ocp_igwo_pcg64``: numpy's PCG64 stream drawn in C) as ``solve`` runs
+  it, and the C call alone, with the 288 k uniforms given (evaluations/s *inside* the C step)
+  and with them drawn in C;
 * exact backends with and without compiled NLP functions (``options={"compiled": True}``:
   CasADi's JIT with the system compiler; ~30 s of compilation per NLP variant, excluded),
   per-step times of the 300-step s2 closed loop from rest.
@@ -22,7 +24,7 @@ import numpy as np
 import uuv_ocp as uo
 from benchmarks.bench_exact import closed_loop_times
 from uuv_ocp.codegen import generate_c
-from uuv_ocp.solvers.population import batched_fitness
+from uuv_ocp.solvers.population import BufferedFitness, batched_fitness
 
 
 def _time(function, repeats: int) -> float:
@@ -56,6 +58,20 @@ def main() -> dict:
         results["throughput"][population] = (vm_rate, c_rate)
         print(f"{population:<16}{vm_rate:>14,.0f}{c_rate:>18,.0f}{c_rate / vm_rate:>10.1f}")
 
+    print("\nPopulation of 20 from Python, zero-copy (Function.buffer), evaluations/s")
+    candidates = rng.uniform(-1, 1, (20, problem.control_dim))
+    build = generate_c(problem, os.environ["UUV_OCP_CACHE"], functions=("cost_batch",), population=20)
+    rates = {}
+    for name in ("cost_batch_exact", "cost_batch"):
+        call = BufferedFitness(build[name], 20, problem.control_dim, problem.parameter_dim)
+        rates[name] = 20 / _time(lambda call=call: call(candidates, p), 2000)
+    results["kernel"] = rates
+    print(f"  CasADi's mapped C (cost_batch_exact) {rates['cost_batch_exact']:>12,.0f}")
+    print(
+        f"  SIMD kernel (cost_batch)             {rates['cost_batch']:>12,.0f}"
+        f"   ({rates['cost_batch'] / rates['cost_batch_exact']:.1f}x)"
+    )
+
     python_vm = uo.get_solver(problem, "igwo")
     compiled_loop = uo.get_solver(
         problem, "igwo", {"compiled": True, "algorithm_options": {"frame": "origin", "c1": 0.5}}
@@ -65,13 +81,13 @@ def main() -> dict:
     steps = {
         "python loop, VM cost": python_vm,
         "python loop, compiled cost": compiled_loop,
-        "all-C step (incl. draws)": all_c,
+        "all-C step (solve, PCG64 in C)": all_c,
     }
-    print("\nIGWO 20 x 30 NMPC step at a fixed state (median of 30, ms)")
+    print("\nIGWO 20 x 30 NMPC step at a fixed state (median of 100, ms)")
     timings = {}
     for label, solver in steps.items():
         samples = []
-        for seed in range(31):
+        for seed in range(101):
             start = time.perf_counter()
             solver.solve(p, None, np.random.default_rng(seed))
             samples.append(time.perf_counter() - start)
@@ -83,10 +99,14 @@ def main() -> dict:
     draws = rng.random((iterations, 8, n, dim))
     a, w = np.linspace(2, 0, iterations), np.linspace(0.9, 0.1, iterations)
     bounds = (np.zeros(dim), -np.ones(dim), np.ones(dim))
-    c_only = _time(lambda: native.run(p, *bounds, positions, draws, a, w), 50)
+    c_only = _time(lambda: native.run(p, *bounds, positions, draws, a, w), 200)
     timings["C call alone"] = c_only
     rate = n * (iterations + 1) / c_only
-    print(f"  {'C call alone':<30}{1e3 * c_only:>8.2f}   ({rate:,.0f} evaluations/s inside C)")
+    print(f"  {'C call, draws given':<30}{1e3 * c_only:>8.2f}   ({rate:,.0f} evaluations/s inside C)")
+    generator = np.random.default_rng(1)
+    drawing = _time(lambda: native.run(p, *bounds, positions, generator, a, w), 200)
+    timings["C call drawing"] = drawing
+    print(f"  {'C call, PCG64 draws in C':<30}{1e3 * drawing:>8.2f}")
     results["igwo"] = timings
 
     print("\nExact backends, 300-step closed loop on s2 from rest (ms per step)")

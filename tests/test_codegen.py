@@ -10,13 +10,11 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from conftest import needs_compiler
 from uuv_ocp import codegen
 from uuv_ocp.solvers.swarm import minimize
 
-from conftest import needs_compiler
-
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "c"
-
 
 
 @pytest.fixture(autouse=True)

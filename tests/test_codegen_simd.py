@@ -5,9 +5,9 @@ import ctypes
 import casadi as ca
 import numpy as np
 import pytest
-from conftest import needs_compiler
 
 import uuv_ocp as uo
+from conftest import needs_compiler
 from uuv_ocp import codegen, codegen_core
 from uuv_ocp.codegen_simd import UnsupportedOperation, batch_kernel_source
 
@@ -125,9 +125,7 @@ def test_c_pcg64_draws_numpys_numbers_and_advances_the_same(tmp_path, s2_problem
 
 
 @needs_compiler
-def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
-    s2_problem, feasible_start
-):
+def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(s2_problem, feasible_start):
     x0, t0 = feasible_start
     p = s2_problem.parameters(x0, t0)
     native = uo.get_solver(s2_problem, "igwo", {"compiled": True})

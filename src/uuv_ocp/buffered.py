@@ -18,25 +18,18 @@ class BufferedFunction:
     Parameters
     ----------
     function : casadi.Function
-        Any Function whose inputs and outputs are dense.
-
-    Raises
-    ------
-    ValueError
-        If an input or output is not dense.
+        Any Function; sparse inputs and outputs are taken and returned dense (a thin MX
+        wrapper densifies them).
     """
 
     def __init__(self, function: ca.Function) -> None:
-        for kind, count, sparsity in (
-            ("input", function.n_in(), function.sparsity_in),
-            ("output", function.n_out(), function.sparsity_out),
-        ):
-            for index in range(count):
-                if not sparsity(index).is_dense():
-                    raise ValueError(
-                        f"{kind} {index} of {function.name()!r} must be dense for a buffered call, "
-                        f"got sparsity {sparsity(index).dim()}"
-                    )
+        dense = all(function.sparsity_in(i).is_dense() for i in range(function.n_in())) and all(
+            function.sparsity_out(i).is_dense() for i in range(function.n_out())
+        )
+        if not dense:
+            symbols = [ca.MX.sym(function.name_in(i), *function.size_in(i)) for i in range(function.n_in())]
+            outputs = function.call(symbols)
+            function = ca.Function(f"{function.name()}_dense", symbols, [ca.densify(o) for o in outputs])
         self.function = function
         self._inputs = [np.zeros(function.nnz_in(i)) for i in range(function.n_in())]
         self._outputs = [np.zeros(function.nnz_out(i)) for i in range(function.n_out())]
@@ -45,6 +38,10 @@ class BufferedFunction:
             self._buffer.set_arg(index, memoryview(array))
         for index, array in enumerate(self._outputs):
             self._buffer.set_res(index, memoryview(array))
+
+    def stats(self) -> dict:
+        """``Function.stats()`` of the last buffered call (its own memory, not ``stats(0)``)."""
+        return self._buffer.stats()
 
     def __call__(self, *inputs: np.ndarray) -> list[np.ndarray]:
         """Evaluate; ``inputs`` are flat (column-major) nonzeros; returns copies of the outputs."""

@@ -5,8 +5,9 @@ candidate.  :func:`batch_kernel_source` instead walks the SX algorithm of the on
 function (``instruction_id`` / ``instruction_input`` / ``instruction_output``) and emits each
 operation once for ``UUV_LANES`` candidates at a time, on the vector type of
 ``simd_math.h`` (GCC/clang vector extensions: 8 doubles with AVX-512, 4 with AVX, 2 with
-SSE2, so build with ``-march=native``).  Operations that depend only on the shared inputs (the problem parameters ``p``)
-are hoisted out of the candidate loop and computed once, as scalars.
+SSE2, so build with ``-march=native``).  Operations that depend only on the shared inputs
+(the problem parameters ``p``) are hoisted out of the candidate loop and computed once, as
+scalars.
 
 Arithmetic (+ − × ÷, |·|, min/max, squares) is IEEE-identical to the scalar code; ``sin`` and
 ``cos`` use fdlibm's polynomial kernels (a few ulp from libm) and are paired into one
@@ -90,7 +91,11 @@ _SCALAR = {
     _op("OR"): "(double)({a} || {b})",
     _op("IF_ELSE_ZERO"): "({a} == 0 ? 0.0 : {b})",
 }
-_VECTOR_CALL = {_op("FABS"): "uuv_fabs({a})", _op("FMAX"): "uuv_fmax({a}, {b})", _op("FMIN"): "uuv_fmin({a}, {b})"}
+_VECTOR_CALL = {
+    _op("FABS"): "uuv_fabs({a})",
+    _op("FMAX"): "uuv_fmax({a}, {b})",
+    _op("FMIN"): "uuv_fmin({a}, {b})",
+}
 _SIN, _COS = _op("SIN"), _op("COS")
 _CONST, _INPUT, _OUTPUT = _op("CONST"), _op("INPUT"), _op("OUTPUT")
 _NAMES = {int(getattr(ca, n)): n[3:] for n in dir(ca) if n.startswith("OP_")}

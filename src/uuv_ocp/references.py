@@ -21,6 +21,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp.buffered import BufferedFunction
 
 PathFunction = Callable[[ca.SX], object]
 
@@ -156,8 +157,9 @@ class Reference:
     def _raw(self, times: np.ndarray) -> np.ndarray:
         size = times.size
         if size not in self._maps:  # CasADi would build a new map on every horzcat call
-            self._maps[size] = self._function.map(size)
-        return np.array(self._maps[size](times[None, :]), dtype=float).T
+            self._maps[size] = BufferedFunction(self._function.map(size))
+        (states,) = self._maps[size](times)
+        return states.reshape(size, 6)
 
     def evaluate(self, times: object) -> np.ndarray:
         """Reference state at the given times, with a continuous heading.

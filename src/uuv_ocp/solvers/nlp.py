@@ -30,6 +30,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp.buffered import BufferedFunction
 from uuv_ocp.problem import NlpData, TrackingProblem, score_parameters
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.vehicles import CONTROL_DIM, STATE_DIM
@@ -140,7 +141,7 @@ class NlpSolver:
                 name = f"soft_x{factor:g}"
                 self.variants[name] = nlp_problem.replace(weights=weights).build().soft
                 self._escalations.append(name)
-        self._solvers: dict[str, ca.Function] = {}
+        self._solvers: dict[str, BufferedFunction] = {}
         self._shift = {
             name: (_shift_map(data.variable_labels), _shift_map(data.constraint_labels))
             for name, data in self.variants.items()
@@ -181,7 +182,8 @@ class NlpSolver:
             ["hess_gamma_x_x"],
         )
 
-    def _solver(self, variant: str) -> ca.Function:
+    def _solver(self, variant: str) -> BufferedFunction:
+        """The variant's ``nlpsol``, called zero-copy (no numpy -> DM conversions per step)."""
         if variant not in self._solvers:
             data = self.variants[variant]
             options = {"print_time": False, "error_on_fail": False}
@@ -191,9 +193,10 @@ class NlpSolver:
             nlp["f"] = nlp["f"] * self.objective_scale
             name = f"{self.plugin}_{variant}"
             if self.compiled:
-                self._solvers[variant] = self._compiled_nlpsol(name, nlp, options)
+                solver = self._compiled_nlpsol(name, nlp, options)
             else:
-                self._solvers[variant] = ca.nlpsol(name, self.plugin, nlp, options)
+                solver = ca.nlpsol(name, self.plugin, nlp, options)
+            self._solvers[variant] = BufferedFunction(solver)
         return self._solvers[variant]
 
     def _compiled_nlpsol(self, name: str, nlp: dict, options: dict) -> ca.Function:
@@ -257,28 +260,24 @@ class NlpSolver:
     def _attempt(self, variant: str, p: np.ndarray, warm_start: Iterate | None) -> dict[str, Any]:
         data = self.variants[variant]
         primal, lam_g, lam_x = self._initial_point(variant, p, warm_start)
-        arguments = {
-            "x0": primal,
-            "p": p,
-            "lbx": data.lbx,
-            "ubx": data.ubx,
-            "lbg": data.lbg,
-            "ubg": data.ubg,
-        }
-        if self.uses_duals and lam_g is not None:
-            arguments["lam_g0"] = lam_g * self.objective_scale
-        if self.uses_duals and lam_x is not None:
-            arguments["lam_x0"] = lam_x * self.objective_scale
+        if not self.uses_duals or lam_g is None:
+            lam_g = np.zeros(data.lbg.size)
+        if not self.uses_duals or lam_x is None:
+            lam_x = np.zeros(data.lbx.size)
         solver = self._solver(variant)
+        scale = self.objective_scale
         start = time.perf_counter()
-        solution = solver(**arguments)
+        # nlpsol inputs in order: x0, p, lbx, ubx, lbg, ubg, lam_x0, lam_g0 (zero = CasADi's default)
+        primal, _, _, lam_x, lam_g, _ = solver(
+            primal, p, data.lbx, data.ubx, data.lbg, data.ubg, lam_x * scale, lam_g * scale
+        )
         plugin_time = time.perf_counter() - start
         stats = solver.stats()
         return {
             "variant": variant,
-            "primal": np.array(solution["x"], dtype=float).ravel(),
-            "lam_g": np.array(solution["lam_g"], dtype=float).ravel() / self.objective_scale,
-            "lam_x": np.array(solution["lam_x"], dtype=float).ravel() / self.objective_scale,
+            "primal": primal,
+            "lam_g": lam_g / scale,
+            "lam_x": lam_x / scale,
             "success": bool(stats.get("success", False)),
             "status": str(stats.get("return_status", "unknown")),
             "iterations": int(stats.get("iter_count", 0) or 0),

@@ -50,6 +50,22 @@ def test_infeasible_terminal_equality_falls_back_to_the_soft_problem(s2_problem,
     assert result.max_violation > 1e-3  # the residual is reported honestly
 
 
+def test_fatrop_last_resort_retry_solves_what_its_fast_settings_do_not(s2_problem):
+    """From rest, fatrop's fast mu_init = 1e-4 fails the soft problem; the conservative retry
+    reaches IPOPT's soft optimum."""
+    x0 = uo.Reference.paper("s2").initial_state(0.0)
+    result = uo.solve(s2_problem, "fatrop", x0=x0, t0=0.0)
+    attempts = [variant for variant, _, _ in result.details["attempts"]]
+    assert attempts == ["hard", "soft", "soft (robust)"]
+    assert result.success and result.terminal_relaxed
+    reference = uo.solve(s2_problem, "ipopt", x0=x0, t0=0.0)
+    assert result.cost == pytest.approx(reference.cost, rel=1e-8)
+    fast_only = uo.solve(
+        s2_problem, "fatrop", x0=x0, t0=0.0, options={"plugin_options": {"fatrop.mu_init": 1e-4}}
+    )
+    assert not fast_only.success  # the same settings everywhere: the retry cannot help
+
+
 def test_warm_start_from_previous_result_converges_faster(s2_problem, feasible_start, results):
     x0, t0 = feasible_start
     again = uo.solve(s2_problem, "ipopt", x0=x0, t0=t0, warm_start=results["ipopt"].iterate)

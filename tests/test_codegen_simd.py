@@ -138,6 +138,10 @@ def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
         np.testing.assert_array_equal(actual.controls, expected.controls)
         np.testing.assert_array_equal(actual.history, expected.history)
         assert in_c.bit_generator.state == in_python.bit_generator.state
+        # compiled score and rollout are the judge's own functions
+        cost, violation = uo.score(s2_problem, actual.controls, x0=x0, t0=t0)
+        assert actual.cost == pytest.approx(cost, rel=1e-13)
+        np.testing.assert_allclose(actual.states, s2_problem.rollout(actual.controls, p), rtol=1e-13)
     # a generator on another bit generator: the draws are made in numpy and passed in
     other = native.solve(p, None, np.random.Generator(np.random.Philox(1)))
     reference = python.solve(p, None, np.random.Generator(np.random.Philox(1)))

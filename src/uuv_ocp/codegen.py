@@ -8,9 +8,11 @@
   at a time with AVX-512; sin/cos within a few ulp of libm), and ``cost_batch_exact``, CasADi's
   mapped code of the same fitness (bit-identical to the virtual machine),
 * ``dynamics(x, tau, current) -> xdot`` and ``model_step(x, tau, current) -> x_next``,
-* ``uuv_ocp_igwo(...)``: the whole IGWO step of the paper as a C loop around ``cost_batch``
-  (random draws and the a(t), w(t) schedules are inputs, so the same draws give the same
-  result as the Python IGWO),
+* ``rollout(U, p) -> X`` and ``score_terms(U, p)``: the predicted states and what
+  :func:`uuv_ocp.score` judges,
+* ``uuv_ocp_igwo(...)`` / ``uuv_ocp_igwo_pcg64(...)``: the whole IGWO step of the paper as a C
+  loop around ``cost_batch``, its random draws given or drawn in C from numpy's PCG64 state
+  (the same numbers, so the same seed gives the same result as the Python IGWO),
 
 compiles it with the system C compiler into a shared library, loads the CasADi functions back
 with ``casadi.external`` and checks every one against its symbolic twin on random inputs.
@@ -50,7 +52,7 @@ from uuv_ocp.problem import TrackingProblem
 #: ``-march=native`` gives the SIMD kernel this processor's vector width (3x on AVX-512,
 #: measured) and makes the processor part of the cache key.
 DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off", "-march=native")
-FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step")
+FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step", "rollout", "score_terms")
 #: generated along with ``cost_batch``: CasADi's own (scalar, mapped) code of the same fitness
 EXACT_BATCH = "cost_batch_exact"
 _IGWO_SOURCE = Path(__file__).with_name("igwo_step.c")
@@ -125,6 +127,8 @@ def symbolic_functions(problem: TrackingProblem, population: int = 20) -> dict[s
         EXACT_BATCH: _renamed(batch, EXACT_BATCH),
         "dynamics": problem.vehicle.dynamics_function(),
         "model_step": _renamed(built.step, "model_step"),
+        "rollout": built.rollout,
+        "score_terms": built.score_terms,
     }
 
 
@@ -172,7 +176,8 @@ def generate_c(
     directory : str or Path
         Output folder (created).
     functions : tuple of str
-        Any of ``"cost"``, ``"cost_batch"``, ``"dynamics"``, ``"model_step"``; the IGWO step is
+        Any of ``"cost"``, ``"cost_batch"``, ``"dynamics"``, ``"model_step"``, ``"rollout"``,
+        ``"score_terms"`` (what :func:`uuv_ocp.score` evaluates); the IGWO step is
         added whenever ``"cost_batch"`` is present.
     population : int
         Population size of ``cost_batch`` and the IGWO step (>= 1; the IGWO needs >= 4).
@@ -238,12 +243,16 @@ def default_cache_directory() -> Path:
 
 
 def compiled_build(problem: TrackingProblem, population: int) -> GeneratedCode | None:
-    """Compiled cost_batch + IGWO step for ``problem`` (cached), or ``None`` with one warning."""
+    """Compiled cost_batch + IGWO step, rollout and score terms for ``problem`` (cached), or
+    ``None`` with one warning."""
     cache = problem._cache.setdefault("codegen", {})
     if population not in cache:
         try:
             cache[population] = generate_c(
-                problem, default_cache_directory(), functions=("cost_batch",), population=population
+                problem,
+                default_cache_directory(),
+                functions=("cost_batch", "rollout", "score_terms"),
+                population=population,
             )
         except (CompilerNotFoundError, CompilationError) as error:
             warnings.warn(

@@ -320,9 +320,15 @@ class TrackingProblem:
         """States ``(N+1, 6)`` from the prediction model under physical ``controls`` (N, 3)."""
         return self.rollout_scaled(self.scaled_from_controls(controls), p)
 
-    def rollout_scaled(self, scaled: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """States ``(N+1, 6)`` under flat scaled controls ``(3N,)`` (no validation: hot path)."""
-        (states,) = self.buffered("rollout")(scaled, p)
+    def rollout_scaled(
+        self, scaled: np.ndarray, p: np.ndarray, rollout: BufferedFunction | None = None
+    ) -> np.ndarray:
+        """States ``(N+1, 6)`` under flat scaled controls ``(3N,)`` (no validation: hot path).
+
+        ``rollout`` is a caller of an equal Function (e.g. the compiled one); default: the
+        built one on CasADi's virtual machine.
+        """
+        (states,) = (rollout or self.buffered("rollout"))(scaled, p)
         return states.reshape(self.horizon + 1, STATE_DIM)
 
     def buffered(self, name: str) -> BufferedFunction:
@@ -569,8 +575,17 @@ def score(
     return score_parameters(problem, problem.scaled_from_controls(controls), p)
 
 
-def score_parameters(problem: TrackingProblem, scaled: np.ndarray, p: np.ndarray) -> tuple[float, float]:
-    """:func:`score` on a flat scaled control vector and a ready parameter vector."""
-    objective, terminal, rate, bound = problem.buffered("score_terms")(scaled, p)
+def score_parameters(
+    problem: TrackingProblem,
+    scaled: np.ndarray,
+    p: np.ndarray,
+    terms: BufferedFunction | None = None,
+) -> tuple[float, float]:
+    """:func:`score` on a flat scaled control vector and a ready parameter vector.
+
+    ``terms`` is a caller of a Function equal to the built ``score_terms`` (e.g. its compiled,
+    verified twin); default: the built one on CasADi's virtual machine.
+    """
+    objective, terminal, rate, bound = (terms or problem.buffered("score_terms"))(scaled, p)
     violation = max(float(np.max(np.abs(terminal))), float(np.max(rate)), float(np.max(bound)))
     return float(objective[0]), violation

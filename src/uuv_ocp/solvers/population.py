@@ -140,6 +140,8 @@ class SwarmSolver:
         if not isinstance(self.compiled, bool):
             raise ValueError(f"options['compiled'] must be True or False, got {self.compiled!r}")
         self.native = None
+        self._score_terms: BufferedFunction | None = None  # compiled twins when compiled=True
+        self._rollout: BufferedFunction | None = None
         self._schedules: tuple[np.ndarray, np.ndarray] | None = None  # IGWO's a(t), w(t) for the C step
         self.fitness = self._fitness_function()
         self._evaluate = BufferedFitness(
@@ -154,6 +156,8 @@ class SwarmSolver:
             if build is not None:
                 if self.method == "igwo" and self._native_compatible():
                     self.native = NativeIgwo(build)
+                self._score_terms = BufferedFunction(build["score_terms"])
+                self._rollout = BufferedFunction(build["rollout"])
                 return build["cost_batch"]
         return batched_fitness(self.problem, self.population, self.parallelization)
 
@@ -210,8 +214,8 @@ class SwarmSolver:
                 options=self.algorithm_options,
             )
         scaled = np.clip(outcome.x + offset, -1.0, 1.0)
-        cost, violation = score_parameters(problem, scaled, p)
-        states = problem.rollout_scaled(scaled, p)
+        cost, violation = score_parameters(problem, scaled, p, self._score_terms)
+        states = problem.rollout_scaled(scaled, p, self._rollout)
         controls = problem.controls_from_scaled(scaled)
         iterate = Iterate(
             scaled_controls=scaled.reshape(problem.horizon, -1),

@@ -124,4 +124,26 @@ def test_failed_soft_solves_escalate_the_penalty(s2_problem):
     assert variants == ["hard", "soft", "soft_x100", "soft_x10000"]
     assert not result.success  # one iteration is not enough: reported, not raised
     sqp = uo.get_solver(s2_problem, "sqp")
-    assert sqp._escalations == ["soft_x100"]
+    assert sqp._escalations == ["soft_x100", "soft_x10000"]
+
+
+def test_sqp_soft_solution_with_slack_curvature_is_exact_when_feasible(s2_problem, feasible_start, results):
+    # the L1 + L2 penalty ρ Σ s + (μ/2) Σ s² keeps the exact-penalty property: zero slacks
+    x0, t0 = feasible_start
+    soft = uo.solve(s2_problem, "sqp", x0=x0, t0=t0, options={"terminal_strategy": "soft"})
+    assert soft.success, soft.status
+    assert not soft.terminal_relaxed
+    assert soft.max_violation <= 1e-6
+    assert soft.cost == pytest.approx(results["ipopt"].cost, rel=1e-6)
+
+
+def test_sqp_soft_solve_on_an_untrackable_reference():
+    # s8 at t = 2.6 s of the closed loop from rest (measured state and last control): with the
+    # QRQP soft QPs, ρ escalation (100,) and no slack curvature, every attempt failed here
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s8"))
+    x0 = [1.3211455157635184, 1.2426495015038603, 0.9845812466791346,
+          0.7817968185531988, 0.001172168311532868, -0.2100982601165024]  # fmt: skip
+    u_prev = [-63.56378872777059, 559.520718834077, -1036.8866131587417]
+    options = {"terminal_strategy": "soft"}
+    result = uo.solve(problem, "sqp", x0=x0, t0=2.6, u_prev=u_prev, options=options)
+    assert result.success, result.details["attempts"]

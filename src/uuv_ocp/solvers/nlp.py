@@ -21,6 +21,7 @@ accelerates from rest.  Every exact backend therefore handles ``terminal="equali
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import time
 import warnings
@@ -69,6 +70,19 @@ def _transfer(values: np.ndarray | None, mapping: np.ndarray, fill: float = 0.0)
     return result
 
 
+def _with_slack_curvature(data: NlpData, curvature: float) -> NlpData:
+    """``data`` with ``(μ/2) Σ s²`` added on the terminal slacks (an L1 + L2 exact penalty).
+
+    The term enters as the extra residual ``sqrt(μ/2) s``, so ``f = ‖r‖² + linear`` still holds
+    and a Gauss–Newton Hessian built from ``residual`` gets ``μ`` on the slack diagonal.
+    """
+    slacks = ca.vertcat(*[data.nlp["x"][int(i)] for i in data.terminal_slack_index])
+    extra = math.sqrt(0.5 * curvature) * slacks
+    nlp = dict(data.nlp)
+    nlp["f"] = nlp["f"] + ca.sumsqr(extra)
+    return dataclasses.replace(data, nlp=nlp, residual=ca.vertcat(data.residual, extra))
+
+
 class NlpSolver:
     """Solve a :class:`TrackingProblem` with one ``casadi.nlpsol`` plugin.
 
@@ -86,6 +100,7 @@ class NlpSolver:
     default_objective_scale = 1.0
     default_terminal_penalty: float | None = None  # None: the problem's Weights.terminal_penalty
     default_penalty_escalation: tuple[float, ...] = ()
+    default_slack_curvature = 0.0
     levenberg_marquardt = 0.0
 
     def __init__(self, problem: TrackingProblem, options: dict[str, Any] | None = None) -> None:
@@ -109,6 +124,9 @@ class NlpSolver:
         terminal_penalty = options.pop("terminal_penalty", self.default_terminal_penalty)
         if terminal_penalty is not None:
             terminal_penalty = check.positive_float("options['terminal_penalty']", terminal_penalty)
+        self.slack_curvature = check.nonnegative_float(
+            "options['slack_curvature']", options.pop("slack_curvature", self.default_slack_curvature)
+        )
         max_iter = options.pop("max_iter", None)
         self.max_iter = None if max_iter is None else check.positive_int("options['max_iter']", max_iter)
         self.compiled = options.pop("compiled", False)
@@ -121,7 +139,8 @@ class NlpSolver:
             raise ValueError(
                 f"unknown options for solver {self.name!r}: {sorted(options)}; valid: "
                 "['compiled', 'max_iter', 'objective_scale', 'penalty_escalation', "
-                "'plugin_options', 'slack_tolerance', 'terminal_penalty', 'terminal_strategy']"
+                "'plugin_options', 'slack_curvature', 'slack_tolerance', 'terminal_penalty', "
+                "'terminal_strategy']"
             )
         self.plugin_options = plugin_options
         # the soft NLP's exact-penalty weight may be the solver's own: only the soft variant
@@ -141,6 +160,9 @@ class NlpSolver:
                 name = f"soft_x{factor:g}"
                 self.variants[name] = nlp_problem.replace(weights=weights).build().soft
                 self._escalations.append(name)
+            if self.slack_curvature > 0.0:
+                for name in ("soft", *self._escalations):
+                    self.variants[name] = _with_slack_curvature(self.variants[name], self.slack_curvature)
         self._solvers: dict[tuple[str, bool], BufferedFunction] = {}
         self._shift = {
             name: (_shift_map(data.variable_labels), _shift_map(data.constraint_labels))
@@ -456,7 +478,10 @@ class SqpSolver(NlpSolver):
     convergence to a crawl; ``eigen-clip`` crashes CasADi 3.8's stats.  The Gauss–Newton
     Hessian of the least-squares objective is PSD by construction, so every QP is convex.
     The objective is scaled by ``objective_scale = 1e-3`` so that QRQP's absolute tolerances
-    match the 1e4 weights.  Options: ``hessian="gauss-newton"`` (default) or ``"exact"``.
+    match the 1e4 weights.  Options: ``hessian="gauss-newton"`` (default) or ``"exact"``,
+    ``levenberg_marquardt`` and ``soft_plugin_options`` (merged into the plugin options of the
+    soft variants only; default HPIPM QPs and ``max_iter_ls=15``).  The hard NLP (all that the
+    trackable references s1–s7, s10 need after the first second) is unchanged.
     """
 
     name = "sqp"
@@ -465,8 +490,20 @@ class SqpSolver(NlpSolver):
     # On references the vehicle cannot follow (s8, s9) the soft problem is solved at every
     # step; with ρ = 1e4 sqpmethod cycles between two points (failed line searches) on 135 of
     # 300 steps of s8, with ρ = 1e6 on 50 — but ρ = 1e6 from the start costs failures on the
-    # trackable references (measured).  So ρ = 1e4 first, escalated ×100 only on failure.
-    default_penalty_escalation = (100.0,)
+    # trackable references (measured).  So ρ = 1e4 first, escalated only on failure.
+    # Soft variants only (measured on s8 / s9, 30 s closed loop; see docs/solvers.md):
+    # QRQP declares "Converged" on degenerate soft QPs with |pr| > 1 (steps outside the
+    # thrust bounds), so the soft QPs go to HPIPM; a longer line search (15), ρ escalated
+    # ×100 then ×1e4, and (μ/2) Σ s² with μ = 1e4 on the slacks: 44 / 36 -> 24 / 27 failures.
+    # The rest is genuine SQP cycling: the Gauss–Newton Hessian omits the dynamics' curvature
+    # weighted by multipliers of size ρ, which dominates once the terminal penalty is active.
+    default_penalty_escalation = (100.0, 1e4)
+    default_slack_curvature = 1e4
+    default_soft_plugin_options: dict[str, Any] = {
+        "qpsol": "hpipm",
+        "qpsol_options": {"error_on_fail": False},
+        "max_iter_ls": 15,
+    }
 
     def __init__(self, problem: TrackingProblem, options: dict[str, Any] | None = None) -> None:
         options = dict(options or {})
@@ -476,6 +513,10 @@ class SqpSolver(NlpSolver):
         self.levenberg_marquardt = check.nonnegative_float(
             "options['levenberg_marquardt']", options.pop("levenberg_marquardt", 1e-7)
         )
+        soft_plugin_options = options.pop("soft_plugin_options", self.default_soft_plugin_options)
+        if not isinstance(soft_plugin_options, dict):
+            raise ValueError(f"options['soft_plugin_options'] must be a dict, got {soft_plugin_options!r}")
+        self.soft_plugin_options = soft_plugin_options
         super().__init__(problem, options)
 
     def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
@@ -498,4 +539,6 @@ class SqpSolver(NlpSolver):
         }
         if self.hessian == "gauss-newton":
             defaults["hess_lag"] = self.gauss_newton_hessian(data)
+        if data.terminal_slack_index.size:  # the soft variants
+            defaults.update(self.soft_plugin_options)
         return defaults

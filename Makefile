@@ -18,13 +18,23 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q
 
-bench: $(STAMP)
-	$(PY) -m pip install --quiet -e ".[bench]"
-	$(PY) -m benchmarks.run
+# The benchmarks get a venv of their own: mealpy (the reference implementation they compare
+# with) pins numpy<=1.26.0, which must not leak into the test environment.
+BENCH_VENV := .venv-bench
+BENCH_STAMP := $(BENCH_VENV)/.installed
+
+$(BENCH_STAMP): pyproject.toml
+	$(PYTHON) -m venv $(BENCH_VENV)
+	$(BENCH_VENV)/bin/python -m pip install --quiet --upgrade pip
+	$(BENCH_VENV)/bin/python -m pip install --quiet -e ".[bench]"
+	touch $(BENCH_STAMP)
+
+bench: $(BENCH_STAMP)
+	$(BENCH_VENV)/bin/python -m benchmarks.run
 
 lint: $(STAMP)
 	$(PY) -m pip install --quiet "ruff>=0.5"
 	$(VENV)/bin/ruff check src tests benchmarks examples
 
 clean:
-	rm -rf $(VENV) out build .pytest_cache
+	rm -rf $(VENV) $(BENCH_VENV) out build .pytest_cache

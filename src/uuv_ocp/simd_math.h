@@ -31,6 +31,22 @@
 typedef double uuv_vd __attribute__((vector_size(8 * UUV_LANES)));
 typedef long long uuv_vl __attribute__((vector_size(8 * UUV_LANES)));
 
+#if UUV_LANES == 8 && defined(__AVX512F__)
+#include <immintrin.h>
+#endif
+
+/* Whether any lane of a comparison mask is set (one mask instruction on AVX-512). */
+static inline int uuv_any(uuv_vl mask) {
+#if UUV_LANES == 8 && defined(__AVX512F__)
+  return _mm512_test_epi64_mask((__m512i)mask, (__m512i)mask) != 0;
+#else
+  long long any = 0;
+  int l;
+  for (l = 0; l < UUV_LANES; ++l) any |= mask[l];
+  return any != 0;
+#endif
+}
+
 static inline uuv_vd uuv_bcast(double s) {
   uuv_vd v;
   int l;
@@ -94,11 +110,10 @@ static inline void uuv_sincos(uuv_vd x, uuv_vd* sine, uuv_vd* cosine) {
   const uuv_vl flip_cos = ((quadrant + 1) & 2) != 0;
   const uuv_vl sign = (uuv_vl)uuv_bcast(-0.0);
   const uuv_vl large = ~(uuv_fabs(x) <= UUV_TRIG_LIMIT);
-  int any_large = 0, l;
-  for (l = 0; l < UUV_LANES; ++l) any_large |= large[l] != 0;
+  int l;
   if (sine) *sine = (uuv_vd)((uuv_vl)uuv_select(odd, c, s) ^ (flip_sin & sign));
   if (cosine) *cosine = (uuv_vd)((uuv_vl)uuv_select(odd, s, c) ^ (flip_cos & sign));
-  if (any_large) {
+  if (uuv_any(large)) {
     for (l = 0; l < UUV_LANES; ++l) {
       if (large[l]) {
         if (sine) (*sine)[l] = sin(x[l]);

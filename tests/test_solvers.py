@@ -147,3 +147,32 @@ def test_sqp_soft_solve_on_an_untrackable_reference():
     options = {"terminal_strategy": "soft"}
     result = uo.solve(problem, "sqp", x0=x0, t0=2.6, u_prev=u_prev, options=options)
     assert result.success, result.details["attempts"]
+
+
+def test_sqp_last_resort_blocksqp_solves_a_cycling_soft_step():
+    # s8 at t = 17.6 s of the closed loop from rest (measured state and last control), cold
+    # start: Gauss–Newton sqpmethod cycles on the soft NLP at ρ = 1e4, 1e6 and 1e8 (100
+    # iterations each); the last-resort blockSQP retry solves it, to IPOPT's optimum
+    import casadi as ca
+
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s8"))
+    x0 = [8.41395624566128, 4.947177579542833, -0.28499105239682054,
+          0.9616330615256681, 0.0005822615287225845, -1.1238876018752015]  # fmt: skip
+    u_prev = [1816.7022929977904, -1999.9999999757981, -204.99494203169775]
+    solver = uo.get_solver(problem, "sqp", options={"terminal_strategy": "soft"})
+    p = problem.parameters(x0, 17.6, u_prev=u_prev)
+    result = solver.solve(p)
+    attempts = result.details["attempts"]
+    assert [a[0] for a in attempts] == ["soft", "soft_x100", "soft_x10000", "soft_x10000 (robust)"]
+    assert result.success, attempts
+    assert result.terminal_relaxed  # s8 is untrackable: the terminal slacks stay active
+    data = solver.variants["soft_x10000"]
+    nlp = data.nlp
+    ipopt = ca.nlpsol("ipopt", "ipopt", nlp, {"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes"})
+    reference = ipopt(x0=result.iterate.primal, p=p, lbx=data.lbx, ubx=data.ubx, lbg=data.lbg, ubg=data.ubg)
+    assert ipopt.stats()["success"]
+    objective = ca.Function("f", [nlp["x"], nlp["p"]], [nlp["f"]])
+    constraints = ca.Function("g", [nlp["x"], nlp["p"]], [nlp["g"]])
+    g = np.asarray(constraints(result.iterate.primal, p)).ravel()
+    assert np.all(g >= data.lbg - 1e-6) and np.all(g <= data.ubg + 1e-6)
+    assert float(objective(result.iterate.primal, p)) == pytest.approx(float(reference["f"]), rel=1e-6)

@@ -125,10 +125,13 @@ def test_c_pcg64_draws_numpys_numbers_and_advances_the_same(tmp_path, s2_problem
 
 
 @needs_compiler
-def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(s2_problem, feasible_start):
+@pytest.mark.parametrize("rng_thread", [True, False])
+def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
+    s2_problem, feasible_start, rng_thread
+):
     x0, t0 = feasible_start
     p = s2_problem.parameters(x0, t0)
-    native = uo.get_solver(s2_problem, "igwo", {"compiled": True})
+    native = uo.get_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": rng_thread})
     python = uo.get_solver(s2_problem, "igwo", {"compiled": True})
     python.native = None  # the Python loop over the same compiled kernel
     for seed in (1, 2):
@@ -146,6 +149,11 @@ def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
     other = native.solve(p, None, np.random.Generator(np.random.Philox(1)))
     reference = python.solve(p, None, np.random.Generator(np.random.Philox(1)))
     np.testing.assert_array_equal(other.controls, reference.controls)
+
+
+def test_bad_rng_thread_option_is_named(s2_problem):
+    with pytest.raises(ValueError, match="rng_thread"):
+        uo.get_solver(s2_problem, "igwo", {"rng_thread": "yes"})
 
 
 def test_native_builds_are_keyed_by_the_processor():

@@ -50,8 +50,9 @@ from uuv_ocp.problem import TrackingProblem
 
 #: ``-ffp-contract=off`` keeps compiled arithmetic identical to CasADi's virtual machine;
 #: ``-march=native`` gives the SIMD kernel this processor's vector width (3x on AVX-512,
-#: measured) and makes the processor part of the cache key.
-DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off", "-march=native")
+#: measured) and makes the processor part of the cache key; ``-D_GNU_SOURCE`` lets the IGWO
+#: step place its random-number thread on another CPU (Linux).
+DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off", "-march=native", "-D_GNU_SOURCE")
 FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step", "rollout", "score_terms")
 #: generated along with ``cost_batch``: CasADi's own (scalar, mapped) code of the same fitness
 EXACT_BATCH = "cost_batch_exact"
@@ -284,7 +285,9 @@ class NativeIgwo:
     ``(iterations, 8, population, dim)`` of uniform numbers or a ``numpy.random.Generator``
     on PCG64 (numpy's default), from which the C code draws exactly the numbers
     ``draws.random((iterations, 8, population, dim))`` would give, and advances it as that
-    call would.  Inputs are float64 arrays.
+    call would, on a second thread one iteration ahead when ``rng_thread`` (the same numbers:
+    the 288 k uniform draws of a 20 × 30 step then cost no time on the step's own thread).
+    Inputs are float64 arrays.
     """
 
     def __init__(self, build: GeneratedCode) -> None:
@@ -295,7 +298,9 @@ class NativeIgwo:
         self._given = self.library.uuv_ocp_igwo
         self._given.argtypes = [pointer] * 8 + tail
         self._drawing = self.library.uuv_ocp_igwo_pcg64
-        self._drawing.argtypes = [pointer] * 5 + [ctypes.POINTER(ctypes.c_uint64)] + [pointer] * 2 + tail
+        self._drawing.argtypes = (
+            [pointer] * 5 + [ctypes.POINTER(ctypes.c_uint64), ctypes.c_int] + [pointer] * 2 + tail
+        )
         for function in (self._given, self._drawing):
             function.restype = ctypes.c_int
         self.random = self.library.uuv_ocp_pcg64_random
@@ -314,6 +319,7 @@ class NativeIgwo:
         w: np.ndarray,
         c1: float = 0.5,
         c2: float = 0.5,
+        rng_thread: bool = True,
     ) -> dict:
         """One IGWO run; returns ``x``, ``fun``, ``history``, ``population``."""
         population, dim = positions.shape
@@ -333,7 +339,7 @@ class NativeIgwo:
                 raise ValueError(f"draws must use PCG64, got {type(draws.bit_generator).__name__}")
             state = draws.bit_generator.state
             words = (ctypes.c_uint64 * 4)(*_split(state["state"]["state"]), *_split(state["state"]["inc"]))
-            status = self._drawing(*map(data, inputs), words, *map(data, schedules), *tail)
+            status = self._drawing(*map(data, inputs), words, int(rng_thread), *map(data, schedules), *tail)
             state["state"]["state"] = (words[0] << 64) | words[1]
             draws.bit_generator.state = state
         else:

@@ -17,13 +17,17 @@
  * Compile with -ffp-contract=off.
  * ------------------------------------------------------------------------------------- */
 #include <math.h>
+#include <pthread.h>
+#include <sched.h>
+#include <stdatomic.h>
 #include <stdint.h>
 #include <stdlib.h>
 
 /* ---- numpy's PCG64 ------------------------------------------------------------------ */
 typedef __uint128_t uuv_u128;
 #define UUV_PCG_MULTIPLIER (((uuv_u128)2549297995355413924ULL << 64) | 4865540595714422341ULL)
-#define UUV_PCG_CHAINS 4
+#define UUV_PCG_SEGMENTS 8   /* a block of draws = 8 jump-started segments */
+#define UUV_PCG_INTERLEAVE 4 /* segments advanced together: independent multiply chains */
 
 typedef struct {
   uuv_u128 multiplier, increment; /* the affine map state -> multiplier * state + increment */
@@ -55,34 +59,186 @@ static inline double uuv_pcg_output(uuv_u128 state) {
   return (double)(value >> 11) * (1.0 / 9007199254740992.0);
 }
 
-/* `count` doubles into `out`, advancing *state; UUV_PCG_CHAINS interleaved sub-streams, each
- * started by a jump, break the multiply's dependency chain (same numbers, same order). */
-static void uuv_pcg_fill(uuv_u128* state, uuv_u128 inc, const uuv_pcg_jump* jumps, size_t segment,
-                         double* out, size_t count) {
-  uuv_u128 chain[UUV_PCG_CHAINS];
+static inline uuv_u128 uuv_pcg_apply(uuv_pcg_jump jump, uuv_u128 state) {
+  return jump.multiplier * state + jump.increment;
+}
+
+/* Segments [first, last) of the `count` numbers that follow `state`: segment k holds numbers
+ * k * segment ... (k + 1) * segment - 1, started by jumps[k] (jumps[k] = advance by
+ * k * segment).  UUV_PCG_INTERLEAVE segments are advanced together, breaking the multiply's
+ * dependency chain; the numbers and their order are exactly the sequential ones. */
+static inline void uuv_pcg_run(uuv_u128* chain, int width, uuv_u128 inc, size_t segment,
+                               double* out) {
   size_t i;
   int c;
-  for (c = 0; c < UUV_PCG_CHAINS; ++c) chain[c] = jumps[c].multiplier * *state + jumps[c].increment;
-  if (segment * UUV_PCG_CHAINS == count) {
-    for (i = 0; i < segment; ++i) {
-      for (c = 0; c < UUV_PCG_CHAINS; ++c) {
-        chain[c] = chain[c] * UUV_PCG_MULTIPLIER + inc;
-        out[(size_t)c * segment + i] = uuv_pcg_output(chain[c]);
-      }
+  for (i = 0; i < segment; ++i) {
+    for (c = 0; c < width; ++c) {
+      chain[c] = chain[c] * UUV_PCG_MULTIPLIER + inc;
+      out[(size_t)c * segment + i] = uuv_pcg_output(chain[c]);
     }
-  } else {
-    for (i = 0; i < segment; ++i) {
-      for (c = 0; c < UUV_PCG_CHAINS; ++c) {
-        const size_t index = (size_t)c * segment + i;
-        chain[c] = chain[c] * UUV_PCG_MULTIPLIER + inc;
-        if (index < count) out[index] = uuv_pcg_output(chain[c]);
+  }
+}
+
+static void uuv_pcg_fill(uuv_u128 state, uuv_u128 inc, const uuv_pcg_jump* jumps, size_t segment,
+                         double* out, size_t count, int first, int last) {
+  uuv_u128 chain[UUV_PCG_INTERLEAVE];
+  size_t i, start;
+  int group, width, c;
+  for (group = first; group < last; group += UUV_PCG_INTERLEAVE) {
+    width = last - group < UUV_PCG_INTERLEAVE ? last - group : UUV_PCG_INTERLEAVE;
+    start = (size_t)group * segment;
+    for (c = 0; c < width; ++c) chain[c] = uuv_pcg_apply(jumps[group + c], state);
+    if (start + (size_t)width * segment <= count) {
+      /* constant widths: the compiler keeps the chains in registers */
+      switch (width) {
+        case 4: uuv_pcg_run(chain, 4, inc, segment, out + start); break;
+        case 3: uuv_pcg_run(chain, 3, inc, segment, out + start); break;
+        case 2: uuv_pcg_run(chain, 2, inc, segment, out + start); break;
+        default: uuv_pcg_run(chain, 1, inc, segment, out + start); break;
+      }
+    } else {
+      for (i = 0; i < segment; ++i) {
+        for (c = 0; c < width; ++c) {
+          const size_t index = start + (size_t)c * segment + i;
+          chain[c] = chain[c] * UUV_PCG_MULTIPLIER + inc;
+          if (index < count) out[index] = uuv_pcg_output(chain[c]);
+        }
       }
     }
   }
-  *state = jumps[UUV_PCG_CHAINS].multiplier * *state + jumps[UUV_PCG_CHAINS].increment;
+}
+
+/* jumps[k] = advance by k * segment (k < UUV_PCG_SEGMENTS), jumps[UUV_PCG_SEGMENTS] = by count. */
+static size_t uuv_pcg_jumps(uuv_u128 inc, size_t count, uuv_pcg_jump* jumps) {
+  const size_t segment = (count + UUV_PCG_SEGMENTS - 1) / UUV_PCG_SEGMENTS;
+  int k;
+  for (k = 0; k < UUV_PCG_SEGMENTS; ++k) jumps[k] = uuv_pcg_jump_by((uint64_t)k * segment, inc);
+  jumps[UUV_PCG_SEGMENTS] = uuv_pcg_jump_by(count, inc);
+  return segment;
 }
 
 /* `count` draws of numpy's Generator(PCG64).random() from the state (hi, lo) and increment. */
+CASADI_SYMBOL_EXPORT void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state_lo, uint64_t inc_hi,
+                                               uint64_t inc_lo, double* out, size_t count) {
+  const uuv_u128 state = ((uuv_u128)state_hi << 64) | state_lo;
+  const uuv_u128 inc = ((uuv_u128)inc_hi << 64) | inc_lo;
+  uuv_pcg_jump jumps[UUV_PCG_SEGMENTS + 1];
+  const size_t segment = uuv_pcg_jumps(inc, count, jumps);
+  uuv_pcg_fill(state, inc, jumps, segment, out, count, 0, UUV_PCG_SEGMENTS);
+}
+
+/* The IGWO's random numbers, one iteration's block at a time.  With a second thread, the
+ * worker draws segments 0..6 of block t + 1 while iteration t evaluates its pack, and the
+ * step's own thread draws the last segment when it takes the block (two buffers,
+ * release/acquire counters); otherwise the whole block is drawn when taken.  Each thread
+ * advances its own copy of the generator state by one block per block: same numbers, same
+ * order, either way. */
+typedef struct {
+  uuv_u128 state, worker_state, inc;
+  uuv_pcg_jump jumps[UUV_PCG_SEGMENTS + 1];
+  size_t segment, block_size;
+  double* buffers[2];
+  int blocks, threaded;
+  pthread_t worker;
+  atomic_int produced, consumed, stop;
+} uuv_pcg_stream;
+
+static void uuv_wait(int spins) {
+  if (spins < 1000) {
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_ia32_pause();
+#endif
+  } else {
+    sched_yield();
+  }
+}
+
+static void* uuv_pcg_worker(void* argument) {
+  uuv_pcg_stream* stream = (uuv_pcg_stream*)argument;
+  int t, spins;
+  for (t = 0; t < stream->blocks; ++t) {
+    for (spins = 0; t - atomic_load_explicit(&stream->consumed, memory_order_acquire) >= 2; ++spins) {
+      if (atomic_load_explicit(&stream->stop, memory_order_relaxed)) return NULL;
+      uuv_wait(spins);
+    }
+    uuv_pcg_fill(stream->worker_state, stream->inc, stream->jumps, stream->segment,
+                 stream->buffers[t & 1], stream->block_size, 0, UUV_PCG_SEGMENTS - 1);
+    stream->worker_state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], stream->worker_state);
+    atomic_store_explicit(&stream->produced, t + 1, memory_order_release);
+  }
+  return NULL;
+}
+
+/* Start the worker on another CPU than this thread's: a new thread starts on its parent's CPU,
+ * where it would only take turns with the step's own thread. */
+static int uuv_start_worker(uuv_pcg_stream* stream) {
+  pthread_attr_t attributes;
+  int started, placed = 0;
+#if defined(__linux__) && defined(_GNU_SOURCE) /* codegen compiles with -D_GNU_SOURCE */
+  cpu_set_t allowed;
+  const int here = sched_getcpu();
+  if (here >= 0 && sched_getaffinity(0, sizeof(allowed), &allowed) == 0) {
+    CPU_CLR(here, &allowed);
+    placed = CPU_COUNT(&allowed) > 0;
+  }
+#endif
+  if (pthread_attr_init(&attributes) != 0) return 0;
+#if defined(__linux__) && defined(_GNU_SOURCE)
+  if (placed) pthread_attr_setaffinity_np(&attributes, sizeof(allowed), &allowed);
+#endif
+  started = pthread_create(&stream->worker, &attributes, uuv_pcg_worker, stream) == 0;
+  pthread_attr_destroy(&attributes);
+  return started;
+}
+
+static int uuv_pcg_stream_open(uuv_pcg_stream* stream, const uint64_t* pcg, size_t block_size,
+                               int blocks, int threaded) {
+  stream->state = ((uuv_u128)pcg[0] << 64) | pcg[1];
+  stream->worker_state = stream->state;
+  stream->inc = ((uuv_u128)pcg[2] << 64) | pcg[3];
+  stream->block_size = block_size;
+  stream->segment = uuv_pcg_jumps(stream->inc, block_size, stream->jumps);
+  stream->blocks = blocks;
+  stream->buffers[0] = (double*)malloc(sizeof(double) * block_size * 2);
+  stream->buffers[1] = stream->buffers[0] + block_size;
+  atomic_init(&stream->produced, 0);
+  atomic_init(&stream->consumed, 0);
+  atomic_init(&stream->stop, 0);
+  stream->threaded = threaded && blocks > 1 && uuv_start_worker(stream);
+  return stream->buffers[0] == NULL;
+}
+
+/* Block t (its last segment drawn here, the rest by the worker; or all of it here). */
+static const double* uuv_pcg_stream_take(uuv_pcg_stream* stream, int t) {
+  double* block = stream->buffers[stream->threaded ? t & 1 : 0];
+  int spins, first = 0;
+  if (stream->threaded) {
+    for (spins = 0; atomic_load_explicit(&stream->produced, memory_order_acquire) <= t; ++spins)
+      uuv_wait(spins);
+    first = UUV_PCG_SEGMENTS - 1;
+  }
+  uuv_pcg_fill(stream->state, stream->inc, stream->jumps, stream->segment, block, stream->block_size,
+               first, UUV_PCG_SEGMENTS);
+  stream->state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], stream->state);
+  return block;
+}
+
+/* Block t is no longer read: its buffer may be refilled. */
+static void uuv_pcg_stream_release(uuv_pcg_stream* stream, int t) {
+  if (stream->threaded) atomic_store_explicit(&stream->consumed, t + 1, memory_order_release);
+}
+
+/* Stop the worker and write the generator's state after the blocks taken back to pcg[0..1]. */
+static void uuv_pcg_stream_close(uuv_pcg_stream* stream, uint64_t* pcg) {
+  if (stream->threaded) {
+    atomic_store_explicit(&stream->stop, 1, memory_order_relaxed);
+    pthread_join(stream->worker, NULL);
+  }
+  pcg[0] = (uint64_t)(stream->state >> 64);
+  pcg[1] = (uint64_t)stream->state;
+  free(stream->buffers[0]);
+}
+
 /* One IGWO move of the whole pack into `next` (restrict: lets the compiler vectorise over j). */
 static void uuv_ocp_igwo_move(const double* restrict positions, const double* restrict pbest,
                               const double* restrict leaders, const double* restrict block,
@@ -110,17 +266,6 @@ static void uuv_ocp_igwo_move(const double* restrict positions, const double* re
       next[e] = value;
     }
   }
-}
-
-CASADI_SYMBOL_EXPORT void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state_lo, uint64_t inc_hi,
-                                               uint64_t inc_lo, double* out, size_t count) {
-  uuv_u128 state = ((uuv_u128)state_hi << 64) | state_lo, inc = ((uuv_u128)inc_hi << 64) | inc_lo;
-  uuv_pcg_jump jumps[UUV_PCG_CHAINS + 1];
-  const size_t segment = (count + UUV_PCG_CHAINS - 1) / UUV_PCG_CHAINS;
-  int c;
-  for (c = 0; c < UUV_PCG_CHAINS; ++c) jumps[c] = uuv_pcg_jump_by((uint64_t)c * segment, inc);
-  jumps[UUV_PCG_CHAINS] = uuv_pcg_jump_by(count, inc);
-  uuv_pcg_fill(&state, inc, jumps, segment, out, count);
 }
 
 static int uuv_ocp_fitness(const double* p, const double* offset, const double* positions,
@@ -174,10 +319,12 @@ static void uuv_ocp_leaders(const double* costs, const double* positions, int n,
 }
 
 /* draws != NULL: take the random numbers from it; else draw them with PCG64 from pcg[4] =
- * {state_hi, state_lo, inc_hi, inc_lo}, which is advanced in place. */
+ * {state_hi, state_lo, inc_hi, inc_lo}, which is advanced in place, on a second thread if
+ * rng_thread. */
 static int uuv_ocp_igwo_core(const double* p, const double* offset, const double* lower,
                              const double* upper, const double* positions0, const double* draws,
-                             uint64_t* pcg, const double* a_schedule, const double* w_schedule,
+                             uint64_t* pcg, int rng_thread, const double* a_schedule,
+                             const double* w_schedule,
                              double c1, double c2, int n, int dim, int iterations, double* best_x,
                              double* best_f, double* history, double* final_positions) {
   casadi_int sz_arg, sz_res, sz_iw, sz_w;
@@ -186,12 +333,9 @@ static int uuv_ocp_igwo_core(const double* p, const double* offset, const double
   casadi_int* iw;
   casadi_real* w;
   double *positions, *next, *pbest, *pbest_cost, *costs, *candidates, leaders_cost[3], *leaders;
-  double* drawn = NULL;
   const size_t block_size = (size_t)8 * n * dim;
-  size_t segment = 0;
-  uuv_u128 rng_state = 0, rng_inc = 0;
-  uuv_pcg_jump jumps[UUV_PCG_CHAINS + 1];
-  int count = 0, status = 0, t, i, j, k, best_index;
+  uuv_pcg_stream stream;
+  int count = 0, status = 0, t, i, j, best_index;
   cost_batch_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
   arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sz_arg > 2 ? sz_arg : 2));
   res = (casadi_real**)malloc(sizeof(casadi_real*) * (sz_res > 1 ? sz_res : 1));
@@ -204,14 +348,7 @@ static int uuv_ocp_igwo_core(const double* p, const double* offset, const double
   leaders = (double*)malloc(sizeof(double) * 3 * dim);
   pbest_cost = (double*)malloc(sizeof(double) * n);
   costs = (double*)malloc(sizeof(double) * n);
-  if (!draws) {
-    drawn = (double*)malloc(sizeof(double) * block_size);
-    rng_state = ((uuv_u128)pcg[0] << 64) | pcg[1];
-    rng_inc = ((uuv_u128)pcg[2] << 64) | pcg[3];
-    segment = (block_size + UUV_PCG_CHAINS - 1) / UUV_PCG_CHAINS;
-    for (k = 0; k < UUV_PCG_CHAINS; ++k) jumps[k] = uuv_pcg_jump_by((uint64_t)k * segment, rng_inc);
-    jumps[UUV_PCG_CHAINS] = uuv_pcg_jump_by(block_size, rng_inc);
-  }
+  if (!draws) uuv_pcg_stream_open(&stream, pcg, block_size, iterations, rng_thread);
 
   for (i = 0; i < n * dim; ++i) positions[i] = positions0[i];
   if (uuv_ocp_fitness(p, offset, positions, n, dim, candidates, costs, arg, res, iw, w)) {
@@ -230,14 +367,10 @@ static int uuv_ocp_igwo_core(const double* p, const double* offset, const double
 
   for (t = 0; t < iterations; ++t) {
     const double a = a_schedule[t], inertia = w_schedule[t], twice_a = 2.0 * a;
-    const double* block = drawn;
-    if (draws) {
-      block = draws + (size_t)t * block_size;
-    } else {
-      uuv_pcg_fill(&rng_state, rng_inc, jumps, segment, drawn, block_size);
-    }
+    const double* block = draws ? draws + (size_t)t * block_size : uuv_pcg_stream_take(&stream, t);
     uuv_ocp_igwo_move(positions, pbest, leaders, block, lower, upper, a, twice_a, inertia, c1, c2,
                       n, dim, next);
+    if (!draws) uuv_pcg_stream_release(&stream, t);
     for (i = 0; i < n * dim; ++i) positions[i] = next[i];
     if (uuv_ocp_fitness(p, offset, positions, n, dim, candidates, costs, arg, res, iw, w)) {
       status = 1;
@@ -262,12 +395,9 @@ static int uuv_ocp_igwo_core(const double* p, const double* offset, const double
   for (i = 0; i < n * dim; ++i) final_positions[i] = positions[i];
 
 cleanup:
-  if (!draws) {
-    pcg[0] = (uint64_t)(rng_state >> 64);
-    pcg[1] = (uint64_t)rng_state;
-  }
+  if (!draws) uuv_pcg_stream_close(&stream, pcg);
   free(arg); free(res); free(iw); free(w); free(positions); free(next); free(pbest);
-  free(candidates); free(leaders); free(pbest_cost); free(costs); free(drawn);
+  free(candidates); free(leaders); free(pbest_cost); free(costs);
   return status;
 }
 
@@ -278,21 +408,22 @@ CASADI_SYMBOL_EXPORT int uuv_ocp_igwo(const double* p, const double* offset, con
                                       const double* w_schedule, double c1, double c2, int n,
                                       int dim, int iterations, double* best_x, double* best_f,
                                       double* history, double* final_positions) {
-  return uuv_ocp_igwo_core(p, offset, lower, upper, positions0, draws, NULL, a_schedule,
+  return uuv_ocp_igwo_core(p, offset, lower, upper, positions0, draws, NULL, 0, a_schedule,
                            w_schedule, c1, c2, n, dim, iterations, best_x, best_f, history,
                            final_positions);
 }
 
 /* The IGWO run drawing its random numbers like numpy's Generator(PCG64).random(): pcg[4] =
- * {state_hi, state_lo, inc_hi, inc_lo} on entry; the state after the draws on return. */
+ * {state_hi, state_lo, inc_hi, inc_lo} on entry; the state after the draws on return.  With
+ * rng_thread != 0 the numbers are drawn on a second thread, one iteration ahead. */
 CASADI_SYMBOL_EXPORT int uuv_ocp_igwo_pcg64(const double* p, const double* offset,
                                             const double* lower, const double* upper,
-                                            const double* positions0, uint64_t* pcg,
+                                            const double* positions0, uint64_t* pcg, int rng_thread,
                                             const double* a_schedule, const double* w_schedule,
                                             double c1, double c2, int n, int dim, int iterations,
                                             double* best_x, double* best_f, double* history,
                                             double* final_positions) {
-  return uuv_ocp_igwo_core(p, offset, lower, upper, positions0, NULL, pcg, a_schedule,
+  return uuv_ocp_igwo_core(p, offset, lower, upper, positions0, NULL, pcg, rng_thread, a_schedule,
                            w_schedule, c1, c2, n, dim, iterations, best_x, best_f, history,
                            final_positions);
 }

@@ -23,6 +23,7 @@ the rest are uniform in the box.
 
 from __future__ import annotations
 
+import os
 import time
 from typing import Any
 
@@ -86,7 +87,11 @@ class SwarmSolver:
         method), ``seed`` (used when the caller passes no generator; default 0),
         ``search`` ("deviation" | "absolute"), ``seed_warm_start`` (bool),
         ``parallelization`` ("serial" | "thread" for the mapped cost), ``algorithm_options``
-        (dict passed to the algorithm).
+        (dict passed to the algorithm), ``compiled`` (bool: the compiled SIMD fitness and, for
+        IGWO, the all-C step; see docs/codegen.md), ``rng_thread`` (bool; default True on a
+        machine with two or more CPUs: the all-C IGWO step draws 7/8 of its random numbers on
+        a second thread, one iteration ahead — the same numbers; False keeps the step on one
+        thread, e.g. inside a process pool that already uses every CPU).
     method : str
         ``"igwo"``, ``"gwo"``, ``"ssa"`` or ``"pso"``.
     """
@@ -128,10 +133,11 @@ class SwarmSolver:
         )
         self.algorithm_options = options.pop("algorithm_options", None)
         self.compiled = options.pop("compiled", False)
+        self.rng_thread = options.pop("rng_thread", (os.cpu_count() or 1) >= 2)
         if options:
             valid = [
                 "algorithm_options", "compiled", "iterations", "max_evaluations",
-                "parallelization", "population", "search", "seed", "seed_warm_start",
+                "parallelization", "population", "rng_thread", "search", "seed", "seed_warm_start",
             ]  # fmt: skip
             unknown = sorted(options)
             raise ValueError(f"unknown options for solver {method!r}: {unknown}; valid: {valid}")
@@ -139,6 +145,8 @@ class SwarmSolver:
         algorithm(-np.ones(1), np.ones(1), self.population, self.iterations, self.algorithm_options)
         if not isinstance(self.compiled, bool):
             raise ValueError(f"options['compiled'] must be True or False, got {self.compiled!r}")
+        if not isinstance(self.rng_thread, bool):
+            raise ValueError(f"options['rng_thread'] must be True or False, got {self.rng_thread!r}")
         self.native = None
         self._score_terms: BufferedFunction | None = None  # compiled twins when compiled=True
         self._rollout: BufferedFunction | None = None
@@ -261,7 +269,9 @@ class SwarmSolver:
             )
         a, w = self._schedules
         options = algorithm.options
-        out = self.native.run(p, offset, lower, upper, positions, draws, a, w, options["c1"], options["c2"])
+        out = self.native.run(
+            p, offset, lower, upper, positions, draws, a, w, options["c1"], options["c2"], self.rng_thread
+        )
         return MinimizeResult(
             x=out["x"],
             fun=out["fun"],

@@ -3,7 +3,9 @@
 An ordinary call converts every numpy argument to a ``DM`` and every result back (≈ 50–150 µs
 for the functions of a tracking problem); the buffer interface reads and writes numpy memory
 directly.  Same Function, same arithmetic: the results are bit-identical to an ordinary call.
-A caller owns its buffers, so one caller must not be used from two threads at once.
+A caller owns its buffers, so one caller must not be used from two threads at once (the
+callers cached on a problem or a reference are therefore not thread-safe; processes are fine,
+and a copy gets buffers of its own).
 """
 
 from __future__ import annotations
@@ -43,9 +45,23 @@ class BufferedFunction:
         """``Function.stats()`` of the last buffered call (its own memory, not ``stats(0)``)."""
         return self._buffer.stats()
 
+    def __reduce__(self):
+        # buffers are process-local: a copy (deepcopy, pickle) gets buffers of its own
+        return (BufferedFunction, (self.function,))
+
     def __call__(self, *inputs: np.ndarray) -> list[np.ndarray]:
-        """Evaluate; ``inputs`` are flat (column-major) nonzeros; returns copies of the outputs."""
-        for target, value in zip(self._inputs, inputs, strict=True):
-            target[:] = np.ravel(value)
+        """Evaluate; returns copies of the outputs (flat, column-major).
+
+        ``inputs`` are the inputs' values: flat vectors of their nonzeros, or dense matrices of
+        the inputs' shape (taken column by column, as CasADi stores them).
+        """
+        for index, (target, value) in enumerate(zip(self._inputs, inputs, strict=True)):
+            value = np.asarray(value, dtype=float)
+            if value.size != target.size:
+                raise ValueError(
+                    f"input {index} of {self.function.name()!r} needs {target.size} values, "
+                    f"got shape {value.shape}"
+                )
+            target[:] = value.ravel(order="F")
         self._trigger()
         return [output.copy() for output in self._outputs]

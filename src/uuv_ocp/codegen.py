@@ -212,17 +212,27 @@ def generate_c(
             external = [symbolic["cost_batch"]]
         extra = kernel + _IGWO_SOURCE.read_text()
     existing = set(directory.glob("*.so")) if directory.exists() else set()
-    library = compile_functions(
-        chosen,
-        directory,
-        compile=compile,
-        verify=verify,
-        rng=np.random.default_rng(seed),
-        flags=flags,
-        tolerance=tolerance,
-        extra_source=extra,
-        external=external,
-    )
+
+    def build(build_flags: tuple[str, ...]):
+        return compile_functions(
+            chosen,
+            directory,
+            compile=compile,
+            verify=verify,
+            rng=np.random.default_rng(seed),
+            flags=build_flags,
+            tolerance=tolerance,
+            extra_source=extra,
+            external=external,
+        )
+
+    try:
+        library = build(flags)
+    except CompilationError:
+        portable = tuple(flag for flag in flags if not flag.endswith("=native"))
+        if portable == tuple(flags):
+            raise
+        library = build(portable)  # a compiler that rejects -march=native: portable SIMD width
     return GeneratedCode(
         directory=directory,
         source=library.source,
@@ -281,7 +291,9 @@ class NativeIgwo:
     """The all-C IGWO step of a compiled build, called through ``ctypes``.
 
     ``run(p, offset, lower, upper, positions, draws, a, w, c1, c2)`` mirrors the Python IGWO
-    (``solvers/swarm.py``) operation by operation; ``draws`` is either the array
+    (``solvers/swarm.py``) operation by operation (bit-identical when the Python IGWO runs on
+    the same compiled ``cost_batch``; to the SIMD kernel's sin/cos rounding against the virtual
+    machine); ``draws`` is either the array
     ``(iterations, 8, population, dim)`` of uniform numbers or a ``numpy.random.Generator``
     on PCG64 (numpy's default), from which the C code draws exactly the numbers
     ``draws.random((iterations, 8, population, dim))`` would give, and advances it as that
@@ -340,13 +352,15 @@ class NativeIgwo:
             state = draws.bit_generator.state
             words = (ctypes.c_uint64 * 4)(*_split(state["state"]["state"]), *_split(state["state"]["inc"]))
             status = self._drawing(*map(data, inputs), words, int(rng_thread), *map(data, schedules), *tail)
-            state["state"]["state"] = (words[0] << 64) | words[1]
-            draws.bit_generator.state = state
+            if status == 0:  # a failed run leaves the Generator untouched
+                state["state"]["state"] = (words[0] << 64) | words[1]
+                draws.bit_generator.state = state
         else:
             block = np.ascontiguousarray(draws, dtype=float)
             status = self._given(*map(data, inputs), data(block), *map(data, schedules), *tail)
         if status != 0:
-            raise RuntimeError(f"uuv_ocp_igwo returned status {status}")
+            reason = "the fitness evaluation failed" if status == 1 else "out of memory"
+            raise RuntimeError(f"uuv_ocp_igwo returned status {status}: {reason}")
         return {"x": best_x, "fun": float(best_f[0]), "history": history, "population": final}
 
 

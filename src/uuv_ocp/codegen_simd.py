@@ -152,7 +152,8 @@ CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casa
   for (c0 = 0; c0 < {population}; c0 += UUV_LANES) {{
     for (l = 0; l < UUV_LANES; ++l) {{
       const size_t c = (size_t)(c0 + l < {population} ? c0 + l : {population} - 1);
-      for (j = 0; j < {candidate_size}; ++j) lanes[j][l] = arg[0] ? arg[0][c * {candidate_size} + j] : 0.0;
+      const casadi_real* candidate = arg[0] ? arg[0] + c * {candidate_size} : 0;
+      for (j = 0; j < {candidate_size}; ++j) lanes[j][l] = candidate ? candidate[j] : 0.0;
     }}
     {{
 {_indent(body.vector, 6)}

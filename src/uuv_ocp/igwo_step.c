@@ -13,7 +13,10 @@
  * GWO moves, 6 and 7 for the memory terms) or drawn here, one iteration's block at a time, by
  * numpy's PCG64 (XSL-RR 128/64, doubles as (next >> 11) * 2^-53) from the Generator's state:
  * the same numbers `Generator.random` gives, in the same order, so the same seed gives the
- * same result as the Python implementation.  The schedules a(t), w(t) are inputs.
+ * same result as the Python implementation run on the same compiled `cost_batch` (the SIMD
+ * kernel's sin/cos may differ from libm's in the last bits, so against the Python IGWO on
+ * CasADi's virtual machine the agreement is to that rounding).  The schedules a(t), w(t) are
+ * inputs.
  * Compile with -ffp-contract=off.
  * ------------------------------------------------------------------------------------- */
 #include <math.h>
@@ -199,13 +202,15 @@ static int uuv_pcg_stream_open(uuv_pcg_stream* stream, const uint64_t* pcg, size
   stream->block_size = block_size;
   stream->segment = uuv_pcg_jumps(stream->inc, block_size, stream->jumps);
   stream->blocks = blocks;
+  stream->threaded = 0;
   stream->buffers[0] = (double*)malloc(sizeof(double) * block_size * 2);
+  if (stream->buffers[0] == NULL) return 1;
   stream->buffers[1] = stream->buffers[0] + block_size;
   atomic_init(&stream->produced, 0);
   atomic_init(&stream->consumed, 0);
   atomic_init(&stream->stop, 0);
   stream->threaded = threaded && blocks > 1 && uuv_start_worker(stream);
-  return stream->buffers[0] == NULL;
+  return 0;
 }
 
 /* Block t (its last segment drawn here, the rest by the worker; or all of it here). */
@@ -237,6 +242,7 @@ static void uuv_pcg_stream_close(uuv_pcg_stream* stream, uint64_t* pcg) {
   pcg[0] = (uint64_t)(stream->state >> 64);
   pcg[1] = (uint64_t)stream->state;
   free(stream->buffers[0]);
+  stream->buffers[0] = NULL;
 }
 
 /* One IGWO move of the whole pack into `next` (restrict: lets the compiler vectorise over j). */
@@ -335,6 +341,7 @@ static int uuv_ocp_igwo_core(const double* p, const double* offset, const double
   double *positions, *next, *pbest, *pbest_cost, *costs, *candidates, leaders_cost[3], *leaders;
   const size_t block_size = (size_t)8 * n * dim;
   uuv_pcg_stream stream;
+  int drawing = 0; /* the stream is open (closed in cleanup) */
   int count = 0, status = 0, t, i, j, best_index;
   cost_batch_work(&sz_arg, &sz_res, &sz_iw, &sz_w);
   arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (sz_arg > 2 ? sz_arg : 2));
@@ -348,7 +355,18 @@ static int uuv_ocp_igwo_core(const double* p, const double* offset, const double
   leaders = (double*)malloc(sizeof(double) * 3 * dim);
   pbest_cost = (double*)malloc(sizeof(double) * n);
   costs = (double*)malloc(sizeof(double) * n);
-  if (!draws) uuv_pcg_stream_open(&stream, pcg, block_size, iterations, rng_thread);
+  if (!arg || !res || !iw || !w || !positions || !next || !pbest || !candidates || !leaders ||
+      !pbest_cost || !costs) {
+    status = 2; /* out of memory */
+    goto cleanup;
+  }
+  if (!draws) {
+    if (uuv_pcg_stream_open(&stream, pcg, block_size, iterations, rng_thread)) {
+      status = 2;
+      goto cleanup;
+    }
+    drawing = 1;
+  }
 
   for (i = 0; i < n * dim; ++i) positions[i] = positions0[i];
   if (uuv_ocp_fitness(p, offset, positions, n, dim, candidates, costs, arg, res, iw, w)) {
@@ -395,7 +413,7 @@ static int uuv_ocp_igwo_core(const double* p, const double* offset, const double
   for (i = 0; i < n * dim; ++i) final_positions[i] = positions[i];
 
 cleanup:
-  if (!draws) uuv_pcg_stream_close(&stream, pcg);
+  if (drawing) uuv_pcg_stream_close(&stream, pcg);
   free(arg); free(res); free(iw); free(w); free(positions); free(next); free(pbest);
   free(candidates); free(leaders); free(pbest_cost); free(costs);
   return status;

@@ -27,6 +27,7 @@ import math
 import os
 import re
 import sys
+import threading
 import time
 import warnings
 from typing import Any
@@ -87,26 +88,35 @@ def _with_slack_curvature(data: NlpData, curvature: float) -> NlpData:
     return dataclasses.replace(data, nlp=nlp, residual=ca.vertcat(data.residual, extra))
 
 
+_STDOUT_LOCK = threading.Lock()
+
+
 @contextlib.contextmanager
 def _silenced_c_stdout():
     """Discard what C code writes to file descriptor 1 (qpOASES prints its licence banner on
-    every solve and has no option to stop it); no-op where the descriptor cannot be swapped."""
-    try:
-        libc = ctypes.CDLL(None)
-        sys.stdout.flush()
-        saved = os.dup(1)
-    except (OSError, AttributeError, ValueError):
-        yield
-        return
-    devnull = os.open(os.devnull, os.O_WRONLY)
-    try:
-        os.dup2(devnull, 1)
-        yield
-    finally:
-        libc.fflush(None)
-        os.dup2(saved, 1)
-        os.close(saved)
-        os.close(devnull)
+    every solve and has no option to stop it); no-op where the descriptor cannot be swapped.
+
+    Process-wide while it lasts: output of other threads to fd 1 is discarded too.  A lock
+    keeps two threads from swapping the descriptor at once.
+    """
+    with _STDOUT_LOCK:
+        try:
+            libc = ctypes.CDLL(None)
+            sys.stdout.flush()
+            libc.fflush(None)  # what C buffered before belongs to the real stdout
+            saved = os.dup(1)
+        except (OSError, AttributeError, ValueError, TypeError):
+            yield
+            return
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        try:
+            os.dup2(devnull, 1)
+            yield
+        finally:
+            libc.fflush(None)
+            os.dup2(saved, 1)
+            os.close(saved)
+            os.close(devnull)
 
 
 class NlpSolver:
@@ -236,7 +246,8 @@ class NlpSolver:
         Backends whose defaults are tuned for speed return their conservative settings here.
         An optional ``"plugin"`` key names a different ``casadi.nlpsol`` plugin for the retry;
         then only the remaining keys are its options (the backend's ``plugin_defaults`` and the
-        user's ``plugin_options`` belong to the backend's own plugin and are not applied).
+        user's ``plugin_options`` belong to the backend's own plugin and are not applied); the
+        NLP it solves is the same, objective scaling (``objective_scale``) included.
         """
         return {}
 

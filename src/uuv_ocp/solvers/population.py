@@ -39,6 +39,13 @@ from uuv_ocp.solvers.swarm import ALGORITHMS, MinimizeResult, minimize
 SEARCH_MODES = ("deviation", "absolute")
 
 
+def _usable_cpus() -> int:
+    """CPUs this process may run on (its affinity mask where the platform has one)."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
 def candidate_fitness(problem: TrackingProblem) -> ca.Function:
     """``fitness(U[3N], p) -> objective + penalty`` of one candidate, as an SX Function."""
     cost = problem.build().cost
@@ -73,7 +80,7 @@ class BufferedFitness:
 
     def __call__(self, candidates: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Fitness of ``candidates`` (population, dim) for parameters ``p``: (population,)."""
-        return self._call(candidates, p)[0]
+        return self._call(candidates.ravel(), p)[0]  # row-major rows = the matrix's columns
 
 
 class SwarmSolver:
@@ -133,7 +140,7 @@ class SwarmSolver:
         )
         self.algorithm_options = options.pop("algorithm_options", None)
         self.compiled = options.pop("compiled", False)
-        self.rng_thread = options.pop("rng_thread", (os.cpu_count() or 1) >= 2)
+        self.rng_thread = options.pop("rng_thread", _usable_cpus() >= 2)
         if options:
             valid = [
                 "algorithm_options", "compiled", "iterations", "max_evaluations",

@@ -405,8 +405,7 @@ def compile_functions(
     without recompiling.  The digest covers the source text, the compiler path and the flags, not
     the compiler's version: after upgrading a compiler in place, clear the directory.
     """
-    functions = _check_functions(functions, name)
-    external = list(external)
+    functions, external = list(functions), list(external)
     _check_functions([*functions, *external], name)
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)

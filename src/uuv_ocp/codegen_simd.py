@@ -213,26 +213,28 @@ class _Emitter:
     def _operands(self, k: int) -> list[str]:
         return [self.slot_name[slot] for slot in self.function.instruction_input(k)]
 
-    def _paired_arguments(self) -> set[tuple[int, ...]]:
-        """Work slots whose value feeds both a sin and a cos (computed once as sincos)."""
-        seen: dict[tuple[int, int], set[int]] = {}
-        version: dict[int, int] = {}
+    def _paired_trig(self) -> set[int]:
+        """Instructions whose sin/cos has a cos/sin partner on the same value (one sincos).
+
+        A work slot is reused, so a value is identified by (slot, how often it was written).
+        """
+        ops_of: dict[tuple[int, int], dict[int, int]] = {}
+        writes: dict[int, int] = {}
         f = self.function
         for k in range(f.n_instructions()):
             op = f.instruction_id(k)
             if op in (_SIN, _COS):
                 (slot,) = f.instruction_input(k)
-                seen.setdefault((slot, version.get(slot, 0)), set()).add(op)
+                ops_of.setdefault((slot, writes.get(slot, 0)), {})[op] = k
             if op != _OUTPUT:
                 for slot in f.instruction_output(k):
-                    version[slot] = version.get(slot, 0) + 1
-        return {key for key, ops in seen.items() if len(ops) == 2}
+                    writes[slot] = writes.get(slot, 0) + 1
+        return {k for ops in ops_of.values() if len(ops) == 2 for k in ops.values()}
 
     def emit(self) -> _Body:
         f = self.function
         body = _Body()
-        paired = self._paired_arguments()
-        version: dict[int, int] = {}
+        paired = self._paired_trig()
         for k in range(f.n_instructions()):
             op = f.instruction_id(k)
             if op == _OUTPUT:
@@ -265,13 +267,10 @@ class _Emitter:
                     name = f"s{k}"
                     body.scalar.append(f"const double {name} = {self._scalar(op, operands)};")
                 elif op in (_SIN, _COS):
-                    (argument_slot,) = f.instruction_input(k)
-                    key = (argument_slot, version.get(argument_slot, 0))
-                    name = self._trig(op, operands[0], key in paired, body.vector)
+                    name = self._trig(op, operands[0], k in paired, body.vector)
                 else:
                     name = f"v{k}"
                     body.vector.extend(self._vector(op, operands, name))
-            version[slot] = version.get(slot, 0) + 1
             self.slot_name[slot] = name
             self.is_vector[name] = vector
         return body

@@ -159,7 +159,7 @@ class Reference:
         if size not in self._maps:  # CasADi would build a new map on every horzcat call
             self._maps[size] = BufferedFunction(self._function.map(size))
         (states,) = self._maps[size](times)
-        return states.reshape(size, 6)
+        return states.reshape(size, -1)
 
     def evaluate(self, times: object) -> np.ndarray:
         """Reference state at the given times, with a continuous heading.

@@ -176,3 +176,67 @@ def test_sqp_last_resort_blocksqp_solves_a_cycling_soft_step():
     g = np.asarray(constraints(result.iterate.primal, p)).ravel()
     assert np.all(g >= data.lbg - 1e-6) and np.all(g <= data.ubg + 1e-6)
     assert float(objective(result.iterate.primal, p)) == pytest.approx(float(reference["f"]), rel=1e-6)
+
+
+@pytest.fixture(scope="module")
+def still_water_pair(s2_problem):
+    backend = uo.get_solver(s2_problem, "ipopt")
+    data = backend.variants["hard"]
+    return data, backend._still_water_nlp(data)
+
+
+def test_still_water_nlp_has_the_derivatives_of_the_general_nlp_at_zero_current(
+    s2_problem, feasible_start, still_water_pair
+):
+    """Same f, g, constraint Jacobian and Hessian of the Lagrangian at zero current, with
+    fewer operations: the current terms are gone, not hidden."""
+    import casadi as ca
+
+    data, still = still_water_pair
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0)
+    rng = np.random.default_rng(3)
+    w = rng.normal(size=data.lbx.size)
+    lam_g = rng.normal(size=data.lbg.size)
+
+    def derivatives(nlp):
+        lagrangian = nlp["f"] + ca.dot(ca.SX(lam_g), nlp["g"])
+        hessian = ca.hessian(lagrangian, nlp["x"])[0]
+        jacobian = ca.jacobian(nlp["g"], nlp["x"])
+        function = ca.Function("d", [nlp["x"], nlp["p"]], [nlp["f"], nlp["g"], jacobian, hessian])
+        return function, [np.array(ca.densify(value)) for value in function(w, p)]
+
+    general, general_values = derivatives(data.nlp)
+    special, special_values = derivatives(still)
+    for a, b in zip(general_values, special_values, strict=True):
+        np.testing.assert_allclose(b, a, rtol=1e-12, atol=1e-9)
+    assert special.n_instructions() < 0.8 * general.n_instructions()
+
+
+@pytest.mark.parametrize("name", EXACT)
+def test_still_water_specialisation_reaches_the_general_optimum(s2_problem, feasible_start, results, name):
+    x0, t0 = feasible_start
+    assert results[name].details["still_water"]
+    general = uo.solve(s2_problem, name, x0=x0, t0=t0, options={"still_water": False})
+    assert not general.details["still_water"]
+    assert general.success
+    assert results[name].cost == pytest.approx(general.cost, rel=1e-9)
+    np.testing.assert_allclose(results[name].controls, general.controls, atol=1e-6 * 2000)
+
+
+def test_a_current_in_the_model_uses_the_general_nlp(s2_problem, feasible_start, results):
+    x0, t0 = feasible_start
+    current = np.array([0.3, -0.2])
+    with_current = uo.solve(s2_problem, "fatrop", x0=x0, t0=t0, current=current)
+    assert with_current.success and not with_current.details["still_water"]
+    # the plan is the model's rollout under that current, and it differs from still water
+    p = s2_problem.parameters(x0, t0, current=current)
+    np.testing.assert_allclose(with_current.states, s2_problem.rollout(with_current.controls, p), atol=1e-6)
+    assert np.max(np.abs(with_current.controls - results["fatrop"].controls)) > 10.0
+    reference = uo.solve(s2_problem, "ipopt", x0=x0, t0=t0, current=current)
+    assert with_current.cost == pytest.approx(reference.cost, rel=1e-6)
+
+
+def test_still_water_option_is_validated(s2_problem):
+    with pytest.raises(ValueError, match="still_water"):
+        uo.get_solver(s2_problem, "fatrop", {"still_water": "yes"})

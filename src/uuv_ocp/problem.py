@@ -278,6 +278,12 @@ class TrackingProblem:
         window = self.reference_window(t0, heading=x0[2])
         return np.concatenate([x0, window.ravel(), u_prev, current.ravel()])
 
+    @property
+    def current_slice(self) -> slice:
+        """Where the current over the horizon, ``(N, 2)`` row by row (m/s), sits in ``p``."""
+        start = STATE_DIM * (self.horizon + 2) + CONTROL_DIM
+        return slice(start, start + CURRENT_DIM * self.horizon)
+
     def parameter_parts(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Numeric ``p`` -> (x0 (6,), reference (N+1, 6), u_prev (3,), current (N, 2))."""
         n = self.horizon

@@ -99,6 +99,54 @@ def test_reference_heading_is_aligned_with_the_vehicle(s2_problem):
     assert window[0, 2] == pytest.approx(x0[2])
 
 
+def _direct_window(reference, t0, dt, horizon, heading):
+    window = reference.evaluate(t0 + dt * np.arange(horizon + 1))
+    window[:, 2] += 2 * math.pi * np.round((heading - window[0, 2]) / (2 * math.pi))
+    return window
+
+
+@pytest.mark.parametrize(
+    "reference",
+    [
+        uo.Reference.paper("s3"),  # starts at t = 1 s: the first sample block is clipped
+        uo.Reference.paper("s8"),
+        uo.Reference.from_xy(lambda t: 3 * ca.cos(2 * t), lambda t: 3 * ca.sin(2 * t), "fast circle"),
+    ],
+    ids=["s3", "s8", "fast-circle"],
+)
+def test_windows_cut_from_sample_blocks_match_direct_evaluation(reference):
+    """Closed-loop windows (t0 = i dt) come from cached blocks of samples; across block
+    boundaries and many heading turns they equal a direct evaluation of the reference."""
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), reference, horizon=20, dt=0.1)
+    heading = 0.7 - 6 * math.pi
+    first = int(math.ceil(reference.t_start / 0.1))
+    for index in range(first, first + 150):  # windows inside, across and after blocks 0-2
+        t0 = index * 0.1
+        expected = _direct_window(reference, t0, 0.1, 20, heading)
+        np.testing.assert_allclose(problem.reference_window(t0, heading), expected, rtol=1e-13, atol=1e-11)
+    assert len(problem._cache["sample_blocks"]) >= 3
+    # off the sampling grid: the direct evaluation itself
+    t0 = first * 0.1 + 0.05
+    np.testing.assert_allclose(
+        problem.reference_window(t0, heading),
+        _direct_window(reference, t0, 0.1, 20, heading),
+        rtol=1e-13,
+        atol=1e-11,
+    )
+
+
+def test_a_stationary_point_outside_the_window_does_not_matter():
+    """The sample block around a window may hold a point where the heading is undefined: the
+    window then comes from a direct evaluation, and only a window containing it raises."""
+    reference = uo.Reference.from_xy(lambda t: (t - 5) ** 3, lambda t: 0 * t, "stops at t = 5")
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), reference, horizon=20, dt=0.1)
+    np.testing.assert_allclose(
+        problem.reference_window(1.0, 0.0), _direct_window(reference, 1.0, 0.1, 20, 0.0), atol=1e-12
+    )
+    with pytest.raises(ValueError, match=r"t = 5\.0"):
+        problem.reference_window(4.0, 0.0)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "name"),
     [

@@ -75,3 +75,10 @@ def test_initial_state_is_on_the_path_at_rest():
     state = uo.Reference.paper("s2").initial_state(1.0)
     np.testing.assert_allclose(state[:2], [0.5, 2 * math.sin(0.5)])
     assert np.all(state[3:] == 0)
+
+
+@pytest.mark.parametrize("name", ["fast circle", "s-curve #2", "__", "é"])
+def test_any_name_is_a_valid_label(name):
+    reference = uo.Reference.from_xy(lambda t: t, lambda t: 0 * t, name)
+    assert reference.name == name
+    np.testing.assert_allclose(reference.evaluate([1.0])[0, :4], [1.0, 0.0, 0.0, 1.0])

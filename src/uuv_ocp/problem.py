@@ -41,6 +41,7 @@ from uuv_ocp.vehicles import CONTROL_DIM, CURRENT_DIM, STATE_DIM, Vehicle
 
 TERMINAL_MODES = ("equality", "cost", "none")
 LIFTED_DIM = STATE_DIM + CONTROL_DIM
+SAMPLE_BLOCK = 64  # sampling intervals per cached block of reference samples
 
 
 @dataclass(frozen=True)
@@ -233,16 +234,65 @@ class TrackingProblem:
 
         The heading is shifted by a multiple of 2π so that its first value is the one closest
         to ``heading`` (the vehicle's), which keeps the terminal equality wrap-safe.
+
+        When ``t0`` is a sampling instant ``i dt`` (a closed loop started at a multiple of
+        ``dt``), the window is cut from blocks of reference samples at ``(i + k) dt``
+        evaluated once per problem; otherwise, or if a block cannot be evaluated, the
+        reference is evaluated at ``t0 + k dt``.  The two agree to floating-point rounding
+        (the sample times differ by an ulp, the heading branch is chosen the same way).
         """
-        times = np.minimum(t0 + self.dt * np.arange(self.horizon + 1), self.reference.t_end)
-        if self.dt <= UNWRAP_STEP and times[-1] > times[-2]:
-            window = self.reference.evaluate_grid(times)
-        else:
-            window = self.reference.evaluate(times)
+        window = self._window_from_samples(t0)
+        if window is None:
+            times = np.minimum(t0 + self.dt * np.arange(self.horizon + 1), self.reference.t_end)
+            if self.dt <= UNWRAP_STEP and times[-1] > times[-2]:
+                window = self.reference.evaluate_grid(times)
+            else:
+                window = self.reference.evaluate(times)
         if heading is not None:
             turns = np.round((heading - window[0, 2]) / (2.0 * math.pi))
             window[:, 2] += 2.0 * math.pi * turns
         return window
+
+    def _window_from_samples(self, t0: float) -> np.ndarray | None:
+        """The window at ``t0 = i dt`` from cached sample blocks, or ``None`` (see above)."""
+        dt, horizon, reference = self.dt, self.horizon, self.reference
+        first = round(t0 / dt)
+        last = first + horizon
+        if first * dt != t0 or dt > UNWRAP_STEP or last * dt > reference.t_end:
+            return None
+        parts: list[np.ndarray] = []
+        for block in range(first // SAMPLE_BLOCK, last // SAMPLE_BLOCK + 1):
+            samples = self._sample_block(block)
+            if samples is None:
+                return None
+            start_index, states = samples
+            lo, hi = max(first, start_index), min(last, start_index + states.shape[0] - 1)
+            if lo > hi:
+                return None  # the reference starts after t0
+            part = states[lo - start_index : hi - start_index + 1].copy()
+            if parts:
+                # neighbouring blocks share their boundary sample: drop it, and move this
+                # block's heading to the branch of the previous one
+                turns = np.round((parts[-1][-1, 2] - part[0, 2]) / (2.0 * math.pi))
+                part[:, 2] += 2.0 * math.pi * turns
+                part = part[1:]
+            parts.append(part)
+        window = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        return window if window.shape[0] == horizon + 1 else None
+
+    def _sample_block(self, block: int) -> tuple[int, np.ndarray] | None:
+        """Reference samples at ``i dt`` for ``i`` in block ``block`` (its first index, states)."""
+        blocks = self._cache.setdefault("sample_blocks", {})
+        if block not in blocks:
+            dt, reference = self.dt, self.reference
+            indices = block * SAMPLE_BLOCK + np.arange(SAMPLE_BLOCK + 1)
+            times = indices * dt
+            inside = (times >= reference.t_start) & (times <= reference.t_end)
+            try:
+                blocks[block] = (int(indices[inside][0]), reference.evaluate_grid(times[inside]))
+            except (IndexError, ValueError):  # empty, or the speed vanishes inside the block
+                blocks[block] = None
+        return blocks[block]
 
     def parameters(
         self,

@@ -14,6 +14,7 @@ spirals never jump by 2π.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -146,7 +147,11 @@ class Reference:
         heading = ca.atan2(velocity_y, velocity_x)
         yaw_rate = (velocity_x * acceleration_y - velocity_y * acceleration_x) / speed_squared
         outputs = ca.vertcat(position_x, position_y, heading, ca.sqrt(speed_squared), 0 * time, yaw_rate)
-        return ca.Function(f"reference_{self.name}", [time], [outputs], ["t"], ["state"])
+        # CasADi accepts letters, digits and single underscores in a Function name; the
+        # reference's own name is a free label ("fast circle", "s-curve")
+        label = "_".join(re.findall(r"[0-9A-Za-z]+", self.name))
+        name = f"reference_{label}" if label else "reference"
+        return ca.Function(name, [time], [outputs], ["t"], ["state"])
 
     # -------------------------------------------------------------- evaluation
     @property

@@ -125,19 +125,26 @@ def test_c_pcg64_draws_numpys_numbers_and_advances_the_same(tmp_path, s2_problem
 
 
 @needs_compiler
-@pytest.mark.parametrize("rng_thread", [True, False])
+@pytest.mark.parametrize("rng_thread", [True, False, 2], ids=["worker", "one-thread", "worker-late"])
 def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
     s2_problem, feasible_start, rng_thread
 ):
     x0, t0 = feasible_start
     p = s2_problem.parameters(x0, t0)
-    native = uo.get_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": rng_thread})
+    native = uo.get_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": bool(rng_thread)})
+    native.rng_thread = rng_thread  # 2: the step never waits for its worker (draws every block)
+    runs = []
+    run = native.native.run
+    native.native.run = lambda *args, **kwargs: runs.append(run(*args, **kwargs)) or runs[-1]
     python = uo.get_solver(s2_problem, "igwo", {"compiled": True})
     python.native = None  # the Python loop over the same compiled kernel
     for seed in (1, 2):
         in_c, in_python = np.random.default_rng(seed), np.random.default_rng(seed)
         actual = native.solve(p, None, in_c)
         expected = python.solve(p, None, in_python)
+        late = runs[-1]["late_blocks"]  # blocks 1..29 the step drew itself
+        assert late == {False: 0, 2: native.iterations - 1}.get(rng_thread, late)
+        assert 0 <= late <= native.iterations - 1
         np.testing.assert_array_equal(actual.controls, expected.controls)
         np.testing.assert_array_equal(actual.history, expected.history)
         assert in_c.bit_generator.state == in_python.bit_generator.state

@@ -331,9 +331,15 @@ class NativeIgwo:
         w: np.ndarray,
         c1: float = 0.5,
         c2: float = 0.5,
-        rng_thread: bool = True,
+        rng_thread: bool | int = True,
     ) -> dict:
-        """One IGWO run; returns ``x``, ``fun``, ``history``, ``population``."""
+        """One IGWO run; returns ``x``, ``fun``, ``history``, ``population``.
+
+        ``rng_thread``: draw on a second thread (``True``), or not; ``2`` starts the thread
+        but never waits for it, as the step does for a block its worker is late with (the
+        numbers are the same in every case).  ``late_blocks`` in the result counts the
+        iterations whose numbers the step drew itself because the second thread was late.
+        """
         population, dim = positions.shape
         iterations = a.shape[0]
         pointer = ctypes.POINTER(ctypes.c_double)
@@ -346,22 +352,30 @@ class NativeIgwo:
         best_x, best_f = np.empty(dim), np.empty(1)
         history, final = np.empty(iterations + 1), np.empty((population, dim))
         tail = (c1, c2, population, dim, iterations, *map(data, (best_x, best_f, history, final)))
+        late_blocks = 0
         if isinstance(draws, np.random.Generator):
             if not uses_pcg64(draws):
                 raise ValueError(f"draws must use PCG64, got {type(draws.bit_generator).__name__}")
             state = draws.bit_generator.state
-            words = (ctypes.c_uint64 * 4)(*_split(state["state"]["state"]), *_split(state["state"]["inc"]))
+            words = (ctypes.c_uint64 * 5)(*_split(state["state"]["state"]), *_split(state["state"]["inc"]), 0)
             status = self._drawing(*map(data, inputs), words, int(rng_thread), *map(data, schedules), *tail)
             if status == 0:  # a failed run leaves the Generator untouched
                 state["state"]["state"] = (words[0] << 64) | words[1]
                 draws.bit_generator.state = state
+                late_blocks = int(words[4])
         else:
             block = np.ascontiguousarray(draws, dtype=float)
             status = self._given(*map(data, inputs), data(block), *map(data, schedules), *tail)
         if status != 0:
             reason = "the fitness evaluation failed" if status == 1 else "out of memory"
             raise RuntimeError(f"uuv_ocp_igwo returned status {status}: {reason}")
-        return {"x": best_x, "fun": float(best_f[0]), "history": history, "population": final}
+        return {
+            "x": best_x,
+            "fun": float(best_f[0]),
+            "history": history,
+            "population": final,
+            "late_blocks": late_blocks,
+        }
 
 
 def uses_pcg64(generator: np.random.Generator) -> bool:

@@ -25,6 +25,7 @@
 #include <stdatomic.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <time.h>
 
 /* ---- numpy's PCG64 ------------------------------------------------------------------ */
 typedef __uint128_t uuv_u128;
@@ -131,17 +132,23 @@ CASADI_SYMBOL_EXPORT void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state
 }
 
 /* The IGWO's random numbers, one iteration's block at a time.  With a second thread, the
- * worker draws segments 0..6 of block t + 1 while iteration t evaluates its pack, and the
- * step's own thread draws the last segment when it takes the block (two buffers,
- * release/acquire counters); otherwise the whole block is drawn when taken.  Each thread
- * advances its own copy of the generator state by one block per block: same numbers, same
- * order, either way. */
+ * step's own thread draws block 0 (timing it), the worker draws segments 0..6 of each later
+ * block one iteration ahead (two buffers, release/acquire counters) and the step's thread
+ * draws the last segment when it takes the block.  A block the worker has not delivered
+ * within the time block 0 took to draw (the worker is still starting, or its CPU is busy with
+ * another process) is drawn whole by the step's thread into a third buffer the worker never
+ * touches; the worker skips the blocks already consumed.  So a late worker costs at most one
+ * block's wait per block, never a stall.  Each thread advances its own copy of the generator
+ * state by one block per block: the same numbers in the same order, whoever draws them.
+ * rng_thread: 0 one thread; 1 a worker; 2 a worker whose blocks are never used: the step's
+ * thread draws every block (tests that path). */
 typedef struct {
   uuv_u128 state, worker_state, inc;
   uuv_pcg_jump jumps[UUV_PCG_SEGMENTS + 1];
   size_t segment, block_size;
-  double* buffers[2];
-  int blocks, threaded;
+  double* buffers[3]; /* the worker's two, and the step thread's own */
+  int blocks, threaded, never_wait, stolen;
+  double patience; /* s: how long the step's thread waits for a block before drawing it */
   pthread_t worker;
   atomic_int produced, consumed, stop;
 } uuv_pcg_stream;
@@ -156,18 +163,32 @@ static void uuv_wait(int spins) {
   }
 }
 
+static double uuv_seconds(void) {
+  struct timespec now;
+  clock_gettime(CLOCK_MONOTONIC, &now);
+  return (double)now.tv_sec + 1e-9 * (double)now.tv_nsec;
+}
+
 static void* uuv_pcg_worker(void* argument) {
   uuv_pcg_stream* stream = (uuv_pcg_stream*)argument;
-  int t, spins;
-  for (t = 0; t < stream->blocks; ++t) {
+  uuv_u128 state = stream->worker_state; /* at block 1: block 0 is the step thread's */
+  int t = 1, spins, consumed;
+  while (t < stream->blocks) {
     for (spins = 0; t - atomic_load_explicit(&stream->consumed, memory_order_acquire) >= 2; ++spins) {
       if (atomic_load_explicit(&stream->stop, memory_order_relaxed)) return NULL;
       uuv_wait(spins);
     }
-    uuv_pcg_fill(stream->worker_state, stream->inc, stream->jumps, stream->segment,
-                 stream->buffers[t & 1], stream->block_size, 0, UUV_PCG_SEGMENTS - 1);
-    stream->worker_state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], stream->worker_state);
+    if (atomic_load_explicit(&stream->stop, memory_order_relaxed)) return NULL;
+    consumed = atomic_load_explicit(&stream->consumed, memory_order_acquire);
+    if (consumed > t) { /* the step's thread drew these itself: skip them */
+      for (; t < consumed; ++t) state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], state);
+      continue;
+    }
+    uuv_pcg_fill(state, stream->inc, stream->jumps, stream->segment, stream->buffers[t & 1],
+                 stream->block_size, 0, UUV_PCG_SEGMENTS - 1);
+    state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], state);
     atomic_store_explicit(&stream->produced, t + 1, memory_order_release);
+    ++t;
   }
   return NULL;
 }
@@ -195,35 +216,63 @@ static int uuv_start_worker(uuv_pcg_stream* stream) {
 }
 
 static int uuv_pcg_stream_open(uuv_pcg_stream* stream, const uint64_t* pcg, size_t block_size,
-                               int blocks, int threaded) {
+                               int blocks, int rng_thread) {
+  const int wanted = rng_thread != 0 && blocks > 1;
   stream->state = ((uuv_u128)pcg[0] << 64) | pcg[1];
-  stream->worker_state = stream->state;
   stream->inc = ((uuv_u128)pcg[2] << 64) | pcg[3];
   stream->block_size = block_size;
   stream->segment = uuv_pcg_jumps(stream->inc, block_size, stream->jumps);
+  stream->worker_state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], stream->state);
   stream->blocks = blocks;
-  stream->threaded = 0;
-  stream->buffers[0] = (double*)malloc(sizeof(double) * block_size * 2);
+  stream->never_wait = rng_thread == 2;
+  stream->stolen = 0;
+  stream->patience = 0.0;
+  stream->buffers[0] = (double*)malloc(sizeof(double) * block_size * (wanted ? 3 : 1));
   if (stream->buffers[0] == NULL) return 1;
   stream->buffers[1] = stream->buffers[0] + block_size;
-  atomic_init(&stream->produced, 0);
+  stream->buffers[2] = wanted ? stream->buffers[0] + 2 * block_size : stream->buffers[0];
+  atomic_init(&stream->produced, 1);
   atomic_init(&stream->consumed, 0);
   atomic_init(&stream->stop, 0);
-  stream->threaded = threaded && blocks > 1 && uuv_start_worker(stream);
+  stream->threaded = wanted && uuv_start_worker(stream);
   return 0;
 }
 
-/* Block t (its last segment drawn here, the rest by the worker; or all of it here). */
-static const double* uuv_pcg_stream_take(uuv_pcg_stream* stream, int t) {
-  double* block = stream->buffers[stream->threaded ? t & 1 : 0];
-  int spins, first = 0;
-  if (stream->threaded) {
-    for (spins = 0; atomic_load_explicit(&stream->produced, memory_order_acquire) <= t; ++spins)
-      uuv_wait(spins);
-    first = UUV_PCG_SEGMENTS - 1;
+/* Wait for the worker's part of block t; 0 if it is later than the stream's patience. */
+static int uuv_pcg_stream_wait(uuv_pcg_stream* stream, int t) {
+  double deadline = 0.0;
+  int spins;
+  if (stream->never_wait) return 0;
+  for (spins = 0; atomic_load_explicit(&stream->produced, memory_order_acquire) <= t; ++spins) {
+    if ((spins & 31) == 31) { /* a clock read costs ~25 ns: look at it now and then */
+      const double now = uuv_seconds();
+      if (deadline == 0.0) deadline = now + stream->patience;
+      else if (now > deadline) return 0;
+    }
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_ia32_pause();
+#endif
   }
-  uuv_pcg_fill(stream->state, stream->inc, stream->jumps, stream->segment, block, stream->block_size,
-               first, UUV_PCG_SEGMENTS);
+  return 1;
+}
+
+/* Block t: its last segment drawn here and the rest by the worker, or all of it here. */
+static const double* uuv_pcg_stream_take(uuv_pcg_stream* stream, int t) {
+  double* block = stream->buffers[2];
+  int first = 0;
+  double started = 0.0;
+  if (stream->threaded && t > 0) {
+    if (uuv_pcg_stream_wait(stream, t)) {
+      block = stream->buffers[t & 1];
+      first = UUV_PCG_SEGMENTS - 1;
+    } else {
+      stream->stolen += 1;
+    }
+  }
+  if (stream->threaded && t == 0) started = uuv_seconds();
+  uuv_pcg_fill(stream->state, stream->inc, stream->jumps, stream->segment, block,
+               stream->block_size, first, UUV_PCG_SEGMENTS);
+  if (stream->threaded && t == 0) stream->patience = uuv_seconds() - started;
   stream->state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], stream->state);
   return block;
 }
@@ -233,7 +282,8 @@ static void uuv_pcg_stream_release(uuv_pcg_stream* stream, int t) {
   if (stream->threaded) atomic_store_explicit(&stream->consumed, t + 1, memory_order_release);
 }
 
-/* Stop the worker and write the generator's state after the blocks taken back to pcg[0..1]. */
+/* Stop the worker and write the generator's state after the blocks taken back to pcg[0..1];
+ * pcg[4] = the number of blocks the step's thread drew because the worker was late. */
 static void uuv_pcg_stream_close(uuv_pcg_stream* stream, uint64_t* pcg) {
   if (stream->threaded) {
     atomic_store_explicit(&stream->stop, 1, memory_order_relaxed);
@@ -241,6 +291,7 @@ static void uuv_pcg_stream_close(uuv_pcg_stream* stream, uint64_t* pcg) {
   }
   pcg[0] = (uint64_t)(stream->state >> 64);
   pcg[1] = (uint64_t)stream->state;
+  pcg[4] = (uint64_t)stream->stolen;
   free(stream->buffers[0]);
   stream->buffers[0] = NULL;
 }
@@ -324,9 +375,9 @@ static void uuv_ocp_leaders(const double* costs, const double* positions, int n,
   free(pool_rows);
 }
 
-/* draws != NULL: take the random numbers from it; else draw them with PCG64 from pcg[4] =
+/* draws != NULL: take the random numbers from it; else draw them with PCG64 from pcg[0..3] =
  * {state_hi, state_lo, inc_hi, inc_lo}, which is advanced in place, on a second thread if
- * rng_thread. */
+ * rng_thread (pcg[4] then counts the blocks it was late for, see uuv_pcg_stream). */
 static int uuv_ocp_igwo_core(const double* p, const double* offset, const double* lower,
                              const double* upper, const double* positions0, const double* draws,
                              uint64_t* pcg, int rng_thread, const double* a_schedule,
@@ -431,9 +482,10 @@ CASADI_SYMBOL_EXPORT int uuv_ocp_igwo(const double* p, const double* offset, con
                            final_positions);
 }
 
-/* The IGWO run drawing its random numbers like numpy's Generator(PCG64).random(): pcg[4] =
+/* The IGWO run drawing its random numbers like numpy's Generator(PCG64).random(): pcg[0..3] =
  * {state_hi, state_lo, inc_hi, inc_lo} on entry; the state after the draws on return.  With
- * rng_thread != 0 the numbers are drawn on a second thread, one iteration ahead. */
+ * rng_thread != 0 the numbers are drawn on a second thread, one iteration ahead; pcg[4] on
+ * return counts the blocks that thread was late for (drawn by the step's own thread). */
 CASADI_SYMBOL_EXPORT int uuv_ocp_igwo_pcg64(const double* p, const double* offset,
                                             const double* lower, const double* upper,
                                             const double* positions0, uint64_t* pcg, int rng_thread,

@@ -97,8 +97,10 @@ class SwarmSolver:
         (dict passed to the algorithm), ``compiled`` (bool: the compiled SIMD fitness and, for
         IGWO, the all-C step; see docs/codegen.md), ``rng_thread`` (bool; default True on a
         machine with two or more CPUs: the all-C IGWO step draws 7/8 of its random numbers on
-        a second thread, one iteration ahead — the same numbers; False keeps the step on one
-        thread, e.g. inside a process pool that already uses every CPU).
+        a second thread, one iteration ahead — the same numbers; an iteration whose block the
+        thread is late with is drawn by the step itself, so a late thread never stalls the
+        step; False keeps the step on one thread: better for the tail latency on a machine
+        whose other CPUs are busy, e.g. inside a process pool, see docs/codegen.md).
     method : str
         ``"igwo"``, ``"gwo"``, ``"ssa"`` or ``"pso"``.
     """

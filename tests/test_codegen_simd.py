@@ -125,26 +125,31 @@ def test_c_pcg64_draws_numpys_numbers_and_advances_the_same(tmp_path, s2_problem
 
 
 @needs_compiler
-@pytest.mark.parametrize("rng_thread", [True, False, 2], ids=["worker", "one-thread", "worker-late"])
+@pytest.mark.parametrize(
+    "rng_thread", [True, False, 2, 3], ids=["worker", "one-thread", "worker-late", "worker-late-odd"]
+)
 def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
-    s2_problem, feasible_start, rng_thread
+    s2_problem, feasible_start, rng_thread, monkeypatch
 ):
     x0, t0 = feasible_start
     p = s2_problem.parameters(x0, t0)
     native = uo.get_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": bool(rng_thread)})
-    native.rng_thread = rng_thread  # 2: the step never waits for its worker (draws every block)
+    # test modes of the C step: 2 never uses the worker's blocks, 3 uses only its even ones
+    monkeypatch.setattr(native, "rng_thread", rng_thread)
     runs = []
     run = native.native.run
-    native.native.run = lambda *args, **kwargs: runs.append(run(*args, **kwargs)) or runs[-1]
+    monkeypatch.setattr(native.native, "run", lambda *args, **kw: runs.append(run(*args, **kw)) or runs[-1])
     python = uo.get_solver(s2_problem, "igwo", {"compiled": True})
     python.native = None  # the Python loop over the same compiled kernel
     for seed in (1, 2):
         in_c, in_python = np.random.default_rng(seed), np.random.default_rng(seed)
         actual = native.solve(p, None, in_c)
         expected = python.solve(p, None, in_python)
-        late = runs[-1]["late_blocks"]  # blocks 1..29 the step drew itself
-        assert late == {False: 0, 2: native.iterations - 1}.get(rng_thread, late)
+        late = runs[-1]["late_blocks"]  # of blocks 1..29, those the step drew itself
+        expected_late = {False: 0, 2: native.iterations - 1, 3: native.iterations // 2}
+        assert late == expected_late.get(rng_thread, late)
         assert 0 <= late <= native.iterations - 1
+        assert ("late with" in actual.status) == (late > 0)
         np.testing.assert_array_equal(actual.controls, expected.controls)
         np.testing.assert_array_equal(actual.history, expected.history)
         assert in_c.bit_generator.state == in_python.bit_generator.state

@@ -124,7 +124,11 @@ def test_windows_cut_from_sample_blocks_match_direct_evaluation(reference):
         t0 = index * 0.1
         expected = _direct_window(reference, t0, 0.1, 20, heading)
         np.testing.assert_allclose(problem.reference_window(t0, heading), expected, rtol=1e-13, atol=1e-11)
-    assert len(problem._cache["sample_blocks"]) >= 3
+        # without a vehicle heading: the reference's own branch, first value in [-π, π]
+        as_given = reference.evaluate(t0 + 0.1 * np.arange(21))
+        np.testing.assert_allclose(problem.reference_window(t0), as_given, rtol=1e-13, atol=1e-11)
+    blocks = problem._cache["sample_blocks"]
+    assert len(blocks) >= 3 and all(block is not None for block in blocks.values())
     # off the sampling grid: the direct evaluation itself
     t0 = first * 0.1 + 0.05
     np.testing.assert_allclose(
@@ -145,6 +149,8 @@ def test_a_stationary_point_outside_the_window_does_not_matter():
     )
     with pytest.raises(ValueError, match=r"t = 5\.0"):
         problem.reference_window(4.0, 0.0)
+    with pytest.raises(ValueError, match="finite"):
+        problem.reference_window(math.inf)
 
 
 @pytest.mark.parametrize(

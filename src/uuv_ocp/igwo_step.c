@@ -137,17 +137,18 @@ CASADI_SYMBOL_EXPORT void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state
  * draws the last segment when it takes the block.  A block the worker has not delivered
  * within the time block 0 took to draw (the worker is still starting, or its CPU is busy with
  * another process) is drawn whole by the step's thread into a third buffer the worker never
- * touches; the worker skips the blocks already consumed.  So a late worker costs at most one
- * block's wait per block, never a stall.  Each thread advances its own copy of the generator
+ * touches; the worker skips the blocks already consumed.  So a late worker costs at most
+ * about two block-times per block (the wait, then the draw), never a stall.  Each thread advances its own copy of the generator
  * state by one block per block: the same numbers in the same order, whoever draws them.
- * rng_thread: 0 one thread; 1 a worker; 2 a worker whose blocks are never used: the step's
- * thread draws every block (tests that path). */
+ * rng_thread: 0 one thread; 1 a worker; for tests: 2 a worker whose blocks are never used
+ * (the step's thread draws every block), 3 the step's thread draws the odd blocks and waits
+ * for the worker's even ones however long it takes (the worker skips, then hands over). */
 typedef struct {
   uuv_u128 state, worker_state, inc;
   uuv_pcg_jump jumps[UUV_PCG_SEGMENTS + 1];
   size_t segment, block_size;
   double* buffers[3]; /* the worker's two, and the step thread's own */
-  int blocks, threaded, never_wait, stolen;
+  int blocks, threaded, test_mode, stolen;
   double patience; /* s: how long the step's thread waits for a block before drawing it */
   pthread_t worker;
   atomic_int produced, consumed, stop;
@@ -224,7 +225,7 @@ static int uuv_pcg_stream_open(uuv_pcg_stream* stream, const uint64_t* pcg, size
   stream->segment = uuv_pcg_jumps(stream->inc, block_size, stream->jumps);
   stream->worker_state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], stream->state);
   stream->blocks = blocks;
-  stream->never_wait = rng_thread == 2;
+  stream->test_mode = rng_thread == 2 || rng_thread == 3 ? rng_thread : 0;
   stream->stolen = 0;
   stream->patience = 0.0;
   stream->buffers[0] = (double*)malloc(sizeof(double) * block_size * (wanted ? 3 : 1));
@@ -242,9 +243,10 @@ static int uuv_pcg_stream_open(uuv_pcg_stream* stream, const uint64_t* pcg, size
 static int uuv_pcg_stream_wait(uuv_pcg_stream* stream, int t) {
   double deadline = 0.0;
   int spins;
-  if (stream->never_wait) return 0;
+  if (stream->test_mode == 2 || (stream->test_mode == 3 && (t & 1))) return 0;
   for (spins = 0; atomic_load_explicit(&stream->produced, memory_order_acquire) <= t; ++spins) {
-    if ((spins & 31) == 31) { /* a clock read costs ~25 ns: look at it now and then */
+    /* a clock read costs ~25 ns: look at it now and then */
+    if ((spins & 31) == 31 && stream->test_mode == 0) {
       const double now = uuv_seconds();
       if (deadline == 0.0) deadline = now + stream->patience;
       else if (now > deadline) return 0;

@@ -248,14 +248,17 @@ class TrackingProblem:
                 window = self.reference.evaluate_grid(times)
             else:
                 window = self.reference.evaluate(times)
-        if heading is not None:
-            turns = np.round((heading - window[0, 2]) / (2.0 * math.pi))
-            window[:, 2] += 2.0 * math.pi * turns
+        if heading is None:  # the first heading in [-π, π], as the reference gives it
+            heading = math.remainder(window[0, 2], 2.0 * math.pi)
+        turns = np.round((heading - window[0, 2]) / (2.0 * math.pi))
+        window[:, 2] += 2.0 * math.pi * turns
         return window
 
     def _window_from_samples(self, t0: float) -> np.ndarray | None:
         """The window at ``t0 = i dt`` from cached sample blocks, or ``None`` (see above)."""
         dt, horizon, reference = self.dt, self.horizon, self.reference
+        if not math.isfinite(t0):
+            return None
         first = round(t0 / dt)
         last = first + horizon
         if first * dt != t0 or dt > UNWRAP_STEP or last * dt > reference.t_end:

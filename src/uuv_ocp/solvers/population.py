@@ -289,7 +289,13 @@ class SwarmSolver:
             iterations=self.iterations,
             method="igwo",
             population=out["population"],
-            message=f"reached the iteration budget ({self.iterations}) in the compiled C step",
+            message=f"reached the iteration budget ({self.iterations}) in the compiled C step"
+            + (
+                f"; the random-number thread was late with {out['late_blocks']} of "
+                f"{self.iterations - 1} blocks, drawn by the step itself"
+                if out["late_blocks"]
+                else ""
+            ),
         )
 
 

@@ -285,7 +285,10 @@ class NlpSolver:
         key = (variant, robust, still_water)
         if key not in self._solvers:
             data = self.variants[variant]
-            options = {"print_time": False, "error_on_fail": False}
+            # ad_weight 1: constraint Jacobians by reverse-mode AD, 18 % fewer virtual-machine
+            # instructions than CasADi's automatic choice on this NLP (RexROV, N = 20: fatrop's
+            # nlp_jac_g 29.6 k -> 24.4 k, sqp's nlp_jac_fg 31.0 k -> 25.8 k; same values)
+            options = {"print_time": False, "error_on_fail": False, "oracle_options": {"ad_weight": 1.0}}
             robust_options = dict(self.robust_options()) if robust else {}
             plugin = robust_options.pop("plugin", self.plugin)
             if plugin == self.plugin:

@@ -38,6 +38,13 @@ def finite_float(name: str, value: object) -> float:
     return number
 
 
+def boolean(name: str, value: object) -> bool:
+    """Return ``value`` if it is ``True`` or ``False``, else raise ``ValueError``."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{name} must be True or False, got {value!r}")
+    return value
+
+
 def positive_int(name: str, value: object, minimum: int = 1) -> int:
     """Return ``value`` if it is an integer >= ``minimum`` (bools rejected), else raise."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):

@@ -154,11 +154,15 @@ typedef struct {
   atomic_int produced, consumed, stop;
 } uuv_pcg_stream;
 
+static inline void uuv_pause(void) {
+#if defined(__x86_64__) || defined(__i386__)
+  __builtin_ia32_pause();
+#endif
+}
+
 static void uuv_wait(int spins) {
   if (spins < 1000) {
-#if defined(__x86_64__) || defined(__i386__)
-    __builtin_ia32_pause();
-#endif
+    uuv_pause();
   } else {
     sched_yield();
   }
@@ -251,9 +255,7 @@ static int uuv_pcg_stream_wait(uuv_pcg_stream* stream, int t) {
       if (deadline == 0.0) deadline = now + stream->patience;
       else if (now > deadline) return 0;
     }
-#if defined(__x86_64__) || defined(__i386__)
-    __builtin_ia32_pause();
-#endif
+    uuv_pause();
   }
   return 1;
 }

@@ -169,8 +169,7 @@ class TrackingProblem:
         if not isinstance(self.weights, Weights):
             raise ValueError(f"weights must be a uuv_ocp.Weights, got {self.weights!r}")
         object.__setattr__(self, "substeps", check.positive_int("substeps", self.substeps))
-        if not isinstance(self.rate_limits, bool):
-            raise ValueError(f"rate_limits must be True or False, got {self.rate_limits!r}")
+        check.boolean("rate_limits", self.rate_limits)
         if self.position_tube is not None:
             tube = check.positive_float("position_tube", self.position_tube)
             object.__setattr__(self, "position_tube", tube)
@@ -250,8 +249,7 @@ class TrackingProblem:
                 window = self.reference.evaluate(times)
         if heading is None:  # the first heading in [-π, π], as the reference gives it
             heading = math.remainder(window[0, 2], 2.0 * math.pi)
-        turns = np.round((heading - window[0, 2]) / (2.0 * math.pi))
-        window[:, 2] += 2.0 * math.pi * turns
+        _move_heading_branch(window, heading)
         return window
 
     def _window_from_samples(self, t0: float) -> np.ndarray | None:
@@ -276,8 +274,7 @@ class TrackingProblem:
             if parts:
                 # neighbouring blocks share their boundary sample: drop it, and move this
                 # block's heading to the branch of the previous one
-                turns = np.round((parts[-1][-1, 2] - part[0, 2]) / (2.0 * math.pi))
-                part[:, 2] += 2.0 * math.pi * turns
+                _move_heading_branch(part, parts[-1][-1, 2])
                 part = part[1:]
             parts.append(part)
         window = parts[0] if len(parts) == 1 else np.concatenate(parts)
@@ -331,32 +328,38 @@ class TrackingProblem:
         window = self.reference_window(t0, heading=x0[2])
         return np.concatenate([x0, window.ravel(), u_prev, current.ravel()])
 
+    def _parameter_slices(self) -> tuple[slice, slice, slice, slice]:
+        """Where x0, the reference window, u_prev and the current sit in ``p``."""
+        n = self.horizon
+        offsets = np.cumsum([0, STATE_DIM, STATE_DIM * (n + 1), CONTROL_DIM, CURRENT_DIM * n]).tolist()
+        return tuple(slice(start, stop) for start, stop in zip(offsets[:-1], offsets[1:], strict=True))
+
     @property
     def current_slice(self) -> slice:
         """Where the current over the horizon, ``(N, 2)`` row by row (m/s), sits in ``p``."""
-        start = STATE_DIM * (self.horizon + 2) + CONTROL_DIM
-        return slice(start, start + CURRENT_DIM * self.horizon)
+        return self._parameter_slices()[3]
 
     def parameter_parts(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Numeric ``p`` -> (x0 (6,), reference (N+1, 6), u_prev (3,), current (N, 2))."""
         n = self.horizon
-        offsets = np.cumsum([0, STATE_DIM, STATE_DIM * (n + 1), CONTROL_DIM, CURRENT_DIM * n])
+        x0, reference, u_prev, current = self._parameter_slices()
         return (
-            p[offsets[0] : offsets[1]],
-            p[offsets[1] : offsets[2]].reshape(n + 1, STATE_DIM),
-            p[offsets[2] : offsets[3]],
-            p[offsets[3] : offsets[4]].reshape(n, CURRENT_DIM),
+            p[x0],
+            p[reference].reshape(n + 1, STATE_DIM),
+            p[u_prev],
+            p[current].reshape(n, CURRENT_DIM),
         )
 
     def split_parameters(self, p: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX, ca.SX]:
         """Symbolic ``p`` -> (x0 (6,), reference (6, N+1), u_prev (3,), current (2, N))."""
         n = self.horizon
-        offsets = np.cumsum([0, STATE_DIM, STATE_DIM * (n + 1), CONTROL_DIM, CURRENT_DIM * n])
-        x0 = p[offsets[0] : offsets[1]]
-        reference = ca.reshape(p[offsets[1] : offsets[2]], STATE_DIM, n + 1)
-        u_prev = p[offsets[2] : offsets[3]]
-        current = ca.reshape(p[offsets[3] : offsets[4]], CURRENT_DIM, n)
-        return x0, reference, u_prev, current
+        x0, reference, u_prev, current = self._parameter_slices()
+        return (
+            p[x0],
+            ca.reshape(p[reference], STATE_DIM, n + 1),
+            p[u_prev],
+            ca.reshape(p[current], CURRENT_DIM, n),
+        )
 
     # ------------------------------------------------------------------ build
     def build(self) -> _Built:
@@ -396,6 +399,13 @@ class TrackingProblem:
         if name not in callers:
             callers[name] = BufferedFunction(getattr(self.build(), name))
         return callers[name]
+
+
+def _move_heading_branch(states: np.ndarray, heading: float) -> None:
+    """Shift the heading column of ``states`` by the multiple of 2π that brings its first value
+    closest to ``heading`` (in place)."""
+    turns = np.round((heading - states[0, 2]) / (2.0 * math.pi))
+    states[:, 2] += 2.0 * math.pi * turns
 
 
 # ============================================================================ building

@@ -179,12 +179,8 @@ class NlpSolver:
         )
         max_iter = options.pop("max_iter", None)
         self.max_iter = None if max_iter is None else check.positive_int("options['max_iter']", max_iter)
-        self.compiled = options.pop("compiled", False)
-        if not isinstance(self.compiled, bool):
-            raise ValueError(f"options['compiled'] must be True or False, got {self.compiled!r}")
-        self.still_water = options.pop("still_water", True)
-        if not isinstance(self.still_water, bool):
-            raise ValueError(f"options['still_water'] must be True or False, got {self.still_water!r}")
+        self.compiled = check.boolean("options['compiled']", options.pop("compiled", False))
+        self.still_water = check.boolean("options['still_water']", options.pop("still_water", True))
         plugin_options = options.pop("plugin_options", {})
         if not isinstance(plugin_options, dict):
             raise ValueError(f"options['plugin_options'] must be a dict, got {plugin_options!r}")

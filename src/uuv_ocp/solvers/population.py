@@ -130,11 +130,9 @@ class SwarmSolver:
         )
         self.seed = check.positive_int("options['seed']", options.pop("seed", 0), minimum=0)
         self.search = check.choice("options['search']", options.pop("search", "deviation"), SEARCH_MODES)
-        self.seed_warm_start = options.pop("seed_warm_start", True)
-        if not isinstance(self.seed_warm_start, bool):
-            raise ValueError(
-                f"options['seed_warm_start'] must be True or False, got {self.seed_warm_start!r}"
-            )
+        self.seed_warm_start = check.boolean(
+            "options['seed_warm_start']", options.pop("seed_warm_start", True)
+        )
         self.parallelization = check.choice(
             "options['parallelization']",
             options.pop("parallelization", "serial"),
@@ -152,10 +150,8 @@ class SwarmSolver:
             raise ValueError(f"unknown options for solver {method!r}: {unknown}; valid: {valid}")
         # validate algorithm options now, before any solve (the constructor checks them)
         algorithm(-np.ones(1), np.ones(1), self.population, self.iterations, self.algorithm_options)
-        if not isinstance(self.compiled, bool):
-            raise ValueError(f"options['compiled'] must be True or False, got {self.compiled!r}")
-        if not isinstance(self.rng_thread, bool):
-            raise ValueError(f"options['rng_thread'] must be True or False, got {self.rng_thread!r}")
+        check.boolean("options['compiled']", self.compiled)
+        check.boolean("options['rng_thread']", self.rng_thread)
         self.native = None
         self._score_terms: BufferedFunction | None = None  # compiled twins when compiled=True
         self._rollout: BufferedFunction | None = None
@@ -281,6 +277,12 @@ class SwarmSolver:
         out = self.native.run(
             p, offset, lower, upper, positions, draws, a, w, options["c1"], options["c2"], self.rng_thread
         )
+        message = f"reached the iteration budget ({self.iterations}) in the compiled C step"
+        if out["late_blocks"]:
+            message += (
+                f"; the random-number thread was late with {out['late_blocks']} of "
+                f"{self.iterations - 1} blocks, drawn by the step itself"
+            )
         return MinimizeResult(
             x=out["x"],
             fun=out["fun"],
@@ -289,13 +291,7 @@ class SwarmSolver:
             iterations=self.iterations,
             method="igwo",
             population=out["population"],
-            message=f"reached the iteration budget ({self.iterations}) in the compiled C step"
-            + (
-                f"; the random-number thread was late with {out['late_blocks']} of "
-                f"{self.iterations - 1} blocks, drawn by the step itself"
-                if out["late_blocks"]
-                else ""
-            ),
+            message=message,
         )
 
 

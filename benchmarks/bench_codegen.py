@@ -24,7 +24,7 @@ import numpy as np
 import uuv_ocp as uo
 from benchmarks.bench_exact import closed_loop_times
 from uuv_ocp.codegen import generate_c
-from uuv_ocp.solvers.population import BufferedFitness, batched_fitness
+from uuv_ocp.solvers.swarm import BufferedFitness, batched_fitness
 
 
 def _time(function, repeats: int) -> float:

@@ -21,7 +21,7 @@ import time
 import numpy as np
 
 import uuv_ocp as uo
-from uuv_ocp.solvers.population import batched_fitness
+from uuv_ocp.solvers.swarm import batched_fitness
 
 SWARMS = ("igwo", "gwo", "ssa", "pso")
 PAPER_BUDGET = {"igwo": (20, 30), "gwo": (30, 40), "ssa": (50, 80), "pso": (30, 40)}

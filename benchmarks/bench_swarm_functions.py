@@ -1,4 +1,4 @@
-"""Swarm optimisers of :mod:`uuv_ocp.solvers.swarm` against mealpy's reference implementations.
+"""Swarm optimisers of :mod:`uuv_ocp.optimize.population` against mealpy's reference implementations.
 
 For every test function × dimension × method the script runs our optimiser and mealpy's at the
 *same number of objective evaluations* over ``seeds`` seeds and prints one table: median final
@@ -10,7 +10,7 @@ Budgets are the paper's population × iterations per method (igwo 20×30, gwo 30
 pso 30×40); ``igwo`` has no mealpy counterpart (mealpy's ``IGWO`` is a different algorithm), so
 it is compared with mealpy's ``OriginalGWO`` at igwo's budget; ``igwo-alpha`` is igwo with
 ``options={"frame": "alpha"}`` (an extension, see
-:func:`uuv_ocp.solvers.swarm.igwo_update`).  ``shifted_rastrigin`` moves the optimum away
+:func:`uuv_ocp.optimize.population.igwo_update`).  ``shifted_rastrigin`` moves the optimum away
 from the origin (and off the diagonal) to expose any origin bias.
 
 Run from the repository root::
@@ -28,8 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from uuv_ocp.solvers.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
-from uuv_ocp.solvers.swarm import (
+from uuv_ocp.optimize.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
+from uuv_ocp.optimize.population import (
     ALGORITHMS,
     PAPER_CONVERGENCE_LABELS,
     convergence_factor,

@@ -6,7 +6,7 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from uuv_ocp.buffered import BufferedFunction
+from uuv_ocp.native.buffered import BufferedFunction
 
 
 def _function() -> ca.Function:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from uuv_ocp import cli
-from uuv_ocp.campaign import CampaignConfig, run_campaign
+from uuv_ocp.studies.campaign import CampaignConfig, run_campaign
 
 
 def small(**changes):

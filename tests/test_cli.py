@@ -1,7 +1,7 @@
 """Command line and the resumable reproduction job."""
 
 from uuv_ocp import cli
-from uuv_ocp.experiments import track_references
+from uuv_ocp.studies.compare import track_references
 
 
 def test_solvers_lists_names(capsys):

@@ -12,7 +12,7 @@ import pytest
 import uuv_ocp as uo
 from conftest import needs_compiler
 from uuv_ocp import codegen
-from uuv_ocp.solvers.swarm import minimize
+from uuv_ocp.optimize.population import minimize
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "c"
 

@@ -10,8 +10,8 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from uuv_ocp import codegen_core as cg
-from uuv_ocp.codegen_core import (
+from uuv_ocp.native import compile as cg
+from uuv_ocp.native.compile import (
     CompilationError,
     CompilerNotFoundError,
     VerificationError,
@@ -299,7 +299,7 @@ def test_concurrent_processes_share_directory(compiler, tmp_path):
     """Several processes building the same library into one directory all succeed."""
     script = (
         "import casadi as ca, sys\n"
-        "from uuv_ocp.codegen_core import compile_functions\n"
+        "from uuv_ocp.native.compile import compile_functions\n"
         "x = ca.SX.sym('x', 40)\n"
         "f = ca.Function('race', [x], [ca.sumsqr(ca.sin(x) * x)])\n"
         "lib = compile_functions([f], sys.argv[1], name='race_gen')\n"

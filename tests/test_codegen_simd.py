@@ -8,8 +8,9 @@ import pytest
 
 import uuv_ocp as uo
 from conftest import needs_compiler
-from uuv_ocp import codegen, codegen_core
-from uuv_ocp.codegen_simd import UnsupportedOperation, batch_kernel_source
+from uuv_ocp import codegen
+from uuv_ocp.native import compile as codegen_core
+from uuv_ocp.native.simd import UnsupportedOperation, batch_kernel_source
 
 POPULATION = 5  # not a multiple of the lane count: the last group is padded
 

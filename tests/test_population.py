@@ -5,7 +5,7 @@ import pytest
 
 import uuv_ocp as uo
 from uuv_ocp.problem import score_parameters
-from uuv_ocp.solvers.population import batched_fitness
+from uuv_ocp.solvers.swarm import batched_fitness
 
 SWARMS = ["igwo", "gwo", "ssa", "pso"]
 
@@ -108,7 +108,7 @@ def test_closed_loop_with_igwo_warm_start_runs(s2_problem):
 
 
 def test_buffered_fitness_is_bit_identical_to_an_ordinary_call(instance):
-    from uuv_ocp.solvers.population import BufferedFitness
+    from uuv_ocp.solvers.swarm import BufferedFitness
 
     problem, _, _, p = instance
     function = batched_fitness(problem, 6)

@@ -1,13 +1,13 @@
-"""Tests of the population optimisers in :mod:`uuv_ocp.solvers.swarm`."""
+"""Tests of the population optimisers in :mod:`uuv_ocp.optimize.population`."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from uuv_ocp.solvers import swarm
-from uuv_ocp.solvers.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
-from uuv_ocp.solvers.swarm import (
+from uuv_ocp.optimize import population as swarm
+from uuv_ocp.optimize.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
+from uuv_ocp.optimize.population import (
     MinimizeResult,
     available_methods,
     convergence_factor,

@@ -6,13 +6,13 @@ One symbolic formulation (:class:`TrackingProblem`), many solvers chosen by name
 """
 
 from uuv_ocp.codegen import GeneratedCode, generate_c
-from uuv_ocp.disturbances import Current, GaussMarkov, MeasurementNoise
-from uuv_ocp.experiments import compare, format_comparison
+from uuv_ocp.control.disturbances import Current, GaussMarkov, MeasurementNoise
+from uuv_ocp.studies.compare import compare, format_comparison
 from uuv_ocp.integrators import rk4_step
-from uuv_ocp.mpc import NMPC, StepOutput
+from uuv_ocp.control.mpc import NMPC, StepOutput
 from uuv_ocp.problem import TrackingProblem, Weights, score
-from uuv_ocp.references import PAPER_REFERENCES, Reference
-from uuv_ocp.simulation import ClosedLoopResult, simulate
+from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
+from uuv_ocp.control.simulation import ClosedLoopResult, simulate
 from uuv_ocp.solvers import (
     Iterate,
     MinimizeResult,
@@ -23,7 +23,7 @@ from uuv_ocp.solvers import (
     register_solver,
     solve,
 )
-from uuv_ocp.vehicles import Vehicle
+from uuv_ocp.model.planar import Vehicle
 
 __version__ = "0.1.0"
 

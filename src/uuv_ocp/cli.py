@@ -7,8 +7,8 @@ import sys
 import time
 from collections.abc import Sequence
 
-from uuv_ocp.experiments import format_tracking_table, track_references
-from uuv_ocp.references import PAPER_REFERENCES
+from uuv_ocp.studies.compare import format_tracking_table, track_references
+from uuv_ocp.reference.path import PAPER_REFERENCES
 from uuv_ocp.solvers import available_solvers
 
 
@@ -62,13 +62,13 @@ def _parser() -> argparse.ArgumentParser:
 
 def _problem(name: str, horizon: int = 20):
     from uuv_ocp import TrackingProblem, Vehicle
-    from uuv_ocp.references import Reference
+    from uuv_ocp.reference.path import Reference
 
     return TrackingProblem(Vehicle.rexrov(), Reference.paper(name), horizon=horizon)
 
 
 def _run_compare(args: argparse.Namespace) -> int:
-    from uuv_ocp.experiments import compare, format_comparison
+    from uuv_ocp.studies.compare import compare, format_comparison
 
     problem = _problem(args.reference)
     x0 = problem.reference.evaluate([args.t0])[0]
@@ -99,7 +99,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("\n".join(available_solvers()))
         return 0
     if command == "campaign":
-        from uuv_ocp.campaign import CampaignConfig, format_summary, run_campaign
+        from uuv_ocp.studies.campaign import CampaignConfig, format_summary, run_campaign
 
         try:
             config = CampaignConfig(

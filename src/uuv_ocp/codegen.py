@@ -4,7 +4,7 @@
 
 * ``cost(U, p) -> (objective, penalty)``: the condensed cost of the problem,
 * ``cost_batch(U[3N × population], p) -> fitness[1 × population]``: the swarm fitness of a
-  population, as a SIMD kernel (:mod:`uuv_ocp.codegen_simd`: one operation for 8 candidates
+  population, as a SIMD kernel (:mod:`uuv_ocp.native.simd`: one operation for 8 candidates
   at a time with AVX-512; sin/cos within a few ulp of libm), and ``cost_batch_exact``, CasADi's
   mapped code of the same fitness (bit-identical to the virtual machine),
 * ``dynamics(x, tau, current) -> xdot`` and ``model_step(x, tau, current) -> x_next``,
@@ -35,17 +35,17 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from uuv_ocp.codegen_core import (
+from uuv_ocp.native.compile import (
     DEFAULT_FLAGS as CORE_FLAGS,
 )
-from uuv_ocp.codegen_core import (
+from uuv_ocp.native.compile import (
     CompilationError,
     CompilerNotFoundError,
     VerificationError,
     compile_functions,
     find_c_compiler,
 )
-from uuv_ocp.codegen_simd import UnsupportedOperation, batch_kernel_source
+from uuv_ocp.native.simd import UnsupportedOperation, batch_kernel_source
 from uuv_ocp.problem import TrackingProblem
 
 #: ``-ffp-contract=off`` keeps compiled arithmetic identical to CasADi's virtual machine;
@@ -56,7 +56,7 @@ DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off", "-march=native", "-D_GNU_SOUR
 FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step", "rollout", "score_terms")
 #: generated along with ``cost_batch``: CasADi's own (scalar, mapped) code of the same fitness
 EXACT_BATCH = "cost_batch_exact"
-_IGWO_SOURCE = Path(__file__).with_name("igwo_step.c")
+_IGWO_SOURCE = Path(__file__).parent / "native" / "igwo_step.c"
 
 __all__ = [
     "CompilationError",
@@ -118,7 +118,7 @@ class GeneratedCode:
 
 def symbolic_functions(problem: TrackingProblem, population: int = 20) -> dict[str, ca.Function]:
     """The problem's Functions that :func:`generate_c` emits, by name."""
-    from uuv_ocp.solvers.population import batched_fitness
+    from uuv_ocp.solvers.swarm import batched_fitness
 
     built = problem.build()
     batch = batched_fitness(problem, population)
@@ -135,7 +135,7 @@ def symbolic_functions(problem: TrackingProblem, population: int = 20) -> dict[s
 
 def _batch_sources(problem: TrackingProblem, population: int) -> tuple[str, bool]:
     """C of the SIMD ``cost_batch`` (or ``""`` if unsupported) and whether it is SIMD."""
-    from uuv_ocp.solvers.population import candidate_fitness
+    from uuv_ocp.solvers.swarm import candidate_fitness
 
     try:
         kernel = batch_kernel_source(candidate_fitness(problem), "cost_batch", population, EXACT_BATCH)
@@ -279,7 +279,7 @@ def compiled_fitness(
     problem: TrackingProblem, population: int, parallelization: str = "serial"
 ) -> ca.Function:
     """The swarm fitness as compiled code, falling back to the virtual machine."""
-    from uuv_ocp.solvers.population import batched_fitness
+    from uuv_ocp.solvers.swarm import batched_fitness
 
     build = compiled_build(problem, population)
     if build is None:

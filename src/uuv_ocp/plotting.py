@@ -16,7 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.figure import Figure  # noqa: E402
 
-from uuv_ocp.simulation import ClosedLoopResult  # noqa: E402
+from uuv_ocp.control.simulation import ClosedLoopResult  # noqa: E402
 
 
 def xoy_figure(runs: Sequence[ClosedLoopResult] | ClosedLoopResult, title: str = "") -> Figure:

@@ -34,10 +34,10 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
-from uuv_ocp.buffered import BufferedFunction
+from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.integrators import rk4_step
-from uuv_ocp.references import UNWRAP_STEP, Reference
-from uuv_ocp.vehicles import CONTROL_DIM, CURRENT_DIM, STATE_DIM, Vehicle
+from uuv_ocp.reference.path import UNWRAP_STEP, Reference
+from uuv_ocp.model.planar import CONTROL_DIM, CURRENT_DIM, STATE_DIM, Vehicle
 
 TERMINAL_MODES = ("equality", "cost", "none")
 LIFTED_DIM = STATE_DIM + CONTROL_DIM

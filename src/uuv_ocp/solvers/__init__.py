@@ -14,9 +14,9 @@ from typing import Any
 
 from uuv_ocp.problem import TrackingProblem
 from uuv_ocp.solvers.nlp import FatropSolver, IpoptSolver, NlpSolver, SqpSolver
-from uuv_ocp.solvers.population import SwarmSolver, swarm_factory
+from uuv_ocp.solvers.swarm import SwarmSolver, swarm_factory
 from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.solvers.swarm import ALGORITHMS, MinimizeResult, minimize
+from uuv_ocp.optimize.population import ALGORITHMS, MinimizeResult, minimize
 
 SolverFactory = Callable[[TrackingProblem, dict[str, Any] | None], Any]
 

@@ -36,10 +36,10 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
-from uuv_ocp.buffered import BufferedFunction
+from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.problem import NlpData, TrackingProblem, score_parameters
 from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.vehicles import CONTROL_DIM, STATE_DIM
+from uuv_ocp.model.planar import CONTROL_DIM, STATE_DIM
 
 TERMINAL_STRATEGIES = ("sticky", "hard-first", "soft")
 _STAGE_LABEL = re.compile(r"^([A-Za-z]+(?:_[A-Za-z]+)*)_(\d+)(.*)$")

@@ -25,13 +25,13 @@ from pathlib import Path
 import numpy as np
 
 from uuv_ocp import _validation as check
-from uuv_ocp.disturbances import Current, MeasurementNoise
-from uuv_ocp.mpc import NMPC
+from uuv_ocp.control.disturbances import Current, MeasurementNoise
+from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.problem import TrackingProblem
 from uuv_ocp.progress import ProgressBar
-from uuv_ocp.references import Reference
-from uuv_ocp.simulation import ClosedLoopResult, simulate
-from uuv_ocp.vehicles import Vehicle
+from uuv_ocp.reference.path import Reference
+from uuv_ocp.control.simulation import ClosedLoopResult, simulate
+from uuv_ocp.model.planar import Vehicle
 
 EXECUTORS = ("local", "process")
 

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
-from uuv_ocp.mpc import NMPC
+from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
 from uuv_ocp.problem import TrackingProblem
-from uuv_ocp.references import PAPER_REFERENCES, Reference
-from uuv_ocp.simulation import ClosedLoopResult, simulate
-from uuv_ocp.vehicles import Vehicle
+from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
+from uuv_ocp.control.simulation import ClosedLoopResult, simulate
+from uuv_ocp.model.planar import Vehicle
 
 
 @dataclass(frozen=True)

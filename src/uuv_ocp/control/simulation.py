@@ -15,12 +15,12 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from uuv_ocp import _validation as check
-from uuv_ocp.disturbances import Current, MeasurementNoise
+from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.integrators import rk4_step
-from uuv_ocp.metrics import tracking_metrics
-from uuv_ocp.mpc import NMPC
+from uuv_ocp.control.metrics import tracking_metrics
+from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.progress import ProgressBar
-from uuv_ocp.vehicles import Vehicle
+from uuv_ocp.model.planar import Vehicle
 
 
 @dataclass(frozen=True)
@@ -80,7 +80,7 @@ class ClosedLoopResult:
         return self.states[:, :2] - self.reference[:, :2]
 
     def metrics(self, settle_time: float = 5.0) -> dict[str, float]:
-        """Tracking and timing metrics (see :func:`uuv_ocp.metrics.tracking_metrics`)."""
+        """Tracking and timing metrics (see :func:`uuv_ocp.control.metrics.tracking_metrics`)."""
         return tracking_metrics(self, settle_time=settle_time)
 
     def save(self, path: str) -> None:

@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from uuv_ocp.simulation import ClosedLoopResult
+    from uuv_ocp.control.simulation import ClosedLoopResult
 
 
 def tracking_metrics(run: ClosedLoopResult, settle_time: float = 5.0) -> dict[str, float]:

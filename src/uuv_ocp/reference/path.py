@@ -22,7 +22,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
-from uuv_ocp.buffered import BufferedFunction
+from uuv_ocp.native.buffered import BufferedFunction
 
 PathFunction = Callable[[ca.SX], object]
 

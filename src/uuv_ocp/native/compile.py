@@ -312,7 +312,7 @@ def _check_thread_workers(
         raise CompilationError(
             f"{source}: CasADi generated duplicate thread-map workers "
             f"({', '.join('casadi_thread_worker' + w for w in clashing)}): two 'thread' maps of "
-            "the same function cannot share one C file; build them with uuv_ocp.codegen_core."
+            "the same function cannot share one C file; build them with uuv_ocp.native.compile."
             "batched (which maps a distinct copy) or use 'serial' for one of them"
         )
 

@@ -1,0 +1,1 @@
+"""Closed loop: the receding-horizon controller, the plant simulation, disturbances, metrics."""

@@ -1,0 +1,1 @@
+"""Native code: compiler discovery, content-addressed build cache, SIMD kernel, all-C IGWO."""

@@ -1,0 +1,1 @@
+"""General-purpose population optimisers (IGWO, GWO, SSA, PSO) behind one ``minimize``."""

@@ -1,0 +1,1 @@
+"""References over time: symbolic paths, the paper's s1..s10, waypoints and station keeping."""

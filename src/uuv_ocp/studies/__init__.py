@@ -1,0 +1,1 @@
+"""Studies built on the closed loop: solver comparisons and Monte Carlo campaigns."""

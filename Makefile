@@ -32,9 +32,21 @@ $(BENCH_STAMP): pyproject.toml
 bench: $(BENCH_STAMP)
 	$(BENCH_VENV)/bin/python -m benchmarks.run
 
-lint: $(STAMP)
-	$(PY) -m pip install --quiet "ruff>=0.5"
-	$(VENV)/bin/ruff check src tests benchmarks examples
+# ruff, mypy and the stubs they need come from the `lint` extra (versions in pyproject.toml).
+# All three checks run (so one run reports everything); the target fails if any of them does.
+LINT_PATHS := src tests benchmarks examples
+LINT_STAMP := $(VENV)/.lint-installed
+
+$(LINT_STAMP): $(STAMP) pyproject.toml
+	$(PY) -m pip install --quiet -e ".[lint]"
+	touch $(LINT_STAMP)
+
+lint: $(LINT_STAMP)
+	@status=0; \
+	$(VENV)/bin/ruff check $(LINT_PATHS) || status=1; \
+	$(VENV)/bin/ruff format --check $(LINT_PATHS) || status=1; \
+	$(VENV)/bin/mypy src/uuv_ocp || status=1; \
+	exit $$status
 
 clean:
 	rm -rf $(VENV) $(BENCH_VENV) out build .pytest_cache

@@ -95,7 +95,7 @@ def closed_loop(problem: uo.TrackingProblem, method: str, steps: int = 100) -> d
 
 
 def mealpy_cold_step(problem: uo.TrackingProblem, seeds: int = 3) -> dict | None:
-    """mealpy OriginalGWO, 20 × 30, objective called once per individual."""
+    """Time a cold step of mealpy's OriginalGWO, 20 × 30, objective called once per individual."""
     try:
         from mealpy import GWO, FloatVar
     except ImportError:

@@ -28,13 +28,13 @@ from pathlib import Path
 
 import numpy as np
 
-from uuv_ocp.optimize.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
-from uuv_ocp.optimize.population import (
+from uuv_ocp.optimize import (
     ALGORITHMS,
     PAPER_CONVERGENCE_LABELS,
     convergence_factor,
     minimize,
 )
+from uuv_ocp.optimize.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
 
 FLOOR = 1e-8
 OUT = Path("out")

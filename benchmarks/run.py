@@ -12,6 +12,8 @@ BENCHMARKS = (
     "benchmarks.bench_swarm",
     "benchmarks.bench_codegen",
     "benchmarks.bench_swarm_functions",
+    "benchmarks.bench_6dof",
+    "benchmarks.bench_baseline",
 )
 
 

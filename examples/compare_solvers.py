@@ -15,6 +15,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 import uuv_ocp as uo  # noqa: E402
+from uuv_ocp.studies.compare import ComparisonRow  # noqa: E402
 
 DEFAULT_SOLVERS = ("ipopt", "sqp", "fatrop", "igwo", "gwo", "ssa", "pso", "igwo+ipopt")
 
@@ -24,7 +25,7 @@ def main(
     horizon: int = 20,
     swarm_options: dict | None = None,
     out: str | Path = "out",
-) -> list[uo.experiments.ComparisonRow]:
+) -> list[ComparisonRow]:
     """Compare the solvers; return the rows and save the convergence figure."""
     reference = uo.Reference.paper("s2")
     problem = uo.TrackingProblem(uo.Vehicle.rexrov(), reference, horizon=horizon)

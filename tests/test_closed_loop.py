@@ -66,17 +66,32 @@ class _FailingEveryThird(IpoptSolver):
         return super().solve(p, warm_start, rng)
 
 
+class _InterruptedSecond(IpoptSolver):
+    """Raises what CasADi raises when SIGINT arrives inside a plugin."""
+
+    name = "interrupted-ipopt"
+
+    def solve(self, p, warm_start=None, rng=None):
+        raise RuntimeError("Error in Function::call for 'solver' [IpoptInterface] at .../casadi_interrupt.hpp: "
+                           "KeyboardInterrupt")
+
+
 def test_solver_crashes_never_stop_the_loop(s2_problem):
     REGISTRY.register("failing-ipopt", _FailingEveryThird, overwrite=True)
     try:
         controller = uo.NMPC(s2_problem.replace(), "failing-ipopt")
         run = uo.simulate(controller, s2_problem.reference.initial_state(0.0), 3.0)
+        with pytest.raises(KeyboardInterrupt):  # an interrupt inside a backend is never swallowed
+            REGISTRY.register("interrupted-ipopt", _InterruptedSecond, overwrite=True)
+            uo.NMPC(s2_problem.replace(), "interrupted-ipopt").step(s2_problem.reference.initial_state(0.0), 0.0)
     finally:
         REGISTRY._factories.pop("failing-ipopt", None)
+        REGISTRY._factories.pop("interrupted-ipopt", None)
     assert run.controls.shape[0] == 30
     assert run.failures == 10
+    # the backend's exception is recorded with its type and message
     assert all(
-        status == "exception"
+        status == "exception: RuntimeError: synthetic solver crash"
         for status, failed in zip(run.statuses, run.fallback_steps, strict=True)
         if failed
     )
@@ -143,14 +158,60 @@ def test_current_mismatch_and_noise_run_and_save(tmp_path):
     np.testing.assert_equal(loaded.metrics(), run.metrics())
 
 
-def test_gauss_markov_current_decays_to_its_mean():
-    process = uo.GaussMarkov(mean=0.5, noise=0.0, decay=0.5, minimum=0.0, maximum=1.0)
-    values = process.sample(10, 0.1, np.random.default_rng(0))
-    np.testing.assert_allclose(values, 0.5)
-    noisy = uo.GaussMarkov(mean=0.5, noise=1.0, decay=0.5, minimum=0.0, maximum=1.0)
-    samples = noisy.sample(5000, 0.1, np.random.default_rng(1))
-    assert samples.min() >= 0.0 and samples.max() <= 1.0
-    assert abs(samples.mean() - 0.5) < 0.1
+# Gauss–Markov process of control/disturbances.py: s_{k+1} = s_k − μ (s_k − m) dt + σ √dt w_k,
+# i.e. an AR(1) process s_{k+1} − m = φ (s_k − m) + σ √dt w_k with φ = 1 − μ dt.  Closed forms:
+#   stationary mean m, stationary variance σ² dt / (1 − φ²), autocorrelation at lag k  φ^k.
+GM_MEAN, GM_NOISE, GM_DECAY, GM_DT = 0.5, 1.0, 2.0, 0.1  # φ = 0.8, variance 0.1 / 0.36
+GM_PHI = 1.0 - GM_DECAY * GM_DT
+GM_VARIANCE = GM_NOISE**2 * GM_DT / (1.0 - GM_PHI**2)
+GM_BURN_IN = 200  # the path starts at the mean: its variance is stationary up to φ^(2·200) ≈ 1e-39
+GM_STEPS = 100_000
+
+
+@pytest.fixture(scope="module")
+def gauss_markov_path():
+    # clamps 39 stationary standard deviations away from the mean: never active
+    process = uo.GaussMarkov(mean=GM_MEAN, noise=GM_NOISE, decay=GM_DECAY, minimum=-20.0, maximum=21.0)
+    path = process.sample(GM_STEPS, GM_DT, np.random.default_rng(11))
+    assert path.shape == (GM_STEPS + 1,)
+    return path[GM_BURN_IN:]
+
+
+def test_gauss_markov_stationary_mean_and_variance_match_the_ar1_closed_form(gauss_markov_path):
+    samples = gauss_markov_path
+    n = samples.size
+    # standard errors of an AR(1) sample of size n (large-n formulas):
+    #   sample mean      sqrt(V/n · (1 + φ)/(1 − φ))
+    #   sample variance  V · sqrt(2/n · (1 + φ²)/(1 − φ²))
+    # tolerance 5 standard errors (false alarm < 1e-6 for a fixed seed that is either fine or not)
+    mean_error = np.sqrt(GM_VARIANCE / n * (1 + GM_PHI) / (1 - GM_PHI))
+    variance_error = GM_VARIANCE * np.sqrt(2.0 / n * (1 + GM_PHI**2) / (1 - GM_PHI**2))
+    assert abs(samples.mean() - GM_MEAN) <= 5 * mean_error
+    # 5 standard errors are 4.8 % of V: the exact-OU variance σ²/(2μ) (10 % lower) would fail
+    assert abs(samples.var() - GM_VARIANCE) <= 5 * variance_error
+
+
+@pytest.mark.parametrize("lag", [1, 2, 3, 5, 10])
+def test_gauss_markov_autocorrelation_decays_as_one_minus_mu_dt_to_the_lag(gauss_markov_path, lag):
+    samples = gauss_markov_path
+    n = samples.size
+    centred = samples - samples.mean()
+    autocorrelation = np.dot(centred[:-lag], centred[lag:]) / np.dot(centred, centred)
+    expected = GM_PHI**lag
+    # Bartlett's formula for an AR(1) process:
+    #   var(r_k) ≈ (1/n) [(1 + φ²)(1 − φ^(2k)) / (1 − φ²) − 2 k φ^(2k)]; tolerance 5 standard errors
+    variance = (
+        (1 + GM_PHI**2) * (1 - GM_PHI ** (2 * lag)) / (1 - GM_PHI**2) - 2 * lag * GM_PHI ** (2 * lag)
+    ) / n
+    assert abs(autocorrelation - expected) <= 5 * np.sqrt(variance)
+
+
+def test_gauss_markov_clamps_to_its_bounds():
+    process = uo.GaussMarkov(mean=0.5, noise=1.0, decay=0.5, minimum=0.0, maximum=1.0)
+    samples = process.sample(5000, 0.1, np.random.default_rng(1))
+    assert samples.min() == 0.0 and samples.max() == 1.0  # the bounds are reached, never crossed
+    still = uo.GaussMarkov(mean=0.5, noise=0.0, decay=0.5).sample(10, 0.1, np.random.default_rng(0))
+    np.testing.assert_array_equal(still, 0.5)
 
 
 @pytest.mark.parametrize(

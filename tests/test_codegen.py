@@ -12,7 +12,7 @@ import pytest
 import uuv_ocp as uo
 from conftest import needs_compiler
 from uuv_ocp import codegen
-from uuv_ocp.optimize.population import minimize
+from uuv_ocp.optimize import minimize
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "c"
 
@@ -63,9 +63,11 @@ def test_builds_are_cached_by_content(tmp_path):
 
 @needs_compiler
 def test_all_c_igwo_step_starts_from_the_virtual_machines_fitness(s2_problem, feasible_start):
-    """All-C vs the Python IGWO on the virtual machine: same initial pack, same fitness up to the
-    SIMD kernel's sin/cos rounding.  (Bit-identity with the Python IGWO on the same compiled
-    kernel is tested in test_codegen_simd.py.)"""
+    """All-C vs the Python IGWO on the virtual machine: same initial pack, same fitness.
+
+    Same up to the SIMD kernel's sin/cos rounding.  (Bit-identity with the Python IGWO on the
+    same compiled kernel is tested in test_codegen_simd.py.)
+    """
     x0, t0 = feasible_start
     p = s2_problem.parameters(x0, t0)
     python = uo.get_solver(s2_problem, "igwo", {"seed": 0})

@@ -16,7 +16,7 @@ POPULATION = 5  # not a multiple of the lane count: the last group is padded
 
 
 def _compiled_kernel(function: ca.Function, directory, population: int = POPULATION) -> ca.Function:
-    """``function`` as a SIMD kernel over ``population`` candidates, loaded back (unverified)."""
+    """Compile ``function`` as a SIMD kernel over ``population`` candidates; load it back unverified."""
     mapped = function.map(f"{function.name()}_exact", "serial", population, [1], [])
     source = batch_kernel_source(function, f"{function.name()}_simd", population, mapped.name())
     twin = function.map(f"{function.name()}_simd", "serial", population, [1], [])

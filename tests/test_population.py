@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
-from uuv_ocp.problem import score_parameters
+from uuv_ocp.judge import score_parameters
 from uuv_ocp.solvers.swarm import batched_fitness
 
 SWARMS = ["igwo", "gwo", "ssa", "pso"]
@@ -39,18 +39,58 @@ def test_batched_fitness_equals_per_individual_score_and_penalty(instance):
 
 
 @pytest.mark.parametrize("method", SWARMS)
-def test_swarm_beats_random_search_at_equal_budget(instance, method):
+def test_swarm_update_beats_its_own_initial_sampling_at_equal_budget(instance, method):
+    """The swarm's update improves on the same seeded centre sampled without an update.
+
+    Baseline: the same seeded centre (u_prev held, δ = 0) plus uniform samples of the same box,
+    as many evaluations as the swarm used.  Its best is the centre itself, so the swarm must
+    improve on the centre's fitness by a margin (5 %; the swarms reach 9–60 % on seeds 0–5),
+    which only its update can do.
+    """
     problem, x0, t0, p = instance
     result = uo.solve(problem, method, x0=x0, t0=t0, options={"seed": 3})
     assert result.success
     fitness = batched_fitness(problem, result.evaluations)
+    center = np.zeros(problem.control_dim)  # u_prev = 0 held over the horizon
     rng = np.random.default_rng(3)
-    center = np.zeros(problem.control_dim)  # the swarm's own centre (u_prev = 0 held)
-    random_candidates = np.clip(
-        center[:, None] + rng.uniform(-1, 1, (problem.control_dim, result.evaluations)), -1, 1
-    )
-    best_random = float(np.min(np.array(fitness(random_candidates, p))))
-    assert result.details["fitness"] < best_random
+    baseline = rng.uniform(-1, 1, (problem.control_dim, result.evaluations))
+    baseline[:, 0] = center
+    baseline_costs = np.array(fitness(baseline, p)).ravel()
+    center_cost = baseline_costs[0]
+    assert np.min(baseline_costs) == center_cost  # the seeded centre alone wins the baseline
+    assert result.details["fitness"] < 0.95 * center_cost
+    # the reported fitness is the independent batched fitness of the reported plan
+    plan = problem.scaled_from_controls(result.controls)
+    assert float(batched_fitness(problem, 1)(plan, p)) == pytest.approx(result.details["fitness"], rel=1e-9)
+
+
+@pytest.fixture(scope="module")
+def short_horizon(feasible_start):
+    """N = 5 with no terminal condition: only box and rate bounds, optimum known from IPOPT."""
+    x0, t0 = feasible_start
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=5, terminal="none")
+    optimum = uo.solve(problem, "ipopt", x0=x0, t0=t0)
+    assert optimum.success and optimum.max_violation <= 1e-6
+    p = problem.parameters(x0, t0)
+    center_cost = float(batched_fitness(problem, 1)(np.zeros(problem.control_dim), p))
+    assert center_cost > 1.6 * optimum.cost  # holding u_prev = 0 is far from optimal
+    return problem, x0, t0, optimum.cost, center_cost
+
+
+@pytest.mark.parametrize("method", SWARMS)
+def test_swarm_closes_part_of_the_gap_from_its_centre_to_the_ipopt_optimum(short_horizon, method):
+    """The swarm moves from its centre toward the optimum found by another solver (IPOPT).
+
+    Started with the centre in its population, the swarm must close >= 10 % of the gap
+    centre -> optimum (seeds 0–19 close 18–75 %) and, judged by its fitness J + exact penalty,
+    never beat the optimum.
+    """
+    problem, x0, t0, optimum, center_cost = short_horizon
+    result = uo.solve(problem, method, x0=x0, t0=t0, options={"seed": 3})
+    assert result.success
+    assert result.details["fitness"] >= optimum * (1 - 1e-9)
+    closed = (center_cost - result.details["fitness"]) / (center_cost - optimum)
+    assert closed >= 0.10, f"{method} closed {closed:.1%} of the gap"
 
 
 def test_same_seed_gives_identical_results(instance):

@@ -14,18 +14,20 @@ def nlp_objective_at_rollout(problem, scaled, p):
     """Evaluate the hard NLP's objective at the point built from a rollout of ``scaled``."""
     built = problem.build()
     solver = IpoptSolver(problem)
-    _, _, u_prev, _ = problem.parameter_parts(p)
+    _, reference, u_prev, _ = problem.parameter_parts(p)
     states = np.array(built.rollout(scaled, p)).T
     primal = solver.compose_primal("hard", states, scaled.reshape(-1, 3), u_prev / problem.max_thrust)
     data = built.hard
-    # tube slacks at their optimal value max(0, |e| - tube)
+    # tube slacks at their optimal value max(0, |e| - tube), on nodes 1..N
     if problem.position_tube is not None:
-        _, reference, _, _ = problem.parameter_parts(p)
-        labels = {label: i for i, label in enumerate(data.variable_labels)}
-        for k in range(problem.horizon):
+        position = {key: i for i, key in enumerate(data.variable_keys)}
+        slack_kinds = {key[0] for key in data.variable_keys if key[0].endswith("_slack")}
+        assert len(slack_kinds) == 1
+        kind = slack_kinds.pop()
+        for k in range(1, problem.horizon + 1):
             excess = np.maximum(0.0, np.abs(states[k, :2] - reference[k, :2]) - problem.position_tube)
             for i in range(2):
-                primal[labels[f"tube_{k}[{i}]"]] = excess[i]
+                primal[position[(kind, k, i)]] = excess[i]
     f = ca.Function("f", [data.nlp["x"], data.nlp["p"]], [data.nlp["f"], data.nlp["g"]])
     objective, constraints = f(primal, p)
     return float(objective), np.array(constraints).ravel(), data
@@ -57,7 +59,7 @@ def test_nlp_objective_equals_condensed_cost_and_score(terminal, tube):
         assert objective == pytest.approx(float(condensed), rel=1e-9)
         assert objective == pytest.approx(cost, rel=1e-9)
         # the rollout point satisfies the dynamics constraints exactly
-        dynamics = np.array([label.startswith(("dynamics", "initial")) for label in data.constraint_labels])
+        dynamics = np.array([key[0] in ("dynamics", "initial") for key in data.constraint_keys])
         assert np.max(np.abs(constraints[dynamics])) < 1e-10
 
 

@@ -4,8 +4,19 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from helpers_fossen import (
+    exact_rollout,
+    formulation_cost,
+    formulation_violation,
+    rk4,
+    rk4_error_bound,
+    rk4_rollout,
+    s2_reference,
+)
 
 EXACT = ["ipopt", "sqp", "fatrop"]
+DT = 0.1  # s2_problem's sampling time and horizon (conftest)
+HORIZON = 20
 
 
 @pytest.fixture(scope="module")
@@ -14,23 +25,73 @@ def results(s2_problem, feasible_start):
     return {name: uo.solve(s2_problem, name, x0=x0, t0=t0) for name in EXACT}
 
 
-@pytest.mark.parametrize("name", EXACT)
-def test_exact_backends_reach_the_same_optimum(results, name):
+@pytest.mark.parametrize("name", ["sqp", "fatrop"])
+def test_exact_backends_reach_the_ipopt_optimum(results, name):
+    """Three different NLP algorithms (interior point, SQP, structured interior point) agree."""
     reference = results["ipopt"]
     result = results[name]
-    assert result.success, result.status
+    assert reference.success and result.success, result.status
     assert not result.terminal_relaxed
     assert result.cost == pytest.approx(reference.cost, rel=1e-6)
-    assert result.max_violation <= 1e-6
-    assert np.all(np.abs(result.controls) <= np.asarray(uo.Vehicle.rexrov().max_thrust) * (1 + 1e-6))
-    np.testing.assert_allclose(result.controls, reference.controls, atol=1e-2 * 2000)
+    # the optimum is flat along some control directions: sqp's plan differs by up to 3 N
+    np.testing.assert_allclose(result.controls, reference.controls, atol=5.0)
+    np.testing.assert_allclose(result.states, reference.states, atol=1e-3)
 
 
-def test_result_states_are_the_model_rollout(s2_problem, feasible_start, results):
+def check_dynamics_gaps(vehicle, states, controls, current=(0.0, 0.0)):
+    """Planned states satisfy x_{k+1} = RK4(x_k, τ_k) of the independent numpy model."""
+    predicted = np.array([rk4(vehicle, states[k], controls[k], DT, current) for k in range(len(controls))])
+    np.testing.assert_allclose(states[1:], predicted, rtol=0, atol=1e-8)
+
+
+@pytest.mark.parametrize("name", EXACT)
+def test_optimum_is_feasible_by_independent_checks(s2_problem, feasible_start, results, name):
     x0, t0 = feasible_start
-    p = s2_problem.parameters(x0, t0)
-    rollout = s2_problem.rollout(results["ipopt"].controls, p)
-    np.testing.assert_allclose(results["ipopt"].states, rollout, atol=1e-6)
+    result = results[name]
+    vehicle = s2_problem.vehicle
+    max_thrust = np.asarray(vehicle.max_thrust)
+    assert result.controls.shape == (HORIZON, 3) and result.states.shape == (HORIZON + 1, 6)
+    assert np.all(np.abs(result.controls) <= max_thrust * (1 + 1e-6))  # |τ| <= τ_max
+    increments = np.diff(np.vstack([np.zeros(3), result.controls]), axis=0)  # u_prev = 0
+    assert np.all(np.abs(increments) <= np.asarray(vehicle.max_thrust_rate) * DT + 1e-6 * max_thrust)
+    np.testing.assert_allclose(result.states[0], x0, rtol=0, atol=1e-9)  # x_0 = x̂_0
+    check_dynamics_gaps(vehicle, result.states, result.controls)  # multiple-shooting gaps closed
+    terminal = s2_reference([t0 + HORIZON * DT])[0]  # x_N = x_R,N (analytic reference)
+    np.testing.assert_allclose(result.states[-1], terminal, rtol=0, atol=1e-6)
+    assert result.max_violation <= 1e-6
+
+
+@pytest.mark.parametrize("name", EXACT)
+def test_reported_cost_and_violation_are_the_formulation_on_an_independent_rollout(
+    s2_problem, feasible_start, results, name
+):
+    """Cost and violation recomputed: docs/formulation.md in numpy on a numpy RK4 rollout."""
+    x0, t0 = feasible_start
+    result = results[name]
+    states = rk4_rollout(s2_problem.vehicle, x0, result.controls, DT)
+    scaled = result.controls / np.asarray(s2_problem.vehicle.max_thrust)
+    reference = s2_reference(t0 + DT * np.arange(HORIZON + 1))
+    cost = formulation_cost(s2_problem.weights, states, scaled, np.zeros(3), reference)
+    assert result.cost == pytest.approx(cost, rel=1e-9)
+    rate_bound = (
+        np.asarray(s2_problem.vehicle.max_thrust_rate) * DT / np.asarray(s2_problem.vehicle.max_thrust)
+    )
+    violation = formulation_violation(states, scaled, np.zeros(3), reference[-1], rate_bound)
+    assert result.max_violation == pytest.approx(violation, rel=1e-6, abs=1e-10)
+
+
+@pytest.mark.parametrize("name", EXACT)
+def test_planned_states_agree_with_an_adaptive_integrator_to_the_rk4_error(
+    s2_problem, feasible_start, results, name
+):
+    """Scipy's DOP853 (rtol 1e-12) on the numpy Fossen model vs the RK4 plan: RK4-sized error only."""
+    x0, _ = feasible_start
+    result = results[name]
+    vehicle = s2_problem.vehicle
+    exact = exact_rollout(vehicle, x0, result.controls, DT)
+    bound = rk4_error_bound(vehicle, x0, result.controls, DT) + 1e-8  # + the NLP's gap tolerance
+    assert np.all(np.abs(result.states - exact) <= bound)
+    assert np.max(np.abs(result.states - exact)) > 1e-9  # RK4 is not exact: the test can see 1e-9
 
 
 def test_soft_formulation_is_exact_when_the_hard_one_is_feasible(s2_problem, feasible_start, results):
@@ -51,8 +112,10 @@ def test_infeasible_terminal_equality_falls_back_to_the_soft_problem(s2_problem,
 
 
 def test_fatrop_last_resort_retry_solves_what_its_fast_settings_do_not(s2_problem):
-    """From rest, fatrop's fast mu_init = 1e-4 fails the soft problem; the conservative retry
-    reaches IPOPT's soft optimum."""
+    """From rest, fatrop's fast mu_init = 1e-4 fails; the conservative retry succeeds.
+
+    The retry reaches IPOPT's soft optimum.
+    """
     x0 = uo.Reference.paper("s2").initial_state(0.0)
     result = uo.solve(s2_problem, "fatrop", x0=x0, t0=0.0)
     attempts = [variant for variant, _, _ in result.details["attempts"]]
@@ -188,8 +251,10 @@ def still_water_pair(s2_problem):
 def test_still_water_nlp_has_the_derivatives_of_the_general_nlp_at_zero_current(
     s2_problem, feasible_start, still_water_pair
 ):
-    """Same f, g, constraint Jacobian and Hessian of the Lagrangian at zero current, with
-    fewer operations: the current terms are gone, not hidden."""
+    """Same f, g, constraint Jacobian and Lagrangian Hessian at zero current, fewer operations.
+
+    The current terms are gone, not hidden.
+    """
     import casadi as ca
 
     data, still = still_water_pair
@@ -229,9 +294,13 @@ def test_a_current_in_the_model_uses_the_general_nlp(s2_problem, feasible_start,
     current = np.array([0.3, -0.2])
     with_current = uo.solve(s2_problem, "fatrop", x0=x0, t0=t0, current=current)
     assert with_current.success and not with_current.details["still_water"]
-    # the plan is the model's rollout under that current, and it differs from still water
-    p = s2_problem.parameters(x0, t0, current=current)
-    np.testing.assert_allclose(with_current.states, s2_problem.rollout(with_current.controls, p), atol=1e-6)
+    # the plan obeys the numpy model under that current (gaps, and an adaptive integrator to
+    # the RK4 error), and it differs from still water
+    vehicle = s2_problem.vehicle
+    check_dynamics_gaps(vehicle, with_current.states, with_current.controls, current)
+    exact = exact_rollout(vehicle, x0, with_current.controls, DT, current)
+    bound = rk4_error_bound(vehicle, x0, with_current.controls, DT, current) + 1e-8
+    assert np.all(np.abs(with_current.states - exact) <= bound)
     assert np.max(np.abs(with_current.controls - results["fatrop"].controls)) > 10.0
     reference = uo.solve(s2_problem, "ipopt", x0=x0, t0=t0, current=current)
     assert with_current.cost == pytest.approx(reference.cost, rel=1e-6)

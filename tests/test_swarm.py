@@ -1,13 +1,12 @@
-"""Tests of the population optimisers in :mod:`uuv_ocp.optimize.population`."""
+"""Tests of the population optimisers in :mod:`uuv_ocp.optimize`."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from uuv_ocp.optimize import population as swarm
-from uuv_ocp.optimize.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
-from uuv_ocp.optimize.population import (
+import uuv_ocp.optimize as swarm
+from uuv_ocp.optimize import (
     MinimizeResult,
     available_methods,
     convergence_factor,
@@ -15,6 +14,7 @@ from uuv_ocp.optimize.population import (
     igwo_update,
     minimize,
 )
+from uuv_ocp.optimize.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
 
 METHODS = ["gwo", "igwo", "pso", "ssa"]
 DIM = 10
@@ -209,6 +209,63 @@ def test_all_infinite_costs_do_not_crash():
     assert result.x.shape == (DIM,)
 
 
+@pytest.mark.parametrize("method", METHODS)
+def test_all_nan_costs_report_failure(method):
+    seeds = np.full((1, DIM), 0.25)
+    result = minimize(
+        lambda X: np.full(len(X), np.nan),
+        LOWER,
+        UPPER,
+        method,
+        population=6,
+        iterations=4,
+        seed=0,
+        initial_population=seeds,
+    )
+    assert result.success is False
+    assert result.fun == np.inf
+    assert np.all(result.history == np.inf)
+    assert "no finite value" in result.message
+    assert "iteration budget" in result.message  # the stopping reason is kept
+    assert result.iterations == 4 and result.evaluations == 30
+    assert np.array_equal(result.x, seeds[0])  # documented: the first initial point
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_success_iff_a_finite_cost_was_seen(method):
+    def mostly_nan(X):
+        costs = np.full(len(X), np.nan)
+        costs[-1] = sphere(X[-1:])[0]
+        return costs
+
+    assert minimize(sphere, LOWER, UPPER, method, population=6, iterations=2, seed=0).success is True
+    result = minimize(mostly_nan, LOWER, UPPER, method, population=6, iterations=2, seed=0)
+    assert result.success is True
+    assert np.isfinite(result.fun)
+    assert "no finite" not in result.message
+
+
+def test_result_repr_is_short_and_hides_the_arrays():
+    result = MinimizeResult(
+        x=np.full(4, 987654.321),
+        fun=1.5,
+        history=np.full(3, 24680.1357),
+        evaluations=60,
+        iterations=2,
+        method="gwo",
+        population=np.full((20, 4), 123456.789),
+        message="reached the iteration budget (2)",
+    )
+    text = repr(result)
+    for number in ("987654", "24680", "123456"):
+        assert number not in text
+    for part in ("'gwo'", "fun=1.5", "evaluations=60", "iterations=2", "success=True", "(4,)"):
+        assert part in text
+    assert "reached the iteration budget (2)" in text
+    real = minimize(sphere, LOWER, UPPER, "pso", population=30, iterations=3, seed=0)
+    assert "\n" not in repr(real) and len(repr(real)) < 250
+
+
 def test_scalar_bound_broadcasts():
     a = minimize(sphere, -5.0, UPPER, "gwo", population=6, iterations=3, seed=2)
     b = minimize(sphere, LOWER, 5.0, "gwo", population=6, iterations=3, seed=2)
@@ -356,6 +413,38 @@ def test_bad_fun_output_raises():
         minimize(lambda X: np.zeros(3), LOWER, UPPER, "gwo", population=5, iterations=2)
     with pytest.raises(ValueError, match="fun"):
         minimize(None, LOWER, UPPER)
+
+
+@pytest.mark.parametrize(
+    "output, shape",
+    [
+        (lambda X: np.zeros(3), "(3,)"),
+        (lambda X: np.zeros(len(X) + 1), "(6,)"),
+        (lambda X: np.zeros((len(X), 2)), "(5, 2)"),
+        (lambda X: 1.0, "()"),
+    ],
+    ids=["short", "long", "two_columns", "scalar"],
+)
+def test_wrong_fun_output_shape_names_fun_and_both_shapes(output, shape):
+    with pytest.raises(ValueError, match="fun") as info:
+        minimize(output, LOWER, UPPER, "gwo", population=5, iterations=2)
+    message = str(info.value)
+    assert "(5,)" in message  # expected
+    assert f"got shape {shape}" in message  # actual
+
+
+def test_non_numeric_fun_output_raises_naming_fun():
+    with pytest.raises(ValueError, match="fun must return 5 real costs"):
+        minimize(lambda X: ["cheap"] * len(X), LOWER, UPPER, "igwo", population=5, iterations=2)
+
+
+def test_fun_output_with_population_elements_is_flattened():
+    # e.g. a CasADi map returns a (1, population) row: accepted, same result as (population,)
+    flat = minimize(sphere, LOWER, UPPER, "igwo", population=6, iterations=3, seed=4)
+    for fun in (lambda X: sphere(X)[None, :], lambda X: sphere(X)[:, None]):
+        other = minimize(fun, LOWER, UPPER, "igwo", population=6, iterations=3, seed=4)
+        assert np.array_equal(other.population, flat.population)
+        assert other.fun == flat.fun
 
 
 def test_convergence_factor_validation():

@@ -1,4 +1,4 @@
-"""Vehicle model: the paper's equations, the current model, validation."""
+"""Vehicle model: Fossen's matrix form (independent numpy), energy, the current model, validation."""
 
 import dataclasses
 
@@ -6,40 +6,51 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from helpers_fossen import fossen_rhs, mass_matrix, rotation
 
 
-def paper_rhs(vehicle, state, control):
-    """Eqs. (2)-(7) of the paper, written out by hand in numpy."""
-    _, _, psi, u, v, r = state
-    m_x = vehicle.mass + vehicle.added_mass[0]
-    m_y = vehicle.mass + vehicle.added_mass[1]
-    m_psi = vehicle.inertia + vehicle.added_mass[2]
-    x_u, y_v, n_r = vehicle.linear_damping
-    d_u, d_v, d_r = vehicle.quadratic_damping
-    return np.array(
-        [
-            u * np.cos(psi) - v * np.sin(psi),
-            u * np.sin(psi) + v * np.cos(psi),
-            r,
-            (m_y * v * r - x_u * u - d_u * u * abs(u) + control[0]) / m_x,
-            (-m_x * u * r - y_v * v - d_v * v * abs(v) + control[1]) / m_y,
-            ((m_x - m_y) * u * v - n_r * r - d_r * r * abs(r) + control[2]) / m_psi,
-        ]
-    )
+def random_states(rng, count):
+    """Seeded states with every velocity, the yaw rate included, clearly nonzero."""
+    states = rng.uniform(-1.5, 1.5, size=(count, 6))
+    states[:, 2] = rng.uniform(-np.pi, np.pi, count)
+    states[:, 3:] += np.sign(states[:, 3:]) * 0.2  # |u|, |v|, |r| >= 0.2: Coriolis terms active
+    return states
 
 
-def test_dynamics_equal_the_paper_equations():
+@pytest.mark.parametrize("with_current", [False, True])
+def test_dynamics_equal_fossens_matrix_form(with_current):
+    """Compare with an independent numpy Fossen model: M ν̇_r + C(ν_r)ν_r + D(ν_r)ν_r = τ, η̇ = R(ψ)ν."""
     vehicle = uo.Vehicle.rexrov()
     f = vehicle.dynamics_function()
-    rng = np.random.default_rng(0)
-    for _ in range(20):
-        state = rng.normal(size=6)
+    rng = np.random.default_rng(2024)
+    for state in random_states(rng, 30):
         control = rng.uniform(-2000, 2000, size=3)
-        np.testing.assert_allclose(
-            np.array(f(state, control, [0, 0])).ravel(),
-            paper_rhs(vehicle, state, control),
-            rtol=1e-13,
-        )
+        current = rng.uniform(-0.8, 0.8, size=2) if with_current else np.zeros(2)
+        expected = fossen_rhs(vehicle, state, control, current)
+        actual = np.array(f(state, control, current)).ravel()
+        np.testing.assert_allclose(actual, expected, rtol=1e-12, atol=1e-12 * np.max(np.abs(expected)))
+
+
+@pytest.mark.parametrize("with_current", [False, True])
+def test_without_damping_the_kinetic_energy_changes_by_the_thrust_power(with_current):
+    """C(ν) is skew-symmetric: with D = 0, d/dt ½ ν_rᵀ M ν_r = ν_rᵀ τ (ν_r = ν without current)."""
+    vehicle = dataclasses.replace(
+        uo.Vehicle.rexrov(), linear_damping=(0.0, 0.0, 0.0), quadratic_damping=(0.0, 0.0, 0.0)
+    )
+    mass = mass_matrix(vehicle)
+    f = vehicle.dynamics_function()
+    rng = np.random.default_rng(7)
+    for state in random_states(rng, 30):
+        control = rng.uniform(-2000, 2000, size=3)
+        current = rng.uniform(-0.8, 0.8, size=2) if with_current else np.zeros(2)
+        nu_c = rotation(state[2]).T @ np.array([*current, 0.0])
+        nu_r = state[3:] - nu_c
+        nu_dot = np.array(f(state, control, current)).ravel()[3:]
+        nu_r_dot = nu_dot - state[5] * np.array([nu_c[1], -nu_c[0], 0.0])  # ν̇_c = r [v_c, −u_c, 0]
+        power = nu_r @ mass @ nu_r_dot
+        # scale of the individual terms, so the tolerance is relative to what could cancel
+        scale = np.abs(nu_r) @ (np.abs(control) + np.abs(mass @ nu_r_dot))
+        assert abs(power - nu_r @ control) <= 1e-12 * scale
 
 
 def test_vehicle_drifting_with_the_current_feels_no_force():

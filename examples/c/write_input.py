@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 import uuv_ocp as uo
-from uuv_ocp.optimize.population import ImprovedGreyWolf
+from uuv_ocp.optimize import ImprovedGreyWolf
 
 
 def write_input(path: str | Path, seed: int = 0, problem: uo.TrackingProblem | None = None) -> dict:

@@ -1,8 +1,9 @@
 """uuv_ocp: optimal control of unmanned underwater vehicles with CasADi.
 
-One symbolic formulation (:class:`TrackingProblem`), many solvers chosen by name
-(:func:`solve`, :func:`available_solvers`), one judge (:func:`score`), and a closed loop
-(:class:`NMPC`, :func:`simulate`).
+Problems are declared symbolically (:class:`Ocp`; :class:`TrackingProblem` is a UUV preset on
+it), solved by any backend chosen by name (:func:`solve`, :func:`available_solvers`), judged by
+one scorer (:func:`score`), and run in closed loop (:class:`NMPC`, :func:`simulate`).
+Importing the package has no side effects: nothing is built, compiled or plotted.
 """
 
 from uuv_ocp.codegen import GeneratedCode, generate_c
@@ -10,7 +11,9 @@ from uuv_ocp.control.disturbances import Current, GaussMarkov, MeasurementNoise
 from uuv_ocp.studies.compare import compare, format_comparison
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.control.mpc import NMPC, StepOutput
-from uuv_ocp.problem import TrackingProblem, Weights, score
+from uuv_ocp.judge import score
+from uuv_ocp.ocp import Ocp
+from uuv_ocp.tracking import TrackingProblem, Weights
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
 from uuv_ocp.control.simulation import ClosedLoopResult, simulate
 from uuv_ocp.solvers import (
@@ -37,6 +40,7 @@ __all__ = [
     "MinimizeResult",
     "MeasurementNoise",
     "NMPC",
+    "Ocp",
     "Reference",
     "SolveResult",
     "StepOutput",

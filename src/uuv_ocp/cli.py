@@ -7,9 +7,9 @@ import sys
 import time
 from collections.abc import Sequence
 
-from uuv_ocp.studies.compare import format_tracking_table, track_references
 from uuv_ocp.reference.path import PAPER_REFERENCES
 from uuv_ocp.solvers import available_solvers
+from uuv_ocp.studies.compare import format_tracking_table, track_references
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -1,4 +1,4 @@
-"""C code generation of a :class:`TrackingProblem`: generate, compile, load back, verify.
+"""C code generation of any problem (Ocp or tracking preset): generate, compile, load back, verify.
 
 ``generate_c(problem, directory)`` writes one C file (CasADi ``CodeGenerator``) holding
 
@@ -31,10 +31,12 @@ import os
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import casadi as ca
 import numpy as np
 
+from uuv_ocp.build import Transcribed
 from uuv_ocp.native.compile import (
     DEFAULT_FLAGS as CORE_FLAGS,
 )
@@ -46,7 +48,6 @@ from uuv_ocp.native.compile import (
     find_c_compiler,
 )
 from uuv_ocp.native.simd import UnsupportedOperation, batch_kernel_source
-from uuv_ocp.problem import TrackingProblem
 
 #: ``-ffp-contract=off`` keeps compiled arithmetic identical to CasADi's virtual machine;
 #: ``-march=native`` gives the SIMD kernel this processor's vector width (3x on AVX-512,
@@ -65,7 +66,6 @@ __all__ = [
     "NativeIgwo",
     "VerificationError",
     "compiled_build",
-    "compiled_fitness",
     "uses_pcg64",
     "find_c_compiler",
     "generate_c",
@@ -113,11 +113,12 @@ class GeneratedCode:
     simd: bool = False
 
     def __getitem__(self, name: str) -> ca.Function:
+        """Return the loaded Function ``name`` (``KeyError`` if it was not generated)."""
         return self.functions[name]
 
 
-def symbolic_functions(problem: TrackingProblem, population: int = 20) -> dict[str, ca.Function]:
-    """The problem's Functions that :func:`generate_c` emits, by name."""
+def symbolic_functions(problem: Transcribed, population: int = 20) -> dict[str, ca.Function]:
+    """Build the problem's Functions that :func:`generate_c` emits, by name."""
     from uuv_ocp.solvers.swarm import batched_fitness
 
     built = problem.build()
@@ -126,14 +127,14 @@ def symbolic_functions(problem: TrackingProblem, population: int = 20) -> dict[s
         "cost": built.cost,
         "cost_batch": _renamed(batch, "cost_batch"),
         EXACT_BATCH: _renamed(batch, EXACT_BATCH),
-        "dynamics": problem.vehicle.dynamics_function(),
+        "dynamics": _renamed(built.spec.dynamics, "dynamics"),
         "model_step": _renamed(built.step, "model_step"),
         "rollout": built.rollout,
         "score_terms": built.score_terms,
     }
 
 
-def _batch_sources(problem: TrackingProblem, population: int) -> tuple[str, bool]:
+def _batch_sources(problem: Transcribed, population: int) -> tuple[str, bool]:
     """C of the SIMD ``cost_batch`` (or ``""`` if unsupported) and whether it is SIMD."""
     from uuv_ocp.solvers.swarm import candidate_fitness
 
@@ -146,8 +147,7 @@ def _batch_sources(problem: TrackingProblem, population: int) -> tuple[str, bool
 
 def _renamed(function: ca.Function, name: str) -> ca.Function:
     symbols = [ca.MX.sym(function.name_in(i), function.sparsity_in(i)) for i in range(function.n_in())]
-    outputs = function(*symbols)
-    outputs = list(outputs) if isinstance(outputs, (list, tuple)) else [outputs]
+    outputs = function.call(symbols)
     return ca.Function(
         name,
         symbols,
@@ -158,7 +158,7 @@ def _renamed(function: ca.Function, name: str) -> ca.Function:
 
 
 def generate_c(
-    problem: TrackingProblem,
+    problem: Transcribed,
     directory: str | Path,
     *,
     functions: tuple[str, ...] = FUNCTION_NAMES,
@@ -173,7 +173,7 @@ def generate_c(
 
     Parameters
     ----------
-    problem : TrackingProblem
+    problem : Ocp or TrackingProblem
     directory : str or Path
         Output folder (created).
     functions : tuple of str
@@ -253,10 +253,13 @@ def default_cache_directory() -> Path:
     return Path(os.environ.get("UUV_OCP_CACHE", Path.home() / ".cache" / "uuv_ocp"))
 
 
-def compiled_build(problem: TrackingProblem, population: int) -> GeneratedCode | None:
-    """Compiled cost_batch + IGWO step, rollout and score terms for ``problem`` (cached), or
-    ``None`` with one warning."""
-    cache = problem._cache.setdefault("codegen", {})
+def compiled_build(problem: Transcribed, population: int) -> GeneratedCode | None:
+    """Build (once per problem and population) what the solvers' ``compiled=True`` runs on.
+
+    Returns the compiled ``cost_batch`` + IGWO step, ``rollout`` and ``score_terms`` of
+    ``problem``, or ``None`` with one warning when no compiler works.
+    """
+    cache = problem._store.setdefault("codegen", {})
     if population not in cache:
         try:
             cache[population] = generate_c(
@@ -273,18 +276,6 @@ def compiled_build(problem: TrackingProblem, population: int) -> GeneratedCode |
             )
             cache[population] = None
     return cache[population]
-
-
-def compiled_fitness(
-    problem: TrackingProblem, population: int, parallelization: str = "serial"
-) -> ca.Function:
-    """The swarm fitness as compiled code, falling back to the virtual machine."""
-    from uuv_ocp.solvers.swarm import batched_fitness
-
-    build = compiled_build(problem, population)
-    if build is None:
-        return batched_fitness(problem, population, parallelization)
-    return build["cost_batch"]
 
 
 class NativeIgwo:
@@ -306,13 +297,12 @@ class NativeIgwo:
         self.build = build
         self.library = ctypes.CDLL(str(build.library))
         pointer = ctypes.POINTER(ctypes.c_double)
-        tail = [ctypes.c_double, ctypes.c_double] + [ctypes.c_int] * 3 + [pointer] * 4
+        tail: list[Any] = [ctypes.c_double, ctypes.c_double, *[ctypes.c_int] * 3, *[pointer] * 4]
         self._given = self.library.uuv_ocp_igwo
         self._given.argtypes = [pointer] * 8 + tail
         self._drawing = self.library.uuv_ocp_igwo_pcg64
-        self._drawing.argtypes = (
-            [pointer] * 5 + [ctypes.POINTER(ctypes.c_uint64), ctypes.c_int] + [pointer] * 2 + tail
-        )
+        words: list[Any] = [ctypes.POINTER(ctypes.c_uint64), ctypes.c_int]
+        self._drawing.argtypes = [*[pointer] * 5, *words, *[pointer] * 2, *tail]
         for function in (self._given, self._drawing):
             function.restype = ctypes.c_int
         self.random = self.library.uuv_ocp_pcg64_random

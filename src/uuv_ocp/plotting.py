@@ -1,28 +1,38 @@
 """Matplotlib figures of closed-loop runs (paper Figs. 7–12 style).
 
-Functions return the :class:`matplotlib.figure.Figure`; ``save_figure`` writes it and closes it.
-The non-interactive Agg backend is used so that figures render on machines without a screen.
+Functions return a :class:`matplotlib.figure.Figure`; ``save_figure`` writes it as PNG.
+Figures are built with matplotlib's object-oriented API, without pyplot: no backend is chosen
+or changed (figures render on machines without a screen, and a notebook's backend is left
+alone), no global figure list keeps them alive, and matplotlib is imported only when the
+first figure is made, so ``import uuv_ocp`` does not load it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-import matplotlib
+from uuv_ocp.control.simulation import ClosedLoopResult
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.figure import Figure  # noqa: E402
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
-from uuv_ocp.control.simulation import ClosedLoopResult  # noqa: E402
+__all__ = ["error_figure", "save_figure", "xoy_figure"]
+
+
+def _subplots(*grid: int, **options: Any) -> tuple[Figure, Any]:
+    """Make a figure (not registered with pyplot) and its axes, as ``pyplot.subplots`` does."""
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=options.pop("figsize", None))
+    return figure, figure.subplots(*grid, **options)
 
 
 def xoy_figure(runs: Sequence[ClosedLoopResult] | ClosedLoopResult, title: str = "") -> Figure:
     """Path in the XOY plane: reference and one or more closed-loop runs."""
     runs = [runs] if isinstance(runs, ClosedLoopResult) else list(runs)
-    figure, axes = plt.subplots(figsize=(6.4, 4.8))
+    figure, axes = _subplots(figsize=(6.4, 4.8))
     axes.plot(runs[0].reference[:, 0], runs[0].reference[:, 1], "k--", lw=1.5, label="reference")
     for run in runs:
         axes.plot(run.states[:, 0], run.states[:, 1], lw=1.2, label=run.solver)
@@ -40,7 +50,7 @@ def xoy_figure(runs: Sequence[ClosedLoopResult] | ClosedLoopResult, title: str =
 def error_figure(runs: Sequence[ClosedLoopResult] | ClosedLoopResult, title: str = "") -> Figure:
     """Tracking errors e_x and e_y (m) against time (s)."""
     runs = [runs] if isinstance(runs, ClosedLoopResult) else list(runs)
-    figure, axes = plt.subplots(2, 1, sharex=True, figsize=(6.4, 4.8))
+    figure, axes = _subplots(2, 1, sharex=True, figsize=(6.4, 4.8))
     for run in runs:
         errors = run.errors
         axes[0].plot(run.t, errors[:, 0], lw=1.2, label=run.solver)
@@ -56,43 +66,9 @@ def error_figure(runs: Sequence[ClosedLoopResult] | ClosedLoopResult, title: str
     return figure
 
 
-def controls_figure(run: ClosedLoopResult, bounds: Sequence[float] | None = None) -> Figure:
-    """Applied generalised thrust F_u, F_v (N) and F_r (N·m) against time (s)."""
-    figure, axes = plt.subplots(3, 1, sharex=True, figsize=(6.4, 5.6))
-    labels = ("F_u (N)", "F_v (N)", "F_r (N·m)")
-    for index, axis in enumerate(axes):
-        axis.step(run.t[:-1], run.controls[:, index], where="post", lw=1.2)
-        if bounds is not None:
-            axis.axhline(bounds[index], color="k", ls=":", lw=1)
-            axis.axhline(-bounds[index], color="k", ls=":", lw=1)
-        axis.set_ylabel(labels[index])
-        axis.grid(True, alpha=0.3)
-    axes[-1].set_xlabel("t (s)")
-    figure.tight_layout()
-    return figure
-
-
-def convergence_factor_figure(iterations: int = 30) -> Figure:
-    """The paper's Figure 5: convergence-factor schedules a(t) of GWO variants."""
-    t = np.linspace(0.0, iterations, 200)
-    ratio = t / iterations
-    figure, axes = plt.subplots(figsize=(6.4, 4.0))
-    axes.plot(t, 2 - 2 * ratio, label="linear_a (GWO)")
-    axes.plot(t, 2 * (1 - ratio**2), label="non_linear_a_1")
-    axes.plot(t, 2 * (1 - ratio) ** 2, label="non_linear_a_2")
-    axes.plot(t, 1 + np.cos(np.pi * ratio), label="non_linear_a_3 (IGWO, cosine)")
-    axes.set_xlabel("iteration t")
-    axes.set_ylabel("a(t)")
-    axes.grid(True, alpha=0.3)
-    axes.legend(loc="best")
-    figure.tight_layout()
-    return figure
-
-
 def save_figure(figure: Figure, path: str | Path) -> Path:
-    """Write ``figure`` as PNG (creating the folder) and close it."""
+    """Write ``figure`` as PNG (creating the folder) and return the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=110)
-    plt.close(figure)
     return path

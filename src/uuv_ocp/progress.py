@@ -1,17 +1,78 @@
-"""A dependency-free, tqdm-style progress bar on standard error."""
+"""Progress bars of long runs (closed loops, campaigns), drawn by tqdm on standard error.
+
+A bar is drawn where someone watches: on a terminal, or as a widget in a Jupyter notebook.
+Elsewhere (a CI log, output redirected to a file) nothing is printed unless asked for, with
+``force=True`` or the environment variable ``UUV_OCP_PROGRESS``:
+
+``UUV_OCP_PROGRESS=always``
+    draw bars even when standard error is not a terminal (one line at most every 30 s, no
+    carriage returns, so logs stay short and readable);
+``UUV_OCP_PROGRESS=never``
+    draw no bar at all, whatever the callers ask for;
+``UUV_OCP_PROGRESS=auto`` (or unset)
+    the default just described.
+
+tqdm is imported only when a bar is actually drawn, so ``import uuv_ocp`` does not pay for it.
+"""
 
 from __future__ import annotations
 
+import os
 import sys
-import time
-from typing import TextIO
+from typing import Any, TextIO
+
+ENVIRONMENT_VARIABLE = "UUV_OCP_PROGRESS"
+_MODES = ("auto", "always", "never")
+
+__all__ = ["ENVIRONMENT_VARIABLE", "ProgressBar"]
+
+
+def _mode() -> str:
+    mode = os.environ.get(ENVIRONMENT_VARIABLE, "auto").strip().lower() or "auto"
+    return mode if mode in _MODES else "auto"
+
+
+def _is_terminal(stream: object) -> bool:
+    isatty = getattr(stream, "isatty", None)
+    try:
+        return bool(isatty()) if callable(isatty) else False
+    except ValueError:  # a closed stream
+        return False
+
+
+def _in_notebook() -> bool:
+    """Whether tqdm would draw a Jupyter widget (checked without importing tqdm otherwise)."""
+    if "ipykernel" not in sys.modules:
+        return False
+    import tqdm.auto  # noqa: F401  (imports tqdm.autonotebook with its warning silenced)
+    from tqdm.autonotebook import tqdm as notebook_tqdm
+    from tqdm.std import tqdm as std_tqdm
+
+    return notebook_tqdm is not std_tqdm
+
+
+class _LogLines:
+    """A log file as tqdm sees it: each redraw becomes a line of its own, carriage returns dropped."""
+
+    def __init__(self, stream: TextIO) -> None:
+        self.stream = stream
+        self.encoding = getattr(stream, "encoding", None)
+
+    def write(self, text: str) -> int:
+        line = text.replace("\r", "").rstrip()
+        if line:
+            self.stream.write(line + "\n")
+        return len(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
 
 
 class ProgressBar:
-    """Text progress bar: ``label |#####.....| 12/40 [3.1s<7.2s]``.
+    """Progress of ``total`` units of work: ``label:  30%|███       | 12/40 [00:03<00:07, fail=0]``.
 
-    On a terminal the bar is redrawn in place at most 10 times a second; elsewhere (CI logs)
-    a line is printed every 10 % so logs stay short.  Use as a context manager.
+    Use as a context manager.  Where the bar is not drawn (``enabled=False``, or standard
+    error is not a terminal and nothing asked for it) only :attr:`count` is kept.
 
     Parameters
     ----------
@@ -20,60 +81,94 @@ class ProgressBar:
     label : str
         Text in front of the bar.
     enabled : bool
-        ``False`` prints nothing.
+        ``False`` draws nothing.  ``True`` draws on a terminal or in a notebook.
     stream : file-like, optional
         Where to write (standard error by default).
+    force : bool
+        Draw even when ``stream`` is not a terminal (as ``UUV_OCP_PROGRESS=always`` does).
+    initial : int
+        Units already done before this run (e.g. resumed trials): they count towards the bar
+        but not towards the rate, so the estimated time left is that of the work still to do.
+
+    Notes
+    -----
+    The time left is the remaining units at the average rate of this run (tqdm's
+    ``smoothing=0``).  Closed-loop steps and campaign trials cost roughly the same each, and
+    trials of a process pool finish in bursts, so an average is steadier than tqdm's default
+    moving average of recent rates.
     """
 
-    def __init__(self, total: int, label: str = "", enabled: bool = True, stream: TextIO | None = None):
+    def __init__(
+        self,
+        total: int,
+        label: str = "",
+        enabled: bool = True,
+        stream: TextIO | None = None,
+        *,
+        force: bool = False,
+        initial: int = 0,
+    ) -> None:
         self.total = max(int(total), 1)
         self.label = label
-        self.enabled = enabled
         self.stream = stream if stream is not None else sys.stderr
-        self.count = 0
+        self.count = min(max(int(initial), 0), self.total)
         self.postfix = ""
-        self._start = time.perf_counter()
-        self._last_draw = 0.0
-        self._last_decile = -1
-        self._interactive = bool(getattr(self.stream, "isatty", lambda: False)())
+        mode = _mode()
+        notebook = stream is None and _in_notebook()
+        interactive = notebook or _is_terminal(self.stream)
+        self.enabled = bool(enabled) and mode != "never" and (interactive or force or mode == "always")
+        self._bar: Any = None
+        if not self.enabled:
+            return
+        options: dict[str, Any] = {
+            "total": self.total,
+            "initial": self.count,
+            "desc": label or None,
+            "smoothing": 0.0,
+            "dynamic_ncols": True,
+            "leave": True,
+        }
+        if notebook:
+            from tqdm.auto import tqdm as notebook_tqdm
+
+            self._bar = notebook_tqdm(**options)
+            return
+        from tqdm.std import tqdm
+
+        if interactive:
+            options.update(file=self.stream, mininterval=0.1)
+        else:
+            options.update(
+                file=_LogLines(self.stream),
+                mininterval=30.0,
+                maxinterval=float("inf"),  # tqdm's monitor must not force extra lines
+                ncols=80,
+                ascii=True,
+            )
+        self._bar = tqdm(**options)
 
     def __enter__(self) -> ProgressBar:
+        """Return the bar itself."""
         return self
 
     def __exit__(self, *exc: object) -> None:
+        """Close the bar, also when the block raised (e.g. ``KeyboardInterrupt``)."""
         self.close()
 
     def update(self, count: int = 1, postfix: str | None = None) -> None:
         """Advance by ``count`` units; ``postfix`` is shown after the timing."""
-        self.count = min(self.count + count, self.total)
+        step = min(int(count), self.total - self.count)
+        self.count += step
         if postfix is not None:
             self.postfix = postfix
-        if not self.enabled:
+        if self._bar is None:
             return
-        now = time.perf_counter()
-        if self._interactive:
-            if now - self._last_draw >= 0.1 or self.count == self.total:
-                self._last_draw = now
-                self.stream.write("\r" + self._line(now))
-                self.stream.flush()
-        else:
-            decile = int(10 * self.count / self.total)
-            if decile != self._last_decile:
-                self._last_decile = decile
-                self.stream.write(self._line(now) + "\n")
-                self.stream.flush()
-
-    def _line(self, now: float) -> str:
-        width = 30
-        filled = int(width * self.count / self.total)
-        elapsed = now - self._start
-        remaining = elapsed / self.count * (self.total - self.count) if self.count else float("nan")
-        bar = "#" * filled + "." * (width - filled)
-        text = f"{self.label} |{bar}| {self.count}/{self.total} [{elapsed:.1f}s<{remaining:.1f}s]"
-        return f"{text} {self.postfix}".rstrip()
+        if postfix is not None:
+            self._bar.set_postfix_str(postfix, refresh=False)
+        self._bar.update(step)
 
     def close(self) -> None:
-        """Finish the line on a terminal."""
-        if self.enabled and self._interactive:
-            self.stream.write("\n")
-            self.stream.flush()
+        """Finish the bar (idempotent)."""
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None

@@ -42,6 +42,7 @@ class GaussMarkov:
     maximum: float = math.inf
 
     def __post_init__(self) -> None:
+        """Validate the fields (``ValueError`` names the first bad one)."""
         object.__setattr__(self, "mean", check.finite_float("mean", self.mean))
         object.__setattr__(self, "noise", check.nonnegative_float("noise", self.noise))
         object.__setattr__(self, "decay", check.nonnegative_float("decay", self.decay))
@@ -87,6 +88,7 @@ class Current:
     max_speed: float = 2.0
 
     def __post_init__(self) -> None:
+        """Validate the fields (``ValueError`` names the first bad one)."""
         object.__setattr__(self, "speed", check.nonnegative_float("speed", self.speed))
         object.__setattr__(self, "direction", check.finite_float("direction", self.direction))
         object.__setattr__(self, "speed_noise", check.nonnegative_float("speed_noise", self.speed_noise))
@@ -115,15 +117,17 @@ class MeasurementNoise:
 
     Parameters
     ----------
-    std : tuple of 6 floats
-        Standard deviations (m, m, rad, m/s, m/s, rad/s), >= 0.
+    std : tuple of floats
+        Standard deviations, one per state (3-DOF: m, m, rad, m/s, m/s, rad/s), >= 0.
     """
 
     std: tuple[float, ...] = (0.0,) * 6
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "std", check.vector("std", self.std, 6, nonnegative=True))
+        """Validate the fields (``ValueError`` names the first bad one)."""
+        length = len(self.std) if isinstance(self.std, (tuple, list, np.ndarray)) else 6
+        object.__setattr__(self, "std", check.vector("std", self.std, length, nonnegative=True))
 
     def sample(self, rng: np.random.Generator) -> np.ndarray:
-        """One noise vector, shape (6,)."""
-        return rng.standard_normal(6) * np.asarray(self.std)
+        """One noise vector, one entry per state."""
+        return rng.standard_normal(len(self.std)) * np.asarray(self.std)

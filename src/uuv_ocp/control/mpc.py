@@ -19,7 +19,9 @@ from typing import Any
 import numpy as np
 
 from uuv_ocp import _validation as check
-from uuv_ocp.problem import TrackingProblem
+from uuv_ocp.build import Transcribed
+from uuv_ocp.judge import instance_parameters
+from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers import get_solver
 from uuv_ocp.solvers.result import Iterate, SolveResult
 
@@ -36,19 +38,23 @@ class StepOutput:
         The solver's result (``None`` if the solver raised).
     fallback : bool
         Whether ``control`` comes from the fallback rather than the fresh solution.
+    message : str
+        Why the fallback was used: the backend's status, or ``"exception: <type>: <message>"``
+        when the backend raised (empty when the fresh solution is applied).
     """
 
     control: np.ndarray
     result: SolveResult | None
     fallback: bool
+    message: str = ""
 
 
 class NMPC:
-    """Nonlinear MPC controller for a :class:`TrackingProblem`.
+    """Nonlinear MPC controller for any problem (an :class:`~uuv_ocp.ocp.Ocp` or a tracking preset).
 
     Parameters
     ----------
-    problem : TrackingProblem
+    problem : Ocp or TrackingProblem
     solver : str
         Any name from :func:`uuv_ocp.available_solvers`.
     options : dict, optional
@@ -61,7 +67,7 @@ class NMPC:
 
     def __init__(
         self,
-        problem: TrackingProblem,
+        problem: Transcribed,
         solver: str = "ipopt",
         *,
         options: dict[str, Any] | None = None,
@@ -74,7 +80,7 @@ class NMPC:
         if seed is not None:
             seed = check.positive_int("seed", seed, minimum=0)
         self.seed = seed
-        self.use_warm_start = bool(warm_start)
+        self.use_warm_start = check.boolean("warm_start", warm_start)
         self._rng = np.random.default_rng(seed)
         self._iterate: Iterate | None = None
         self._plan: np.ndarray | None = None
@@ -93,19 +99,25 @@ class NMPC:
     def step(
         self,
         x: object,
-        t: float,
+        t: float = 0.0,
         u_prev: object | None = None,
         current: object | None = None,
+        parameters: dict[str, Any] | None = None,
     ) -> StepOutput:
-        """Solve at state ``x`` and time ``t`` and return the control to apply."""
-        problem = self.problem
-        p = problem.parameters(x, t, u_prev, current)
+        """Solve at state ``x`` and time ``t`` and return the control to apply.
+
+        ``current`` is a tracking problem's model current; ``parameters`` an Ocp's data.
+        """
+        p = instance_parameters(
+            self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters
+        )
         warm = self._iterate if self.use_warm_start else None
         try:
             result = self.backend.solve(p, warm, rng=self._rng)
-        except Exception as error:  # a backend crash must never stop a closed loop
+        except Exception as error:  # a backend crash must never stop a closed loop ...
+            reraise_interrupt(error)  # ... but Ctrl-C (CasADi's too) always reaches the user
             result = None
-            failure_reason = f"exception: {error}"
+            failure_reason = f"exception: {type(error).__name__}: {error}"
         else:
             failure_reason = "" if result.success and np.all(np.isfinite(result.controls)) else result.status
         if not failure_reason:
@@ -115,12 +127,12 @@ class NMPC:
         control = self._fallback_control(u_prev)
         if self._iterate is not None:
             self._iterate = self._iterate.shift()
-        return StepOutput(control, result, True)
+        return StepOutput(control, result, True, failure_reason)
 
     def _fallback_control(self, u_prev: object | None) -> np.ndarray:
         if self._plan is not None and self._plan.shape[0] > 1:
             self._plan = np.vstack([self._plan[1:], self._plan[-1:]])
             return self._plan[0].copy()
-        if u_prev is None:
-            return np.zeros(3)
-        return np.clip(np.asarray(u_prev, dtype=float), -self.problem.max_thrust, self.problem.max_thrust)
+        spec = self.problem.spec()
+        held = np.zeros(spec.control_size) if u_prev is None else np.asarray(u_prev, dtype=float)
+        return np.clip(held, spec.lower, spec.upper)

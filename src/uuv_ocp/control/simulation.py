@@ -10,8 +10,11 @@ computed so far (``interrupted=True``).
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import dataclass
+from typing import Any
 
+import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
@@ -20,7 +23,9 @@ from uuv_ocp.integrators import rk4_step
 from uuv_ocp.control.metrics import tracking_metrics
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.progress import ProgressBar
+from uuv_ocp.transcription.multiple_shooting import parameter_blocks
 from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions
 
 
 @dataclass(frozen=True)
@@ -31,12 +36,12 @@ class ClosedLoopResult:
     ----------
     t : numpy.ndarray, shape (n+1,)
         Sample times (s).
-    states : numpy.ndarray, shape (n+1, 6)
+    states : numpy.ndarray, shape (n+1, nx)
         True plant states.
-    controls : numpy.ndarray, shape (n, 3)
-        Applied controls (N, N, N·m).
-    reference : numpy.ndarray, shape (n+1, 6)
-        Reference states at ``t`` (continuous heading).
+    controls : numpy.ndarray, shape (n, nu)
+        Applied controls (3-DOF: N, N, N·m).
+    reference : numpy.ndarray, shape (n+1, nx)
+        Reference states at ``t`` (continuous heading); NaN for a problem without a reference.
     solve_times : numpy.ndarray, shape (n,)
         Wall-clock time of each controller step (s).
     iterations : numpy.ndarray, shape (n,)
@@ -45,8 +50,8 @@ class ClosedLoopResult:
         Steps where the fallback control was applied.
     relaxed_steps : numpy.ndarray of bool, shape (n,)
         Steps solved with the soft terminal constraint.
-    currents : numpy.ndarray, shape (n+1, 2)
-        Inertial current velocity (m/s).
+    currents : numpy.ndarray, shape (n+1, nc)
+        Inertial current velocity (m/s); zero columns for a problem without a current.
     statuses : tuple of str
         Solver status per step.
     solver : str
@@ -67,7 +72,6 @@ class ClosedLoopResult:
     statuses: tuple[str, ...]
     solver: str
     interrupted: bool = False
-    info: dict = field(default_factory=dict, compare=False)
 
     @property
     def failures(self) -> int:
@@ -130,11 +134,12 @@ def simulate(
     current: Current | None = None,
     current_known: bool = True,
     noise: MeasurementNoise | None = None,
-    plant: Vehicle | None = None,
+    plant: Any = None,
     plant_substeps: int = 10,
     seed: int | None = None,
     progress: bool = False,
     label: str = "",
+    parameters: dict[str, Any] | None = None,
 ) -> ClosedLoopResult:
     """Run ``controller`` in closed loop for ``duration`` seconds.
 
@@ -142,20 +147,23 @@ def simulate(
     ----------
     controller : NMPC
         The controller (reset before the run).
-    x0 : array_like, shape (6,)
+    x0 : array_like, shape (nx,)
         Initial plant state.
     duration : float
-        Simulated time (s), > 0; shortened to stay inside the reference window.
+        Simulated time (s), > 0; for a tracking problem shortened to stay inside the
+        reference window (a ``RuntimeWarning`` says so).
     t0 : float, optional
         Start time on the reference (s); the reference's ``t_start`` by default.
     current : Current, optional
-        Ocean current acting on the plant.
+        Ocean current acting on the plant (tracking problems; horizontal).
     current_known : bool
         Whether the controller's model is told the current measured at each step.
     noise : MeasurementNoise, optional
-        Noise on the state the controller sees.
-    plant : Vehicle, optional
-        Plant parameters (default: the controller's own model, i.e. no mismatch).
+        Noise on the state the controller sees (one standard deviation per state).
+    plant : Vehicle, Vehicle6DOF or casadi.Function, optional
+        Tracking problems: plant vehicle of the same state (default: the controller's own model,
+        i.e. no mismatch).  An :class:`~uuv_ocp.ocp.Ocp`: a Function ``f(x, u) -> xdot``
+        (default: the Ocp's own dynamics with ``parameters``).
     plant_substeps : int
         RK4 steps of the plant per control interval, >= 1.
     seed : int, optional
@@ -164,49 +172,83 @@ def simulate(
         Show a progress bar.
     label : str
         Progress-bar label.
+    parameters : dict, optional
+        An Ocp's parameter values, held for the whole run.
     """
     if not isinstance(controller, NMPC):
         raise ValueError(f"controller must be a uuv_ocp.NMPC, got {type(controller).__name__}")
     problem = controller.problem
-    reference = problem.reference
-    x0 = problem.check_state(x0)
+    spec = problem.spec()
+    nx, nu = spec.state_dim, spec.control_size
+    tracking = isinstance(problem, TrackingProblem)
+    x0 = check.finite_array("x0", x0, (nx,))
     duration = check.positive_float("duration", duration)
-    t0 = reference.t_start if t0 is None else problem.check_time(t0)
     plant_substeps = check.positive_int("plant_substeps", plant_substeps)
-    if plant is not None and not isinstance(plant, Vehicle):
-        raise ValueError(f"plant must be a uuv_ocp.Vehicle or None, got {type(plant).__name__}")
-    plant = plant or problem.vehicle
+    check.boolean("current_known", current_known)
+    check.boolean("progress", progress)
+    if seed is not None:
+        seed = check.positive_int("seed", seed, minimum=0)
+    if current is not None and not isinstance(current, Current):
+        raise ValueError(f"current must be a uuv_ocp.Current or None, got {current!r}")
+    if noise is not None and not isinstance(noise, MeasurementNoise):
+        raise ValueError(f"noise must be a uuv_ocp.MeasurementNoise or None, got {noise!r}")
     dt = problem.dt
-    steps = int(np.floor(min(duration, problem.latest_start() - t0) / dt + 1e-9))
-    if steps < 1:
-        raise ValueError(
-            f"duration {duration} s from t0 = {t0} s leaves no full control interval inside "
-            f"the reference window [{reference.t_start}, {reference.t_end}] s"
-        )
+    if tracking:
+        reference = problem.reference
+        t0 = reference.t_start if t0 is None else problem.check_time(t0)
+        available = problem.latest_start() - t0
+        if duration > available + 1e-9:
+            warnings.warn(
+                f"duration shortened from {duration} s to {available:.6g} s: the horizon must stay inside "
+                f"the reference window [{reference.t_start}, {reference.t_end}] s",
+                RuntimeWarning,
+                stacklevel=2,
+            )
+        steps = int(np.floor(min(duration, available) / dt + 1e-9))
+        if steps < 1:
+            raise ValueError(
+                f"duration {duration} s from t0 = {t0} s leaves no full control interval inside "
+                f"the reference window [{reference.t_start}, {reference.t_end}] s"
+            )
+        plant_step, nc = _vehicle_plant(problem, plant, dt, plant_substeps)
+    else:
+        if current is not None:
+            raise ValueError("current is for tracking problems; an Ocp's plant is a Function f(x, u)")
+        t0 = 0.0 if t0 is None else check.finite_float("t0", t0)
+        steps = max(1, int(np.floor(duration / dt + 1e-9)))
+        plant_step, nc = _ocp_plant(problem, plant, parameters, dt, plant_substeps), 0
+    if noise is not None and len(noise.std) != nx:
+        raise ValueError(f"noise.std must have {nx} entries (one per state), got {len(noise.std)}")
     rng = np.random.default_rng(seed)
-    plant_step = rk4_step(plant.dynamics_function(), dt, plant_substeps, name="plant_step")
-    currents = (current or Current()).sample(steps, dt, rng)
+    currents = np.zeros((steps + 1, nc))
+    if tracking and nc:
+        sampled = (current or Current()).sample(steps, dt, rng)
+        currents[:, : sampled.shape[1]] = sampled
     times = t0 + dt * np.arange(steps + 1)
 
-    states = np.empty((steps + 1, 6))
+    states = np.empty((steps + 1, nx))
     states[0] = x0
-    controls = np.zeros((steps, 3))
+    controls = np.zeros((steps, nu))
     solve_times = np.zeros(steps)
     iterations = np.zeros(steps, dtype=int)
     fallback = np.zeros(steps, dtype=bool)
     relaxed = np.zeros(steps, dtype=bool)
     statuses: list[str] = []
     controller.reset()
-    u_prev = np.zeros(3)
+    u_prev = np.clip(np.zeros(nu), spec.lower, spec.upper)
     completed = 0
     interrupted = False
-    with ProgressBar(steps, label or f"{problem.reference.name}/{controller.solver_name}", progress) as bar:
+    name = problem.reference.name if tracking else spec.name
+    with ProgressBar(steps, label or f"{name}/{controller.solver_name}", progress) as bar:
         try:
             for k in range(steps):
                 measured = states[k] + (noise.sample(rng) if noise is not None else 0.0)
-                model_current = currents[k] if current_known else np.zeros(2)
                 start = time.perf_counter()
-                output = controller.step(measured, times[k], u_prev, model_current)
+                if tracking:
+                    model_current = currents[k] if current_known else np.zeros(nc)
+                    output = controller.step(measured, times[k], u_prev, model_current)
+                else:
+                    output = controller.step(measured, 0.0, u_prev, parameters=parameters)
                 solve_times[k] = time.perf_counter() - start
                 result = output.result
                 controls[k] = output.control
@@ -216,8 +258,11 @@ def simulate(
                     relaxed[k] = result.terminal_relaxed
                     statuses.append(result.status)
                 else:
-                    statuses.append("exception")
-                next_state = plant_step(states[k], controls[k], currents[k])
+                    statuses.append(output.message or "exception")
+                if tracking:
+                    next_state = plant_step(states[k], controls[k], currents[k])
+                else:
+                    next_state = plant_step(states[k], controls[k])
                 states[k + 1] = np.array(next_state, dtype=float).ravel()
                 u_prev = controls[k]
                 completed = k + 1
@@ -229,7 +274,7 @@ def simulate(
         t=times[: n + 1],
         states=states[: n + 1],
         controls=controls[:n],
-        reference=reference.evaluate(times[: n + 1]),
+        reference=problem.reference.evaluate(times[: n + 1]) if tracking else np.full((n + 1, nx), np.nan),
         solve_times=solve_times[:n],
         iterations=iterations[:n],
         fallback_steps=fallback[:n],
@@ -239,3 +284,32 @@ def simulate(
         solver=controller.solver_name,
         interrupted=interrupted,
     )
+
+
+def _vehicle_plant(problem: TrackingProblem, plant: Any, dt: float, substeps: int) -> tuple[ca.Function, int]:
+    """RK4 plant step ``(x, u, current) -> x_next`` of a vehicle with the problem's state."""
+    vehicle = problem.vehicle if plant is None else plant
+    if not (isinstance(vehicle, Vehicle) or hasattr(vehicle, "rhs")):
+        raise ValueError(f"plant must be a uuv_ocp.Vehicle, Vehicle6DOF or None, got {type(plant).__name__}")
+    if vehicle_dimensions(vehicle) != vehicle_dimensions(problem.vehicle):
+        raise ValueError(
+            f"plant must have the controller model's dimensions {vehicle_dimensions(problem.vehicle)} "
+            f"(states, controls, current), got {vehicle_dimensions(vehicle)}"
+        )
+    dynamics = vehicle.dynamics_function() if isinstance(vehicle, Vehicle) else (
+        vehicle.thruster_dynamics if getattr(vehicle, "thrusters", None) is not None else vehicle.dynamics
+    )
+    return rk4_step(dynamics, dt, substeps, name="plant_step"), vehicle_dimensions(vehicle)[2]
+
+
+def _ocp_plant(problem: Any, plant: Any, parameters: Any, dt: float, substeps: int) -> ca.Function:
+    """RK4 plant step ``(x, u) -> x_next``: ``plant`` or the Ocp's dynamics at ``parameters``."""
+    spec = problem.spec()
+    if plant is None:
+        p = problem.parameters(np.zeros(spec.state_dim), parameters, None)
+        x, u = ca.SX.sym("x", spec.state_dim), ca.SX.sym("u", spec.control_size)
+        _, _, pg, nodes = parameter_blocks(spec, ca.SX(ca.DM(p)))
+        plant = ca.Function("plant", [x, u], [spec.dynamics(x, u, nodes[0], pg)], ["x", "u"], ["xdot"])
+    if not isinstance(plant, ca.Function) or plant.n_in() != 2:
+        raise ValueError(f"plant must be a casadi.Function f(x, u) -> xdot for an Ocp, got {plant!r}")
+    return rk4_step(plant, dt, substeps, name="plant_step")

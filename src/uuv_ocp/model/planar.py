@@ -1,4 +1,4 @@
-"""3-DOF horizontal-plane vehicle model (surge, sway, yaw) of the paper's Eqs. (1)-(7).
+r"""3-DOF horizontal-plane vehicle model (surge, sway, yaw) of the paper's Eqs. (1)-(7).
 
 State ``x = [x, y, psi, u, v, r]`` (m, m, rad, m/s, m/s, rad/s), control
 ``tau = [F_u, F_v, F_r]`` (N, N, N·m).  With ``M_x = m + X_u̇``, ``M_y = m + Y_v̇`` and
@@ -72,6 +72,7 @@ class Vehicle:
     name: str = "vehicle"
 
     def __post_init__(self) -> None:
+        """Validate the fields (``ValueError`` names the first bad one)."""
         set_field = object.__setattr__
         set_field(self, "mass", check.positive_float("mass", self.mass))
         set_field(self, "inertia", check.positive_float("inertia", self.inertia))
@@ -98,7 +99,7 @@ class Vehicle:
     # ------------------------------------------------------------------ presets
     @classmethod
     def rexrov(cls) -> Vehicle:
-        """The RexROV of uuv_simulator, reduced to surge, sway and yaw.
+        """Return the RexROV of uuv_simulator, reduced to surge, sway and yaw.
 
         Values: mass 1862.87 kg and ``izz`` 691.23 kg·m² from
         ``uuv_descriptions/urdf/rexrov_base.xacro``; added mass (779.79, 1222, 224.32),
@@ -176,8 +177,10 @@ class Vehicle:
         """
         psi, u, v, r = state[2], state[3], state[4], state[5]
         cos_psi, sin_psi = ca.cos(psi), ca.sin(psi)
+        u_current: ca.SX | float
+        v_current: ca.SX | float
         if current is None:
-            u_current = v_current = 0
+            u_current = v_current = 0.0
         else:
             u_current = cos_psi * current[0] + sin_psi * current[1]
             v_current = -sin_psi * current[0] + cos_psi * current[1]

@@ -58,6 +58,7 @@ class ThrusterConfiguration:
     name: str = "thrusters"
 
     def __post_init__(self) -> None:
+        """Validate shapes, finiteness, unit directions and bounds; store rows as tuples."""
         set_field = object.__setattr__
         positions = _rows("positions", self.positions)
         count = positions.shape[0]
@@ -86,7 +87,7 @@ class ThrusterConfiguration:
     # ------------------------------------------------------------------ presets
     @classmethod
     def bluerov2_heavy(cls) -> ThrusterConfiguration:
-        """The eight T200 thrusters of the BlueROV2 in its Heavy configuration.
+        """Build the eight T200 thrusters of the BlueROV2 in its Heavy configuration.
 
         Four horizontal thrusters vectored at 45° in a plane 85 mm below the origin at
         ``(±0.156, ±0.111, 0.085)`` m and four vertical thrusters at ``(±0.120, ±0.218, 0)`` m,
@@ -130,13 +131,13 @@ class ThrusterConfiguration:
                 (0.0, 0.0, 1.0),
                 (0.0, 0.0, -1.0),
             ),
-            max_thrust=40.0,
+            max_thrust=(40.0,) * 8,
             name="bluerov2-heavy-t200",
         )
 
     @classmethod
     def rexrov2(cls) -> ThrusterConfiguration:
-        """The six thrusters of uuv_simulator's RexROV2, converted to Fossen's body frame.
+        """Build the six thrusters of uuv_simulator's RexROV2 in Fossen's body frame.
 
         Positions and orientations from ``rexrov2_description/xacro/rexrov2_actuators.xacro``
         (GitHub ``uuvsimulator/rexrov2``).  There each thruster pushes along the x axis of its
@@ -166,7 +167,7 @@ class ThrusterConfiguration:
         return cls(
             positions=tuple(positions),
             directions=tuple(directions),
-            max_thrust=1540.0,
+            max_thrust=(1540.0,) * 6,
             name="rexrov2-thrusters",
         )
 
@@ -218,6 +219,8 @@ class ThrusterConfiguration:
                 method="highs",
             )
             if result.status != 0:
-                raise RuntimeError(f"linprog failed on axis {GENERALISED_FORCE_NAMES[axis]}: {result.message}")
+                raise RuntimeError(
+                    f"linprog failed on axis {GENERALISED_FORCE_NAMES[axis]}: {result.message}"
+                )
             limits.append(max(float(result.x[-1]), 0.0))
         return tuple(limits)

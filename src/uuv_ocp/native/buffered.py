@@ -10,6 +10,8 @@ and a copy gets buffers of its own).
 
 from __future__ import annotations
 
+from typing import Any, cast
+
 import casadi as ca
 import numpy as np
 
@@ -35,18 +37,21 @@ class BufferedFunction:
         self.function = function
         self._inputs = [np.zeros(function.nnz_in(i)) for i in range(function.n_in())]
         self._outputs = [np.zeros(function.nnz_out(i)) for i in range(function.n_out())]
-        self._buffer, self._trigger = function.buffer()
+        buffer, self._trigger = function.buffer()
+        # Any: casadi's stub gives set_arg/set_res a third `size` argument that SWIG takes from
+        # the memoryview itself (passing it fails at run time).
+        self._buffer = cast(Any, buffer)
         for index, array in enumerate(self._inputs):
-            self._buffer.set_arg(index, memoryview(array))
+            self._buffer.set_arg(index, array.data)  # ndarray.data: a memoryview of the array
         for index, array in enumerate(self._outputs):
-            self._buffer.set_res(index, memoryview(array))
+            self._buffer.set_res(index, array.data)
 
     def stats(self) -> dict:
         """``Function.stats()`` of the last buffered call (its own memory, not ``stats(0)``)."""
         return self._buffer.stats()
 
-    def __reduce__(self):
-        # buffers are process-local: a copy (deepcopy, pickle) gets buffers of its own
+    def __reduce__(self) -> tuple[type[BufferedFunction], tuple[ca.Function]]:
+        """Pickle the Function only: a copy (deepcopy, pickle) gets buffers of its own."""
         return (BufferedFunction, (self.function,))
 
     def __call__(self, *inputs: np.ndarray) -> list[np.ndarray]:

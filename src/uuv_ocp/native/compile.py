@@ -74,8 +74,10 @@ class CompilerNotFoundError(CodegenError):
 
 
 class CompilationError(CodegenError):
-    """The compiler failed (or its library could not be loaded); the message holds the command
-    and the compiler's standard error."""
+    """The compiler failed, or its library could not be loaded.
+
+    The message holds the command and the compiler's standard error.
+    """
 
 
 class VerificationError(CodegenError):
@@ -187,7 +189,7 @@ def _digest(source_text: str, compiler: str, command_flags: Sequence[str]) -> st
 
 
 def _machine_key(flags: Sequence[str]) -> tuple[str, ...]:
-    """The processor's identity when ``flags`` tune for it (``-march=native``), else nothing.
+    """Name the processor when ``flags`` tune for it (``-march=native``), else return ``()``.
 
     A library built for this processor's instruction set may not run on another one: the
     processor joins the cache key, so a shared cache directory never hands it to a different CPU.
@@ -444,9 +446,10 @@ def compile_functions(
         if cc is None:
             compiler = find_c_compiler()
         else:
-            compiler = _resolve_executable(cc, os.environ.get("PATH", os.defpath))
-            if compiler is None:
+            resolved = _resolve_executable(cc, os.environ.get("PATH", os.defpath))
+            if resolved is None:
                 raise CompilerNotFoundError(f"C compiler not found: cc={cc!r} is not executable")
+            compiler = resolved
         link = _link_flags(source_text)
         digest = _digest(source_text, compiler, (*flags, *link, *_machine_key(flags)))
         library = directory / f"{name}_{digest[:16]}.so"
@@ -594,6 +597,9 @@ def batched(
 
 
 def _copy(f: ca.Function, name: str) -> ca.Function:
-    """A new Function object computing ``f`` (SX: inlined expressions; MX: a call node)."""
-    inputs = f.sx_in() if f.is_a("SXFunction") else f.mx_in()
-    return ca.Function(name, inputs, f.call(inputs), f.name_in(), f.name_out())
+    """Return a new Function object computing ``f`` (SX: inlined expressions; MX: a call node)."""
+    if f.is_a("SXFunction"):
+        sx_inputs = f.sx_in()
+        return ca.Function(name, sx_inputs, f.call(sx_inputs), f.name_in(), f.name_out())
+    mx_inputs = f.mx_in()
+    return ca.Function(name, mx_inputs, f.call(mx_inputs), f.name_in(), f.name_out())

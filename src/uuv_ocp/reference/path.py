@@ -1,9 +1,18 @@
-"""Planar reference trajectories defined symbolically, with AD-derived pose and velocity.
+"""Reference trajectories defined symbolically, with AD-derived pose and velocity.
 
-A path ``(x_R(t), y_R(t))`` given as CasADi expressions of time defines the whole reference
-state through the paper's Eq. (9):
+A planar path ``(x_R(t), y_R(t))`` given as CasADi expressions of time defines the whole
+reference state through the paper's Eq. (9):
 
     ψ_R = atan2(ẏ, ẋ),  u_R = √(ẋ² + ẏ²),  v_R = 0,  r_R = (ẋÿ − ẏẍ) / (ẋ² + ẏ²)
+
+A heading ``ψ_R(t)`` may also be given independently of the tangent (a vehicle that crabs,
+or holds station); then ``r_R = dψ_R/dt`` and the path velocity is rotated into the body frame,
+
+    u_R = ẋ cos ψ_R + ẏ sin ψ_R,  v_R = −ẋ sin ψ_R + ẏ cos ψ_R,
+
+and the path speed may vanish.  A spatial path ``(x_R, y_R, z_R)`` (NED, z down) gives the
+12-state reference ``[x, y, z, φ, θ, ψ, u, v, w, p, q, r]`` of a 6-DOF vehicle with roll and
+pitch regulated to zero, the heading of the horizontal motion as above and ``w_R = ż``.
 
 All derivatives come from CasADi's algorithmic differentiation, never by hand or by finite
 differences.  The heading returned by :meth:`Reference.evaluate` is continuous in time: it is
@@ -14,22 +23,29 @@ spirals never jump by 2π.
 from __future__ import annotations
 
 import math
+import numbers
 import re
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any, NoReturn
 
 import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.reference.waypoints import PiecewiseExpression, WaypointPath, lawnmower_points
 
-PathFunction = Callable[[ca.SX], object]
+PathFunction = Callable[[ca.SX], Any]
 
 #: Speed (m/s) below which the heading of a path is undefined.
 MIN_PATH_SPEED = 1e-6
 #: Largest gap (s) between the samples used to unwrap the heading.
 UNWRAP_STEP = 0.1
+#: Length of the planar state ``[x, y, ψ, u, v, r]`` and of the spatial state
+#: ``[x, y, z, φ, θ, ψ, u, v, w, p, q, r]``.
+PLANAR_STATE_DIM = 6
+SPATIAL_STATE_DIM = 12
 
 
 def _paper_catalogue() -> dict[str, tuple[PathFunction, float, float, str]]:
@@ -59,18 +75,27 @@ PAPER_REFERENCES: tuple[str, ...] = tuple(_paper_catalogue())
 
 @dataclass(frozen=True)
 class Reference:
-    """A planar reference path ``(x_R(t), y_R(t))`` and everything derived from it.
+    """A reference path ``(x_R(t), y_R(t)[, z_R(t)])`` and everything derived from it.
 
     Parameters
     ----------
     path_x, path_y : callable
-        Functions of a CasADi ``SX`` time symbol ``t`` (s) returning the position (m).
+        Functions of a CasADi ``SX`` time symbol ``t`` (s) returning the position (m): a scalar
+        expression, or a :class:`~uuv_ocp.reference.waypoints.PiecewiseExpression` (piecewise
+        paths such as :meth:`waypoints`).
     name : str
         Label used in tables and plots.
     t_start, t_end : float
         Time window (s) on which the path is valid; evaluation outside raises ``ValueError``.
     description : str
         Human-readable formula.
+    path_z : callable or None
+        Depth ``z_R(t)`` (m, NED: positive down) of a spatial reference (12 states), or
+        ``None`` for a planar one (6 states).
+    heading : callable or None
+        Heading ``ψ_R(t)`` (rad, any continuous angle) independent of the path tangent, or
+        ``None`` for the tangent heading ``atan2(ẏ, ẋ)`` (then the horizontal path speed must
+        not vanish).
     """
 
     path_x: PathFunction
@@ -79,14 +104,31 @@ class Reference:
     t_start: float = 0.0
     t_end: float = math.inf
     description: str = ""
+    path_z: PathFunction | None = None
+    heading: PathFunction | None = None
     _function: ca.Function = field(init=False, repr=False, compare=False)
     _maps: dict = field(init=False, repr=False, compare=False, default_factory=dict)
 
     def __post_init__(self) -> None:
-        if not callable(self.path_x):
-            raise ValueError(f"path_x must be a callable of a casadi SX time symbol, got {self.path_x!r}")
-        if not callable(self.path_y):
-            raise ValueError(f"path_y must be a callable of a casadi SX time symbol, got {self.path_y!r}")
+        """Validate the fields (``ValueError`` names the first bad one) and build the Function."""
+        for label in ("path_x", "path_y"):
+            value = getattr(self, label)
+            if not callable(value):
+                raise ValueError(f"{label} must be a callable of a casadi SX time symbol, got {value!r}")
+        if self.path_z is not None and not callable(self.path_z):
+            raise ValueError(
+                f"path_z must be a callable of a casadi SX time symbol (depth in m) or None, "
+                f"got {self.path_z!r}"
+            )
+        if self.heading is not None and not callable(self.heading):
+            raise ValueError(
+                f"heading must be a callable of a casadi SX time symbol (heading in rad) or None, "
+                f"got {self.heading!r}"
+            )
+        if not isinstance(self.name, str):
+            raise ValueError(f"name must be a string, got {self.name!r}")
+        if not isinstance(self.description, str):
+            raise ValueError(f"description must be a string, got {self.description!r}")
         t_start = check.finite_float("t_start", self.t_start)
         if isinstance(self.t_end, bool) or not isinstance(self.t_end, (int, float)):
             raise ValueError(f"t_end must be a number (s), got {self.t_end!r}")
@@ -97,6 +139,34 @@ class Reference:
         object.__setattr__(self, "t_end", t_end)
         object.__setattr__(self, "_function", self._build_function())
 
+    # ---------------------------------------------------------------- layout
+    @property
+    def spatial(self) -> bool:
+        """Whether the reference is spatial (12 states, 6-DOF) rather than planar (6 states)."""
+        return self.path_z is not None
+
+    @property
+    def state_dim(self) -> int:
+        """Length of the reference state: 6 (planar) or 12 (spatial)."""
+        return SPATIAL_STATE_DIM if self.spatial else PLANAR_STATE_DIM
+
+    @property
+    def heading_index(self) -> int:
+        """Column of the heading ψ_R in the state: 2 (planar) or 5 (spatial)."""
+        return 5 if self.spatial else 2
+
+    @property
+    def _position_dim(self) -> int:
+        return 3 if self.spatial else 2
+
+    @property
+    def _surge_index(self) -> int:
+        return self.state_dim // 2
+
+    @property
+    def _rate_index(self) -> int:
+        return self.state_dim - 1
+
     # ---------------------------------------------------------------- builders
     @classmethod
     def from_xy(
@@ -105,12 +175,50 @@ class Reference:
         path_y: PathFunction,
         name: str = "reference",
         *,
+        heading: PathFunction | None = None,
         t_start: float = 0.0,
         t_end: float = math.inf,
         description: str = "",
     ) -> Reference:
-        """Reference from two callables on a CasADi time symbol, e.g. ``lambda t: 2*ca.sin(t)``."""
-        return cls(path_x, path_y, name, t_start, t_end, description)
+        """Planar reference from callables on a CasADi time symbol, e.g. ``lambda t: 2*ca.sin(t)``.
+
+        Parameters
+        ----------
+        path_x, path_y : callable
+            Position (m) as functions of the time symbol ``t`` (s).
+        name : str
+            Label.
+        heading : callable or None
+            ``ψ_R(t)`` (rad); default: the path tangent (whose speed must not vanish).
+        t_start, t_end : float
+            Validity window (s).
+        description : str
+            Human-readable formula.
+        """
+        return cls(path_x, path_y, name, t_start, t_end, description, heading=heading)
+
+    @classmethod
+    def from_xyz(
+        cls,
+        path_x: PathFunction,
+        path_y: PathFunction,
+        path_z: PathFunction,
+        name: str = "reference",
+        *,
+        heading: PathFunction | None = None,
+        t_start: float = 0.0,
+        t_end: float = math.inf,
+        description: str = "",
+    ) -> Reference:
+        """Spatial reference for a 6-DOF vehicle (NED, z down) from three callables.
+
+        The state is ``[x, y, z, φ, θ, ψ, u, v, w, p, q, r]`` (m, rad, m/s, rad/s) with roll
+        and pitch regulated (``φ_R = θ_R = p_R = q_R = 0``), ``ψ_R`` the horizontal tangent
+        heading ``atan2(ẏ, ẋ)`` or ``heading(t)``, ``u_R, v_R`` the horizontal path velocity in
+        the body frame, ``w_R = ż`` and ``r_R = dψ_R/dt``.  Without ``heading`` the horizontal
+        path speed must not vanish.
+        """
+        return cls(path_x, path_y, name, t_start, t_end, description, path_z=path_z, heading=heading)
 
     @classmethod
     def paper(cls, name: str) -> Reference:
@@ -126,37 +234,238 @@ class Reference:
         path_y, t_start, t_end, formula = catalogue[name]
         return cls(lambda t: 0.5 * t, path_y, name, t_start, t_end, f"x = 0.5t, {formula}")
 
-    def _build_function(self) -> ca.Function:
-        time = ca.SX.sym("t")
+    @classmethod
+    def waypoints(
+        cls,
+        points: object,
+        speed: float,
+        turn_radius: float,
+        name: str = "waypoints",
+        t_start: float = 0.0,
+    ) -> Reference:
+        """Straight legs between waypoints joined by tangent circular arcs, at constant speed.
+
+        Parameters
+        ----------
+        points : array_like, shape (n, 2) or (n, 3)
+            Waypoints (m), n >= 2.  With three columns the reference is spatial and ``z`` is
+            interpolated along the horizontal arc length (see
+            :class:`~uuv_ocp.reference.waypoints.WaypointPath`).
+        speed : float
+            Constant path speed (m/s), > 0 (the horizontal speed for spatial waypoints).
+        turn_radius : float
+            Radius (m) of the arc that replaces every corner; it must fit into the legs.
+        name : str
+            Label.
+        t_start : float
+            Time (s) at the first waypoint; ``t_end = t_start + length / speed``.
+
+        Returns
+        -------
+        Reference
+            Position C¹ in time (continuous velocity), tangent heading, ``u_R = speed``,
+            ``r_R = ±speed / turn_radius`` on arcs and 0 on legs.
+        """
+        geometry = WaypointPath(points, turn_radius)
+        speed = check.positive_float("speed", speed)
+        t_start = check.finite_float("t_start", t_start)
+
+        def arc_length(t: ca.SX) -> ca.SX:
+            return speed * (t - t_start)
+
+        description = (
+            f"{geometry.count} {'spatial ' if geometry.spatial else ''}waypoints at {speed:g} m/s, "
+            f"turn radius {geometry.turn_radius:g} m, length {geometry.length:g} m"
+        )
+        t_end = t_start + geometry.length / speed
+        path_x = lambda t: geometry.horizontal(arc_length(t))[0]  # noqa: E731
+        path_y = lambda t: geometry.horizontal(arc_length(t))[1]  # noqa: E731
+        if not geometry.spatial:
+            return cls(path_x, path_y, name, t_start, t_end, description)
+        path_z = lambda t: geometry.depth(arc_length(t))  # noqa: E731
+        return cls(path_x, path_y, name, t_start, t_end, description, path_z=path_z)
+
+    @classmethod
+    def lawnmower(
+        cls,
+        origin: object = (0.0, 0.0),
+        *,
+        width: float,
+        spacing: float,
+        lanes: int,
+        speed: float,
+        turn_radius: float | None = None,
+        heading: float = 0.0,
+        depth: float | None = None,
+        name: str = "lawnmower",
+        t_start: float = 0.0,
+    ) -> Reference:
+        """Boustrophedon survey of ``lanes`` parallel lanes of length ``width``.
+
+        A preset of :meth:`waypoints`: lane ends in travel order, joined by turns.
+
+        Parameters
+        ----------
+        origin : (float, float)
+            Start of the first lane (m).
+        width : float
+            Lane length (m), > 0.
+        spacing : float
+            Distance between neighbouring lanes (m), > 0.
+        lanes : int
+            Number of lanes, >= 1.
+        speed : float
+            Path speed (m/s), > 0.
+        turn_radius : float or None
+            Radius of the turns (m); default ``spacing / 2`` (each lane change a semicircle).
+        heading : float
+            Direction of the first lane (rad, from the x axis towards the y axis).  The lanes
+            are stacked in the direction ``heading + π/2`` (to starboard in NED).
+        depth : float or None
+            Constant depth (m, z down) of a spatial survey, or ``None`` for a planar one.
+        name : str
+            Label.
+        t_start : float
+            Time (s) at the start of the first lane.
+        """
+        points = lawnmower_points(origin, width, spacing, lanes, heading, depth)
+        spacing = float(spacing)
+        radius = spacing / 2.0 if turn_radius is None else turn_radius
+        return cls.waypoints(points, speed, radius, name, t_start)
+
+    @classmethod
+    def hold(cls, pose: object, name: str = "hold", duration: float = math.inf) -> Reference:
+        """Station keeping: constant position and heading, zero velocities, on ``[0, duration]``.
+
+        Parameters
+        ----------
+        pose : array_like, shape (3,) or (4,)
+            ``(x, y, ψ)`` for a planar reference or ``(x, y, z, ψ)`` for a spatial one
+            (m, rad; any ψ: it is not tied to a path tangent).
+        name : str
+            Label.
+        duration : float
+            Length of the window (s), > 0, may be ``math.inf``.
+        """
         try:
-            position_x = ca.SX(self.path_x(time)) + 0 * time
-            position_y = ca.SX(self.path_y(time)) + 0 * time
+            values = np.asarray(pose, dtype=float)
+        except (TypeError, ValueError) as error:
+            raise ValueError(
+                f"pose must be (x, y, psi) or (x, y, z, psi) in m and rad, got {pose!r}"
+            ) from error
+        if values.shape not in ((3,), (4,)):
+            raise ValueError(
+                f"pose must be (x, y, psi) or (x, y, z, psi) in m and rad, got shape {values.shape}: {pose!r}"
+            )
+        if not np.all(np.isfinite(values)):
+            raise ValueError(f"pose must be finite, got {pose!r}")
+        if (
+            isinstance(duration, bool)
+            or not isinstance(duration, numbers.Real)
+            or math.isnan(duration)
+            or not duration > 0
+        ):
+            raise ValueError(f"duration must be a number > 0 (s, may be math.inf), got {duration!r}")
+        *position, psi = (float(v) for v in values)
+
+        def constant(value: float) -> PathFunction:
+            return lambda t: value + 0 * t
+
+        description = "hold " + ", ".join(
+            f"{label} = {value:g}" for label, value in zip("xyz", position, strict=False)
+        )
+        description += f" m, psi = {psi:g} rad"
+        paths = [constant(value) for value in position]
+        return cls(
+            paths[0],
+            paths[1],
+            name,
+            0.0,
+            float(duration),
+            description,
+            path_z=paths[2] if len(paths) == 3 else None,
+            heading=constant(psi),
+        )
+
+    @staticmethod
+    def _expression(label: str, function: PathFunction, time: ca.SX, placeholders: list) -> ca.SX:
+        """``function(time)`` as a scalar SX expression, or a ``ValueError`` naming ``label``.
+
+        The placeholders of a :class:`PiecewiseExpression` are appended to ``placeholders`` as
+        ``(constants, values)``, to be substituted after differentiation.
+        """
+        try:
+            result = function(time)
+            if isinstance(result, PiecewiseExpression):
+                placeholders.append((result.constants, result.values))
+                result = result.expression
+            expression = ca.SX(result) + 0 * time
         except Exception as error:  # user callables may fail in many ways
             raise ValueError(
-                f"path_x and path_y must accept a casadi SX symbol and return a scalar "
-                f"expression; calling them failed with: {error}"
+                f"{label} must accept a casadi SX symbol and return a scalar expression; "
+                f"calling it failed with: {error}"
             ) from error
-        for label, expression in (("path_x", position_x), ("path_y", position_y)):
-            if expression.shape != (1, 1):
-                raise ValueError(f"{label} must return a scalar expression, got shape {expression.shape}")
+        if expression.shape != (1, 1):
+            raise ValueError(f"{label} must return a scalar expression, got shape {expression.shape}")
+        return expression
+
+    def _build_function(self) -> ca.Function:
+        time = ca.SX.sym("t")
+        placeholders: list[tuple[ca.SX, ca.SX]] = []
+        position_x = self._expression("path_x", self.path_x, time, placeholders)
+        position_y = self._expression("path_y", self.path_y, time, placeholders)
         velocity_x = ca.jacobian(position_x, time)
         velocity_y = ca.jacobian(position_y, time)
-        acceleration_x = ca.jacobian(velocity_x, time)
-        acceleration_y = ca.jacobian(velocity_y, time)
-        speed_squared = velocity_x**2 + velocity_y**2
-        heading = ca.atan2(velocity_y, velocity_x)
-        yaw_rate = (velocity_x * acceleration_y - velocity_y * acceleration_x) / speed_squared
-        outputs = ca.vertcat(position_x, position_y, heading, ca.sqrt(speed_squared), 0 * time, yaw_rate)
+        if self.heading is None:
+            acceleration_x = ca.jacobian(velocity_x, time)
+            acceleration_y = ca.jacobian(velocity_y, time)
+            speed_squared = velocity_x**2 + velocity_y**2
+            heading = ca.atan2(velocity_y, velocity_x)
+            surge, sway = ca.sqrt(speed_squared), 0 * time
+            yaw_rate = (velocity_x * acceleration_y - velocity_y * acceleration_x) / speed_squared
+        else:
+            angle = self._expression("heading", self.heading, time, placeholders)
+            # wrapped into (−π, π]; exact for angles already in that range
+            heading = angle - 2.0 * math.pi * ca.ceil((angle - math.pi) / (2.0 * math.pi))
+            cos_psi, sin_psi = ca.cos(angle), ca.sin(angle)
+            surge = velocity_x * cos_psi + velocity_y * sin_psi
+            sway = -velocity_x * sin_psi + velocity_y * cos_psi
+            yaw_rate = ca.jacobian(angle, time)
+        if self.path_z is not None:
+            position_z = self._expression("path_z", self.path_z, time, placeholders)
+            zero = 0 * time
+            outputs = ca.vertcat(
+                position_x, position_y, position_z, zero, zero, heading,
+                surge, sway, ca.jacobian(position_z, time), zero, zero, yaw_rate,
+            )  # fmt: skip
+        else:
+            outputs = ca.vertcat(position_x, position_y, heading, surge, sway, yaw_rate)
+        if placeholders:  # piecewise constants were held fixed for the derivatives: now their values
+            constants, values = (ca.vertcat(*parts) for parts in zip(*placeholders, strict=True))
+            outputs = ca.substitute(outputs, constants, values)
+        free = [symbol for symbol in ca.symvar(outputs) if not ca.is_equal(symbol, time)]
+        if free:
+            raise ValueError(
+                f"path_x, path_y, path_z and heading must depend on the time symbol only, got the free "
+                f"symbols {[symbol.name() for symbol in free]}"
+            )
         # CasADi accepts letters, digits and single underscores in a Function name; the
         # reference's own name is a free label ("fast circle", "s-curve")
         label = "_".join(re.findall(r"[0-9A-Za-z]+", self.name))
         name = f"reference_{label}" if label else "reference"
-        return ca.Function(name, [time], [outputs], ["t"], ["state"])
+        if self.heading is None and not self.spatial:  # the paper's references: as they always were
+            return ca.Function(name, [time], [outputs], ["t"], ["state"])
+        # piecewise paths (waypoints) look their pieces up once for x and once for y: share that
+        return ca.Function(name, [time], [outputs], ["t"], ["state"], {"cse": True})
 
     # -------------------------------------------------------------- evaluation
     @property
     def function(self) -> ca.Function:
-        """``t -> [x_R, y_R, ψ_R (wrapped), u_R, v_R, r_R]`` as a CasADi Function."""
+        """``t -> state`` as a CasADi Function, with the heading wrapped into (−π, π].
+
+        The state is ``[x_R, y_R, ψ_R, u_R, v_R, r_R]`` (planar) or
+        ``[x_R, y_R, z_R, φ_R, θ_R, ψ_R, u_R, v_R, w_R, p_R, q_R, r_R]`` (spatial).
+        """
         return self._function
 
     def _raw(self, times: np.ndarray) -> np.ndarray:
@@ -167,7 +476,7 @@ class Reference:
         return states.reshape(size, -1)
 
     def evaluate(self, times: object) -> np.ndarray:
-        """Reference state at the given times, with a continuous heading.
+        """Evaluate the reference state at the given times, with a continuous heading.
 
         Parameters
         ----------
@@ -176,9 +485,11 @@ class Reference:
 
         Returns
         -------
-        numpy.ndarray, shape (n, 6)
-            ``[x_R, y_R, ψ_R, u_R, v_R, r_R]`` (m, m, rad, m/s, m/s, rad/s).  ``ψ_R`` at the
-            first time lies in (−π, π]; later values are unwrapped.
+        numpy.ndarray, shape (n, state_dim)
+            Planar: ``[x_R, y_R, ψ_R, u_R, v_R, r_R]`` (m, m, rad, m/s, m/s, rad/s).
+            Spatial: ``[x_R, y_R, z_R, φ_R, θ_R, ψ_R, u_R, v_R, w_R, p_R, q_R, r_R]``
+            (m, rad, m/s, rad/s).  ``ψ_R`` (column :attr:`heading_index`) at the first time
+            lies in (−π, π]; later values are unwrapped.
         """
         times = np.atleast_1d(np.asarray(times, dtype=float))
         if times.ndim != 1 or times.size == 0:
@@ -196,13 +507,7 @@ class Reference:
         dense = _refined_grid(times)
         states = self._states_on_grid(dense)
         if states is None:
-            raw = self._raw(dense)
-            bad_rows = ~np.all(np.isfinite(raw), axis=1) | (raw[:, 3] < MIN_PATH_SPEED)
-            raise ValueError(
-                f"reference {self.name!r} has a vanishing or non-finite speed at t = "
-                f"{dense[bad_rows][0]} s (speed {raw[bad_rows][0, 3]!r} m/s): its heading is "
-                "undefined there"
-            )
+            self._raise_defect(dense)
         if dense.size == times.size:
             return states
         return states[np.searchsorted(dense, times)]
@@ -212,27 +517,71 @@ class Reference:
 
         ``times`` must be strictly increasing, inside the window, with gaps <= 0.1 s (the
         closed loop's reference windows).  Falls back to :meth:`evaluate` (and its error
-        messages) if the speed vanishes or is not finite.
+        messages) if the state is not finite or the tangent heading is undefined.
         """
         states = self._states_on_grid(times)
         return self.evaluate(times) if states is None else states
 
+    def _defective(self, states: np.ndarray) -> np.ndarray:
+        """Rows whose state is not finite or whose tangent heading is undefined."""
+        bad = ~np.all(np.isfinite(states), axis=1)
+        if self.heading is None:
+            bad |= states[:, self._surge_index] < MIN_PATH_SPEED
+        return bad
+
     def _states_on_grid(self, grid: np.ndarray) -> np.ndarray | None:
-        """States with unwrapped heading on a fine increasing grid; ``None`` if the path speed
-        vanishes or is not finite somewhere on it."""
+        """Return the states with unwrapped heading on a fine increasing grid.
+
+        ``None`` if the state is not finite (or the tangent heading undefined) somewhere on the
+        grid or its midpoints.
+        """
         midpoints = 0.5 * (grid[:-1] + grid[1:])
         both = self._raw(np.concatenate([grid, midpoints]))  # one call for grid and midpoints
-        states, mid_rate = both[: grid.size], both[grid.size :, 5]
-        if not (np.all(np.isfinite(states)) and np.all(states[:, 3] >= MIN_PATH_SPEED)):
+        states, mid_rate = both[: grid.size], both[grid.size :, self._rate_index]
+        if np.any(self._defective(states)) or not np.all(np.isfinite(mid_rate)):
             return None
-        states[:, 2] = _unwrapped_heading(grid, states[:, 2], states[:, 5], mid_rate)
+        column = self.heading_index
+        states[:, column] = _unwrapped_heading(grid, states[:, column], states[:, self._rate_index], mid_rate)
         return states
 
+    def _raise_defect(self, grid: np.ndarray) -> NoReturn:
+        """Raise the ``ValueError`` explaining why the state on ``grid`` cannot be returned."""
+        probe = np.unique(np.concatenate([grid, 0.5 * (grid[:-1] + grid[1:])]))
+        raw = self._raw(probe)
+        bad = self._defective(raw)
+        if not np.any(bad):  # cannot happen: _states_on_grid failed on these times
+            raise ValueError(f"reference {self.name!r} cannot be evaluated on t = {grid!r}")
+        row = int(np.argmax(bad))
+        when, state = probe[row], raw[row]
+        position = state[: self._position_dim]
+        if not np.all(np.isfinite(position)):
+            raise ValueError(
+                f"reference {self.name!r}: its position is not finite at t = {when} s "
+                f"(got {tuple(float(v) for v in position)} m)"
+            )
+        speed = float(state[self._surge_index])
+        if self.heading is None and not (np.isfinite(speed) and speed >= MIN_PATH_SPEED):
+            kind = "horizontal speed" if self.spatial else "speed"
+            raise ValueError(
+                f"reference {self.name!r} has a vanishing or non-finite {kind} at t = {when} s "
+                f"(speed {speed!r} m/s): its heading is undefined there"
+            )
+        raise ValueError(
+            f"reference {self.name!r} has a non-finite heading, velocity or yaw rate at t = {when} s "
+            f"(state {tuple(float(v) for v in state)})"
+        )
+
     def initial_state(self, t0: float | None = None) -> np.ndarray:
-        """State on the reference pose at ``t0`` (default ``t_start``), at rest: shape (6,)."""
+        """Pose on the reference at ``t0`` (default ``t_start``), at rest.
+
+        Returns
+        -------
+        numpy.ndarray, shape (state_dim,)
+            The reference pose with every velocity set to zero.
+        """
         t0 = self.t_start if t0 is None else check.finite_float("t0", t0)
         state = self.evaluate([t0])[0]
-        state[3:] = 0.0
+        state[self.state_dim // 2 :] = 0.0
         return state
 
 
@@ -254,7 +603,7 @@ def _unwrapped_heading(
 
 
 def _refined_grid(times: np.ndarray) -> np.ndarray:
-    """``times`` plus extra points so that no gap exceeds ``UNWRAP_STEP``; sorted, unique."""
+    """Return ``times`` plus extra points so that no gap exceeds ``UNWRAP_STEP``; sorted, unique."""
     gaps = np.diff(times)
     if np.all((gaps > 0) & (gaps <= UNWRAP_STEP)):
         return times  # already strictly increasing and fine enough

@@ -12,61 +12,86 @@ import json
 from collections.abc import Callable
 from typing import Any
 
-from uuv_ocp.problem import TrackingProblem
+from uuv_ocp.build import Transcribed
+from uuv_ocp.judge import instance_parameters
 from uuv_ocp.solvers.nlp import FatropSolver, IpoptSolver, NlpSolver, SqpSolver
 from uuv_ocp.solvers.swarm import SwarmSolver, swarm_factory
 from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.optimize.population import ALGORITHMS, MinimizeResult, minimize
+from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
 
-SolverFactory = Callable[[TrackingProblem, dict[str, Any] | None], Any]
+SolverFactory = Callable[[Transcribed, dict[str, Any] | None], Any]
 
-_BUILTIN: dict[str, SolverFactory] = {
-    "ipopt": IpoptSolver,
-    "fatrop": FatropSolver,
-    "sqp": SqpSolver,
-    **{method: swarm_factory(method) for method in ALGORITHMS},
+KINDS = ("exact", "swarm")
+_BUILTIN: dict[str, tuple[SolverFactory, str]] = {
+    "ipopt": (IpoptSolver, "exact"),
+    "fatrop": (FatropSolver, "exact"),
+    "sqp": (SqpSolver, "exact"),
+    **{method: (swarm_factory(method), "swarm") for method in ALGORITHMS},
 }
 EXACT_SOLVERS = ("fatrop", "ipopt", "sqp")
 
 
 class SolverRegistry:
-    """Name -> backend factory.  The package's default instance is :data:`REGISTRY`."""
+    """Name -> (backend factory, kind).  The package's default instance is :data:`REGISTRY`.
 
-    def __init__(self, factories: dict[str, SolverFactory] | None = None) -> None:
-        self._factories: dict[str, SolverFactory] = dict(factories or {})
+    A ``"<first>+<second>"`` name is a hybrid whenever ``first`` is registered with
+    ``kind="swarm"`` and ``second`` with ``kind="exact"``: plug-ins can be either half.
+    """
 
-    def register(self, name: str, factory: SolverFactory, *, overwrite: bool = False) -> None:
-        """Add a backend under ``name``."""
-        if not isinstance(name, str) or not name:
-            raise ValueError(f"solver name must be a non-empty string, got {name!r}")
+    def __init__(self, factories: dict[str, tuple[SolverFactory, str]] | None = None) -> None:
+        self._factories: dict[str, tuple[SolverFactory, str]] = dict(factories or {})
+
+    def register(self, name: str, factory: SolverFactory, *, kind: str = "exact", overwrite: bool = False) -> None:
+        """Add a backend under ``name`` (``kind`` says which half of a hybrid it can be)."""
+        if not isinstance(name, str) or not name or "+" in name:
+            raise ValueError(f"solver name must be a non-empty string without '+', got {name!r}")
+        if not callable(factory):
+            raise ValueError(f"factory must be callable as factory(problem, options), got {factory!r}")
+        if kind not in KINDS:
+            raise ValueError(f"kind must be one of {list(KINDS)}, got {kind!r}")
         if name in self._factories and not overwrite:
             raise ValueError(f"solver {name!r} is already registered; pass overwrite=True")
-        self._factories[name] = factory
+        self._factories[name] = (factory, kind)
+
+    def kind(self, name: str) -> str:
+        """``"exact"``, ``"swarm"`` or ``"hybrid"``."""
+        if name in self._factories:
+            return self._factories[name][1]
+        self.factory(name)  # raises for unknown names
+        return "hybrid"
 
     def names(self) -> list[str]:
         """Sorted list of registered names, including the ``"<swarm>+<exact>"`` hybrids."""
-        hybrids = [f"{swarm}+{exact}" for swarm in ALGORITHMS for exact in EXACT_SOLVERS]
+        swarms = [name for name, (_, kind) in self._factories.items() if kind == "swarm"]
+        exact = [name for name, (_, kind) in self._factories.items() if kind == "exact"]
+        hybrids = [f"{first}+{second}" for first in swarms for second in exact]
         return sorted([*self._factories, *hybrids])
 
     def factory(self, name: str) -> SolverFactory:
         """The factory for ``name``; ``ValueError`` listing valid names otherwise."""
+        if not isinstance(name, str):
+            raise ValueError(f"solver must be a string from available_solvers(), got {name!r}")
         if name in self._factories:
-            return self._factories[name]
-        if isinstance(name, str) and "+" in name:
+            return self._factories[name][0]
+        if "+" in name:
             from uuv_ocp.solvers.hybrid import hybrid_factory
 
             first, _, second = name.partition("+")
-            if first in ALGORITHMS and second in EXACT_SOLVERS:
-                return hybrid_factory(name, self._factories[first], self._factories[second])
+            swarm, exact = self._factories.get(first), self._factories.get(second)
+            if swarm is not None and exact is not None and swarm[1] == "swarm" and exact[1] == "exact":
+                return hybrid_factory(name, swarm[0], exact[0])
         raise ValueError(f"solver must be one of {self.names()} (or '<swarm>+<exact>'), got {name!r}")
 
 
 REGISTRY = SolverRegistry(_BUILTIN)
 
 
-def register_solver(name: str, factory: SolverFactory, *, overwrite: bool = False) -> None:
-    """Register a backend class ``factory(problem, options)`` under ``name``."""
-    REGISTRY.register(name, factory, overwrite=overwrite)
+def register_solver(name: str, factory: SolverFactory, *, kind: str = "exact", overwrite: bool = False) -> None:
+    """Register a backend ``factory(problem, options) -> Backend`` under ``name``.
+
+    ``kind="swarm"`` or ``"exact"`` says which half of a ``"<swarm>+<exact>"`` hybrid it can be.
+    """
+    REGISTRY.register(name, factory, kind=kind, overwrite=overwrite)
 
 
 def available_solvers() -> list[str]:
@@ -78,14 +103,14 @@ def _options_key(options: dict[str, Any] | None) -> str:
     return json.dumps(options or {}, sort_keys=True, default=repr)
 
 
-def get_solver(problem: TrackingProblem, name: str, options: dict[str, Any] | None = None) -> Any:
+def get_solver(problem: Transcribed, name: str, options: dict[str, Any] | None = None) -> Any:
     """Backend instance for ``problem`` (built once per problem, name and options)."""
-    if not isinstance(problem, TrackingProblem):
-        raise ValueError(f"problem must be a uuv_ocp.TrackingProblem, got {type(problem).__name__}")
+    if not isinstance(problem, Transcribed):
+        raise ValueError(f"problem must be a uuv_ocp.Ocp or TrackingProblem, got {type(problem).__name__}")
     if options is not None and not isinstance(options, dict):
         raise ValueError(f"options must be a dict or None, got {options!r}")
     factory = REGISTRY.factory(name)
-    cache = problem._cache.setdefault("solvers", {})
+    cache = problem._store.setdefault("solvers", {})
     key = (name, _options_key(options))
     if key not in cache:
         cache[key] = factory(problem, options)
@@ -93,7 +118,7 @@ def get_solver(problem: TrackingProblem, name: str, options: dict[str, Any] | No
 
 
 def solve(
-    problem: TrackingProblem,
+    problem: Transcribed,
     solver: str = "ipopt",
     *,
     x0: object,
@@ -102,18 +127,19 @@ def solve(
     current: object | None = None,
     warm_start: Iterate | None = None,
     options: dict[str, Any] | None = None,
+    parameters: dict[str, Any] | None = None,
 ) -> SolveResult:
     """Solve one instance of ``problem`` with the backend named ``solver``.
 
     Parameters
     ----------
-    problem : TrackingProblem
+    problem : Ocp or TrackingProblem
     solver : str
         A name from :func:`available_solvers`, or ``"<swarm>+<exact>"``.
-    x0 : array_like, shape (6,)
-        Initial state (m, m, rad, m/s, m/s, rad/s).
+    x0 : array_like, shape (nx,)
+        Initial state (3-DOF tracking: m, m, rad, m/s, m/s, rad/s).
     t0 : float
-        Start time on the reference (s).
+        Start time on the reference (s); tracking problems only.
     u_prev : array_like, shape (3,), optional
         Last applied control (N, N, N·m) for the first rate bound; zero by default.
     current : array_like, shape (2,) or (N, 2), optional
@@ -122,6 +148,8 @@ def solve(
         From a previous :class:`SolveResult` (``result.iterate`` or ``result.iterate.shift()``).
     options : dict, optional
         Backend options (see each backend's documentation).
+    parameters : dict, optional
+        Values of an :class:`~uuv_ocp.ocp.Ocp`'s declared parameters by name.
 
     Returns
     -------
@@ -129,7 +157,7 @@ def solve(
         Never raises on solver failure: ``success=False`` and ``status`` say what happened.
     """
     backend = get_solver(problem, solver, options)
-    p = problem.parameters(x0, t0, u_prev, current)
+    p = instance_parameters(problem, x0, t0, u_prev=u_prev, current=current, parameters=parameters)
     if warm_start is not None and not isinstance(warm_start, Iterate):
         raise ValueError(f"warm_start must be a uuv_ocp Iterate or None, got {type(warm_start).__name__}")
     return backend.solve(p, warm_start)

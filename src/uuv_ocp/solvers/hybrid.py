@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from uuv_ocp.problem import TrackingProblem
+from uuv_ocp.build import Transcribed
 from uuv_ocp.solvers.result import Iterate, SolveResult
 
 
@@ -57,7 +57,7 @@ class HybridSolver:
 def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
     """Registry factory for ``"<first>+<second>"``."""
 
-    def factory(problem: TrackingProblem, options: dict[str, Any] | None = None) -> HybridSolver:
+    def factory(problem: Transcribed, options: dict[str, Any] | None = None) -> HybridSolver:
         options = dict(options or {})
         swarm_options = options.pop("swarm", None)
         exact_options = options.pop("exact", None)

@@ -25,7 +25,6 @@ import ctypes
 import dataclasses
 import math
 import os
-import re
 import sys
 import threading
 import time
@@ -36,34 +35,14 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp.build import Transcribed
+from uuv_ocp.judge import score_parameters
 from uuv_ocp.native.buffered import BufferedFunction
-from uuv_ocp.problem import NlpData, TrackingProblem, score_parameters
+from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.model.planar import CONTROL_DIM, STATE_DIM
+from uuv_ocp.transcription.multiple_shooting import NlpData, transfer_map
 
 TERMINAL_STRATEGIES = ("sticky", "hard-first", "soft")
-_STAGE_LABEL = re.compile(r"^([A-Za-z]+(?:_[A-Za-z]+)*)_(\d+)(.*)$")
-
-
-def _shift_map(labels: tuple[str, ...]) -> np.ndarray:
-    """Index array ``source`` with ``shifted = values[source]`` moving every stage k+1 to k."""
-    position = {label: i for i, label in enumerate(labels)}
-    source = np.arange(len(labels))
-    for i, label in enumerate(labels):
-        match = _STAGE_LABEL.match(label)
-        if match is None:
-            continue
-        prefix, stage, rest = match.groups()
-        following = f"{prefix}_{int(stage) + 1}{rest}"
-        if following in position:
-            source[i] = position[following]
-    return source
-
-
-def _transfer_map(source_labels: tuple[str, ...], target_labels: tuple[str, ...]) -> np.ndarray:
-    """For each target label, its index in ``source_labels`` or -1."""
-    position = {label: i for i, label in enumerate(source_labels)}
-    return np.array([position.get(label, -1) for label in target_labels], dtype=int)
 
 
 def _transfer(values: np.ndarray | None, mapping: np.ndarray, fill: float = 0.0) -> np.ndarray | None:
@@ -120,11 +99,11 @@ def _silenced_c_stdout():
 
 
 class NlpSolver:
-    """Solve a :class:`TrackingProblem` with one ``casadi.nlpsol`` plugin.
+    """Solve any :class:`~uuv_ocp.ocp.Ocp` (or tracking preset) with one ``casadi.nlpsol`` plugin.
 
     Parameters
     ----------
-    problem : TrackingProblem
+    problem : Ocp or TrackingProblem
     options : dict, optional
         ``terminal_strategy`` (see module doc), ``slack_tolerance`` (default 1e-7),
         ``max_iter``, ``plugin_options`` (a dict merged into the CasADi plugin options) and
@@ -153,7 +132,7 @@ class NlpSolver:
     default_slack_curvature = 0.0
     levenberg_marquardt = 0.0
 
-    def __init__(self, problem: TrackingProblem, options: dict[str, Any] | None = None) -> None:
+    def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
         options = dict(options or {})
         self.problem = problem
         self.terminal_strategy = check.choice(
@@ -194,41 +173,26 @@ class NlpSolver:
         self.plugin_options = plugin_options
         # the soft NLP's exact-penalty weight may be the solver's own: only the soft variant
         # changes, the hard NLP and the judge (score) stay those of ``problem``
-        nlp_problem = problem
-        if terminal_penalty is not None and terminal_penalty != problem.weights.terminal_penalty:
-            weights = dataclasses.replace(problem.weights, terminal_penalty=terminal_penalty)
-            nlp_problem = problem.replace(weights=weights)
-        built = nlp_problem.build()
+        built = problem.build()
         self.variants: dict[str, NlpData] = {"hard": built.hard}
         self._escalations: list[str] = []
-        if built.soft is not None:
-            self.variants["soft"] = built.soft
-            base = nlp_problem.weights.terminal_penalty
+        base = terminal_penalty if terminal_penalty is not None else built.spec.terminal_penalty
+        soft = built.soft_variant(base)
+        if soft is not None:
+            self.variants["soft"] = soft
             for factor in penalty_escalation:
-                weights = dataclasses.replace(nlp_problem.weights, terminal_penalty=base * factor)
                 name = f"soft_x{factor:g}"
-                self.variants[name] = nlp_problem.replace(weights=weights).build().soft
+                self.variants[name] = built.soft_variant(base * factor)  # type: ignore[assignment]
                 self._escalations.append(name)
             if self.slack_curvature > 0.0:
                 for name in ("soft", *self._escalations):
                     self.variants[name] = _with_slack_curvature(self.variants[name], self.slack_curvature)
         self._solvers: dict[tuple[str, bool, bool], BufferedFunction] = {}
-        self._current_slice = problem.current_slice
-        self._shift = {
-            name: (_shift_map(data.variable_labels), _shift_map(data.constraint_labels))
-            for name, data in self.variants.items()
-        }
-        self._lifted_index = {name: self._lifted_positions(data) for name, data in self.variants.items()}
+        self._still_water_slice = problem.still_water_slice
+        self._state_dim = built.spec.state_dim
+        self._lifted = built.spec.lifted
 
     # --------------------------------------------------------------- plumbing
-    @staticmethod
-    def _lifted_positions(data: NlpData) -> np.ndarray:
-        position = {label: i for i, label in enumerate(data.variable_labels)}
-        horizon = data.control_index.shape[0]
-        return np.array(
-            [[position[f"X_{k}[{i}]"] for i in range(STATE_DIM + CONTROL_DIM)] for k in range(horizon + 1)]
-        )
-
     def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
         """Options passed to ``casadi.nlpsol`` (overridden by ``plugin_options``)."""
         return {}
@@ -245,6 +209,9 @@ class NlpSolver:
         objective_factor = ca.SX.sym("lam_f")
         multipliers = ca.SX.sym("lam_g", nlp["g"].numel())
         hessian = objective_factor * (2.0 * self.objective_scale) * ca.mtimes(jacobian.T, jacobian)
+        other_hessian, _ = ca.hessian(data.other_objective, nlp["x"])
+        if other_hessian.nnz():  # expression costs (not least squares) keep their exact curvature
+            hessian += objective_factor * self.objective_scale * other_hessian
         hessian += self.levenberg_marquardt * ca.DM.eye(nlp["x"].numel())
         return ca.Function(
             "nlp_hess_l",
@@ -267,11 +234,12 @@ class NlpSolver:
 
     def _uses_still_water(self, p: np.ndarray) -> bool:
         """Whether the instance ``p`` is solved with the still-water NLP (see class notes)."""
-        return self.still_water and not np.any(p[self._current_slice])
+        part = self._still_water_slice
+        return self.still_water and part is not None and not np.any(p[part])
 
     def _still_water_nlp(self, data: NlpData) -> dict[str, ca.SX]:
         """``data.nlp`` with the current parameters replaced by zero (CasADi simplifies)."""
-        current = data.nlp["p"][self._current_slice]
+        current = data.nlp["p"][self._still_water_slice]
         zero = ca.DM.zeros(current.numel())
         f, g = ca.substitute([data.nlp["f"], data.nlp["g"]], [current], [zero])
         return {**data.nlp, "f": f, "g": g}
@@ -329,30 +297,27 @@ class NlpSolver:
     ) -> np.ndarray:
         """NLP primal vector of ``variant`` from a plan (slacks start at zero)."""
         data = self.variants[variant]
-        primal = np.zeros(len(data.variable_labels))
-        lifted = self._lifted_index[variant]
-        previous = np.vstack([scaled_prev[None, :], scaled])
-        primal[lifted[:, :STATE_DIM]] = states
-        primal[lifted[:, STATE_DIM:]] = previous
+        primal = np.zeros(len(data.variable_keys))
+        lifted = data.lifted_index
+        primal[lifted[:, : self._state_dim]] = states
+        if self._lifted:
+            primal[lifted[:, self._state_dim :]] = np.vstack([scaled_prev[None, :], scaled])
         primal[data.control_index] = scaled
         return primal
 
     def _initial_point(self, variant: str, p: np.ndarray, warm_start: Iterate | None) -> tuple:
         problem = self.problem
-        x0, reference, u_prev, _ = problem.parameter_parts(p)
-        scaled_prev = u_prev / problem.max_thrust
+        scaled_prev = problem.previous_scaled(p)
         if warm_start is None:
-            states = reference.copy()
-            states[0] = x0
-            scaled = np.tile(scaled_prev, (problem.horizon, 1))
+            states, scaled = problem.initial_guess(p)
             return self.compose_primal(variant, states, scaled, scaled_prev), None, None
         if warm_start.primal is not None and warm_start.variant in self.variants:
             source = self.variants[warm_start.variant]
             target = self.variants[variant]
             if warm_start.variant == variant:
                 return warm_start.primal, warm_start.lam_g, warm_start.lam_x
-            x_map = _transfer_map(source.variable_labels, target.variable_labels)
-            g_map = _transfer_map(source.constraint_labels, target.constraint_labels)
+            x_map = transfer_map(source.variable_keys, target.variable_keys)
+            g_map = transfer_map(source.constraint_keys, target.constraint_keys)
             return (
                 _transfer(warm_start.primal, x_map),
                 _transfer(warm_start.lam_g, g_map),
@@ -380,6 +345,7 @@ class NlpSolver:
         )
         plugin_time = time.perf_counter() - start
         stats = solver.stats()
+        reraise_interrupt(str(stats.get("return_status", "")))  # Ctrl-C inside the plugin
         return {
             "variant": variant,
             "robust": robust,
@@ -405,7 +371,7 @@ class NlpSolver:
         warm_start: Iterate | None = None,
         rng: np.random.Generator | None = None,
     ) -> SolveResult:
-        """Solve the instance with parameter vector ``p`` (see ``TrackingProblem.parameters``).
+        """Solve the instance with parameter vector ``p`` (see ``Ocp.parameters``).
 
         ``rng`` is accepted for a uniform backend interface and ignored (exact solvers are
         deterministic).
@@ -455,13 +421,15 @@ class NlpSolver:
         problem = self.problem
         data = self.variants[final["variant"]]
         primal = final["primal"]
-        scaled = primal[data.control_index]
+        # interior-point plugins relax bounds by ~1e-8 (IPOPT's bound_relax_factor): the plan
+        # returned holds the box exactly, so the applied control never leaves it
+        scaled = np.clip(primal[data.control_index], data.lbx[data.control_index], data.ubx[data.control_index])
         states = primal[data.state_index]
         cost, violation = score_parameters(problem, scaled.ravel(), p)
         status = final["status"]
         if final["variant"].startswith("soft"):
             status = f"soft_terminal: {status}" if relaxed else f"soft_terminal_held: {status}"
-        shift_x, shift_g = self._shift[final["variant"]]
+        shift_x, shift_g = data.primal_shift, data.constraint_shift
         iterate = Iterate(
             scaled_controls=scaled,
             states=states,
@@ -475,7 +443,7 @@ class NlpSolver:
         )
         return SolveResult(
             solver=self.name,
-            controls=scaled * problem.max_thrust,
+            controls=problem.controls_from_scaled(scaled),
             states=states,
             cost=cost,
             max_violation=violation,
@@ -590,7 +558,7 @@ class SqpSolver(NlpSolver):
         "max_iter_ls": 15,
     }
 
-    def __init__(self, problem: TrackingProblem, options: dict[str, Any] | None = None) -> None:
+    def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
         options = dict(options or {})
         self.hessian = check.choice(
             "options['hessian']", options.pop("hessian", "gauss-newton"), ("gauss-newton", "exact")

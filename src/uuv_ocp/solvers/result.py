@@ -79,7 +79,7 @@ def _take(values: np.ndarray | None, index: np.ndarray | None) -> np.ndarray | N
 
 @dataclass(frozen=True)
 class SolveResult:
-    """Outcome of one solve of a :class:`~uuv_ocp.problem.TrackingProblem` instance.
+    """Outcome of one solve of a problem instance (an Ocp or a tracking preset).
 
     Parameters
     ----------

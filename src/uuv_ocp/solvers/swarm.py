@@ -1,7 +1,7 @@
 """Derivative-free backends: IGWO, GWO, SSA, PSO on the condensed cost of the problem.
 
 The swarm searches the scaled control sequence ``U ∈ [-1, 1]^{3N}``.  Its fitness is the
-condensed objective ``J(U; p)`` of :mod:`uuv_ocp.problem` (rollout of the **same** RK4
+condensed objective ``J(U; p)`` of :mod:`uuv_ocp.transcription.condensed` (rollout of the **same** RK4
 Function as the NLP) plus the exact penalty of what a box search cannot hold by construction::
 
     fitness(U) = J(U; p) + ρ_T Σ|x_N − x_R,N| (terminal="equality") + ρ_R Σ max(0, |Δz| − Δz_max)
@@ -9,7 +9,7 @@ Function as the NLP) plus the exact penalty of what a box search cannot hold by 
 with ``ρ_T = Weights.terminal_penalty`` and ``ρ_R = Weights.rate_penalty``.  The population is
 evaluated in one call of the cost mapped over the population (``Function.map``), never in a
 Python loop over individuals.  ``SolveResult.cost``/``max_violation`` come from
-:func:`uuv_ocp.problem.score_parameters`, like every other backend.
+:func:`uuv_ocp.judge.score_parameters`, like every other backend.
 
 Search coordinates (``search`` option).  The paper's IGWO update contracts positions toward the
 origin of the search space (``w < 1`` multiplies the leaders' mean), which is a strong prior
@@ -32,9 +32,10 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.native.buffered import BufferedFunction
-from uuv_ocp.problem import TrackingProblem, score_parameters
+from uuv_ocp.build import Transcribed
+from uuv_ocp.judge import score_terms
 from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.optimize.population import ALGORITHMS, MinimizeResult, minimize
+from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
 
 SEARCH_MODES = ("deviation", "absolute")
 
@@ -46,7 +47,7 @@ def _usable_cpus() -> int:
     return os.cpu_count() or 1
 
 
-def candidate_fitness(problem: TrackingProblem) -> ca.Function:
+def candidate_fitness(problem: Transcribed) -> ca.Function:
     """``fitness(U[3N], p) -> objective + penalty`` of one candidate, as an SX Function."""
     cost = problem.build().cost
     scaled = ca.SX.sym("U", problem.control_dim)
@@ -56,7 +57,7 @@ def candidate_fitness(problem: TrackingProblem) -> ca.Function:
 
 
 def batched_fitness(
-    problem: TrackingProblem, population: int, parallelization: str = "serial"
+    problem: Transcribed, population: int, parallelization: str = "serial"
 ) -> ca.Function:
     """``fitness(U[3N × population], p) -> (1 × population)``: objective + penalty, mapped."""
     return candidate_fitness(problem).map("fitness_batch", parallelization, population, [1], [])
@@ -88,7 +89,7 @@ class SwarmSolver:
 
     Parameters
     ----------
-    problem : TrackingProblem
+    problem : Transcribed
     options : dict, optional
         ``population``, ``iterations``, ``max_evaluations`` (defaults: the paper's budgets per
         method), ``seed`` (used when the caller passes no generator; default 0),
@@ -106,7 +107,7 @@ class SwarmSolver:
     """
 
     def __init__(
-        self, problem: TrackingProblem, options: dict[str, Any] | None = None, *, method: str
+        self, problem: Transcribed, options: dict[str, Any] | None = None, *, method: str
     ) -> None:
         options = dict(options or {})
         check.choice("method", method, sorted(ALGORITHMS))
@@ -152,6 +153,14 @@ class SwarmSolver:
         algorithm(-np.ones(1), np.ones(1), self.population, self.iterations, self.algorithm_options)
         check.boolean("options['compiled']", self.compiled)
         check.boolean("options['rng_thread']", self.rng_thread)
+        spec = problem.spec()
+        if not (np.all(np.isfinite(spec.lower)) and np.all(np.isfinite(spec.upper))):
+            raise ValueError(
+                f"solver {method!r} searches a box: every control needs finite lower and upper bounds, "
+                f"got lower={spec.lower}, upper={spec.upper}"
+            )
+        self._lower = np.tile(spec.scaled_lower, spec.horizon)
+        self._upper = np.tile(spec.scaled_upper, spec.horizon)
         self.native = None
         self._score_terms: BufferedFunction | None = None  # compiled twins when compiled=True
         self._rollout: BufferedFunction | None = None
@@ -186,9 +195,9 @@ class SwarmSolver:
     def _center(self, p: np.ndarray, warm_start: Iterate | None) -> np.ndarray:
         problem = self.problem
         if warm_start is not None:
-            return np.clip(np.asarray(warm_start.scaled_controls, dtype=float).ravel(), -1.0, 1.0)
-        _, _, u_prev, _ = problem.parameter_parts(p)
-        return np.tile(np.clip(u_prev / problem.max_thrust, -1.0, 1.0), problem.horizon)
+            plan = np.asarray(warm_start.scaled_controls, dtype=float).ravel()
+            return np.clip(plan, self._lower, self._upper)
+        return np.tile(problem.previous_scaled(p), problem.spec().horizon)
 
     def solve(
         self,
@@ -201,7 +210,7 @@ class SwarmSolver:
         problem = self.problem
         center = self._center(p, warm_start)
         offset = center if self.search == "deviation" else np.zeros_like(center)
-        lower, upper = -1.0 - offset, 1.0 - offset
+        lower, upper = self._lower - offset, self._upper - offset
         seeds = None
         if self.seed_warm_start and (warm_start is not None or self.search == "deviation"):
             seeds = (center - offset)[None, :]
@@ -226,14 +235,15 @@ class SwarmSolver:
                 initial_population=seeds,
                 options=self.algorithm_options,
             )
-        scaled = np.clip(outcome.x + offset, -1.0, 1.0)
-        cost, violation = score_parameters(problem, scaled, p, self._score_terms)
+        scaled = np.clip(outcome.x + offset, self._lower, self._upper)
+        cost, kinds = score_terms(problem, scaled, p, self._score_terms)
+        violation = max(kinds.values())
         states = problem.rollout_scaled(scaled, p, self._rollout)
         controls = problem.controls_from_scaled(scaled)
         iterate = Iterate(
-            scaled_controls=scaled.reshape(problem.horizon, -1),
+            scaled_controls=scaled.reshape(problem.spec().horizon, -1),
             states=states,
-            population=np.clip(outcome.population + offset, -1.0, 1.0),
+            population=np.clip(outcome.population + offset, self._lower, self._upper),
         )
         return SolveResult(
             solver=self.name,
@@ -246,7 +256,7 @@ class SwarmSolver:
             solve_time=time.perf_counter() - start,
             iterations=outcome.iterations,
             evaluations=outcome.evaluations,
-            terminal_relaxed=problem.terminal == "equality" and violation > 1e-6,
+            terminal_relaxed=problem.soft_terminal_available and kinds["terminal"] > 1e-6,
             iterate=iterate,
             history=outcome.history,
             details={"fitness": outcome.fun},
@@ -255,7 +265,7 @@ class SwarmSolver:
     def _native_minimize(self, p, offset, lower, upper, seeds, rng) -> MinimizeResult:
         """The all-C IGWO step with exactly the random draws the Python loop would use."""
         from uuv_ocp.codegen import uses_pcg64
-        from uuv_ocp.optimize.population import ImprovedGreyWolf
+        from uuv_ocp.optimize import ImprovedGreyWolf
 
         generator = rng if rng is not None else np.random.default_rng(self.seed)
         algorithm = ImprovedGreyWolf(lower, upper, self.population, self.iterations, self.algorithm_options)
@@ -298,7 +308,7 @@ class SwarmSolver:
 def swarm_factory(method: str):
     """Factory ``(problem, options) -> SwarmSolver`` for the registry."""
 
-    def factory(problem: TrackingProblem, options: dict[str, Any] | None = None) -> SwarmSolver:
+    def factory(problem: Transcribed, options: dict[str, Any] | None = None) -> SwarmSolver:
         return SwarmSolver(problem, options, method=method)
 
     factory.__name__ = f"{method}_factory"

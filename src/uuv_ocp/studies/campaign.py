@@ -27,11 +27,11 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.mpc import NMPC
-from uuv_ocp.problem import TrackingProblem
-from uuv_ocp.progress import ProgressBar
-from uuv_ocp.reference.path import Reference
 from uuv_ocp.control.simulation import ClosedLoopResult, simulate
 from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.progress import ProgressBar
+from uuv_ocp.reference.path import Reference
+from uuv_ocp.tracking import TrackingProblem
 
 EXECUTORS = ("local", "process")
 
@@ -82,6 +82,7 @@ class CampaignConfig:
     solver_options: dict = field(default_factory=dict, hash=False)
 
     def __post_init__(self) -> None:
+        """Validate the fields (``ValueError`` names the first bad one)."""
         Reference.paper(self.reference)  # validates the name
         object.__setattr__(self, "trials", check.positive_int("trials", self.trials))
         object.__setattr__(self, "duration", check.positive_float("duration", self.duration))
@@ -128,9 +129,13 @@ def _trial_setup(config: CampaignConfig, index: int) -> tuple[Current, Measureme
     return current, MeasurementNoise(config.noise_std), int(rng.integers(2**31))
 
 
+def _trial_path(directory: str | Path, index: int) -> Path:
+    return Path(directory) / f"trial_{index:04d}.npz"
+
+
 def run_trial(config: CampaignConfig, index: int, directory: str | Path) -> dict:
     """Run (or load, if saved) trial ``index``; return its metrics."""
-    path = Path(directory) / f"trial_{index:04d}.npz"
+    path = _trial_path(directory, index)
     if path.exists():
         return ClosedLoopResult.load(str(path)).metrics()
     reference = Reference.paper(config.reference)
@@ -172,14 +177,18 @@ def run_campaign(
     directory = Path(out_dir) / config.name
     directory.mkdir(parents=True, exist_ok=True)
     metrics: dict[int, dict] = {}
-    with ProgressBar(config.trials, f"campaign {config.name}", progress) as bar:
+    saved = [i for i in range(config.trials) if _trial_path(directory, i).exists()]
+    for index in saved:  # resumed trials load in milliseconds: not part of the bar's rate
+        metrics[index] = run_trial(config, index, directory)
+    pending = [i for i in range(config.trials) if i not in metrics]
+    with ProgressBar(config.trials, f"campaign {config.name}", progress, initial=len(saved)) as bar:
         if executor == "local":
-            for index in range(config.trials):
+            for index in pending:
                 metrics[index] = run_trial(config, index, directory)
                 bar.update(1)
-        else:
+        elif pending:
             with concurrent.futures.ProcessPoolExecutor(max_workers=workers) as pool:
-                futures = {pool.submit(run_trial, config, i, directory): i for i in range(config.trials)}
+                futures = {pool.submit(run_trial, config, i, directory): i for i in pending}
                 for future in concurrent.futures.as_completed(futures):
                     metrics[futures[future]] = future.result()
                     bar.update(1)

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from uuv_ocp.control.mpc import NMPC
-from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
-from uuv_ocp.problem import TrackingProblem
-from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
 from uuv_ocp.control.simulation import ClosedLoopResult, simulate
 from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
+from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
+from uuv_ocp.tracking import TrackingProblem
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,437 @@
+"""Trajectory tracking of an underwater vehicle: a preset that builds an :class:`~uuv_ocp.ocp.Ocp`.
+
+:class:`TrackingProblem` is a plain description (vehicle, reference, horizon, weights, terminal
+mode).  Its :attr:`TrackingProblem.ocp` declares (DESIGN §4):
+
+* the vehicle's state ``x`` and generalised force ``τ`` (box ``|τ| ≤ τ_max``, rate
+  ``|Δτ| ≤ τ̇_max dt``), the reference over the horizon and the current as stagewise
+  parameters;
+* the cost ``Σ_{k=0}^{N-1} ‖Δτ_k / τ_max‖²_S + Σ_{k=1}^{N-1} ℓ(x_k, x_R,k) + V_N(x_N)`` in
+  least-squares form, with ``ℓ = ‖wrap(η − η_R)‖²_Q + ‖ν − ν_R‖²_R`` and angle errors
+  ``2 sin(e/2)`` (so ``(2 sin(e/2))² = 2(1 − cos e)``, wrap-safe);
+* ``V_N = ℓ`` for ``terminal="none"``, a weighted ``‖x_N − x_R,N‖²`` for ``"cost"`` and the
+  hard ``x_N = x_R,N`` for ``"equality"`` (the paper; exact-penalty fallback in the solvers);
+* an optional soft position tube ``|e_x|, |e_y| ≤ tube`` (exact L1, ``Weights.tube_penalty``)
+  on nodes 1..N.
+
+Any vehicle with the model protocol works: :class:`~uuv_ocp.model.planar.Vehicle` (3-DOF,
+planar references) and :class:`~uuv_ocp.model.fossen6dof.Vehicle6DOF` (6-DOF, references
+from ``Reference.from_xyz`` / ``waypoints`` / ``hold``; depth tracked, roll and pitch
+regulated to the reference's zero).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from uuv_ocp import _validation as check
+from uuv_ocp.build import Transcribed
+from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.ocp import Ocp, OcpSpec
+from uuv_ocp.reference.path import UNWRAP_STEP, Reference
+
+TERMINAL_MODES = ("equality", "cost", "none")
+SAMPLE_BLOCK = 64  # sampling intervals per cached block of reference samples
+
+
+def vehicle_dimensions(vehicle: Any) -> tuple[int, int, int]:
+    """``(state_dim, control_dim, current_dim)`` of a vehicle model."""
+    if isinstance(vehicle, Vehicle):
+        return 6, 3, 2
+    return int(vehicle.state_dim), int(vehicle.control_dim), int(vehicle.current_dim)
+
+
+def vehicle_rhs(vehicle: Any, state: ca.SX, control: ca.SX, current: ca.SX) -> ca.SX:
+    """Continuous-time right-hand side of any supported vehicle model."""
+    if isinstance(vehicle, Vehicle):
+        return vehicle.dynamics(state, control, current)
+    if getattr(vehicle, "thrusters", None) is not None:
+        control = ca.DM(vehicle.allocation) @ control  # thruster forces -> τ = T f
+    return vehicle.rhs(state, control, current)
+
+
+def control_limits(vehicle: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Symmetric control bound and rate bound (per second) of a vehicle model."""
+    if isinstance(vehicle, Vehicle):
+        return np.asarray(vehicle.max_thrust, dtype=float), np.asarray(vehicle.max_thrust_rate, dtype=float)
+    return np.asarray(vehicle.control_bound, dtype=float), np.asarray(vehicle.control_rate_bound, dtype=float)
+
+
+def _angle_indices(state_dim: int) -> tuple[int, ...]:
+    return (2,) if state_dim == 6 else (3, 4, 5)
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Cost weights of the tracking problem.
+
+    Parameters
+    ----------
+    pose : tuple of floats
+        Weights on the pose error: 3-DOF ``(q_x, q_y, q_ψ)``, 6-DOF ``(q_x, q_y, q_z, q_φ,
+        q_θ, q_ψ)``; position errors (1/m²), angle errors wrap-safe as
+        ``2(1 − cos(ψ − ψ_R))`` (1/rad²).
+    velocity : tuple of floats
+        Weights on the body-velocity errors (s²/m², s²/rad²), one per degree of freedom.
+    rate : tuple of floats
+        Weights on the scaled control increments ``Δτ / τ_max`` (dimensionless), one per
+        control.
+    terminal : tuple of floats
+        Terminal weights on ``x_N − x_R,N`` for ``terminal="cost"``, one per state.
+    terminal_penalty : float
+        Exact L1 penalty weight ρ on terminal residuals (m, rad, m/s, rad/s) in the soft
+        fallback of ``terminal="equality"`` and in the derivative-free solvers' cost.  Exact
+        (same minimiser as the hard problem) whenever ρ exceeds the largest terminal multiplier.
+    rate_penalty : float
+        Penalty weight on the scaled rate-bound excess, used by derivative-free solvers only.
+    tube_penalty : float
+        L1 weight on position-tube slacks (1/m).
+    """
+
+    pose: tuple[float, float, float] = (1e4, 1e4, 1e3)
+    velocity: tuple[float, float, float] = (10.0, 10.0, 10.0)
+    rate: tuple[float, float, float] = (0.1, 0.1, 0.1)
+    terminal: tuple[float, ...] = (1e4, 1e4, 1e3, 100.0, 100.0, 100.0)
+    terminal_penalty: float = 1e4
+    rate_penalty: float = 1e4
+    tube_penalty: float = 1e3
+
+    @classmethod
+    def spatial(cls, controls: int = 6) -> Weights:
+        """Default weights of 6-DOF tracking: the planar ones, with depth like x and y and
+        roll and pitch regulated like heading; ``controls`` rate weights (6, or one per
+        thruster)."""
+        return cls(
+            pose=(1e4, 1e4, 1e4, 1e3, 1e3, 1e3),
+            velocity=(10.0,) * 6,
+            rate=(0.1,) * controls,
+            terminal=(1e4, 1e4, 1e4, 1e3, 1e3, 1e3) + (100.0,) * 6,
+        )
+
+    def __post_init__(self) -> None:
+        set_field = object.__setattr__
+        for name in ("pose", "velocity", "rate", "terminal"):
+            value = getattr(self, name)
+            length = len(value) if isinstance(value, (tuple, list, np.ndarray)) else 0
+            if length == 0:
+                raise ValueError(f"weights.{name} must be a non-empty tuple of numbers, got {value!r}")
+            set_field(self, name, check.vector(f"weights.{name}", value, length, nonnegative=True))
+        for name in ("terminal_penalty", "rate_penalty", "tube_penalty"):
+            set_field(self, name, check.positive_float(f"weights.{name}", getattr(self, name)))
+
+
+@dataclass(frozen=True)
+class TrackingProblem(Transcribed):
+    """NMPC trajectory-tracking problem of an underwater vehicle (paper §3.2, DESIGN §4).
+
+    Parameters
+    ----------
+    vehicle : Vehicle or Vehicle6DOF
+        The controller's model of the vehicle.
+    reference : Reference
+        Path to track (planar for a 3-DOF vehicle, spatial for a 6-DOF one).
+    horizon : int
+        Number of shooting intervals N, 1 <= N <= 10 000.
+    dt : float
+        Sampling time (s), > 0.
+    terminal : {"equality", "cost", "none"}
+        Terminal condition: hard ``x_N = x_R,N`` (paper, with an exact-penalty fallback when
+        infeasible), a weighted terminal cost, or nothing.
+    weights : Weights, optional
+        Cost weights; default ``Weights()`` (3-DOF) or ``Weights.spatial()`` (6-DOF).
+    substeps : int
+        RK4 steps per interval in the prediction model, >= 1.
+    rate_limits : bool
+        Enforce ``|Δτ| ≤ τ̇_max dt``.
+    position_tube : float or None
+        Half-width (m) of a soft tube on the horizontal position error of nodes 1..N, or
+        ``None``.
+    """
+
+    vehicle: Any
+    reference: Reference
+    horizon: int = 20
+    dt: float = 0.1
+    terminal: str = "equality"
+    weights: Weights | None = None
+    substeps: int = 1
+    rate_limits: bool = True
+    position_tube: float | None = None
+    _store: dict = field(default_factory=dict, init=False, repr=False, compare=False, hash=False)
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.vehicle, Vehicle) or hasattr(self.vehicle, "rhs")):
+            raise ValueError(
+                f"vehicle must be a uuv_ocp.Vehicle or Vehicle6DOF, got {type(self.vehicle).__name__}"
+            )
+        if not isinstance(self.reference, Reference):
+            raise ValueError(f"reference must be a uuv_ocp.Reference, got {type(self.reference).__name__}")
+        nx, nu, _ = vehicle_dimensions(self.vehicle)
+        reference_dim = getattr(self.reference, "state_dim", 6)
+        if reference_dim != nx:
+            raise ValueError(
+                f"reference must give {nx} states for this vehicle (a "
+                f"{'planar' if nx == 6 else 'spatial: Reference.from_xyz/waypoints/hold'} reference), "
+                f"got a reference of {reference_dim} states"
+            )
+        object.__setattr__(self, "horizon", check.positive_int("horizon", self.horizon))
+        if self.horizon > 10_000:
+            raise ValueError(f"horizon must be an integer <= 10000, got {self.horizon!r}")
+        object.__setattr__(self, "dt", check.positive_float("dt", self.dt))
+        check.choice("terminal", self.terminal, TERMINAL_MODES)
+        if self.weights is None:
+            object.__setattr__(self, "weights", Weights() if nx == 6 else Weights.spatial(nu))
+        if not isinstance(self.weights, Weights):
+            raise ValueError(f"weights must be a uuv_ocp.Weights, got {self.weights!r}")
+        dof = nx // 2
+        for name, expected in (("pose", dof), ("velocity", dof), ("rate", nu), ("terminal", nx)):
+            if len(getattr(self.weights, name)) != expected:
+                raise ValueError(
+                    f"weights.{name} must have {expected} entries for this vehicle, got "
+                    f"{getattr(self.weights, name)!r}"
+                )
+        object.__setattr__(self, "substeps", check.positive_int("substeps", self.substeps))
+        check.boolean("rate_limits", self.rate_limits)
+        if self.position_tube is not None:
+            tube = check.positive_float("position_tube", self.position_tube)
+            object.__setattr__(self, "position_tube", tube)
+        if self.reference.t_end - self.reference.t_start < self.horizon * self.dt:
+            raise ValueError(
+                f"horizon * dt = {self.horizon * self.dt} s exceeds the reference window "
+                f"[{self.reference.t_start}, {self.reference.t_end}] s"
+            )
+
+    # ------------------------------------------------------------- the Ocp
+    @property
+    def ocp(self) -> Ocp:
+        """The :class:`~uuv_ocp.ocp.Ocp` this preset declares (built once, immutable)."""
+        if "ocp" not in self._store:
+            self._store["ocp"] = self._declare()
+        ocp: Ocp = self._store["ocp"]
+        return ocp
+
+    def spec(self) -> OcpSpec:
+        """The frozen description of :attr:`ocp`."""
+        return self.ocp.spec()
+
+    def _declare(self) -> Ocp:
+        vehicle, weights = self.vehicle, self.weights
+        assert weights is not None
+        nx, nu, nc = vehicle_dimensions(vehicle)
+        ocp = Ocp(
+            self.horizon,
+            self.dt,
+            substeps=self.substeps,
+            terminal_penalty=weights.terminal_penalty,
+            constraint_penalty=weights.terminal_penalty,
+            rate_penalty=weights.rate_penalty,
+            name=f"tracking_{self.reference.name}",
+        )
+        state = ocp.state("x", nx)
+        max_thrust, max_rate = control_limits(vehicle)
+        rate = max_rate if self.rate_limits else None
+        tau = ocp.control("tau", nu, lower=-max_thrust, upper=max_thrust, max_rate=rate)
+        ref = ocp.parameter("reference", nx, stagewise=True)
+        current = ocp.parameter("current", nc, stagewise=True)
+        ocp.set_der(state, vehicle_rhs(vehicle, state, tau, current))
+        error = state - ref
+        angles = _angle_indices(nx)
+        wrapped = ca.vertcat(*[2.0 * ca.sin(error[i] / 2.0) if i in angles else error[i] for i in range(nx)])
+        increment = (tau - ocp.previous(tau)) / ca.DM(max_thrust)
+        ocp.add_stage_cost(residual=increment, weight=weights.rate)
+        ocp.add_stage_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity), start=1)
+        if self.terminal == "none":
+            ocp.add_terminal_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity))
+        elif self.terminal == "cost":
+            ocp.add_terminal_cost(residual=wrapped, weight=weights.terminal)
+        else:
+            ocp.subject_to(state == ref, at="terminal")
+        if self.position_tube is not None:
+            ocp.bounded(-self.position_tube, error[:2], self.position_tube, soft=weights.tube_penalty)
+        return ocp
+
+    # ------------------------------------------------------------- dimensions
+    @property
+    def max_thrust(self) -> np.ndarray:
+        """Control bounds (N, N·m; thruster forces for a vehicle with thrusters)."""
+        return control_limits(self.vehicle)[0]
+
+    @property
+    def rate_step_bound(self) -> np.ndarray:
+        """Largest scaled control change per interval, ``τ̇_max dt / τ_max``."""
+        bound, rate = control_limits(self.vehicle)
+        return rate * self.dt / bound
+
+    @property
+    def _heading_index(self) -> int:
+        return 2 if self.state_dim == 6 else 5
+
+    @property
+    def still_water_slice(self) -> slice | None:
+        """The current over the horizon in ``p``: exact backends specialise the NLP when it is zero."""
+        return self.current_slice
+
+    @property
+    def current_slice(self) -> slice:
+        """Where the current over the horizon, ``(N+1, nc)`` row by row (m/s), sits in ``p``."""
+        part: slice = self.spec().layout.entries["current"][0]
+        return part
+
+    def latest_start(self) -> float:
+        """Latest start time t0 (s) whose horizon stays inside the reference window."""
+        return self.reference.t_end - self.horizon * self.dt
+
+    def replace(self, **changes: Any) -> TrackingProblem:
+        """A copy with some fields changed (a new, unbuilt problem)."""
+        return dataclasses.replace(self, **changes)
+
+    # ------------------------------------------------------------- parameters
+    def check_state(self, x0: object, name: str = "x0") -> np.ndarray:
+        """Validate a state vector: shape (nx,), finite."""
+        return check.finite_array(name, x0, (self.state_dim,))
+
+    def check_time(self, t0: object) -> float:
+        """Validate a start time: finite and inside ``[t_start, latest_start()]``."""
+        t0 = check.finite_float("t0", t0)
+        if t0 < self.reference.t_start - 1e-12 or t0 > self.latest_start() + 1e-9:
+            raise ValueError(
+                f"t0 must lie in [{self.reference.t_start}, {self.latest_start()}] s so that the "
+                f"horizon stays inside the reference window, got {t0}"
+            )
+        return t0
+
+    def reference_window(self, t0: float, heading: float | None = None) -> np.ndarray:
+        """Reference states at ``t0 + k dt``, k = 0..N, shape (N+1, nx).
+
+        The heading is shifted by a multiple of 2π so that its first value is the one closest
+        to ``heading`` (the vehicle's), which keeps the terminal equality wrap-safe.
+
+        When ``t0`` is a sampling instant ``i dt`` (a closed loop started at a multiple of
+        ``dt``), the window is cut from blocks of reference samples at ``(i + k) dt``
+        evaluated once per problem; otherwise, or if a block cannot be evaluated, the
+        reference is evaluated at ``t0 + k dt``.  The two agree to floating-point rounding
+        (the sample times differ by an ulp, the heading branch is chosen the same way).
+        """
+        window = self._window_from_samples(t0)
+        if window is None:
+            times = np.minimum(t0 + self.dt * np.arange(self.horizon + 1), self.reference.t_end)
+            if self.dt <= UNWRAP_STEP and times[-1] > times[-2]:
+                window = self.reference.evaluate_grid(times)
+            else:
+                window = self.reference.evaluate(times)
+        if heading is None:  # the first heading in [-π, π], as the reference gives it
+            heading = math.remainder(window[0, self._heading_index], 2.0 * math.pi)
+        _move_heading_branch(window, heading, self._heading_index)
+        return window
+
+    def _window_from_samples(self, t0: float) -> np.ndarray | None:
+        """The window at ``t0 = i dt`` from cached sample blocks, or ``None`` (see above)."""
+        dt, horizon, reference = self.dt, self.horizon, self.reference
+        if not math.isfinite(t0):
+            return None
+        first = round(t0 / dt)
+        last = first + horizon
+        if first * dt != t0 or dt > UNWRAP_STEP or last * dt > reference.t_end:
+            return None
+        parts: list[np.ndarray] = []
+        for block in range(first // SAMPLE_BLOCK, last // SAMPLE_BLOCK + 1):
+            samples = self._sample_block(block)
+            if samples is None:
+                return None
+            start_index, states = samples
+            lo, hi = max(first, start_index), min(last, start_index + states.shape[0] - 1)
+            if lo > hi:
+                return None  # the reference starts after t0
+            part = states[lo - start_index : hi - start_index + 1].copy()
+            if parts:
+                # neighbouring blocks share their boundary sample: drop it, and move this
+                # block's heading to the branch of the previous one
+                _move_heading_branch(part, parts[-1][-1, self._heading_index], self._heading_index)
+                part = part[1:]
+            parts.append(part)
+        window = parts[0] if len(parts) == 1 else np.concatenate(parts)
+        return window if window.shape[0] == horizon + 1 else None
+
+    def _sample_block(self, block: int) -> tuple[int, np.ndarray] | None:
+        """Reference samples at ``i dt`` for ``i`` in block ``block`` (its first index, states)."""
+        blocks = self._store.setdefault("sample_blocks", {})
+        if block not in blocks:
+            dt, reference = self.dt, self.reference
+            indices = block * SAMPLE_BLOCK + np.arange(SAMPLE_BLOCK + 1)
+            times = indices * dt
+            inside = (times >= reference.t_start) & (times <= reference.t_end)
+            try:
+                blocks[block] = (int(indices[inside][0]), reference.evaluate_grid(times[inside]))
+            except (IndexError, ValueError):  # empty, or the speed vanishes inside the block
+                blocks[block] = None
+        return blocks[block]
+
+    def parameters(
+        self,
+        x0: object,
+        t0: float = 0.0,
+        u_prev: object | None = None,
+        current: object | None = None,
+    ) -> np.ndarray:
+        """Parameter vector ``p = [x0, u_prev, reference window, current]`` of one instance.
+
+        Parameters
+        ----------
+        x0 : array_like, shape (nx,)
+            Current state (3-DOF: m, m, rad, m/s, m/s, rad/s).
+        t0 : float
+            Current time (s); the reference is sampled at ``t0 + k dt``.
+        u_prev : array_like, shape (nu,), optional
+            Last applied control (N, N·m); defaults to zero; must lie inside the thrust box.
+        current : array_like, shape (nc,), (N, nc) or (N+1, nc), optional
+            Inertial current velocity (m/s) the model assumes on each interval.
+        """
+        x0 = self.check_state(x0)
+        t0 = self.check_time(t0)
+        _, _, nc = vehicle_dimensions(self.vehicle)
+        n = self.horizon
+        if current is None:
+            current = np.zeros((n + 1, nc))
+        try:
+            current = np.array(current, dtype=float)
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"current must be numbers of shape ({nc},) or ({n}, {nc}), got {current!r}") from error
+        if current.shape == (nc,):
+            current = np.tile(current, (n + 1, 1))
+        elif current.shape == (n, nc):
+            current = np.vstack([current, current[-1:]])
+        current = check.finite_array("current", current, (n + 1, nc))
+        window = self.reference_window(t0, heading=x0[self._heading_index])
+        return self.ocp.parameters(x0, {"reference": window, "current": current}, u_prev)
+
+    def parameter_parts(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Numeric ``p`` -> (x0 (nx,), reference (N+1, nx), u_prev (nu,), current (N, nc))."""
+        layout = self.spec().layout
+        reference, size, _ = layout.entries["reference"]
+        current, nc, _ = layout.entries["current"]
+        return (
+            p[layout.x0],
+            p[reference].reshape(self.horizon + 1, size),
+            p[layout.u_prev],
+            p[current].reshape(self.horizon + 1, nc)[:-1],
+        )
+
+    def initial_guess(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cold start: the reference window from ``x_0``, the last control held."""
+        x0, reference, _, _ = self.parameter_parts(p)
+        states = reference.copy()
+        states[0] = x0
+        return states, np.tile(self.previous_scaled(p), (self.horizon, 1))
+
+
+def _move_heading_branch(states: np.ndarray, heading: float, column: int = 2) -> None:
+    """Shift the heading column of ``states`` by the multiple of 2π that brings its first value
+    closest to ``heading`` (in place)."""
+    turns = np.round((heading - states[0, column]) / (2.0 * math.pi))
+    states[:, column] += 2.0 * math.pi * turns

@@ -1,0 +1,115 @@
+"""Condensed form of an :class:`~uuv_ocp.ocp.OcpSpec`: cost ``J(U; p)`` by rollout.
+
+The states are a rollout of the **same** integrator Function as the multiple-shooting NLP, so
+the condensed objective equals the NLP objective at a feasible point (soft constraints enter
+both as the exact L1 penalty ``ρ Σ max(0, violation)``, which the NLP's slacks attain).  The
+three Functions built here take the flat scaled controls ``U = [z_0; …; z_{N−1}]`` and ``p``:
+
+``cost``
+    ``(objective, penalty)``: the penalty holds what a box search cannot hold by construction
+    (terminal equalities with ``terminal_penalty``, rate-bound excess with ``rate_penalty``,
+    other hard constraints with ``constraint_penalty``; all exact L1 terms).
+``rollout``
+    the predicted states ``(nx, N + 1)``.
+``score_terms``
+    the objective and the raw violations that :func:`uuv_ocp.score` reports.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import casadi as ca
+import numpy as np
+
+from uuv_ocp.transcription.multiple_shooting import parameter_blocks, violation
+
+if TYPE_CHECKING:
+    from uuv_ocp.ocp import OcpSpec
+
+SCORE_OUTPUTS = ("objective", "terminal_residual", "rate_excess", "bound_excess", "constraint_violation")
+
+
+def condense(spec: OcpSpec, step: ca.Function) -> tuple[ca.Function, ca.Function, ca.Function]:
+    """``cost``, ``rollout`` and ``score_terms`` Functions (see the module notes)."""
+    n, nu = spec.horizon, spec.control_size
+    scaled_all = ca.SX.sym("U", nu * n)
+    p = ca.SX.sym("p", spec.layout.size)
+    x0, u_prev, pg, nodes = parameter_blocks(spec, p)
+    scaled = ca.reshape(scaled_all, nu, n)
+    rate_bound = spec.rate_step_bound
+    rated = np.flatnonzero(np.isfinite(rate_bound))
+    no_previous = ca.DM.zeros(nu)
+    states = [x0]
+    objective = ca.SX(0)
+    rate_excess: list[ca.SX] = []
+    hard_violation: list[ca.SX] = []
+    scaled_prev = spec.scaled(u_prev)
+
+    def constrain(constraint, values: ca.SX) -> None:
+        nonlocal objective
+        excess = violation(values, constraint.lower, constraint.upper)
+        if constraint.soft is None:
+            hard_violation.append(excess)
+        else:
+            objective += constraint.soft * ca.sum1(excess)
+
+    for k in range(n):
+        state = states[-1]
+        control = spec.physical(scaled[:, k])
+        previous = spec.physical(scaled_prev) if spec.lifted else no_previous
+        args = (state, control, previous, pg, nodes[k])
+        for start, function in spec.stage_residual:
+            if k >= start:
+                objective += ca.sumsqr(function(*args))
+        for start, function in spec.stage_expression:
+            if k >= start:
+                objective += function(*args)
+        for constraint, function in spec.constraints:
+            on_node = constraint.place == "node" and k > 0
+            if constraint.place == "stage" or on_node or (constraint.place == "initial" and k == 0):
+                constrain(constraint, function(*args))
+        if spec.lifted and rated.size:
+            increment = ca.fabs(scaled[:, k] - scaled_prev)
+            rate_excess.append(ca.vertcat(*[ca.fmax(0, increment[int(i)] - rate_bound[i]) for i in rated]))
+        states.append(step(state, control, nodes[k], pg))
+        scaled_prev = scaled[:, k]
+    final = states[-1]
+    if spec.terminal_residual is not None:
+        objective += ca.sumsqr(spec.terminal_residual(final, pg, nodes[n]))
+    if spec.terminal_expression is not None:
+        objective += spec.terminal_expression(final, pg, nodes[n])
+    terminal_residuals: list[ca.SX] = []
+    final_args = (final, no_previous, no_previous, pg, nodes[n])
+    for constraint, function in spec.constraints:
+        if constraint.place == "node":
+            constrain(constraint, function(*final_args))
+        elif constraint.place == "terminal":
+            values = function(final, pg, nodes[n])
+            if constraint.soft is None and np.all(constraint.equality):
+                terminal_residuals.append(values - ca.DM(constraint.lower))
+            else:
+                constrain(constraint, values)
+
+    def stacked(parts: list[ca.SX]) -> ca.SX:
+        return ca.vertcat(*parts) if parts else ca.SX.zeros(1)
+
+    terminal_residual = stacked(terminal_residuals)
+    rate_vector = stacked(rate_excess)
+    constraint_vector = stacked(hard_violation)
+    bound_excess = violation(scaled_all, np.tile(spec.scaled_lower, n), np.tile(spec.scaled_upper, n))
+    penalty = (
+        spec.terminal_penalty * ca.sum1(ca.fabs(terminal_residual))
+        + spec.rate_penalty * ca.sum1(rate_vector)
+        + spec.constraint_penalty * ca.sum1(constraint_vector)
+    )
+    cost = ca.Function("cost", [scaled_all, p], [objective, penalty], ["U", "p"], ["objective", "penalty"])
+    rollout = ca.Function("rollout", [scaled_all, p], [ca.horzcat(*states)], ["U", "p"], ["X"])
+    score_terms = ca.Function(
+        "score_terms",
+        [scaled_all, p],
+        [objective, terminal_residual, rate_vector, bound_excess, constraint_vector],
+        ["U", "p"],
+        list(SCORE_OUTPUTS),
+    )
+    return cost, rollout, score_terms

@@ -7,6 +7,12 @@ import pytest
 
 import uuv_ocp as uo
 
+# The swarms compile their cost by default wherever a C compiler exists (~20 s per new problem,
+# then cached on disk).  The suite builds dozens of problems, so it runs them on CasADi's
+# virtual machine; tests of the compiled path ask for it explicitly, and test_swarm_default
+# checks the default itself in a subprocess without this setting.
+os.environ.setdefault("UUV_OCP_COMPILED", "0")
+
 
 @pytest.fixture(scope="session")
 def s2_problem():

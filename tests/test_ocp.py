@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from conftest import needs_compiler
 
 DT = 0.1
 HORIZON = 12
@@ -244,3 +245,74 @@ def test_bad_instance_data_raise_before_any_solve():
 def test_swarms_refuse_unbounded_controls():
     with pytest.raises(ValueError, match="finite lower and upper bounds"):
         uo.solve(double_integrator(True), "igwo", x0=[1.0, 0.0, 0.0, 0.0])
+
+
+def bounded_double_integrator() -> uo.Ocp:
+    ocp = uo.Ocp(horizon=8, dt=0.2)
+    pos = ocp.state("pos")
+    vel = ocp.state("vel")
+    acc = ocp.control("acc", lower=-1.0, upper=1.0, max_rate=4.0)
+    ocp.set_der(pos, vel)
+    ocp.set_der(vel, acc)
+    ocp.add_stage_cost(residual=ca.vertcat(pos - 1.0, 0.3 * acc))
+    ocp.add_terminal_cost(residual=3 * (pos - 1.0))
+    return ocp
+
+
+def test_swarms_hybrids_and_a_plugin_work_on_any_ocp():
+    ocp = bounded_double_integrator()
+    x0 = [0.0, 0.0]
+    optimum = uo.solve(ocp, "ipopt", x0=x0)
+    for name in ("igwo", "gwo", "ssa", "pso"):
+        res = uo.solve(ocp, name, x0=x0)
+        assert np.all(np.abs(res.controls) <= 1.0)
+        assert res.cost >= optimum.cost * (1 - 1e-9)
+    hybrid = uo.solve(ocp, "pso+fatrop", x0=x0)
+    assert hybrid.cost == pytest.approx(optimum.cost, rel=1e-7)
+
+    class Clipped(uo.solvers.SqpSolver):
+        """A plug-in exact backend (a registered subclass)."""
+
+    uo.register_solver("plugin-sqp", Clipped, kind="exact", overwrite=True)
+    try:
+        assert "igwo+plugin-sqp" in uo.available_solvers()
+        plug = uo.solve(ocp, "igwo+plugin-sqp", x0=x0)
+        assert plug.cost == pytest.approx(optimum.cost, rel=1e-6)
+    finally:
+        uo.solvers.REGISTRY._factories.pop("plugin-sqp")
+    with pytest.raises(ValueError, match="kind must be one of"):
+        uo.register_solver("bad", Clipped, kind="quantum")
+
+
+def test_nmpc_and_simulate_on_an_ocp_against_an_independent_plant():
+    ocp = bounded_double_integrator()
+    # the plant is the same double integrator written as a separate Function
+    x, u = ca.SX.sym("x", 2), ca.SX.sym("u")
+    plant = ca.Function("plant", [x, u], [ca.vertcat(x[1], u)])
+    run = uo.simulate(uo.NMPC(ocp, "fatrop"), [0.0, 0.0], duration=6.0, plant=plant)
+    assert run.failures == 0 and run.controls.shape == (30, 1)
+    assert abs(run.states[-1, 0] - 1.0) < 1e-3  # settles on the set point
+    assert np.all(np.abs(np.diff(np.r_[0.0, run.controls[:, 0]])) <= 4.0 * 0.2 + 1e-9)
+    # the closed loop's states are the exact solution of ẍ = u under the held controls
+    position, velocity = 0.0, 0.0
+    for control in run.controls[:, 0]:
+        position += velocity * 0.2 + 0.5 * control * 0.2**2
+        velocity += control * 0.2
+    assert run.states[-1] == pytest.approx([position, velocity], abs=1e-12)
+
+
+@needs_compiler
+def test_generated_c_of_an_ocp_equals_the_virtual_machine(tmp_path):
+    ocp = bounded_double_integrator()
+    code = uo.generate_c(ocp, tmp_path / "gen", functions=("cost", "rollout", "score_terms"))
+    p = ocp.parameters([0.2, -0.1], u_prev=[0.5])
+    rng = np.random.default_rng(2)
+    for _ in range(5):
+        scaled = rng.uniform(-1, 1, size=ocp.control_dim)
+        for name in ("cost", "rollout", "score_terms"):
+            compiled = code[name](scaled, p)
+            symbolic = getattr(ocp.build(), name)(scaled, p)
+            compiled = compiled if isinstance(compiled, (list, tuple)) else [compiled]
+            symbolic = symbolic if isinstance(symbolic, (list, tuple)) else [symbolic]
+            for a, b in zip(compiled, symbolic, strict=True):
+                np.testing.assert_allclose(np.array(a), np.array(b), rtol=1e-12, atol=1e-14)

@@ -8,7 +8,13 @@ so the same state and time always give the same control after a reset.
 Fallback (documented contract): when a solve reports ``success=False`` or returns non-finite
 controls, the controller applies the next control of its previous plan (the shifted plan) if
 it has one, otherwise it holds the last applied control.  The step is counted in
-``ClosedLoopResult.failures`` and the closed loop never stops on a solver failure.
+``ClosedLoopResult.failures`` and the closed loop never stops on a solver failure; the
+backend's status or exception is in ``StepOutput.message``.  ``KeyboardInterrupt`` (CasADi's,
+raised as a ``RuntimeError`` naming it, included) always propagates.
+
+Every applied control, fresh or fallback, is projected on the control box and on the rate
+bound around the last applied control: the plant never sees a bound violated, whatever the
+backend's tolerance.
 """
 
 from __future__ import annotations
@@ -123,16 +129,30 @@ class NMPC:
         if not failure_reason:
             self._plan = result.controls
             self._iterate = result.iterate.shift()
-            return StepOutput(result.controls[0].copy(), result, False)
-        control = self._fallback_control(u_prev)
+            return StepOutput(self._admissible(result.controls[0], u_prev), result, False)
+        control = self._admissible(self._fallback_control(u_prev), u_prev)
         if self._iterate is not None:
             self._iterate = self._iterate.shift()
         return StepOutput(control, result, True, failure_reason)
+
+    def _admissible(self, control: np.ndarray, u_prev: object | None) -> np.ndarray:
+        """``control`` projected on the box and on the rate bound around ``u_prev``.
+
+        Exact solvers hold both to their tolerance (~1e-8 relative); the projection makes the
+        applied control hold them exactly, so the plant never sees a bound violated.
+        """
+        spec = self.problem.spec()
+        lower, upper = spec.lower.copy(), spec.upper.copy()
+        if u_prev is not None:
+            step = spec.max_rate * spec.dt
+            previous = np.asarray(u_prev, dtype=float)
+            lower = np.maximum(lower, previous - step)
+            upper = np.minimum(upper, previous + step)
+        return np.clip(control, lower, np.maximum(lower, upper))
 
     def _fallback_control(self, u_prev: object | None) -> np.ndarray:
         if self._plan is not None and self._plan.shape[0] > 1:
             self._plan = np.vstack([self._plan[1:], self._plan[-1:]])
             return self._plan[0].copy()
         spec = self.problem.spec()
-        held = np.zeros(spec.control_size) if u_prev is None else np.asarray(u_prev, dtype=float)
-        return np.clip(held, spec.lower, spec.upper)
+        return np.zeros(spec.control_size) if u_prev is None else np.asarray(u_prev, dtype=float)

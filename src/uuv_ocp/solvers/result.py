@@ -25,8 +25,6 @@ class Iterate:
         Which NLP layout ``primal`` and the multipliers belong to.
     terminal_relaxed : bool
         Whether the plan needed the exact-penalty terminal fallback.
-    population : numpy.ndarray or None
-        Final population (swarm solvers), shape (population, 3N).
     primal_shift, constraint_shift : numpy.ndarray or None
         Index maps that move every NLP stage k+1 to stage k (last stage repeated), used by
         :meth:`shift` on ``primal``/``lam_x`` and ``lam_g``.
@@ -39,30 +37,22 @@ class Iterate:
     lam_x: np.ndarray | None = None
     variant: str = "hard"
     terminal_relaxed: bool = False
-    population: np.ndarray | None = None
     primal_shift: np.ndarray | None = None
     constraint_shift: np.ndarray | None = None
 
     def shift(self) -> Iterate:
         """Drop the first interval and repeat the last: the receding-horizon warm start.
 
-        Plans, populations and (when the index maps are known) NLP primal and dual vectors
+        Plans and (when the index maps are known) NLP primal and dual vectors
         are all shifted by one stage.
         """
         controls = np.vstack([self.scaled_controls[1:], self.scaled_controls[-1:]])
         states = np.vstack([self.states[1:], self.states[-1:]])
-        population = None
-        if self.population is not None:
-            horizon = self.scaled_controls.shape[0]
-            reshaped = self.population.reshape(self.population.shape[0], horizon, -1)
-            shifted = np.concatenate([reshaped[:, 1:], reshaped[:, -1:]], axis=1)
-            population = shifted.reshape(self.population.shape[0], -1)
         return Iterate(
             scaled_controls=controls,
             states=states,
             variant=self.variant,
             terminal_relaxed=self.terminal_relaxed,
-            population=population,
             primal=_take(self.primal, self.primal_shift),
             lam_g=_take(self.lam_g, self.constraint_shift),
             lam_x=_take(self.lam_x, self.primal_shift),

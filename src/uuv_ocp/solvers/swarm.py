@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import os
 import time
+import warnings
 from typing import Any
 
 import casadi as ca
@@ -45,6 +46,35 @@ def _usable_cpus() -> int:
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1
+
+
+COMPILED_ENV = "UUV_OCP_COMPILED"
+
+
+def _compiled_default(value: object) -> bool:
+    """``compiled``: True/False, or ``"auto"`` = compiled wherever a C compiler exists.
+
+    ``"auto"`` can be overridden by the environment (``UUV_OCP_COMPILED=0`` or ``1``), e.g. to
+    keep a test suite on CasADi's virtual machine; the first compiled build of a problem takes
+    ~20 s and is then cached on disk by content.
+    """
+    if value == "auto":
+        setting = os.environ.get(COMPILED_ENV, "auto").strip().lower()
+        if setting in ("0", "false", "no"):
+            return False
+        from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
+
+        try:
+            find_c_compiler()
+        except CompilerNotFoundError as error:
+            warnings.warn(
+                f"no C compiler ({error}): the swarm runs on CasADi's virtual machine",
+                RuntimeWarning,
+                stacklevel=4,
+            )
+            return False
+        return True
+    return check.boolean("options['compiled']", value)
 
 
 def candidate_fitness(problem: Transcribed) -> ca.Function:
@@ -85,18 +115,21 @@ class BufferedFitness:
 
 
 class SwarmSolver:
-    """A population optimiser from :mod:`uuv_ocp.optimize.population` as a tracking-problem backend.
+    """A population optimiser from :mod:`uuv_ocp.optimize` as a backend for any bounded problem.
 
     Parameters
     ----------
-    problem : Transcribed
+    problem : Ocp or TrackingProblem
+        Every control needs finite box bounds (the search box).
     options : dict, optional
         ``population``, ``iterations``, ``max_evaluations`` (defaults: the paper's budgets per
         method), ``seed`` (used when the caller passes no generator; default 0),
         ``search`` ("deviation" | "absolute"), ``seed_warm_start`` (bool),
         ``parallelization`` ("serial" | "thread" for the mapped cost), ``algorithm_options``
-        (dict passed to the algorithm), ``compiled`` (bool: the compiled SIMD fitness and, for
-        IGWO, the all-C step; see docs/codegen.md), ``rng_thread`` (bool; default True on a
+        (dict passed to the algorithm), ``compiled`` (``"auto"``, default: compiled wherever
+        a C compiler exists, else the virtual machine with one warning; ``True``/``False``;
+        the compiled SIMD fitness and, for IGWO, the all-C step, see docs/codegen.md),
+        ``rng_thread`` (bool; default True on a
         machine with two or more CPUs: the all-C IGWO step draws 7/8 of its random numbers on
         a second thread, one iteration ahead — the same numbers; an iteration whose block the
         thread is late with is drawn by the step itself, so a late thread never stalls the
@@ -140,7 +173,7 @@ class SwarmSolver:
             ("serial", "thread"),
         )
         self.algorithm_options = options.pop("algorithm_options", None)
-        self.compiled = options.pop("compiled", False)
+        self.compiled = _compiled_default(options.pop("compiled", "auto"))
         self.rng_thread = options.pop("rng_thread", _usable_cpus() >= 2)
         if options:
             valid = [
@@ -151,7 +184,6 @@ class SwarmSolver:
             raise ValueError(f"unknown options for solver {method!r}: {unknown}; valid: {valid}")
         # validate algorithm options now, before any solve (the constructor checks them)
         algorithm(-np.ones(1), np.ones(1), self.population, self.iterations, self.algorithm_options)
-        check.boolean("options['compiled']", self.compiled)
         check.boolean("options['rng_thread']", self.rng_thread)
         spec = problem.spec()
         if not (np.all(np.isfinite(spec.lower)) and np.all(np.isfinite(spec.upper))):
@@ -243,7 +275,6 @@ class SwarmSolver:
         iterate = Iterate(
             scaled_controls=scaled.reshape(problem.spec().horizon, -1),
             states=states,
-            population=np.clip(outcome.population + offset, self._lower, self._upper),
         )
         return SolveResult(
             solver=self.name,

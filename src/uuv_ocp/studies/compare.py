@@ -19,6 +19,7 @@ from uuv_ocp.control.simulation import ClosedLoopResult, simulate
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
+from uuv_ocp.build import Transcribed
 from uuv_ocp.tracking import TrackingProblem
 
 
@@ -145,24 +146,30 @@ class ComparisonRow:
 
 
 def compare(
-    problem: TrackingProblem,
+    problem: Transcribed,
     solvers: Sequence[str],
     *,
     x0: object,
     t0: float = 0.0,
     seed: int = 0,
     options: dict[str, dict] | None = None,
+    u_prev: object | None = None,
+    current: object | None = None,
+    parameters: dict[str, object] | None = None,
 ) -> list[ComparisonRow]:
-    """Solve one instance with every named solver; ``ratio`` is cost / best cost found.
+    """Solve one instance of any problem with every named solver; ``ratio`` is cost / best cost.
 
     Each solver is built (and, for NLPs, run once) before timing, so ``solve_time`` is the
-    steady-state cost of one solve.  Swarms get ``seed``.
+    steady-state cost of one solve.  Swarms get ``seed``.  The instance is given as in
+    :func:`uuv_ocp.solve` (``t0``, ``u_prev``, ``current`` for tracking problems,
+    ``parameters`` for an :class:`~uuv_ocp.ocp.Ocp`).
     """
+    from uuv_ocp.judge import instance_parameters
     from uuv_ocp.solvers import REGISTRY, get_solver
 
     for name in solvers:
         REGISTRY.factory(name)  # unknown names raise before anything runs
-    p = problem.parameters(x0, t0)
+    p = instance_parameters(problem, x0, t0, u_prev=u_prev, current=current, parameters=parameters)
     results = []
     for name in solvers:
         solver_options = dict((options or {}).get(name, {}))

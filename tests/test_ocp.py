@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -316,3 +318,32 @@ def test_generated_c_of_an_ocp_equals_the_virtual_machine(tmp_path):
             symbolic = symbolic if isinstance(symbolic, (list, tuple)) else [symbolic]
             for a, b in zip(compiled, symbolic, strict=True):
                 np.testing.assert_allclose(np.array(a), np.array(b), rtol=1e-12, atol=1e-14)
+
+
+@needs_compiler
+def test_all_c_igwo_step_on_an_ocp_equals_the_python_igwo(tmp_path, monkeypatch):
+    monkeypatch.setenv("UUV_OCP_CACHE", str(tmp_path))
+    ocp = bounded_double_integrator()
+    x0 = [0.0, 0.3]
+    native = uo.get_solver(ocp, "igwo", {"compiled": True, "seed": 3})
+    assert native.native is not None  # the SIMD kernel and the all-C step were built
+    compiled = uo.solve(ocp, "igwo", x0=x0, options={"compiled": True, "seed": 3})
+    python = uo.solve(ocp, "igwo", x0=x0, options={"compiled": False, "seed": 3})
+    assert "compiled C step" in compiled.status
+    np.testing.assert_allclose(compiled.controls, python.controls, rtol=1e-9, atol=1e-12)
+    assert compiled.cost == pytest.approx(python.cost, rel=1e-9)
+
+
+def test_swarms_compile_by_default_and_fall_back_with_one_warning(monkeypatch):
+    from uuv_ocp.solvers.swarm import _compiled_default
+
+    monkeypatch.delenv("UUV_OCP_COMPILED", raising=False)
+    monkeypatch.setenv("CC", "/nonexistent/compiler")
+    with pytest.warns(RuntimeWarning, match="virtual machine"):
+        assert _compiled_default("auto") is False
+    monkeypatch.setenv("CC", sys.executable)  # any executable counts as found
+    assert _compiled_default("auto") is True
+    monkeypatch.setenv("UUV_OCP_COMPILED", "0")
+    assert _compiled_default("auto") is False
+    with pytest.raises(ValueError, match="compiled"):
+        _compiled_default("yes")

@@ -12,6 +12,7 @@ from uuv_ocp.studies.compare import compare, format_comparison
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.control.mpc import NMPC, StepOutput
 from uuv_ocp.judge import score
+from uuv_ocp.obstacles import Obstacle
 from uuv_ocp.ocp import Ocp
 from uuv_ocp.tracking import TrackingProblem, Weights
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
@@ -40,6 +41,7 @@ __all__ = [
     "MinimizeResult",
     "MeasurementNoise",
     "NMPC",
+    "Obstacle",
     "Ocp",
     "Reference",
     "SolveResult",

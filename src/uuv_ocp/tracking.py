@@ -33,6 +33,7 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.obstacles import Obstacle, check_obstacles
 from uuv_ocp.ocp import Ocp, OcpSpec
 from uuv_ocp.reference.path import UNWRAP_STEP, Reference
 
@@ -152,6 +153,10 @@ class TrackingProblem(Transcribed):
     position_tube : float or None
         Half-width (m) of a soft tube on the horizontal position error of nodes 1..N, or
         ``None``.
+    obstacles : tuple of Obstacle
+        Keep-out zones (:class:`~uuv_ocp.obstacles.Obstacle`): hard constraints on nodes
+        1..N for exact solvers, an exact penalty for swarms; moving ones are sampled at
+        ``t0 + k dt``.
     """
 
     vehicle: Any
@@ -163,6 +168,7 @@ class TrackingProblem(Transcribed):
     substeps: int = 1
     rate_limits: bool = True
     position_tube: float | None = None
+    obstacles: tuple[Obstacle, ...] = ()
     _store: dict = field(default_factory=dict, init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
@@ -201,6 +207,7 @@ class TrackingProblem(Transcribed):
         if self.position_tube is not None:
             tube = check.positive_float("position_tube", self.position_tube)
             object.__setattr__(self, "position_tube", tube)
+        object.__setattr__(self, "obstacles", check_obstacles(self.obstacles))
         if self.reference.t_end - self.reference.t_start < self.horizon * self.dt:
             raise ValueError(
                 f"horizon * dt = {self.horizon * self.dt} s exceeds the reference window "
@@ -254,6 +261,9 @@ class TrackingProblem(Transcribed):
             ocp.subject_to(state == ref, at="terminal")
         if self.position_tube is not None:
             ocp.bounded(-self.position_tube, error[:2], self.position_tube, soft=weights.tube_penalty)
+        for i, obstacle in enumerate(self.obstacles):
+            centre = ocp.parameter(f"obstacle{i}", 2, stagewise=True) if obstacle.is_moving else None
+            ocp.subject_to(obstacle.clearance(state[:2], centre) >= 0)
         return ocp
 
     # ------------------------------------------------------------- dimensions
@@ -408,7 +418,12 @@ class TrackingProblem(Transcribed):
             current = np.vstack([current, current[-1:]])
         current = check.finite_array("current", current, (n + 1, nc))
         window = self.reference_window(t0, heading=x0[self._heading_index])
-        return self.ocp.parameters(x0, {"reference": window, "current": current}, u_prev)
+        values = {"reference": window, "current": current}
+        times = t0 + self.dt * np.arange(n + 1)
+        for i, obstacle in enumerate(self.obstacles):
+            if obstacle.is_moving:
+                values[f"obstacle{i}"] = obstacle.centre_at(times)
+        return self.ocp.parameters(x0, values, u_prev)
 
     def parameter_parts(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Numeric ``p`` -> (x0 (nx,), reference (N+1, nx), u_prev (nu,), current (N, nc))."""

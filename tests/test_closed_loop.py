@@ -5,7 +5,7 @@ import pytest
 
 import uuv_ocp as uo
 from uuv_ocp.solvers import REGISTRY
-from uuv_ocp.solvers.nlp import IpoptSolver
+from uuv_ocp.solvers.ipopt import IpoptSolver
 
 
 @pytest.fixture(scope="module")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
-from uuv_ocp.solvers.nlp import IpoptSolver
+from uuv_ocp.solvers.ipopt import IpoptSolver
 
 
 def nlp_objective_at_rollout(problem, scaled, p):

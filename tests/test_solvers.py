@@ -163,6 +163,34 @@ def test_unknown_option_raises(s2_problem, feasible_start):
         uo.solve(s2_problem, "ipopt", x0=x0, t0=t0, options={"bogus": 1})
 
 
+@pytest.mark.parametrize("name", EXACT)
+def test_unknown_option_error_lists_exactly_the_options_the_backend_reads(s2_problem, name):
+    """The valid names in the message are the backend's ``option_names``, and those are the
+    keys its ``__init__`` methods pop (so neither can drift from the code)."""
+    import inspect
+    import re
+
+    from uuv_ocp.solvers import REGISTRY
+
+    backend = REGISTRY.factory(name)
+    popped = set()
+    for cls in backend.__mro__:
+        if "__init__" in vars(cls) and cls.__module__.startswith("uuv_ocp."):
+            popped |= set(re.findall(r"options\.pop\(\s*\"(\w+)\"", inspect.getsource(cls.__init__)))
+    assert popped == set(backend.option_names)
+    with pytest.raises(ValueError, match="bogus") as error:
+        backend(s2_problem, {"bogus": 1})
+    assert str(error.value).endswith(f"valid: {sorted(backend.option_names)}")
+
+
+def test_backends_stay_importable_from_the_nlp_module():
+    from uuv_ocp.solvers import FatropSolver, IpoptSolver, SqpSolver, nlp
+
+    assert (nlp.IpoptSolver, nlp.FatropSolver, nlp.SqpSolver) == (IpoptSolver, FatropSolver, SqpSolver)
+    with pytest.raises(AttributeError):
+        nlp.NoSuchSolver  # noqa: B018
+
+
 def test_available_solvers_lists_exact_backends():
     assert set(EXACT) <= set(uo.available_solvers())
 

@@ -14,7 +14,10 @@ from typing import Any
 
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import instance_parameters
-from uuv_ocp.solvers.nlp import FatropSolver, IpoptSolver, NlpSolver, SqpSolver
+from uuv_ocp.solvers.fatrop import FatropSolver
+from uuv_ocp.solvers.ipopt import IpoptSolver
+from uuv_ocp.solvers.nlp import NlpSolver
+from uuv_ocp.solvers.sqp import SqpSolver
 from uuv_ocp.solvers.swarm import SwarmSolver, swarm_factory
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize

@@ -16,17 +16,16 @@ accelerates from rest.  Every exact backend therefore handles ``terminal="equali
     Always try the hard NLP first.
 ``"soft"``
     Always solve the soft NLP.
+
+The backends themselves live one per module: :mod:`~uuv_ocp.solvers.ipopt`,
+:mod:`~uuv_ocp.solvers.fatrop` and :mod:`~uuv_ocp.solvers.sqp` (their classes stay importable
+from here).
 """
 
 from __future__ import annotations
 
-import contextlib
-import ctypes
 import dataclasses
 import math
-import os
-import sys
-import threading
 import time
 import warnings
 from typing import Any
@@ -67,37 +66,6 @@ def _with_slack_curvature(data: NlpData, curvature: float) -> NlpData:
     return dataclasses.replace(data, nlp=nlp, residual=ca.vertcat(data.residual, extra))
 
 
-_STDOUT_LOCK = threading.Lock()
-
-
-@contextlib.contextmanager
-def _silenced_c_stdout():
-    """Discard what C code writes to file descriptor 1 (qpOASES prints its licence banner on
-    every solve and has no option to stop it); no-op where the descriptor cannot be swapped.
-
-    Process-wide while it lasts: output of other threads to fd 1 is discarded too.  A lock
-    keeps two threads from swapping the descriptor at once.
-    """
-    with _STDOUT_LOCK:
-        try:
-            libc = ctypes.CDLL(None)
-            sys.stdout.flush()
-            libc.fflush(None)  # what C buffered before belongs to the real stdout
-            saved = os.dup(1)
-        except (OSError, AttributeError, ValueError, TypeError):
-            yield
-            return
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        try:
-            os.dup2(devnull, 1)
-            yield
-        finally:
-            libc.fflush(None)
-            os.dup2(saved, 1)
-            os.close(saved)
-            os.close(devnull)
-
-
 class NlpSolver:
     """Solve any :class:`~uuv_ocp.ocp.Ocp` (or tracking preset) with one ``casadi.nlpsol`` plugin.
 
@@ -131,6 +99,19 @@ class NlpSolver:
     default_penalty_escalation: tuple[float, ...] = ()
     default_slack_curvature = 0.0
     levenberg_marquardt = 0.0
+    # every key ``options`` may hold; a subclass that pops options of its own extends this tuple
+    option_names: tuple[str, ...] = (
+        "compiled",
+        "max_iter",
+        "objective_scale",
+        "penalty_escalation",
+        "plugin_options",
+        "slack_curvature",
+        "slack_tolerance",
+        "still_water",
+        "terminal_penalty",
+        "terminal_strategy",
+    )
 
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
         options = dict(options or {})
@@ -165,10 +146,8 @@ class NlpSolver:
             raise ValueError(f"options['plugin_options'] must be a dict, got {plugin_options!r}")
         if options:
             raise ValueError(
-                f"unknown options for solver {self.name!r}: {sorted(options)}; valid: "
-                "['compiled', 'max_iter', 'objective_scale', 'penalty_escalation', "
-                "'plugin_options', 'slack_curvature', 'slack_tolerance', 'still_water', "
-                "'terminal_penalty', 'terminal_strategy']"
+                f"unknown options for solver {self.name!r}: {sorted(options)}; "
+                f"valid: {sorted(self.option_names)}"
             )
         self.plugin_options = plugin_options
         # the soft NLP's exact-penalty weight may be the solver's own: only the soft variant
@@ -465,161 +444,17 @@ class NlpSolver:
         )
 
 
-class IpoptSolver(NlpSolver):
-    """Interior-point IPOPT (MUMPS), warm-started with primal and dual shifts."""
-
-    name = "ipopt"
-    plugin = "ipopt"
-
-    def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
-        return {
-            "ipopt.print_level": 0,
-            "ipopt.sb": "yes",
-            "ipopt.tol": 1e-8,
-            "ipopt.max_iter": self.max_iter or 200,
-            "ipopt.warm_start_init_point": "yes",
-            "ipopt.warm_start_bound_push": 1e-8,
-            "ipopt.warm_start_mult_bound_push": 1e-8,
-            "ipopt.mu_init": 1e-3,
-            "ipopt.linear_solver": "mumps",
-        }
+_MOVED = {"IpoptSolver": "ipopt", "FatropSolver": "fatrop", "SqpSolver": "sqp"}
 
 
-class FatropSolver(NlpSolver):
-    """Fatrop: interior point with a Riccati-based linear solver exploiting the OCP structure.
+def __getattr__(name: str) -> Any:
+    """Import the backends from their own modules on first access (``from ...nlp import IpoptSolver``).
 
-    ``mu_init = 1e-4``: a warm-started NMPC step starts close to the solution, and the smaller
-    initial barrier saves one of the six median iterations (s2 closed loop, measured); the two
-    steps of that loop it does not solve (the cold start from rest, one saturated step) are
-    solved by the last-resort retry with fatrop's conservative ``mu_init = 1e-3``.
+    Lazily, because those modules import :class:`NlpSolver` from here: an import at the top
+    of this module would be circular.
     """
+    if name in _MOVED:
+        import importlib
 
-    name = "fatrop"
-    plugin = "fatrop"
-
-    def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
-        return {
-            "structure_detection": "auto",
-            "equality": data.equality,
-            "expand": True,
-            "fatrop.print_level": 0,
-            "fatrop.tol": 1e-8,
-            "fatrop.max_iter": self.max_iter or 200,
-            "fatrop.mu_init": 1e-4,
-        }
-
-    def robust_options(self) -> dict[str, Any]:
-        return {"fatrop.mu_init": 1e-3}
-
-
-class SqpSolver(NlpSolver):
-    """CasADi ``sqpmethod`` with a Gauss–Newton Hessian and the QRQP active-set QP solver.
-
-    Measured on the closed loop from rest (s2, RexROV, N = 20): with the exact Hessian the QP
-    subproblems become indefinite while thrust saturates, QRQP returns zero steps
-    (``Search_Direction_Becomes_Too_Small``) and ``regularize`` convexification slows
-    convergence to a crawl; ``eigen-clip`` crashes CasADi 3.8's stats.  The Gauss–Newton
-    Hessian of the least-squares objective is PSD by construction, so every QP is convex.
-    The objective is scaled by ``objective_scale = 1e-3`` so that QRQP's absolute tolerances
-    match the 1e4 weights.  Options: ``hessian="gauss-newton"`` (default) or ``"exact"``,
-    ``levenberg_marquardt`` and ``soft_plugin_options`` (merged into the plugin options of the
-    soft variants only; default HPIPM QPs and ``max_iter_ls=15``).  The hard NLP (all that the
-    trackable references s1–s7, s10 need after the first second) is unchanged.
-
-    Last resort (``robust_options``, after every other attempt failed): the same NLP variant
-    with CasADi's ``blocksqp`` — block-wise BFGS of the Hessian of the Lagrangian, filter line
-    search, qpOASES (``schur=False``, ``restore_feas=False``: both otherwise need the HSL MA27
-    library, absent from the CasADi wheels), at most ``max_iter`` or 300 iterations.  On the
-    untrackable s8 / s9 Gauss–Newton cycles (see below) on 24 / 27 of 300 steps; the retry
-    solves every failing step it met (27 / 30 in the 30 s closed loops, 0.6 s median per such
-    step, objective within 5e-8 of IPOPT's on the captured steps): zero failures on all ten
-    references.  Exact Hessian + ``regularize`` (max 300 iterations), Levenberg–Marquardt
-    1e-2 / 1 and ``feasiblesqpmethod`` solved none of the 24 captured steps.
-    """
-
-    name = "sqp"
-    plugin = "sqpmethod"
-    default_objective_scale = 1e-3
-    # On references the vehicle cannot follow (s8, s9) the soft problem is solved at every
-    # step; with ρ = 1e4 sqpmethod cycles between two points (failed line searches) on 135 of
-    # 300 steps of s8, with ρ = 1e6 on 50 — but ρ = 1e6 from the start costs failures on the
-    # trackable references (measured).  So ρ = 1e4 first, escalated only on failure.
-    # Soft variants only (measured on s8 / s9, 30 s closed loop; see docs/solvers.md):
-    # QRQP declares "Converged" on degenerate soft QPs with |pr| > 1 (steps outside the
-    # thrust bounds), so the soft QPs go to HPIPM; a longer line search (15), ρ escalated
-    # ×100 then ×1e4, and (μ/2) Σ s² with μ = 1e4 on the slacks: 44 / 36 -> 24 / 27 failures.
-    # The rest is genuine SQP cycling: the Gauss–Newton Hessian omits the dynamics' curvature
-    # weighted by multipliers of size ρ, which dominates once the terminal penalty is active.
-    default_penalty_escalation = (100.0, 1e4)
-    default_slack_curvature = 1e4
-    default_soft_plugin_options: dict[str, Any] = {
-        "qpsol": "hpipm",
-        "qpsol_options": {"error_on_fail": False},
-        "max_iter_ls": 15,
-    }
-
-    def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
-        options = dict(options or {})
-        self.hessian = check.choice(
-            "options['hessian']", options.pop("hessian", "gauss-newton"), ("gauss-newton", "exact")
-        )
-        self.levenberg_marquardt = check.nonnegative_float(
-            "options['levenberg_marquardt']", options.pop("levenberg_marquardt", 1e-7)
-        )
-        soft_plugin_options = options.pop("soft_plugin_options", self.default_soft_plugin_options)
-        if not isinstance(soft_plugin_options, dict):
-            raise ValueError(f"options['soft_plugin_options'] must be a dict, got {soft_plugin_options!r}")
-        self.soft_plugin_options = soft_plugin_options
-        super().__init__(problem, options)
-
-    def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
-        defaults: dict[str, Any] = {
-            "qpsol": "qrqp",
-            # QRQP's own default (1000 active-set iterations) let an infeasible QP from rest
-            # take 8.7 s; 100 bounds the worst step to < 1 s (measured on s2)
-            "qpsol_options": {
-                "print_iter": False,
-                "print_header": False,
-                "error_on_fail": False,
-                "max_iter": 100,
-            },
-            "max_iter": self.max_iter or 100,
-            "tol_pr": 1e-8,
-            "tol_du": 1e-6,
-            "print_header": False,
-            "print_iteration": False,
-            "print_status": False,
-        }
-        if self.hessian == "gauss-newton":
-            defaults["hess_lag"] = self.gauss_newton_hessian(data)
-        if data.terminal_slack_index.size:  # the soft variants
-            defaults.update(self.soft_plugin_options)
-        return defaults
-
-    def robust_options(self) -> dict[str, Any]:
-        # blockSQP (still an SQP method): block-wise BFGS updates of the Hessian of the
-        # Lagrangian, so it learns the dynamics' curvature that Gauss–Newton omits, with a
-        # filter line search and qpOASES (full-space, ``schur=False``: the Schur-complement
-        # variant needs the MA27 linear solver, absent from the CasADi wheels).
-        if not ca.has_nlpsol("blocksqp"):
-            return {}
-        return {
-            "plugin": "blocksqp",
-            "hess_update": 2,  # BFGS (SR1, its default, requires the Schur variant)
-            "schur": False,
-            # its feasibility restoration builds an inner blockSQP on MA27 as well: without it
-            # a failed line search is a failure, not a missing-library exception (cold starts)
-            "restore_feas": False,
-            "max_iter": self.max_iter or 300,
-            "print_header": False,
-            "print_iteration": False,
-            "print_maxit_reached": False,
-        }
-
-    def _attempt(
-        self, variant: str, p: np.ndarray, warm_start: Iterate | None, robust: bool = False
-    ) -> dict[str, Any]:
-        if not robust:
-            return super()._attempt(variant, p, warm_start)
-        with _silenced_c_stdout():  # qpOASES' licence banner, printed on every blockSQP solve
-            return super()._attempt(variant, p, warm_start, robust=True)
+        return getattr(importlib.import_module(f"uuv_ocp.solvers.{_MOVED[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

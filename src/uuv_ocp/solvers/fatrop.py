@@ -1,0 +1,37 @@
+"""Fatrop backend: the multiple-shooting NLP of :mod:`uuv_ocp.solvers.nlp` solved by ``fatrop``."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from uuv_ocp.solvers.nlp import NlpSolver
+from uuv_ocp.transcription.multiple_shooting import NlpData
+
+
+class FatropSolver(NlpSolver):
+    """Fatrop: interior point with a Riccati-based linear solver exploiting the OCP structure.
+
+    ``mu_init = 1e-4``: a warm-started NMPC step starts close to the solution, and the smaller
+    initial barrier saves one of the six median iterations (s2 closed loop, measured); the two
+    steps of that loop it does not solve (the cold start from rest, one saturated step) are
+    solved by the last-resort retry with fatrop's conservative ``mu_init = 1e-3``.
+    """
+
+    name = "fatrop"
+    plugin = "fatrop"
+
+    def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
+        """Fatrop on the detected stage structure, tolerance 1e-8, ``mu_init = 1e-4``."""
+        return {
+            "structure_detection": "auto",
+            "equality": data.equality,
+            "expand": True,
+            "fatrop.print_level": 0,
+            "fatrop.tol": 1e-8,
+            "fatrop.max_iter": self.max_iter or 200,
+            "fatrop.mu_init": 1e-4,
+        }
+
+    def robust_options(self) -> dict[str, Any]:
+        """Fatrop's conservative initial barrier, ``mu_init = 1e-3``."""
+        return {"fatrop.mu_init": 1e-3}

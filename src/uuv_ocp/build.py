@@ -21,7 +21,7 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.native.buffered import BufferedFunction
-from uuv_ocp.transcription.condensed import condense
+from uuv_ocp.transcription.condensed import condense, decode
 from uuv_ocp.transcription.multiple_shooting import NlpData, transcribe
 
 if TYPE_CHECKING:
@@ -38,6 +38,7 @@ class Built:
     cost: ca.Function
     rollout: ca.Function
     score_terms: ca.Function
+    decode: ca.Function
     _soft: dict[float, NlpData] = field(default_factory=dict, repr=False)
 
     @property
@@ -59,7 +60,9 @@ def build_spec(spec: OcpSpec) -> Built:
     step = rk4_step(spec.dynamics, spec.dt, spec.substeps, name="model_step")
     hard = transcribe(spec, step, False, spec.terminal_penalty)
     cost, rollout, score_terms = condense(spec, step)
-    return Built(spec=spec, step=step, hard=hard, cost=cost, rollout=rollout, score_terms=score_terms)
+    return Built(
+        spec=spec, step=step, hard=hard, cost=cost, rollout=rollout, score_terms=score_terms, decode=decode(spec)
+    )
 
 
 class Transcribed:

@@ -35,6 +35,7 @@ from uuv_ocp import _validation as check
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import score_terms
+from uuv_ocp.transcription.condensed import encode
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
 
@@ -77,13 +78,23 @@ def _compiled_default(value: object) -> bool:
     return check.boolean("options['compiled']", value)
 
 
+FEASIBILITY_TOLERANCE = 1e-6
+"""Largest violation of a hard constraint (its own units; box and rate: scaled) that a swarm
+result may have and still report ``success``; a terminal equality is relaxed instead
+(``terminal_relaxed``), as in the exact solvers' soft fallback."""
+
+
 def candidate_fitness(problem: Transcribed) -> ca.Function:
-    """``fitness(U[3N], p) -> objective + penalty`` of one candidate, as an SX Function."""
-    cost = problem.build().cost
-    scaled = ca.SX.sym("U", problem.control_dim)
+    """``fitness(W[nu N], p) -> objective + penalty`` of one candidate, as an SX Function.
+
+    ``W`` are the search coordinates of :func:`uuv_ocp.transcription.condensed.decode`: every
+    ``W`` in ``[-1, 1]^{nu N}`` maps to controls that hold the box and the rate bound.
+    """
+    built = problem.build()
+    coordinates = ca.SX.sym("W", problem.control_dim)
     p = ca.SX.sym("p", problem.parameter_dim)
-    objective, penalty = cost(scaled, p)
-    return ca.Function("fitness", [scaled, p], [objective + penalty], ["U", "p"], ["fitness"])
+    objective, penalty = built.cost(built.decode(coordinates, p), p)
+    return ca.Function("fitness", [coordinates, p], [objective + penalty], ["W", "p"], ["fitness"])
 
 
 def batched_fitness(
@@ -191,8 +202,10 @@ class SwarmSolver:
                 f"solver {method!r} searches a box: every control needs finite lower and upper bounds, "
                 f"got lower={spec.lower}, upper={spec.upper}"
             )
-        self._lower = np.tile(spec.scaled_lower, spec.horizon)
-        self._upper = np.tile(spec.scaled_upper, spec.horizon)
+        # the search box of the decode coordinates (box and rate bounds held by construction)
+        self._lower = -np.ones(spec.control_size * spec.horizon)
+        self._upper = np.ones(spec.control_size * spec.horizon)
+        self._decode = BufferedFunction(problem.build().decode)
         self.native = None
         self._score_terms: BufferedFunction | None = None  # compiled twins when compiled=True
         self._rollout: BufferedFunction | None = None
@@ -225,11 +238,15 @@ class SwarmSolver:
         )
 
     def _center(self, p: np.ndarray, warm_start: Iterate | None) -> np.ndarray:
+        """Search coordinates of the warm plan, or of the last control held over the horizon."""
         problem = self.problem
+        spec = problem.spec()
+        previous = problem.previous_scaled(p)
         if warm_start is not None:
-            plan = np.asarray(warm_start.scaled_controls, dtype=float).ravel()
-            return np.clip(plan, self._lower, self._upper)
-        return np.tile(problem.previous_scaled(p), problem.spec().horizon)
+            plan = np.asarray(warm_start.scaled_controls, dtype=float)
+        else:
+            plan = np.tile(previous, (spec.horizon, 1))
+        return encode(spec, plan, previous)
 
     def solve(
         self,
@@ -267,8 +284,10 @@ class SwarmSolver:
                 initial_population=seeds,
                 options=self.algorithm_options,
             )
-        scaled = np.clip(outcome.x + offset, self._lower, self._upper)
+        (scaled,) = self._decode(np.clip(outcome.x + offset, self._lower, self._upper), p)
         cost, kinds = score_terms(problem, scaled, p, self._score_terms)
+        tolerance = FEASIBILITY_TOLERANCE
+        feasible = max(kinds["bound"], kinds["rate"], kinds["constraint"]) <= tolerance
         violation = max(kinds.values())
         states = problem.rollout_scaled(scaled, p, self._rollout)
         controls = problem.controls_from_scaled(scaled)
@@ -282,15 +301,15 @@ class SwarmSolver:
             states=states,
             cost=cost,
             max_violation=violation,
-            success=bool(np.isfinite(outcome.fun)),
+            success=bool(np.isfinite(outcome.fun)) and feasible,
             status=outcome.message,
             solve_time=time.perf_counter() - start,
             iterations=outcome.iterations,
             evaluations=outcome.evaluations,
-            terminal_relaxed=problem.soft_terminal_available and kinds["terminal"] > 1e-6,
+            terminal_relaxed=problem.soft_terminal_available and kinds["terminal"] > tolerance,
             iterate=iterate,
             history=outcome.history,
-            details={"fitness": outcome.fun},
+            details={"fitness": outcome.fun, "violations": kinds},
         )
 
     def _native_minimize(self, p, offset, lower, upper, seeds, rng) -> MinimizeResult:

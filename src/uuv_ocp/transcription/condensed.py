@@ -13,6 +13,11 @@ three Functions built here take the flat scaled controls ``U = [z_0; …; z_{N�
     the predicted states ``(nx, N + 1)``.
 ``score_terms``
     the objective and the raw violations that :func:`uuv_ocp.score` reports.
+``decode``
+    the search coordinates of the derivative-free solvers ``W ∈ [-1, 1]^{nu N}`` -> ``U``:
+    ``z_k = lo_k + (w_k + 1)/2 · (hi_k − lo_k)`` with ``[lo_k, hi_k]`` the control box
+    intersected with the rate box ``[z_{k−1} − r, z_{k−1} + r]``, so every candidate holds
+    the box **and** the rate bound by construction (the identity without rate bounds).
 """
 
 from __future__ import annotations
@@ -28,6 +33,53 @@ if TYPE_CHECKING:
     from uuv_ocp.ocp import OcpSpec
 
 SCORE_OUTPUTS = ("objective", "terminal_residual", "rate_excess", "bound_excess", "constraint_violation")
+
+
+def decode(spec: OcpSpec) -> ca.Function:
+    """``decode(W, p) -> U``: swarm coordinates to scaled controls holding box and rate bounds."""
+    n, nu = spec.horizon, spec.control_size
+    coordinates = ca.SX.sym("W", nu * n)
+    p = ca.SX.sym("p", spec.layout.size)
+    _, u_prev, _, _ = parameter_blocks(spec, p)
+    rate_bound = spec.rate_step_bound
+    if not (spec.lifted and np.any(np.isfinite(rate_bound))):
+        return ca.Function("decode", [coordinates, p], [coordinates], ["W", "p"], ["U"])
+    lower, upper = spec.scaled_lower, spec.scaled_upper
+    previous = spec.scaled(u_prev)
+    scaled = []
+    for k in range(n):
+        w = coordinates[k * nu : (k + 1) * nu]
+        entries = []
+        for i in range(nu):
+            low, high = lower[i], upper[i]
+            if np.isfinite(rate_bound[i]):
+                low = ca.fmax(low, previous[i] - rate_bound[i])
+                high = ca.fmin(high, previous[i] + rate_bound[i])
+            entries.append(low + (w[i] + 1.0) * 0.5 * (high - low))
+        previous = ca.vertcat(*entries)
+        scaled.append(previous)
+    return ca.Function("decode", [coordinates, p], [ca.vertcat(*scaled)], ["W", "p"], ["U"])
+
+
+def encode(spec: OcpSpec, scaled: np.ndarray, previous: np.ndarray) -> np.ndarray:
+    """Inverse of :func:`decode` in numpy: scaled controls (N, nu) -> ``W`` (flat).
+
+    A plan that breaks the rate bound is first projected on it, stage by stage.
+    """
+    rate_bound = spec.rate_step_bound
+    plan = np.asarray(scaled, dtype=float).reshape(spec.horizon, spec.control_size)
+    if not (spec.lifted and np.any(np.isfinite(rate_bound))):
+        return plan.ravel().copy()
+    coordinates = np.empty_like(plan)
+    for k, z in enumerate(plan):
+        low = np.maximum(spec.scaled_lower, previous - rate_bound)
+        high = np.minimum(spec.scaled_upper, previous + rate_bound)
+        z = np.clip(z, low, high)
+        width = high - low
+        with np.errstate(divide="ignore", invalid="ignore"):
+            coordinates[k] = np.where(width > 0, 2.0 * (z - low) / width - 1.0, 0.0)
+        previous = z
+    return np.clip(coordinates, -1.0, 1.0).ravel()
 
 
 def condense(spec: OcpSpec, step: ca.Function) -> tuple[ca.Function, ca.Function, ca.Function]:

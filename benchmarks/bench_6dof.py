@@ -19,7 +19,7 @@ SOLVERS = ("fatrop", "sqp", "igwo")
 
 
 def problem() -> uo.TrackingProblem:
-    """The BlueROV2 Heavy depth-and-heading problem."""
+    """Build the BlueROV2 Heavy depth-and-heading problem."""
     ref = uo.Reference.from_xyz(
         lambda t: 0.3 * t, lambda t: ca.sin(0.2 * t), lambda t: 1.0 + 0.5 * ca.sin(0.1 * t), name="dive"
     )
@@ -31,7 +31,9 @@ def main(duration: float = 10.0) -> None:
     tracking = problem()
     x0 = tracking.reference.initial_state(0.0)
     print(f"\n6-DOF BlueROV2 Heavy, depth + heading, N = 20, {duration:g} s closed loop from rest")
-    print(f"{'solver':8s} {'median ms':>10s} {'p90 ms':>8s} {'fail':>5s} {'max|e_z| t>2':>13s} {'/fatrop':>8s}")
+    print(
+        f"{'solver':8s} {'median ms':>10s} {'p90 ms':>8s} {'fail':>5s} {'max|e_z| t>2':>13s} {'/fatrop':>8s}"
+    )
     reference_median = None
     for solver in SOLVERS:
         controller = uo.NMPC(tracking, solver, seed=1)

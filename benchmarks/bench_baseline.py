@@ -103,7 +103,9 @@ def main(argv: list[str] | None = None) -> None:
                 print(f"{solver:8s} {old:8.2f} {new:8.2f} {new / old:8.3f}")
             if args.optima:
                 old_costs, new_costs = (_run(source, _OPTIMA) for source in trees.values())
-                gaps = {key: abs(new_costs[key] - cost) / max(1.0, abs(cost)) for key, cost in old_costs.items()}
+                gaps = {
+                    key: abs(new_costs[key] - cost) / max(1.0, abs(cost)) for key, cost in old_costs.items()
+                }
                 worst = max(gaps, key=gaps.__getitem__)
                 within = sum(gap <= 1e-9 for gap in gaps.values())
                 print(

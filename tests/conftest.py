@@ -16,13 +16,13 @@ os.environ.setdefault("UUV_OCP_COMPILED", "0")
 
 @pytest.fixture(scope="session")
 def s2_problem():
-    """The paper's s2 problem on the RexROV, N = 20, dt = 0.1 s, terminal equality."""
+    """Return the paper's s2 problem on the RexROV, N = 20, dt = 0.1 s, terminal equality."""
     return uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"))
 
 
 @pytest.fixture(scope="session")
 def feasible_start():
-    """A state slightly off the s2 reference at t0 = 3 s, moving: terminal equality feasible."""
+    """Return a state slightly off the s2 reference at t0 = 3 s, moving: terminal equality feasible."""
     reference = uo.Reference.paper("s2")
     state = reference.evaluate([3.0])[0]
     state += np.array([0.05, -0.04, 0.02, 0.03, 0.01, -0.01])

@@ -72,8 +72,10 @@ class _InterruptedSecond(IpoptSolver):
     name = "interrupted-ipopt"
 
     def solve(self, p, warm_start=None, rng=None):
-        raise RuntimeError("Error in Function::call for 'solver' [IpoptInterface] at .../casadi_interrupt.hpp: "
-                           "KeyboardInterrupt")
+        raise RuntimeError(
+            "Error in Function::call for 'solver' [IpoptInterface] at .../casadi_interrupt.hpp: "
+            "KeyboardInterrupt"
+        )
 
 
 def test_solver_crashes_never_stop_the_loop(s2_problem):
@@ -83,7 +85,9 @@ def test_solver_crashes_never_stop_the_loop(s2_problem):
         run = uo.simulate(controller, s2_problem.reference.initial_state(0.0), 3.0)
         with pytest.raises(KeyboardInterrupt):  # an interrupt inside a backend is never swallowed
             REGISTRY.register("interrupted-ipopt", _InterruptedSecond, overwrite=True)
-            uo.NMPC(s2_problem.replace(), "interrupted-ipopt").step(s2_problem.reference.initial_state(0.0), 0.0)
+            uo.NMPC(s2_problem.replace(), "interrupted-ipopt").step(
+                s2_problem.reference.initial_state(0.0), 0.0
+            )
     finally:
         REGISTRY._factories.pop("failing-ipopt", None)
         REGISTRY._factories.pop("interrupted-ipopt", None)

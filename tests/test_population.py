@@ -18,8 +18,11 @@ def instance(s2_problem, feasible_start):
 
 
 def decode_in_numpy(coordinates, u_prev_scaled, bound):
-    """The swarm's coordinates -> scaled controls, written independently: each z_k is placed
-    at (w + 1)/2 of the box [-1, 1] intersected with [z_{k-1} - bound, z_{k-1} + bound]."""
+    """Map the swarm's coordinates to scaled controls, written independently of the package.
+
+    Each z_k is placed at (w + 1)/2 of the box [-1, 1] intersected with
+    [z_{k-1} - bound, z_{k-1} + bound].
+    """
     previous, plan = u_prev_scaled, []
     for w in coordinates.reshape(-1, 3):
         low = np.maximum(-1.0, previous - bound)
@@ -97,7 +100,9 @@ def test_swarm_update_beats_random_sampling_at_equal_budget(instance, method):
     # the reported fitness is the independent batched fitness of the reported plan's coordinates
     plan = problem.scaled_from_controls(result.controls)
     coordinates = encode(problem.spec(), plan.reshape(-1, 3), np.zeros(3))
-    assert float(batched_fitness(problem, 1)(coordinates, p)) == pytest.approx(result.details["fitness"], rel=1e-6)
+    assert float(batched_fitness(problem, 1)(coordinates, p)) == pytest.approx(
+        result.details["fitness"], rel=1e-6
+    )
 
 
 @pytest.fixture(scope="module")

@@ -117,8 +117,11 @@ def _direct_window(reference, t0, dt, horizon, heading):
     ids=["s3", "s8", "fast-circle"],
 )
 def test_windows_cut_from_sample_blocks_match_direct_evaluation(reference):
-    """Closed-loop windows (t0 = i dt) come from cached blocks of samples; across block
-    boundaries and many heading turns they equal a direct evaluation of the reference."""
+    """Windows cut from cached sample blocks equal a direct evaluation of the reference.
+
+    Closed-loop windows (t0 = i dt) come from cached blocks of samples; this holds across block
+    boundaries and many heading turns.
+    """
     problem = uo.TrackingProblem(uo.Vehicle.rexrov(), reference, horizon=20, dt=0.1)
     heading = 0.7 - 6 * math.pi
     first = int(math.ceil(reference.t_start / 0.1))
@@ -142,8 +145,11 @@ def test_windows_cut_from_sample_blocks_match_direct_evaluation(reference):
 
 
 def test_a_stationary_point_outside_the_window_does_not_matter():
-    """The sample block around a window may hold a point where the heading is undefined: the
-    window then comes from a direct evaluation, and only a window containing it raises."""
+    """A point where the heading is undefined raises only in a window containing it.
+
+    The sample block around a window may hold such a point: the window then comes from a
+    direct evaluation.
+    """
     reference = uo.Reference.from_xy(lambda t: (t - 5) ** 3, lambda t: 0 * t, "stops at t = 5")
     problem = uo.TrackingProblem(uo.Vehicle.rexrov(), reference, horizon=20, dt=0.1)
     np.testing.assert_allclose(
@@ -197,3 +203,16 @@ def test_weights_validation():
         uo.Weights(pose=(1.0, -1.0, 1.0))
     with pytest.raises(ValueError, match="weights.terminal_penalty"):
         uo.Weights(terminal_penalty=0.0)
+
+
+def test_clearance_of_a_moving_obstacle_needs_its_centre():
+    position = ca.SX.sym("position", 2)
+    static = uo.Obstacle.circle((1.0, 2.0), 0.5, margin=0.5)
+    value = ca.Function("c", [position], [static.clearance(position)])
+    assert float(value([1.0, 4.0])) == pytest.approx(2.0**2 - 1.0**2)
+    moving = uo.Obstacle.moving(lambda t: (t, 0 * t), 0.5)
+    with pytest.raises(ValueError, match="moves"):
+        moving.clearance(position)
+    centre = ca.SX.sym("centre", 2)
+    value = ca.Function("c", [position, centre], [moving.clearance(position, centre)])
+    assert float(value([3.0, 0.0], [1.0, 0.0])) == pytest.approx(2.0**2 - 0.5**2)

@@ -165,8 +165,10 @@ def test_unknown_option_raises(s2_problem, feasible_start):
 
 @pytest.mark.parametrize("name", EXACT)
 def test_unknown_option_error_lists_exactly_the_options_the_backend_reads(s2_problem, name):
-    """The valid names in the message are the backend's ``option_names``, and those are the
-    keys its ``__init__`` methods pop (so neither can drift from the code)."""
+    """The message lists the backend's ``option_names``: the keys its ``__init__`` methods pop.
+
+    So neither the message nor the tuple can drift from the code.
+    """
     import inspect
     import re
 

@@ -73,7 +73,9 @@ def test_a_planar_reference_for_a_6dof_vehicle_is_refused():
 
 def test_thruster_rollout_equals_an_independent_integration_of_tau_equals_t_f():
     boat = Vehicle6DOF.bluerov2_heavy(thrusters=True)
-    problem = uo.TrackingProblem(boat, uo.Reference.hold((0.0, 0.0, 1.0, 0.5)), horizon=6, dt=0.1, terminal="cost")
+    problem = uo.TrackingProblem(
+        boat, uo.Reference.hold((0.0, 0.0, 1.0, 0.5)), horizon=6, dt=0.1, terminal="cost"
+    )
     rng = np.random.default_rng(5)
     forces = rng.uniform(-1.0, 1.0, size=(6, 8)) * np.asarray(boat.control_bound)
     x0 = np.r_[0.1, -0.1, 0.9, 0.05, -0.02, 0.4, 0.1, 0.0, -0.05, 0.0, 0.02, 0.1]
@@ -88,7 +90,9 @@ def test_thruster_rollout_equals_an_independent_integration_of_tau_equals_t_f():
 
 def test_roll_pitch_and_heading_errors_are_wrap_safe():
     boat = Vehicle6DOF.bluerov2_heavy()
-    problem = uo.TrackingProblem(boat, uo.Reference.hold((0.0, 0.0, 1.0, 0.0)), horizon=5, dt=0.1, terminal="cost")
+    problem = uo.TrackingProblem(
+        boat, uo.Reference.hold((0.0, 0.0, 1.0, 0.0)), horizon=5, dt=0.1, terminal="cost"
+    )
     controls = np.zeros((5, 6))
     base = np.r_[0.0, 0.0, 1.0, 0.1, -0.1, 0.2, np.zeros(6)]
     for index in (3, 4, 5):  # φ, θ, ψ shifted by a full turn: the same pose

@@ -8,15 +8,14 @@ Importing the package has no side effects: nothing is built, compiled or plotted
 
 from uuv_ocp.codegen import GeneratedCode, generate_c
 from uuv_ocp.control.disturbances import Current, GaussMarkov, MeasurementNoise
-from uuv_ocp.studies.compare import compare, format_comparison
-from uuv_ocp.integrators import rk4_step
 from uuv_ocp.control.mpc import NMPC, StepOutput
+from uuv_ocp.control.simulation import ClosedLoopResult, simulate
+from uuv_ocp.integrators import rk4_step
 from uuv_ocp.judge import score
+from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.obstacles import Obstacle
 from uuv_ocp.ocp import Ocp
-from uuv_ocp.tracking import TrackingProblem, Weights
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
-from uuv_ocp.control.simulation import ClosedLoopResult, simulate
 from uuv_ocp.solvers import (
     Iterate,
     MinimizeResult,
@@ -27,7 +26,8 @@ from uuv_ocp.solvers import (
     register_solver,
     solve,
 )
-from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.studies.compare import compare, format_comparison
+from uuv_ocp.tracking import TrackingProblem, Weights
 
 __version__ = "0.1.0"
 

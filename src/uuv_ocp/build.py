@@ -47,7 +47,7 @@ class Built:
         return self.soft_variant(self.spec.terminal_penalty)
 
     def soft_variant(self, terminal_penalty: float) -> NlpData | None:
-        """The terminal relaxation with L1 weight ``terminal_penalty`` (``None``: no terminal equality)."""
+        """Return the terminal relaxation with L1 weight ``terminal_penalty`` (``None``: no equality)."""
         if not self.spec.has_terminal_equality:
             return None
         if terminal_penalty not in self._soft:
@@ -61,7 +61,13 @@ def build_spec(spec: OcpSpec) -> Built:
     hard = transcribe(spec, step, False, spec.terminal_penalty)
     cost, rollout, score_terms = condense(spec, step)
     return Built(
-        spec=spec, step=step, hard=hard, cost=cost, rollout=rollout, score_terms=score_terms, decode=decode(spec)
+        spec=spec,
+        step=step,
+        hard=hard,
+        cost=cost,
+        rollout=rollout,
+        score_terms=score_terms,
+        decode=decode(spec),
     )
 
 
@@ -71,7 +77,7 @@ class Transcribed:
     _store: dict[Any, Any]
 
     def spec(self) -> OcpSpec:
-        """The frozen description of the problem."""
+        """Return the frozen description of the problem."""
         raise NotImplementedError
 
     @property
@@ -153,7 +159,7 @@ class Transcribed:
         return self.rollout_scaled(self.scaled_from_controls(controls), p)
 
     def previous_scaled(self, p: np.ndarray) -> np.ndarray:
-        """The last applied control in ``p``, scaled and clipped into the box."""
+        """Return the last applied control in ``p``, scaled and clipped into the box."""
         spec = self.spec()
         scaled = spec.scaled(np.asarray(p[spec.layout.u_prev], dtype=float))
         return np.clip(scaled, spec.scaled_lower, spec.scaled_upper)

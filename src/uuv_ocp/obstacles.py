@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -59,6 +60,7 @@ class Obstacle:
     _path: ca.Function | None = field(default=None, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        """Check the fields; a callable centre is compiled into a CasADi function of time."""
         check.choice("kind", self.kind, KINDS)
         axes = check.vector("axes", self.axes, 2, positive=True)
         if self.kind == "circle" and axes[0] != axes[1]:
@@ -76,7 +78,7 @@ class Obstacle:
     # ------------------------------------------------------------ constructors
     @classmethod
     def circle(cls, centre: object, radius: float, *, margin: float = 0.0, name: str = "circle") -> Obstacle:
-        """A circle of ``radius`` (m) at ``centre`` (m, or a function of time for a moving one)."""
+        """Make a circle of ``radius`` (m) at ``centre`` (m, or a function of time for a moving one)."""
         radius = check.positive_float("radius", radius)
         return cls("circle", centre, (radius, radius), 0.0, margin, name)  # type: ignore[arg-type]
 
@@ -84,14 +86,14 @@ class Obstacle:
     def ellipse(
         cls, centre: object, axes: object, angle: float = 0.0, *, margin: float = 0.0, name: str = "ellipse"
     ) -> Obstacle:
-        """An ellipse with half-axes ``axes`` (m) turned by ``angle`` (rad) at ``centre``."""
+        """Make an ellipse with half-axes ``axes`` (m) turned by ``angle`` (rad) at ``centre``."""
         return cls("ellipse", centre, axes, angle, margin, name)  # type: ignore[arg-type]
 
     @classmethod
     def moving(
         cls, path: CentrePath, radius: float, *, margin: float = 0.0, name: str = "moving"
     ) -> Obstacle:
-        """A circle whose centre follows ``path(t) -> (x, y)`` (CasADi expressions of ``t``)."""
+        """Make a circle whose centre follows ``path(t) -> (x, y)`` (CasADi expressions of ``t``)."""
         if not callable(path):
             raise ValueError(f"path must be a function of time t returning (x, y), got {path!r}")
         return cls.circle(path, radius, margin=margin, name=name)
@@ -119,7 +121,15 @@ class Obstacle:
 
     def clearance(self, position: ca.SX, centre: ca.SX | None = None) -> ca.SX:
         """Smooth clearance (>= 0 outside) of ``position`` (2,) from the enlarged obstacle."""
-        c = ca.DM(self.centre) if centre is None else centre
+        c: ca.SX | ca.DM
+        if centre is not None:
+            c = centre
+        elif callable(self.centre):
+            raise ValueError(
+                f"obstacle {self.name!r} moves: pass its centre at the node (a stagewise parameter)"
+            )
+        else:
+            c = ca.DM(self.centre)
         offset = position[:2] - c
         if self.kind == "circle":
             return ca.sumsqr(offset) - (self.axes[0] + self.margin) ** 2
@@ -153,8 +163,8 @@ class Obstacle:
 def _centre_function(path: CentrePath) -> ca.Function:
     time = ca.SX.sym("t")
     try:
-        value = path(time)
-        centre = ca.vertcat(*[ca.SX(v) + 0 * time for v in value])  # type: ignore[union-attr]
+        value: Any = path(time)  # the user's (x, y): iterated and checked below
+        centre = ca.vertcat(*[ca.SX(v) + 0 * time for v in value])
     except Exception as error:  # user callables may fail in many ways
         raise ValueError(
             f"centre must be (x, y) or a function of a casadi SX time symbol t returning (x, y); calling "

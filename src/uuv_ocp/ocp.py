@@ -259,14 +259,18 @@ class Ocp(Transcribed):
             raise ValueError(f"start must be < horizon = {self.horizon}, got {start}")
         self._stage_costs.append(self._cost_term(expression, residual, weight, start, "stage cost"))
 
-    def add_terminal_cost(self, expression: object = None, *, residual: object = None, weight: object = None) -> None:
+    def add_terminal_cost(
+        self, expression: object = None, *, residual: object = None, weight: object = None
+    ) -> None:
         """Add a terminal cost at node ``N`` (states and parameters only)."""
         term = self._cost_term(expression, residual, weight, 0, "terminal cost")
         if self._depends_on_controls(term.expression):
             raise ValueError("terminal cost must not depend on controls (node N has none)")
         self._terminal_costs.append(term)
 
-    def _cost_term(self, expression: object, residual: object, weight: object, start: int, what: str) -> CostTerm:
+    def _cost_term(
+        self, expression: object, residual: object, weight: object, start: int, what: str
+    ) -> CostTerm:
         self._check_open(f"add a {what}")
         if (expression is None) == (residual is None):
             raise ValueError(f"{what}: give exactly one of expression or residual=")
@@ -316,7 +320,9 @@ class Ocp(Transcribed):
             upper.append(0.0)
         self._add_constraint(ca.vertcat(*expressions), np.array(lower), np.array(upper), soft, at, str(sx))
 
-    def bounded(self, lower: object, expression: object, upper: object, *, soft: float | None = None, at: str = "path") -> None:
+    def bounded(
+        self, lower: object, expression: object, upper: object, *, soft: float | None = None, at: str = "path"
+    ) -> None:
         """Add ``lower <= expression <= upper`` (elementwise; ``±inf`` for one-sided)."""
         sx = ca.vec(_as_sx("expression", expression))
         low = _bound_vector("lower", lower, sx.numel())
@@ -344,7 +350,9 @@ class Ocp(Transcribed):
 
     def _check_open(self, action: str) -> None:
         if self._frozen:
-            raise ValueError(f"cannot {action}: the Ocp {self.name!r} is built and immutable; create a new Ocp")
+            raise ValueError(
+                f"cannot {action}: the Ocp {self.name!r} is built and immutable; create a new Ocp"
+            )
 
     @staticmethod
     def _find(symbol: object, pool: Sequence[Declared], what: str) -> Declared:
@@ -442,7 +450,9 @@ class Ocp(Transcribed):
             raise ValueError(f"parameters must be a dict of name -> value, got {parameters!r}")
         unknown = sorted(set(given) - set(spec.layout.entries))
         if unknown:
-            raise ValueError(f"parameters has unknown name(s) {unknown}; declared: {sorted(spec.layout.entries)}")
+            raise ValueError(
+                f"parameters has unknown name(s) {unknown}; declared: {sorted(spec.layout.entries)}"
+            )
         p = np.empty(spec.layout.size)
         p[spec.layout.x0] = x0
         p[spec.layout.u_prev] = u_prev
@@ -452,7 +462,11 @@ class Ocp(Transcribed):
             value = np.asarray(given[name], dtype=float) if not isinstance(given[name], str) else None
             if value is None:
                 raise ValueError(f"parameter {name!r} must be numbers, got {given[name]!r}")
-            if stagewise and value.shape in ((size,), (1, size)) or (stagewise and size == 1 and value.ndim == 0):
+            if (
+                stagewise
+                and value.shape in ((size,), (1, size))
+                or (stagewise and size == 1 and value.ndim == 0)
+            ):
                 value = np.broadcast_to(value.reshape(1, size), (spec.horizon + 1, size))
             expected = (spec.horizon + 1, size) if stagewise else (size,)
             if not stagewise and value.ndim == 0 and size == 1:
@@ -526,7 +540,9 @@ class OcpSpec:
     @property
     def has_terminal_equality(self) -> bool:
         """Whether a hard terminal equality exists (then a soft fallback NLP is built)."""
-        return any(c.place == "terminal" and c.soft is None and np.all(c.equality) for c, _ in self.constraints)
+        return any(
+            c.place == "terminal" and c.soft is None and np.all(c.equality) for c, _ in self.constraints
+        )
 
     def physical(self, scaled: ca.SX | np.ndarray) -> Any:
         """``u = c + s ⊙ z`` (zero centres skipped, so the arithmetic matches ``s ⊙ z``)."""
@@ -577,7 +593,9 @@ def _freeze(ocp: Ocp) -> OcpSpec:
             chosen = [t.expression for t in terms if t.least_squares == least_squares and t.start == start]
             value = ca.vertcat(*chosen) if least_squares else sum(chosen[1:], chosen[0])
             label = "residual" if least_squares else "cost"
-            out.append((start, ca.Function(f"stage_{label}_{start}", stage_inputs, [value], stage_names, [label])))
+            out.append(
+                (start, ca.Function(f"stage_{label}_{start}", stage_inputs, [value], stage_names, [label]))
+            )
         return tuple(out)
 
     def terminal(least_squares: bool) -> ca.Function | None:
@@ -606,7 +624,8 @@ def _freeze(ocp: Ocp) -> OcpSpec:
     scale[finite] = 0.5 * (upper[finite] - lower[finite])
     lifted = bool(np.any(np.isfinite(rate)) or ocp._previous)
     layout = _layout(ocp, globals_, stagewise)
-    spec_fields = dict(
+    # one mapping feeds both the content key and the constructor: Any, as OcpSpec's fields differ in type
+    spec_fields: dict[str, Any] = dict(
         name=ocp.name,
         horizon=ocp.horizon,
         dt=ocp.dt,

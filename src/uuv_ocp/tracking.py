@@ -95,9 +95,9 @@ class Weights:
         L1 weight on position-tube slacks (1/m).
     """
 
-    pose: tuple[float, float, float] = (1e4, 1e4, 1e3)
-    velocity: tuple[float, float, float] = (10.0, 10.0, 10.0)
-    rate: tuple[float, float, float] = (0.1, 0.1, 0.1)
+    pose: tuple[float, ...] = (1e4, 1e4, 1e3)  # 3 planar, 6 spatial entries (see ``spatial``)
+    velocity: tuple[float, ...] = (10.0, 10.0, 10.0)
+    rate: tuple[float, ...] = (0.1, 0.1, 0.1)
     terminal: tuple[float, ...] = (1e4, 1e4, 1e3, 100.0, 100.0, 100.0)
     terminal_penalty: float = 1e4
     rate_penalty: float = 1e4
@@ -105,9 +105,11 @@ class Weights:
 
     @classmethod
     def spatial(cls, controls: int = 6) -> Weights:
-        """Default weights of 6-DOF tracking: the planar ones, with depth like x and y and
-        roll and pitch regulated like heading; ``controls`` rate weights (6, or one per
-        thruster)."""
+        """Return the default weights of 6-DOF tracking.
+
+        They are the planar ones, with depth weighted like x and y and roll and pitch
+        regulated like heading; ``controls`` rate weights (6, or one per thruster).
+        """
         return cls(
             pose=(1e4, 1e4, 1e4, 1e3, 1e3, 1e3),
             velocity=(10.0,) * 6,
@@ -116,6 +118,7 @@ class Weights:
         )
 
     def __post_init__(self) -> None:
+        """Check every weight and store the vectors as tuples of floats."""
         set_field = object.__setattr__
         for name in ("pose", "velocity", "rate", "terminal"):
             value = getattr(self, name)
@@ -172,6 +175,7 @@ class TrackingProblem(Transcribed):
     _store: dict = field(default_factory=dict, init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
+        """Check the fields against each other and the vehicle; fill in the default weights."""
         if not (isinstance(self.vehicle, Vehicle) or hasattr(self.vehicle, "rhs")):
             raise ValueError(
                 f"vehicle must be a uuv_ocp.Vehicle or Vehicle6DOF, got {type(self.vehicle).__name__}"
@@ -224,7 +228,7 @@ class TrackingProblem(Transcribed):
         return ocp
 
     def spec(self) -> OcpSpec:
-        """The frozen description of :attr:`ocp`."""
+        """Return the frozen description of :attr:`ocp`."""
         return self.ocp.spec()
 
     def _declare(self) -> Ocp:
@@ -298,7 +302,7 @@ class TrackingProblem(Transcribed):
         return self.reference.t_end - self.horizon * self.dt
 
     def replace(self, **changes: Any) -> TrackingProblem:
-        """A copy with some fields changed (a new, unbuilt problem)."""
+        """Return a copy with some fields changed (a new, unbuilt problem)."""
         return dataclasses.replace(self, **changes)
 
     # ------------------------------------------------------------- parameters
@@ -317,7 +321,7 @@ class TrackingProblem(Transcribed):
         return t0
 
     def reference_window(self, t0: float, heading: float | None = None) -> np.ndarray:
-        """Reference states at ``t0 + k dt``, k = 0..N, shape (N+1, nx).
+        """Return the reference states at ``t0 + k dt``, k = 0..N, shape (N+1, nx).
 
         The heading is shifted by a multiple of 2π so that its first value is the one closest
         to ``heading`` (the vehicle's), which keeps the terminal equality wrap-safe.
@@ -341,7 +345,7 @@ class TrackingProblem(Transcribed):
         return window
 
     def _window_from_samples(self, t0: float) -> np.ndarray | None:
-        """The window at ``t0 = i dt`` from cached sample blocks, or ``None`` (see above)."""
+        """Return the window at ``t0 = i dt`` from cached sample blocks, or ``None`` (see above)."""
         dt, horizon, reference = self.dt, self.horizon, self.reference
         if not math.isfinite(t0):
             return None
@@ -369,7 +373,7 @@ class TrackingProblem(Transcribed):
         return window if window.shape[0] == horizon + 1 else None
 
     def _sample_block(self, block: int) -> tuple[int, np.ndarray] | None:
-        """Reference samples at ``i dt`` for ``i`` in block ``block`` (its first index, states)."""
+        """Return the samples at ``i dt`` for ``i`` in block ``block`` (its first index, states)."""
         blocks = self._store.setdefault("sample_blocks", {})
         if block not in blocks:
             dt, reference = self.dt, self.reference
@@ -411,7 +415,9 @@ class TrackingProblem(Transcribed):
         try:
             current = np.array(current, dtype=float)
         except (TypeError, ValueError) as error:
-            raise ValueError(f"current must be numbers of shape ({nc},) or ({n}, {nc}), got {current!r}") from error
+            raise ValueError(
+                f"current must be numbers of shape ({nc},) or ({n}, {nc}), got {current!r}"
+            ) from error
         if current.shape == (nc,):
             current = np.tile(current, (n + 1, 1))
         elif current.shape == (n, nc):
@@ -446,7 +452,9 @@ class TrackingProblem(Transcribed):
 
 
 def _move_heading_branch(states: np.ndarray, heading: float, column: int = 2) -> None:
-    """Shift the heading column of ``states`` by the multiple of 2π that brings its first value
-    closest to ``heading`` (in place)."""
+    """Shift the heading column of ``states`` by a multiple of 2π, in place.
+
+    The multiple is the one that brings its first value closest to ``heading``.
+    """
     turns = np.round((heading - states[0, column]) / (2.0 * math.pi))
     states[:, column] += 2.0 * math.pi * turns

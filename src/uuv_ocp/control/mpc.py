@@ -27,8 +27,8 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import instance_parameters
-from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers import get_solver
+from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.result import Iterate, SolveResult
 
 
@@ -114,9 +114,7 @@ class NMPC:
 
         ``current`` is a tracking problem's model current; ``parameters`` an Ocp's data.
         """
-        p = instance_parameters(
-            self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters
-        )
+        p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
         warm = self._iterate if self.use_warm_start else None
         try:
             result = self.backend.solve(p, warm, rng=self._rng)

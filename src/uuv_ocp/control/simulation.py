@@ -19,13 +19,13 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
-from uuv_ocp.integrators import rk4_step
 from uuv_ocp.control.metrics import tracking_metrics
 from uuv_ocp.control.mpc import NMPC
-from uuv_ocp.progress import ProgressBar
-from uuv_ocp.transcription.multiple_shooting import parameter_blocks
+from uuv_ocp.integrators import rk4_step
 from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.progress import ProgressBar
 from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions
+from uuv_ocp.transcription.multiple_shooting import parameter_blocks
 
 
 @dataclass(frozen=True)
@@ -192,8 +192,8 @@ def simulate(
         raise ValueError(f"current must be a uuv_ocp.Current or None, got {current!r}")
     if noise is not None and not isinstance(noise, MeasurementNoise):
         raise ValueError(f"noise must be a uuv_ocp.MeasurementNoise or None, got {noise!r}")
-    dt = problem.dt
-    if tracking:
+    dt = spec.dt
+    if isinstance(problem, TrackingProblem):  # `tracking`, spelt so that type checkers narrow
         reference = problem.reference
         t0 = reference.t_start if t0 is None else problem.check_time(t0)
         available = problem.latest_start() - t0
@@ -238,7 +238,7 @@ def simulate(
     u_prev = np.clip(np.zeros(nu), spec.lower, spec.upper)
     completed = 0
     interrupted = False
-    name = problem.reference.name if tracking else spec.name
+    name = problem.reference.name if isinstance(problem, TrackingProblem) else spec.name
     with ProgressBar(steps, label or f"{name}/{controller.solver_name}", progress) as bar:
         try:
             for k in range(steps):
@@ -274,7 +274,11 @@ def simulate(
         t=times[: n + 1],
         states=states[: n + 1],
         controls=controls[:n],
-        reference=problem.reference.evaluate(times[: n + 1]) if tracking else np.full((n + 1, nx), np.nan),
+        reference=(
+            problem.reference.evaluate(times[: n + 1])
+            if isinstance(problem, TrackingProblem)
+            else np.full((n + 1, nx), np.nan)
+        ),
         solve_times=solve_times[:n],
         iterations=iterations[:n],
         fallback_steps=fallback[:n],
@@ -296,8 +300,12 @@ def _vehicle_plant(problem: TrackingProblem, plant: Any, dt: float, substeps: in
             f"plant must have the controller model's dimensions {vehicle_dimensions(problem.vehicle)} "
             f"(states, controls, current), got {vehicle_dimensions(vehicle)}"
         )
-    dynamics = vehicle.dynamics_function() if isinstance(vehicle, Vehicle) else (
-        vehicle.thruster_dynamics if getattr(vehicle, "thrusters", None) is not None else vehicle.dynamics
+    dynamics = (
+        vehicle.dynamics_function()
+        if isinstance(vehicle, Vehicle)
+        else (
+            vehicle.thruster_dynamics if getattr(vehicle, "thrusters", None) is not None else vehicle.dynamics
+        )
     )
     return rk4_step(dynamics, dt, substeps, name="plant_step"), vehicle_dimensions(vehicle)[2]
 

@@ -14,13 +14,13 @@ from typing import Any
 
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import instance_parameters
+from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
 from uuv_ocp.solvers.fatrop import FatropSolver
 from uuv_ocp.solvers.ipopt import IpoptSolver
 from uuv_ocp.solvers.nlp import NlpSolver
+from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.solvers.sqp import SqpSolver
 from uuv_ocp.solvers.swarm import SwarmSolver, swarm_factory
-from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
 
 SolverFactory = Callable[[Transcribed, dict[str, Any] | None], Any]
 
@@ -44,7 +44,9 @@ class SolverRegistry:
     def __init__(self, factories: dict[str, tuple[SolverFactory, str]] | None = None) -> None:
         self._factories: dict[str, tuple[SolverFactory, str]] = dict(factories or {})
 
-    def register(self, name: str, factory: SolverFactory, *, kind: str = "exact", overwrite: bool = False) -> None:
+    def register(
+        self, name: str, factory: SolverFactory, *, kind: str = "exact", overwrite: bool = False
+    ) -> None:
         """Add a backend under ``name`` (``kind`` says which half of a hybrid it can be)."""
         if not isinstance(name, str) or not name or "+" in name:
             raise ValueError(f"solver name must be a non-empty string without '+', got {name!r}")
@@ -71,7 +73,7 @@ class SolverRegistry:
         return sorted([*self._factories, *hybrids])
 
     def factory(self, name: str) -> SolverFactory:
-        """The factory for ``name``; ``ValueError`` listing valid names otherwise."""
+        """Return the factory for ``name``; raise ``ValueError`` listing valid names otherwise."""
         if not isinstance(name, str):
             raise ValueError(f"solver must be a string from available_solvers(), got {name!r}")
         if name in self._factories:
@@ -89,7 +91,9 @@ class SolverRegistry:
 REGISTRY = SolverRegistry(_BUILTIN)
 
 
-def register_solver(name: str, factory: SolverFactory, *, kind: str = "exact", overwrite: bool = False) -> None:
+def register_solver(
+    name: str, factory: SolverFactory, *, kind: str = "exact", overwrite: bool = False
+) -> None:
     """Register a backend ``factory(problem, options) -> Backend`` under ``name``.
 
     ``kind="swarm"`` or ``"exact"`` says which half of a ``"<swarm>+<exact>"`` hybrid it can be.

@@ -54,7 +54,7 @@ def _transfer(values: np.ndarray | None, mapping: np.ndarray, fill: float = 0.0)
 
 
 def _with_slack_curvature(data: NlpData, curvature: float) -> NlpData:
-    """``data`` with ``(μ/2) Σ s²`` added on the terminal slacks (an L1 + L2 exact penalty).
+    """Return ``data`` with ``(μ/2) Σ s²`` added on the terminal slacks (an L1 + L2 exact penalty).
 
     The term enters as the extra residual ``sqrt(μ/2) s``, so ``f = ‖r‖² + linear`` still holds
     and a Gauss–Newton Hessian built from ``residual`` gets ``μ`` on the slack diagonal.
@@ -218,20 +218,26 @@ class NlpSolver:
 
     def _still_water_nlp(self, data: NlpData) -> dict[str, ca.SX]:
         """``data.nlp`` with the current parameters replaced by zero (CasADi simplifies)."""
-        current = data.nlp["p"][self._still_water_slice]
+        part = self._still_water_slice
+        assert part is not None, "only called where _uses_still_water(p) holds"
+        current = data.nlp["p"][part]
         zero = ca.DM.zeros(current.numel())
         f, g = ca.substitute([data.nlp["f"], data.nlp["g"]], [current], [zero])
         return {**data.nlp, "f": f, "g": g}
 
     def _solver(self, variant: str, robust: bool = False, still_water: bool = False) -> BufferedFunction:
-        """The variant's ``nlpsol``, called zero-copy (no numpy -> DM conversions per step)."""
+        """Return the variant's ``nlpsol``, called zero-copy (no numpy -> DM conversions per step)."""
         key = (variant, robust, still_water)
         if key not in self._solvers:
             data = self.variants[variant]
             # ad_weight 1: constraint Jacobians by reverse-mode AD, 18 % fewer virtual-machine
             # instructions than CasADi's automatic choice on this NLP (RexROV, N = 20: fatrop's
             # nlp_jac_g 29.6 k -> 24.4 k, sqp's nlp_jac_fg 31.0 k -> 25.8 k; same values)
-            options = {"print_time": False, "error_on_fail": False, "oracle_options": {"ad_weight": 1.0}}
+            options: dict[str, Any] = {
+                "print_time": False,
+                "error_on_fail": False,
+                "oracle_options": {"ad_weight": 1.0},
+            }
             robust_options = dict(self.robust_options()) if robust else {}
             plugin = robust_options.pop("plugin", self.plugin)
             if plugin == self.plugin:
@@ -256,7 +262,7 @@ class NlpSolver:
 
         try:
             compiler = find_c_compiler()
-            jit = {
+            jit: dict[str, Any] = {
                 "jit": True,
                 "compiler": "shell",
                 "jit_options": {"compiler": compiler, "flags": ["-O2"], "verbose": False},
@@ -402,7 +408,9 @@ class NlpSolver:
         primal = final["primal"]
         # interior-point plugins relax bounds by ~1e-8 (IPOPT's bound_relax_factor): the plan
         # returned holds the box exactly, so the applied control never leaves it
-        scaled = np.clip(primal[data.control_index], data.lbx[data.control_index], data.ubx[data.control_index])
+        scaled = np.clip(
+            primal[data.control_index], data.lbx[data.control_index], data.ubx[data.control_index]
+        )
         states = primal[data.state_index]
         cost, violation = score_parameters(problem, scaled.ravel(), p)
         status = final["status"]

@@ -26,18 +26,21 @@ from __future__ import annotations
 import os
 import time
 import warnings
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
-from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import score_terms
-from uuv_ocp.transcription.condensed import encode
-from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
+from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.transcription.condensed import encode
+
+if TYPE_CHECKING:
+    from uuv_ocp.codegen import NativeIgwo
 
 SEARCH_MODES = ("deviation", "absolute")
 
@@ -97,9 +100,7 @@ def candidate_fitness(problem: Transcribed) -> ca.Function:
     return ca.Function("fitness", [coordinates, p], [objective + penalty], ["W", "p"], ["fitness"])
 
 
-def batched_fitness(
-    problem: Transcribed, population: int, parallelization: str = "serial"
-) -> ca.Function:
+def batched_fitness(problem: Transcribed, population: int, parallelization: str = "serial") -> ca.Function:
     """``fitness(U[3N × population], p) -> (1 × population)``: objective + penalty, mapped."""
     return candidate_fitness(problem).map("fitness_batch", parallelization, population, [1], [])
 
@@ -150,9 +151,7 @@ class SwarmSolver:
         ``"igwo"``, ``"gwo"``, ``"ssa"`` or ``"pso"``.
     """
 
-    def __init__(
-        self, problem: Transcribed, options: dict[str, Any] | None = None, *, method: str
-    ) -> None:
+    def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None, *, method: str) -> None:
         options = dict(options or {})
         check.choice("method", method, sorted(ALGORITHMS))
         algorithm = ALGORITHMS[method]
@@ -206,7 +205,7 @@ class SwarmSolver:
         self._lower = -np.ones(spec.control_size * spec.horizon)
         self._upper = np.ones(spec.control_size * spec.horizon)
         self._decode = BufferedFunction(problem.build().decode)
-        self.native = None
+        self.native: NativeIgwo | None = None  # the all-C IGWO step, when compiled and compatible
         self._score_terms: BufferedFunction | None = None  # compiled twins when compiled=True
         self._rollout: BufferedFunction | None = None
         self._schedules: tuple[np.ndarray, np.ndarray] | None = None  # IGWO's a(t), w(t) for the C step
@@ -313,7 +312,7 @@ class SwarmSolver:
         )
 
     def _native_minimize(self, p, offset, lower, upper, seeds, rng) -> MinimizeResult:
-        """The all-C IGWO step with exactly the random draws the Python loop would use."""
+        """Run the all-C IGWO step with exactly the random draws the Python loop would use."""
         from uuv_ocp.codegen import uses_pcg64
         from uuv_ocp.optimize import ImprovedGreyWolf
 
@@ -334,7 +333,9 @@ class SwarmSolver:
             )
         a, w = self._schedules
         options = algorithm.options
-        out = self.native.run(
+        native = self.native
+        assert native is not None, "only called where the all-C step was built"
+        out = native.run(
             p, offset, lower, upper, positions, draws, a, w, options["c1"], options["c2"], self.rng_thread
         )
         message = f"reached the iteration budget ({self.iterations}) in the compiled C step"
@@ -356,7 +357,7 @@ class SwarmSolver:
 
 
 def swarm_factory(method: str):
-    """Factory ``(problem, options) -> SwarmSolver`` for the registry."""
+    """Return the registry's factory ``(problem, options) -> SwarmSolver`` for ``method``."""
 
     def factory(problem: Transcribed, options: dict[str, Any] | None = None) -> SwarmSolver:
         return SwarmSolver(problem, options, method=method)

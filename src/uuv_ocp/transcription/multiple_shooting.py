@@ -16,7 +16,6 @@ Every variable and constraint entry has a structured key ``(kind, stage, index)`
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-
 from typing import TYPE_CHECKING
 
 import casadi as ca
@@ -54,7 +53,8 @@ class NlpData:
 def parameter_blocks(spec: OcpSpec, p: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX, list[ca.SX]]:
     """Symbolic ``p`` -> (x0, u_prev, p_global, [p_stage at node k for k = 0..N])."""
     layout = spec.layout
-    globals_, stagewise = [], []
+    globals_: list[tuple[slice, int]] = []
+    stagewise: list[tuple[slice, int]] = []
     for part, size, is_stagewise in layout.entries.values():
         (stagewise if is_stagewise else globals_).append((part, size))
     pg = ca.vertcat(*[p[part] for part, _ in globals_]) if globals_ else ca.SX(0, 1)
@@ -77,7 +77,7 @@ def violation(values: ca.SX, lower: np.ndarray, upper: np.ndarray) -> ca.SX:
 
 
 def transcribe(spec: OcpSpec, step: ca.Function, soft_terminal: bool, terminal_penalty: float) -> NlpData:
-    """The hard NLP (``soft_terminal=False``) or its exact-penalty terminal relaxation."""
+    """Build the hard NLP (``soft_terminal=False``) or its exact-penalty terminal relaxation."""
     n, nx, nu = spec.horizon, spec.state_dim, spec.control_size
     p = ca.SX.sym("p", spec.layout.size)
     x0, u_prev, pg, nodes = parameter_blocks(spec, p)
@@ -97,19 +97,25 @@ def transcribe(spec: OcpSpec, step: ca.Function, soft_terminal: bool, terminal_p
             variables.append(((kind, stage, i), symbol[i], float(low[i]), float(high[i])))
         return symbol
 
-    def add_constraints(kind: str, stage: int | None, expression: ca.SX, lower: object, upper: object) -> None:
+    def add_constraints(
+        kind: str, stage: int | None, expression: ca.SX, lower: object, upper: object
+    ) -> None:
         size = expression.numel()
         low = np.broadcast_to(np.asarray(lower, dtype=float), (size,))
         high = np.broadcast_to(np.asarray(upper, dtype=float), (size,))
         for i in range(size):
-            constraints.append(((kind, stage, i), expression[i], float(low[i]), float(high[i]), low[i] == high[i]))
+            constraints.append(
+                ((kind, stage, i), expression[i], float(low[i]), float(high[i]), low[i] == high[i])
+            )
 
     linear = ca.SX(0)
     other = ca.SX(0)
     residuals: list[ca.SX] = []
     path: list[tuple[str, int | None, ca.SX, object, object]] = []
 
-    def constrain(kind: str, stage: int | None, values: ca.SX, lower: np.ndarray, upper: np.ndarray, soft) -> None:
+    def constrain(
+        kind: str, stage: int | None, values: ca.SX, lower: np.ndarray, upper: np.ndarray, soft
+    ) -> None:
         nonlocal linear
         if soft is None:
             path.append((kind, stage, values, lower, upper))
@@ -185,7 +191,9 @@ def transcribe(spec: OcpSpec, step: ca.Function, soft_terminal: bool, terminal_p
         elif constraint.place == "terminal":
             if soft_terminal and np.all(constraint.equality):
                 continue  # relaxed above
-            add_constraints(f"terminal{j}", None, function(final_state, pg, nodes[n]), constraint.lower, constraint.upper)
+            add_constraints(
+                f"terminal{j}", None, function(final_state, pg, nodes[n]), constraint.lower, constraint.upper
+            )
     residual = ca.vertcat(*residuals) if residuals else ca.SX(0, 1)
     objective = ca.sumsqr(residual) + linear + other
     w = ca.vertcat(*[entry[1] for entry in variables])

@@ -350,3 +350,25 @@ def test_swarms_compile_by_default_and_fall_back_with_one_warning(monkeypatch):
     assert _compiled_default("auto") is False
     with pytest.raises(ValueError, match="compiled"):
         _compiled_default("yes")
+
+
+def test_compare_ranks_feasible_rows_first_and_reports_violations_by_kind():
+    ocp = obstacle_ocp()
+    data = obstacle_data(ocp)
+    rows = uo.compare(ocp, ["pso", "ipopt", "sqp"], x0=[0.0, 0.0, 0.0, 0.0], parameters=data, seed=1)
+    by_name = {row.solver: row for row in rows}
+    assert [row.solver for row in rows] == ["pso", "ipopt", "sqp"]  # input order kept
+    for row in rows:
+        plan = uo.solve(ocp, row.solver, x0=[0.0] * 4, parameters=data) if row.solver != "pso" else None
+        if plan is not None:  # the obstacle clearance recomputed from the plan (m²)
+            clearance = np.sum((plan.states[1:, :2] - [2.0, 0.1]) ** 2, axis=1) - 0.36
+            assert row.violations["constraint"] == pytest.approx(max(0.0, -clearance.min()), abs=1e-9)
+        assert row.feasible == (max(row.violations.values()) <= 1e-6)
+    ranked = sorted(rows, key=lambda row: row.rank)
+    feasible = [row.feasible for row in ranked]
+    assert feasible == sorted(feasible, reverse=True)  # feasible rows first
+    costs = [row.cost for row in ranked if row.feasible]
+    assert costs == sorted(costs)
+    assert by_name["ipopt"].ratio == pytest.approx(1.0, rel=1e-6)
+    table = uo.format_comparison(rows)
+    assert table.splitlines()[1].split()[1] in ("ipopt", "sqp")

@@ -18,7 +18,7 @@ from uuv_ocp.control.simulation import ClosedLoopResult
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-__all__ = ["error_figure", "save_figure", "xoy_figure"]
+__all__ = ["error_figure", "obstacle_figure", "save_figure", "xoy_figure"]
 
 
 def _subplots(*grid: int, **options: Any) -> tuple[Figure, Any]:
@@ -72,3 +72,43 @@ def save_figure(figure: Figure, path: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.savefig(path, dpi=110)
     return path
+
+
+def obstacle_figure(
+    runs: Sequence[ClosedLoopResult],
+    obstacles: Sequence[Any],
+    labels: Sequence[str] | None = None,
+    title: str = "",
+) -> Figure:
+    """Paths of closed-loop runs among keep-out zones (enlarged by their margin, dashed).
+
+    Moving obstacles are drawn where they are at the first run's start time.
+    """
+    import numpy as np
+    from matplotlib.patches import Ellipse
+
+    figure, axes = _subplots(figsize=(7.2, 4.8))
+    first = runs[0]
+    axes.plot(first.reference[:, 0], first.reference[:, 1], "k--", lw=1.0, label="reference")
+    for run, label in zip(runs, labels or [run.solver for run in runs], strict=True):
+        axes.plot(run.states[:, 0], run.states[:, 1], lw=1.3, label=label)
+    for obstacle in obstacles:
+        centre = obstacle.centre_at([first.t[0]])[0]
+        angle = float(np.degrees(obstacle.angle))
+        a, b = obstacle.axes
+        axes.add_patch(Ellipse(centre, 2 * a, 2 * b, angle=angle, color="tab:gray", alpha=0.6))
+        if obstacle.margin > 0:
+            margin = 2 * obstacle.margin
+            axes.add_patch(
+                Ellipse(
+                    centre, 2 * a + margin, 2 * b + margin, angle=angle, fill=False, ls=":", color="tab:gray"
+                )
+            )
+    axes.set_xlabel("x (m)")
+    axes.set_ylabel("y (m)")
+    axes.set_title(title or "paths among obstacles")
+    axes.axis("equal")
+    axes.grid(True, alpha=0.3)
+    axes.legend(loc="best", fontsize="small")
+    figure.tight_layout()
+    return figure

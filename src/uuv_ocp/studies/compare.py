@@ -9,17 +9,18 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from uuv_ocp.build import Transcribed
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import ClosedLoopResult, simulate
+from uuv_ocp.judge import score_terms
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
-from uuv_ocp.build import Transcribed
 from uuv_ocp.tracking import TrackingProblem
 
 
@@ -131,9 +132,39 @@ def _fmt(value: float) -> str:
     return f"{value:.2e}" if value < 1e-2 else f"{value:.3f}"
 
 
+FEASIBILITY_TOLERANCE = 1e-6  # largest violation (its units; box and rate: scaled) of a feasible row
+
+
 @dataclass(frozen=True)
 class ComparisonRow:
-    """One solver on one instance, judged by :func:`uuv_ocp.score`."""
+    """One solver on one instance, judged by :func:`uuv_ocp.score`.
+
+    Parameters
+    ----------
+    solver : str
+    cost : float
+        Objective from the common judge.
+    max_violation : float
+        Largest violation of any kind.
+    solve_time : float
+        Wall time of one solve (s).
+    evaluations : int
+    success : bool
+        The backend's own verdict.
+    ratio : float
+        ``cost`` divided by the best feasible cost of the comparison.
+    history : numpy.ndarray or None
+        Best fitness per iteration (swarms).
+    violations : dict
+        Largest violation per kind: ``terminal`` (terminal-equality residual, the state's units:
+        m, rad, m/s, rad/s), ``bound`` and ``rate`` (excess as a fraction of the control box
+        half-width: 0.01 = 1 %), ``constraint`` (other hard constraints, their own units, e.g.
+        m² for circular obstacles).
+    feasible : bool
+        Every violation within ``FEASIBILITY_TOLERANCE`` (1e-6).
+    rank : int
+        1 for the best: feasible rows by cost first, then infeasible rows by violation.
+    """
 
     solver: str
     cost: float
@@ -143,6 +174,9 @@ class ComparisonRow:
     success: bool
     ratio: float
     history: np.ndarray | None
+    violations: dict = field(default_factory=dict)
+    feasible: bool = True
+    rank: int = 0
 
 
 def compare(
@@ -170,13 +204,27 @@ def compare(
     for name in solvers:
         REGISTRY.factory(name)  # unknown names raise before anything runs
     p = instance_parameters(problem, x0, t0, u_prev=u_prev, current=current, parameters=parameters)
-    results = []
+    results, kinds = [], []
     for name in solvers:
         solver_options = dict((options or {}).get(name, {}))
         backend = get_solver(problem, name, solver_options or None)
         backend.solve(p, None, np.random.default_rng(seed))  # build outside the timing
-        results.append(backend.solve(p, None, np.random.default_rng(seed)))
-    best = min(result.cost for result in results if np.isfinite(result.cost))
+        result = backend.solve(p, None, np.random.default_rng(seed))
+        results.append(result)
+        kinds.append(score_terms(problem, problem.scaled_from_controls(result.controls), p)[1])
+    feasible = [
+        max(k.values()) <= FEASIBILITY_TOLERANCE and np.isfinite(r.cost)
+        for r, k in zip(results, kinds, strict=True)
+    ]
+    finite = [r.cost for r, ok in zip(results, feasible, strict=True) if ok] or [
+        r.cost for r in results if np.isfinite(r.cost)
+    ]
+    best = min(finite) if finite else math.nan
+    order = sorted(
+        range(len(results)),
+        key=lambda i: (not feasible[i], results[i].cost if feasible[i] else results[i].max_violation),
+    )
+    rank = {index: position + 1 for position, index in enumerate(order)}
     return [
         ComparisonRow(
             r.solver,
@@ -187,19 +235,33 @@ def compare(
             r.success,
             r.cost / best,
             r.history,
+            violations=k,
+            feasible=ok,
+            rank=rank[i],
         )
-        for r in results
+        for i, (r, k, ok) in enumerate(zip(results, kinds, feasible, strict=True))
     ]
 
 
 def format_comparison(rows: Sequence[ComparisonRow]) -> str:
-    """Plain-text table of :func:`compare` rows."""
-    lines = [
-        f"{'solver':<12}{'cost':>14}{'max viol.':>11}{'time ms':>9}{'evals':>8}{'ok':>4}{'cost/best':>11}"
-    ]
-    for row in rows:
+    """Plain-text table of :func:`compare` rows, best first (feasible rows by cost, then the rest).
+
+    Violations per kind: ``term`` the terminal-equality residual (state units), ``box %`` and
+    ``rate %`` the excess in percent of the control box half-width, ``constr`` other hard
+    constraints (their own units); ``feas`` says whether all are within 1e-6.
+    """
+    header = (
+        f"{'#':>2} {'solver':<14}{'cost':>13}{'cost/best':>10}{'feas':>5}{'term':>10}{'box %':>10}"
+        f"{'rate %':>10}{'constr':>10}{'time ms':>9}{'evals':>8}{'ok':>4}"
+    )
+    lines = [header]
+    for row in sorted(rows, key=lambda r: r.rank or 0):
+        v = row.violations
         lines.append(
-            f"{row.solver:<12}{row.cost:>14.6g}{row.max_violation:>11.2e}{1e3 * row.solve_time:>9.2f}"
-            f"{row.evaluations:>8d}{'y' if row.success else 'n':>4}{row.ratio:>11.3g}"
+            f"{row.rank:>2} {row.solver:<14}{row.cost:>13.6g}{row.ratio:>10.3g}"
+            f"{'y' if row.feasible else 'n':>5}"
+            f"{v.get('terminal', math.nan):>10.2e}{100 * v.get('bound', math.nan):>10.2e}"
+            f"{100 * v.get('rate', math.nan):>10.2e}{v.get('constraint', math.nan):>10.2e}"
+            f"{1e3 * row.solve_time:>9.2f}{row.evaluations:>8d}{'y' if row.success else 'n':>4}"
         )
     return "\n".join(lines)

@@ -99,3 +99,34 @@ def test_presets_differ_only_in_hydrodynamics():
     exact, rounded = uo.Vehicle.rexrov(), uo.Vehicle.rexrov_controller_model()
     assert exact.mass == rounded.mass and exact.max_thrust == rounded.max_thrust
     assert rounded.added_mass == (700.0, 1200.0, 200.0)
+
+
+def test_top_horizontal_speed_is_the_largest_steady_crab_the_thrust_box_holds():
+    """Check the top crab speed independently of the code under test.
+
+    Steady straight motion at (s, β) needs thrust inside the box, and 0.2 % more speed is
+    impossible at every crab angle (forces recomputed here from the damping).
+    """
+    vehicle = uo.Vehicle.rexrov()
+    speed, crab = vehicle.max_horizontal_speed()
+    m_x, m_y, _ = vehicle.inertia_diagonal
+    d_lin, d_quad = np.asarray(vehicle.linear_damping), np.asarray(vehicle.quadratic_damping)
+
+    def forces(s, beta):
+        u, v = s * np.cos(beta), s * np.sin(beta)
+        return np.array(
+            [
+                d_lin[0] * u + d_quad[0] * u * abs(u),
+                d_lin[1] * v + d_quad[1] * v * abs(v),
+                -(m_x - m_y) * u * v,
+            ]
+        )
+
+    needed = forces(speed, crab)
+    assert np.all(np.abs(needed) <= np.asarray(vehicle.max_thrust) * (1 + 1e-9))
+    state = np.array([0.0, 0.0, 0.3, speed * np.cos(crab), speed * np.sin(crab), 0.0])
+    xdot = np.array(vehicle.dynamics_function()(state, needed, np.zeros(2))).ravel()
+    np.testing.assert_allclose(xdot[3:], 0.0, atol=1e-9)  # steady: no acceleration
+    for beta in np.linspace(0.0, np.pi / 2, 2001):
+        assert np.any(np.abs(forces(1.002 * speed, beta)) > np.asarray(vehicle.max_thrust))
+    assert speed > vehicle.max_speed()[0]  # crabbing beats surge alone

@@ -157,6 +157,44 @@ class Vehicle:
         speed = np.where(d_quad > 0, quadratic_root, linear_root)
         return np.where(np.isfinite(speed), speed, np.inf)
 
+    def max_horizontal_speed(self, resolution: int = 9001) -> tuple[float, float]:
+        """Top speed over ground in still water, crabbing allowed: ``(speed m/s, crab angle rad)``.
+
+        Straight steady motion at speed ``s`` with crab angle ``β`` (``u = s cos β``,
+        ``v = s sin β``, ``r = 0``) needs surge force ``X_u u + X_u|u| u|u|``, sway force
+        ``Y_v v + Y_v|v| v|v|`` and the yaw moment ``(M_x − M_y) u v`` (Munk moment) to be held
+        within ``max_thrust``; for each β on a grid of ``resolution`` angles in ``[0, π/2]`` the
+        largest such ``s`` is the smallest of the three per-axis limits, and the result is the
+        best β.  ``max_speed()[0]`` is the special case β = 0 (surge only).
+        """
+        resolution = check.positive_int("resolution", resolution, minimum=2)
+        angles = np.linspace(0.0, 0.5 * np.pi, resolution)
+        cosine, sine = np.cos(angles), np.sin(angles)
+        d_lin = np.asarray(self.linear_damping, dtype=float)
+        d_quad = np.asarray(self.quadratic_damping, dtype=float)
+        tau = np.asarray(self.max_thrust, dtype=float)
+
+        def axis_limit(share: np.ndarray, linear: float, quadratic: float, force: float) -> np.ndarray:
+            # largest s with linear (s share) + quadratic (s share)² <= force
+            with np.errstate(divide="ignore", invalid="ignore"):
+                if quadratic > 0:
+                    root = (-linear + np.sqrt(linear**2 + 4.0 * quadratic * force)) / (2.0 * quadratic)
+                else:
+                    root = np.full_like(share, force / linear if linear > 0 else np.inf)
+                return np.where(share > 0, root / share, np.inf)
+
+        limits = [
+            axis_limit(cosine, d_lin[0], d_quad[0], tau[0]),
+            axis_limit(sine, d_lin[1], d_quad[1], tau[1]),
+        ]
+        m_x, m_y, _ = self.inertia_diagonal
+        munk = abs(m_x - m_y) * cosine * sine
+        with np.errstate(divide="ignore"):
+            limits.append(np.where(munk > 0, np.sqrt(tau[2] / munk), np.inf))
+        speed = np.min(limits, axis=0)
+        best = int(np.argmax(speed))
+        return float(speed[best]), float(angles[best])
+
     # ----------------------------------------------------------------- dynamics
     def dynamics(self, state: ca.SX, control: ca.SX, current: ca.SX | None = None) -> ca.SX:
         """Continuous-time right-hand side ``ẋ = f(x, tau, V_c)`` as a CasADi expression.

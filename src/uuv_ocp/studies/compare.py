@@ -39,13 +39,21 @@ class TrackingRow:
 def reference_speed_note(
     reference: Reference, vehicle: Vehicle, t0: float, duration: float
 ) -> tuple[float, str]:
-    """Largest path speed on the run (m/s) and a note if it exceeds the vehicle's top speed."""
-    times = np.linspace(t0, t0 + duration, 301)
+    """Largest path speed on the run (m/s) and a note if it exceeds the vehicle's top speed.
+
+    The top speed is over ground with crabbing allowed (:meth:`Vehicle.max_horizontal_speed`:
+    surge and sway thrust together, the Munk moment held by the yaw thrust), the physical
+    limit of position tracking; the surge-only figure (``max_speed()[0]``) is lower.
+    """
+    times = np.linspace(t0, t0 + duration, 3001)
     speed = reference.evaluate(times)[:, 3]
-    top = float(vehicle.max_speed()[0])  # the reference has v_R = 0: it is flown in surge
+    top, crab = vehicle.max_horizontal_speed()
     over = times[speed > top]
     if over.size:
-        return float(speed.max()), f"path speed > {top:.2f} m/s (vehicle top speed) from t = {over[0]:.1f} s"
+        return float(speed.max()), (
+            f"path speed > {top:.2f} m/s (top speed, crabbing at {np.degrees(crab):.0f}°) "
+            f"from t = {over[0]:.1f} s"
+        )
     return float(speed.max()), ""
 
 

@@ -101,13 +101,14 @@ def test_presets_differ_only_in_hydrodynamics():
     assert rounded.added_mass == (700.0, 1200.0, 200.0)
 
 
-def test_top_horizontal_speed_is_the_largest_steady_crab_the_thrust_box_holds():
+@pytest.mark.parametrize("yaw_moment", [1400.0, 300.0])  # 300 N·m: the Munk moment binds
+def test_top_horizontal_speed_is_the_largest_steady_crab_the_thrust_box_holds(yaw_moment):
     """Check the top crab speed independently of the code under test.
 
     Steady straight motion at (s, β) needs thrust inside the box, and 0.2 % more speed is
     impossible at every crab angle (forces recomputed here from the damping).
     """
-    vehicle = uo.Vehicle.rexrov()
+    vehicle = dataclasses.replace(uo.Vehicle.rexrov(), max_thrust=(2000.0, 2000.0, yaw_moment))
     speed, crab = vehicle.max_horizontal_speed()
     m_x, m_y, _ = vehicle.inertia_diagonal
     d_lin, d_quad = np.asarray(vehicle.linear_damping), np.asarray(vehicle.quadratic_damping)

@@ -7,16 +7,40 @@ so that bad input is rejected before any solver runs.
 from __future__ import annotations
 
 import numbers
+import reprlib
 from collections.abc import Sequence
 
 import numpy as np
+
+_SHORT = reprlib.Repr()
+_SHORT.maxstring = 80
+_SHORT.maxother = 80
+_SHORT.maxlist = _SHORT.maxtuple = 8
+
+
+def shown(value: object) -> str:
+    """Short text of ``value`` for an error message: numbers plainly, never numpy reprs.
+
+    ``np.float64(0.5)`` reads ``0.5``, an array ``[0.5, 1.0]``, and long values are cut
+    (``...``).
+    """
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, np.ndarray):
+        if value.size > 12:
+            return f"array of shape {value.shape}"
+        value = value.tolist()
+    if isinstance(value, list | tuple) and any(isinstance(v, np.generic) for v in value):
+        items = [v.item() if isinstance(v, np.generic) else v for v in value]
+        value = items if isinstance(value, list) else tuple(items)
+    return _SHORT.repr(value)
 
 
 def positive_float(name: str, value: object) -> float:
     """Return ``value`` as a float if it is finite and > 0, else raise ``ValueError``."""
     number = finite_float(name, value)
     if number <= 0.0:
-        raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        raise ValueError(f"{name} must be a finite number > 0, got {shown(value)}")
     return number
 
 
@@ -24,33 +48,33 @@ def nonnegative_float(name: str, value: object) -> float:
     """Return ``value`` as a float if it is finite and >= 0, else raise ``ValueError``."""
     number = finite_float(name, value)
     if number < 0.0:
-        raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
+        raise ValueError(f"{name} must be a finite number >= 0, got {shown(value)}")
     return number
 
 
 def finite_float(name: str, value: object) -> float:
     """Return ``value`` as a float if it is a finite real number, else raise ``ValueError``."""
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise ValueError(f"{name} must be a real number, got {value!r}")
+        raise ValueError(f"{name} must be a real number, got {shown(value)}")
     number = float(value)
     if not np.isfinite(number):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise ValueError(f"{name} must be finite, got {shown(value)}")
     return number
 
 
 def boolean(name: str, value: object) -> bool:
     """Return ``value`` if it is ``True`` or ``False``, else raise ``ValueError``."""
     if not isinstance(value, bool):
-        raise ValueError(f"{name} must be True or False, got {value!r}")
+        raise ValueError(f"{name} must be True or False, got {shown(value)}")
     return value
 
 
 def positive_int(name: str, value: object, minimum: int = 1) -> int:
     """Return ``value`` if it is an integer >= ``minimum`` (bools rejected), else raise."""
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {shown(value)}")
     if int(value) < minimum:
-        raise ValueError(f"{name} must be an integer >= {minimum}, got {value!r}")
+        raise ValueError(f"{name} must be an integer >= {minimum}, got {shown(value)}")
     return int(value)
 
 
@@ -66,15 +90,15 @@ def vector(
     try:
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be {length} real numbers, got {value!r}") from error
+        raise ValueError(f"{name} must be {length} real numbers, got {shown(value)}") from error
     if array.shape != (length,):
-        raise ValueError(f"{name} must have shape ({length},), got shape {array.shape}: {value!r}")
+        raise ValueError(f"{name} must have shape ({length},), got shape {array.shape}: {shown(value)}")
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite, got {value!r}")
+        raise ValueError(f"{name} must be finite, got {shown(value)}")
     if positive and np.any(array <= 0.0):
-        raise ValueError(f"{name} must be > 0 element-wise, got {value!r}")
+        raise ValueError(f"{name} must be > 0 element-wise, got {shown(value)}")
     if nonnegative and np.any(array < 0.0):
-        raise ValueError(f"{name} must be >= 0 element-wise, got {value!r}")
+        raise ValueError(f"{name} must be >= 0 element-wise, got {shown(value)}")
     return tuple(float(v) for v in array)
 
 
@@ -83,16 +107,39 @@ def finite_array(name: str, value: object, shape: Sequence[int]) -> np.ndarray:
     try:
         array = np.array(value, dtype=float)
     except (TypeError, ValueError) as error:
-        raise ValueError(f"{name} must be a real array of shape {tuple(shape)}, got {value!r}") from error
+        raise ValueError(
+            f"{name} must be a real array of shape {tuple(shape)}, got {shown(value)}"
+        ) from error
     if array.shape != tuple(shape):
         raise ValueError(f"{name} must have shape {tuple(shape)}, got shape {array.shape}")
     if not np.all(np.isfinite(array)):
-        raise ValueError(f"{name} must be finite (no NaN or inf), got {array!r}")
+        raise ValueError(f"{name} must be finite (no NaN or inf), got {shown(array)}")
+    return array
+
+
+#: Largest magnitude accepted for an entry of an initial state ``x0`` (or a current): a
+#: plausibility bound, far beyond any vehicle (1e9 m is 25 times round the Earth; UTM
+#: coordinates stay below 1e7 m) but low enough that squared errors stay finite in float64.
+#: Beyond it the input is a unit or sign mistake, not a state: ``ValueError``.
+PLAUSIBLE_MAGNITUDE = 1e9
+
+
+def plausible_array(name: str, value: object, shape: Sequence[int]) -> np.ndarray:
+    """Like :func:`finite_array`, and every entry within ``±PLAUSIBLE_MAGNITUDE``."""
+    array = finite_array(name, value, shape)
+    outside = np.abs(array) > PLAUSIBLE_MAGNITUDE
+    if np.any(outside):
+        index = tuple(int(i) for i in np.argwhere(outside)[0])
+        where = index[0] if len(index) == 1 else index
+        raise ValueError(
+            f"{name} must have every entry within ±{PLAUSIBLE_MAGNITUDE:g} (a plausibility bound), "
+            f"got {float(array[index]):g} at index {where}"
+        )
     return array
 
 
 def choice(name: str, value: object, allowed: Sequence[str]) -> str:
     """Return ``value`` if it is one of ``allowed``, else raise naming the valid options."""
-    if value not in allowed:
-        raise ValueError(f"{name} must be one of {sorted(allowed)}, got {value!r}")
+    if not isinstance(value, str) or value not in allowed:
+        raise ValueError(f"{name} must be one of {sorted(allowed)}, got {shown(value)}")
     return str(value)

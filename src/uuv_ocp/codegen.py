@@ -22,11 +22,19 @@ loop or a campaign compiles once.
 Compiler: ``$CC`` if set, else the first of ``cc``, ``gcc``, ``clang`` on ``PATH``.  Without one
 :class:`CompilerNotFoundError` names what was looked for; the solvers' ``compiled=True`` path
 then warns once and falls back to CasADi's virtual machine.
+
+Trust: a library is loaded only after its bytes matched the SHA-256 its build recorded, and only
+from a folder owned by the current user and not writable by others (see
+:mod:`uuv_ocp.native.compile`).  The solvers' cache (:func:`default_cache_directory`) is
+created with mode ``0700``; an unusable cache (unsafe, not writable) is handled like a missing
+compiler by ``compiled=True``: one warning, then the virtual machine.
 """
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
+import numbers
 import os
 import warnings
 from dataclasses import dataclass, field
@@ -36,16 +44,22 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.compile import (
     DEFAULT_FLAGS as CORE_FLAGS,
 )
 from uuv_ocp.native.compile import (
+    BuildDirectoryError,
+    CodegenError,
     CompilationError,
     CompilerNotFoundError,
+    IntegrityError,
     VerificationError,
     compile_functions,
     find_c_compiler,
+    jit_workspace,
+    verify_library,
 )
 from uuv_ocp.native.simd import UnsupportedOperation, batch_kernel_source
 
@@ -57,15 +71,21 @@ DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off", "-march=native", "-D_GNU_SOUR
 FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step", "rollout", "score_terms")
 #: generated along with ``cost_batch``: CasADi's own (scalar, mapped) code of the same fitness
 EXACT_BATCH = "cost_batch_exact"
+#: smallest population of the IGWO step (three leaders and at least one other wolf)
+MIN_IGWO_POPULATION = 4
 _IGWO_SOURCE = Path(__file__).parent / "native" / "igwo_step.c"
 
 __all__ = [
+    "BuildDirectoryError",
     "CompilationError",
     "CompilerNotFoundError",
     "GeneratedCode",
+    "IntegrityError",
     "NativeIgwo",
     "VerificationError",
     "compiled_build",
+    "default_cache_directory",
+    "jit_directory",
     "uses_pcg64",
     "find_c_compiler",
     "generate_c",
@@ -181,7 +201,8 @@ def generate_c(
         ``"score_terms"`` (what :func:`uuv_ocp.score` evaluates); the IGWO step is
         added whenever ``"cost_batch"`` is present.
     population : int
-        Population size of ``cost_batch`` and the IGWO step (>= 1; the IGWO needs >= 4).
+        Population size of ``cost_batch`` and the IGWO step (>= 4 with ``"cost_batch"``, which
+        brings the IGWO step; else >= 1).
     compile : bool
         Compile and load (otherwise only write the sources).
     verify : bool
@@ -192,13 +213,43 @@ def generate_c(
     seed : int
         Seed of the verification inputs.
     tolerance : float
-        Largest accepted relative difference in the verification.
+        Largest accepted relative difference in the verification (>= 0).
+
+    Raises
+    ------
+    TypeError
+        ``problem`` is not an Ocp or a preset, ``directory`` is not a path.
+    ValueError
+        Any other argument out of its domain (the message names it).
+    BuildDirectoryError
+        ``directory`` is owned by another user, writable by its group or others, not writable
+        or not a directory (see :func:`uuv_ocp.native.compile.secure_directory`).
     """
-    unknown = sorted(set(functions) - set(FUNCTION_NAMES))
+    if not isinstance(problem, Transcribed):
+        raise TypeError(
+            "problem must be an Ocp or a TrackingProblem, got "
+            f"{type(problem).__name__}: {check.shown(problem)}"
+        )
+    if not isinstance(directory, str | os.PathLike):
+        raise TypeError(f"directory must be a path (str or os.PathLike), got {type(directory).__name__}")
+    if isinstance(functions, str) or not isinstance(functions, tuple | list):
+        raise ValueError(
+            f"functions must be a tuple of names from {list(FUNCTION_NAMES)}, got {check.shown(functions)}"
+        )
+    unknown = [name for name in functions if name not in FUNCTION_NAMES]
     if unknown or not functions:
-        raise ValueError(f"functions must be a non-empty subset of {list(FUNCTION_NAMES)}, got {functions!r}")
-    if isinstance(population, bool) or not isinstance(population, int) or population < 1:
-        raise ValueError(f"population must be an integer >= 1, got {population!r}")
+        raise ValueError(
+            f"functions must be a non-empty subset of {list(FUNCTION_NAMES)}, got {check.shown(functions)}"
+        )
+    minimum = MIN_IGWO_POPULATION if "cost_batch" in functions else 1
+    population = check.positive_int("population", population, minimum)
+    check.boolean("compile", compile)
+    check.boolean("verify", verify)
+    if isinstance(flags, str) or not all(isinstance(flag, str) for flag in flags):
+        raise ValueError(f"flags must be a tuple of strings, got {check.shown(flags)}")
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {check.shown(seed)}")
+    tolerance = check.nonnegative_float("tolerance", tolerance)
     directory = Path(directory)
     symbolic = symbolic_functions(problem, population)
     chosen = [symbolic[name] for name in FUNCTION_NAMES if name in functions]
@@ -211,7 +262,6 @@ def generate_c(
             chosen = [symbolic[EXACT_BATCH] if f.name() == "cost_batch" else f for f in chosen]
             external = [symbolic["cost_batch"]]
         extra = kernel + _IGWO_SOURCE.read_text()
-    existing = set(directory.glob("*.so")) if directory.exists() else set()
 
     def build(build_flags: tuple[str, ...]):
         return compile_functions(
@@ -242,22 +292,41 @@ def generate_c(
         max_error=library.max_error,
         population=population,
         digest=library.digest,
-        reused=library.path in existing,
+        reused=library.reused,
         simd=simd,
     )
 
 
 # ------------------------------------------------------------------ cached build for solvers
 def default_cache_directory() -> Path:
-    """``$UUV_OCP_CACHE`` or ``~/.cache/uuv_ocp``: where solver builds are kept."""
-    return Path(os.environ.get("UUV_OCP_CACHE", Path.home() / ".cache" / "uuv_ocp"))
+    """``$UUV_OCP_CACHE`` or ``~/.cache/uuv_ocp``: where solver builds are kept (absolute).
+
+    An empty ``UUV_OCP_CACHE`` counts as unset; a relative one is taken relative to the current
+    directory at the time of the call.  The folder is created with mode ``0700`` by the first
+    build and must stay owned by the user and not writable by others.
+    """
+    configured = os.environ.get("UUV_OCP_CACHE", "").strip()
+    folder = Path(configured) if configured else Path.home() / ".cache" / "uuv_ocp"
+    return Path(os.path.abspath(folder))
+
+
+def jit_directory() -> contextlib.AbstractContextManager[str]:
+    """Context in which CasADi's JIT of the exact solvers builds inside the cache's ``jit/`` folder.
+
+    Yields the folder (with a trailing separator) to pass as ``jit_options["directory"]``;
+    see :func:`uuv_ocp.native.compile.jit_workspace` (the working directory is moved there
+    while CasADi writes its sources, so nothing lands in the user's current directory).
+    """
+    return jit_workspace(default_cache_directory() / "jit")
 
 
 def compiled_build(problem: Transcribed, population: int) -> GeneratedCode | None:
     """Build (once per problem and population) what the solvers' ``compiled=True`` runs on.
 
     Returns the compiled ``cost_batch`` + IGWO step, ``rollout`` and ``score_terms`` of
-    ``problem``, or ``None`` with one warning when no compiler works.
+    ``problem``, or ``None`` with one warning when the compiled path is unavailable: no
+    compiler works, the compiled code fails its verification, or the cache folder cannot be
+    used (unsafe or not writable: the warning names it and the fix).
     """
     cache = problem._store.setdefault("codegen", {})
     if population not in cache:
@@ -268,7 +337,7 @@ def compiled_build(problem: Transcribed, population: int) -> GeneratedCode | Non
                 functions=("cost_batch", "rollout", "score_terms"),
                 population=population,
             )
-        except (CompilerNotFoundError, CompilationError) as error:
+        except (CodegenError, OSError) as error:
             warnings.warn(
                 f"compiled=True unavailable ({error}); using CasADi's virtual machine instead",
                 RuntimeWarning,
@@ -290,12 +359,33 @@ class NativeIgwo:
     ``draws.random((iterations, 8, population, dim))`` would give, and advances it as that
     call would, on a second thread one iteration ahead when ``rng_thread`` (the same numbers:
     the 288 k uniform draws of a 20 × 30 step then cost no time on the step's own thread).
-    Inputs are float64 arrays.
+    Inputs are float64 arrays; every length and shape is checked against the build (the C code
+    trusts them).
+
+    Raises
+    ------
+    ValueError
+        ``build`` has no compiled library with ``cost_batch`` (the IGWO step comes with it).
+    IntegrityError, BuildDirectoryError
+        The library's bytes do not match the hash its build recorded, or its folder is not safe:
+        it is not loaded.
     """
 
     def __init__(self, build: GeneratedCode) -> None:
+        if (
+            not isinstance(build, GeneratedCode)
+            or build.library is None
+            or "cost_batch" not in build.functions
+        ):
+            raise ValueError(
+                "build must be a compiled GeneratedCode with 'cost_batch' (generate_c(..., "
+                f"functions=(..., 'cost_batch'))), got {check.shown(build)}"
+            )
         self.build = build
-        self.library = ctypes.CDLL(str(build.library))
+        batch = build.functions["cost_batch"]
+        self.dim, self.population = (int(n) for n in batch.size_in(0))
+        self.parameter_dim = int(batch.numel_in(1))
+        self.library = ctypes.CDLL(str(verify_library(build.library)))
         pointer = ctypes.POINTER(ctypes.c_double)
         tail: list[Any] = [ctypes.c_double, ctypes.c_double, *[ctypes.c_int] * 3, *[pointer] * 4]
         self._given = self.library.uuv_ocp_igwo
@@ -326,19 +416,37 @@ class NativeIgwo:
         """One IGWO run; returns ``x``, ``fun``, ``history``, ``population``.
 
         ``rng_thread``: draw on a second thread (``True``), or not; ``2`` starts the thread
-        but never waits for it, as the step does for a block its worker is late with (the
-        numbers are the same in every case).  ``late_blocks`` in the result counts the
+        but never waits for it, as the step does for a block its worker is late with, ``3``
+        draws the odd blocks on the step's thread and waits for the worker's even ones (test
+        modes; the numbers are the same in every case).  ``late_blocks`` in the result counts the
         iterations whose numbers the step drew itself because the second thread was late.
+
+        Shapes (``dim`` and ``population`` are the build's): ``p (parameter_dim,)``,
+        ``offset``, ``lower``, ``upper (dim,)``, ``positions (population, dim)``, ``a`` and
+        ``w (iterations,)``, ``draws (iterations, 8, population, dim)``.  Anything else raises
+        ``ValueError`` naming the argument (the C step would read past the arrays).
         """
-        population, dim = positions.shape
-        iterations = a.shape[0]
+        population, dim, iterations = self.population, self.dim, self._iterations(a)
         pointer = ctypes.POINTER(ctypes.c_double)
 
         def data(array: np.ndarray) -> ctypes._Pointer:
             return array.ctypes.data_as(pointer)
 
-        inputs = [np.ascontiguousarray(v, dtype=float) for v in (p, offset, lower, upper, positions)]
-        schedules = [np.ascontiguousarray(v, dtype=float) for v in (a, w)]
+        shapes = {
+            "p": (self.parameter_dim,),
+            "offset": (dim,),
+            "lower": (dim,),
+            "upper": (dim,),
+            "positions": (population, dim),
+        }
+        given = {"p": p, "offset": offset, "lower": lower, "upper": upper, "positions": positions}
+        inputs = [_float_array(name, given[name], shape) for name, shape in shapes.items()]
+        schedules = [_float_array(name, v, (iterations,)) for name, v in (("a", a), ("w", w))]
+        c1, c2 = check.finite_float("c1", c1), check.finite_float("c2", c2)
+        if isinstance(rng_thread, bool):
+            rng_thread = int(rng_thread)
+        elif not isinstance(rng_thread, numbers.Integral) or rng_thread not in (0, 1, 2, 3):
+            raise ValueError(f"rng_thread must be True, False, 2 or 3, got {check.shown(rng_thread)}")
         best_x, best_f = np.empty(dim), np.empty(1)
         history, final = np.empty(iterations + 1), np.empty((population, dim))
         tail = (c1, c2, population, dim, iterations, *map(data, (best_x, best_f, history, final)))
@@ -354,7 +462,7 @@ class NativeIgwo:
                 draws.bit_generator.state = state
                 late_blocks = int(words[4])
         else:
-            block = np.ascontiguousarray(draws, dtype=float)
+            block = _float_array("draws", draws, (iterations, 8, population, dim))
             status = self._given(*map(data, inputs), data(block), *map(data, schedules), *tail)
         if status != 0:
             reason = "the fitness evaluation failed" if status == 1 else "out of memory"
@@ -366,6 +474,24 @@ class NativeIgwo:
             "population": final,
             "late_blocks": late_blocks,
         }
+
+    @staticmethod
+    def _iterations(a: object) -> int:
+        shape = np.shape(a) if isinstance(a, np.ndarray | list | tuple) else None
+        if shape is None or len(shape) != 1:
+            raise ValueError(f"a must be a 1-D array (one value per iteration), got {check.shown(a)}")
+        return int(shape[0])
+
+
+def _float_array(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:
+    """``value`` as a C-contiguous float64 array of exactly ``shape`` (else ``ValueError``)."""
+    try:
+        array = np.ascontiguousarray(value, dtype=float)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{name} must be a real array of shape {shape}, got {check.shown(value)}") from error
+    if array.shape != shape:
+        raise ValueError(f"{name} must have shape {shape} (the build's sizes), got shape {array.shape}")
+    return array
 
 
 def uses_pcg64(generator: np.random.Generator) -> bool:

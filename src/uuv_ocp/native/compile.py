@@ -17,23 +17,39 @@ Files are written atomically (temporary name, then :func:`os.replace`), so sever
 share one build directory.  Because a library's file name is a digest of its content, a path is
 never reused for different code: ``dlopen`` (which caches libraries by path) can never hand back
 stale code.
+
+Nothing is loaded that this module did not build, and nothing from a folder others can write:
+
+* every library is built with a sidecar ``{library}.sha256`` holding the SHA-256 of its bytes
+  (written atomically after the library); before a cached library is loaded (which runs its
+  constructors) its bytes are hashed and compared with the sidecar.  A library without a
+  sidecar or with a different hash (planted, modified or truncated, e.g. by a full disk or a
+  killed build) is never loaded: it is rebuilt (see :func:`library_intact`);
+* a build directory must be a directory owned by the current user, writable by it and not
+  writable by its group or others (:func:`secure_directory`); a missing one is created with mode
+  ``0700``.  Otherwise :class:`BuildDirectoryError` names the folder and the fix;
+* libraries are always loaded by absolute path (a bare file name would make the system loader
+  search ``LD_LIBRARY_PATH``).
 """
 
 from __future__ import annotations
 
 import contextlib
 import hashlib
+import hmac
 import os
 import platform
 import re
 import secrets
 import shlex
 import shutil
+import stat
 import subprocess
 import sys
 import tempfile
+import threading
 import warnings
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -43,6 +59,8 @@ import numpy as np
 __all__ = [
     "COMPILER_CANDIDATES",
     "DEFAULT_FLAGS",
+    "HASH_SUFFIX",
+    "BuildDirectoryError",
     "CodegenError",
     "CompilationError",
     "CompiledLibrary",
@@ -50,8 +68,13 @@ __all__ = [
     "VerificationError",
     "batched",
     "compile_functions",
+    "IntegrityError",
     "find_c_compiler",
+    "jit_workspace",
+    "library_intact",
     "load_or_fallback",
+    "secure_directory",
+    "verify_library",
 ]
 
 COMPILER_CANDIDATES: tuple[str, ...] = ("cc", "gcc", "clang")
@@ -59,6 +82,9 @@ COMPILER_CANDIDATES: tuple[str, ...] = ("cc", "gcc", "clang")
 
 DEFAULT_FLAGS: tuple[str, ...] = ("-O3", "-fPIC", "-shared")
 """Default compiler flags of :func:`compile_functions`."""
+
+HASH_SUFFIX = ".sha256"
+"""Suffix of the sidecar holding a library's SHA-256: ``{library}.sha256``."""
 
 _PARALLELIZATIONS = ("serial", "unroll", "thread", "openmp")
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -84,6 +110,183 @@ class VerificationError(CodegenError):
     """A compiled function disagrees with its symbolic twin beyond the tolerance."""
 
 
+class BuildDirectoryError(CodegenError):
+    """A build directory that code must not be loaded from (or written to).
+
+    Not a directory, not creatable, not writable, owned by another user, or writable by its
+    group or by others; the message names the folder and the fix.
+    """
+
+
+class IntegrityError(CodegenError):
+    """A library's bytes do not match the SHA-256 its build recorded (or none was recorded)."""
+
+
+def secure_directory(directory: str | os.PathLike[str], *, create: bool = True) -> Path:
+    """Absolute path of ``directory``, created (mode ``0700``) if missing, checked safe.
+
+    Safe means: a directory (symbolic links are followed) owned by the current user, writable by
+    it, and not writable by its group or by others, so that nobody else can plant or replace a
+    library in it.
+
+    Parameters
+    ----------
+    directory : path-like
+        The folder; a relative path is taken relative to the current directory now (``""`` is
+        the current directory).
+    create : bool, default True
+        Create a missing folder (and its parents) with mode ``0700``; otherwise a missing folder
+        is an error.
+
+    Returns
+    -------
+    pathlib.Path
+        The absolute path.
+
+    Raises
+    ------
+    BuildDirectoryError
+        The folder is missing (with ``create=False``) or cannot be created, is not a directory,
+        is owned by another user, is group- or world-writable, or is not writable by the current
+        user.  The message names the folder and what to do.
+    """
+    path = Path(os.path.abspath(os.fspath(directory)))
+    if create and not path.exists():
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                path.mkdir(mode=0o700)
+                path.chmod(0o700)  # mkdir's mode is reduced by the umask
+            except FileExistsError:
+                pass  # created meanwhile by another process: checked below like any other
+        except OSError as error:
+            raise BuildDirectoryError(
+                f"cannot create the build folder {path}: {error.strerror or error}; "
+                "choose a writable folder (for the solvers' cache: set UUV_OCP_CACHE)"
+            ) from error
+    try:
+        status = path.stat()
+    except OSError as error:
+        raise BuildDirectoryError(f"build folder {path} is not usable: {error.strerror or error}") from error
+    if not stat.S_ISDIR(status.st_mode):
+        raise BuildDirectoryError(f"build folder {path} is not a directory; choose another folder")
+    if hasattr(os, "geteuid") and status.st_uid != os.geteuid():
+        raise BuildDirectoryError(
+            f"build folder {path} is owned by uid {status.st_uid}, not by the current user "
+            f"(uid {os.geteuid()}): code in it could be replaced by that user, so nothing is built "
+            "or loaded there; use a folder of your own (for the solvers' cache: set UUV_OCP_CACHE)"
+        )
+    if status.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        raise BuildDirectoryError(
+            f"build folder {path} is writable by its group or by others (mode "
+            f"{stat.S_IMODE(status.st_mode):04o}): anyone with that access could plant a library "
+            f"that this process would load; run `chmod go-w {shlex.quote(str(path))}` or use "
+            "another folder (for the solvers' cache: set UUV_OCP_CACHE)"
+        )
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise BuildDirectoryError(
+            f"build folder {path} is not writable by the current user; run "
+            f"`chmod u+wx {shlex.quote(str(path))}` or use another folder "
+            "(for the solvers' cache: set UUV_OCP_CACHE)"
+        )
+    return path
+
+
+def _sidecar(library: Path) -> Path:
+    return library.with_name(library.name + HASH_SUFFIX)
+
+
+def _file_sha256(path: Path) -> str:
+    hasher = hashlib.sha256()
+    with path.open("rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            hasher.update(block)
+    return hasher.hexdigest()
+
+
+def library_intact(library: str | os.PathLike[str]) -> bool:
+    """Whether ``library`` exists and its bytes match the SHA-256 recorded by its build.
+
+    A library without its sidecar ``{library}.sha256`` (not built here), with a malformed one,
+    or whose bytes hash differently (modified, replaced or truncated) is not intact.  Nothing is
+    loaded: only the bytes are read.
+    """
+    path = Path(library)
+    try:
+        recorded = _sidecar(path).read_text().strip()
+        if not path.is_file() or len(recorded) != 64:
+            return False
+        return hmac.compare_digest(_file_sha256(path), recorded)
+    except (OSError, UnicodeDecodeError):
+        return False
+
+
+def verify_library(library: str | os.PathLike[str]) -> Path:
+    """Check ``library`` before it is loaded; return its absolute path.
+
+    Raises
+    ------
+    BuildDirectoryError
+        Its folder is not safe (see :func:`secure_directory`).
+    IntegrityError
+        Its bytes do not match the SHA-256 recorded by its build (see :func:`library_intact`).
+    """
+    path = secure_directory(Path(library).parent, create=False) / Path(library).name
+    if not library_intact(path):
+        raise IntegrityError(
+            f"refusing to load {path}: its content does not match the SHA-256 recorded by its "
+            f"build in {_sidecar(path).name} (modified, truncated or not built by uuv_ocp); "
+            "build it again (generate_c / compile_functions rebuild it)"
+        )
+    return path
+
+
+def _record_hash(built: Path, library: Path) -> None:
+    """Write the sidecar of ``library`` (the hash of ``built``, its new content) atomically."""
+    sidecar = _sidecar(library)
+    temporary = sidecar.with_name(f".{sidecar.name}-{os.getpid()}-{secrets.token_hex(6)}.tmp")
+    temporary.write_text(_file_sha256(built) + "\n")
+    os.replace(temporary, sidecar)
+
+
+_CWD_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def jit_workspace(directory: str | os.PathLike[str]) -> Iterator[str]:
+    """Run CasADi's JIT (``compiler="shell"``) inside ``directory`` instead of the working directory.
+
+    CasADi 3.8's ``nlpsol`` writes the generated source of its NLP functions (``jit_tmp*.c``) to
+    the *current* directory, whatever its ``jit_options["directory"]`` (which only places the
+    object file and the library).  Within this context the process works in ``directory``
+    (checked by :func:`secure_directory`, created ``0700``); the working directory is restored
+    on exit, even if it was renamed meanwhile.  Pass the yielded string (the folder with a
+    trailing separator) as ``jit_options["directory"]``; CasADi removes its files when the
+    function is released.
+
+    The working directory is process wide: the context holds a lock, and nothing else in this
+    package reads relative paths meanwhile (the JIT build is one call into CasADi).
+
+    Raises
+    ------
+    BuildDirectoryError
+        ``directory`` is not safe (see :func:`secure_directory`).
+    """
+    folder = secure_directory(directory)
+    with _CWD_LOCK:
+        previous = os.open(".", os.O_RDONLY) if hasattr(os, "fchdir") else None
+        fallback = os.getcwd() if previous is None else ""
+        try:
+            os.chdir(folder)
+            yield str(folder) + os.sep
+        finally:
+            if previous is not None:
+                os.fchdir(previous)
+                os.close(previous)
+            else:
+                os.chdir(fallback)
+
+
 @dataclass(frozen=True)
 class CompiledLibrary:
     """A generated (and normally compiled and loaded) set of CasADi functions.
@@ -106,6 +309,8 @@ class CompiledLibrary:
     max_error : dict[str, float]
         Name -> largest relative error, compiled vs symbolic, measured by the verification
         (empty when not verified).
+    reused : bool
+        Whether an intact library from an earlier build was loaded (no compilation).
     """
 
     path: Path | None
@@ -115,6 +320,7 @@ class CompiledLibrary:
     digest: str
     compiler: str
     max_error: dict[str, float]
+    reused: bool = False
 
     def __getitem__(self, name: str) -> ca.Function:
         """Return the loaded function called ``name``.
@@ -228,7 +434,10 @@ def _link_flags(source_text: str) -> list[str]:
 
 
 def _compile(command: list[str], temporary: Path, final: Path) -> None:
-    """Run ``command`` (which writes ``temporary``) and move the result onto ``final``."""
+    """Run ``command`` (which writes ``temporary``) and move the result onto ``final``.
+
+    The SHA-256 of the new library is recorded in its sidecar right after the move.
+    """
     try:
         completed = subprocess.run(command, capture_output=True, text=True, check=False)
     except OSError as error:
@@ -240,14 +449,19 @@ def _compile(command: list[str], temporary: Path, final: Path) -> None:
             f"C compilation failed (exit status {completed.returncode}): {shlex.join(command)}\n"
             f"--- compiler stderr ---\n{completed.stderr.strip()}"
         )
-    os.replace(temporary, final)
+    try:
+        os.replace(temporary, final)
+        _record_hash(final, final)
+    except OSError:
+        temporary.unlink(missing_ok=True)
+        raise
 
 
 def _load(names: Sequence[str], library: Path) -> dict[str, ca.Function]:
-    """Load every function of ``library`` with :func:`casadi.external`."""
+    """Load every function of ``library`` with :func:`casadi.external` (after its hash check)."""
+    library = verify_library(library)  # absolute: a bare name would make dlopen search the path
     try:
-        # An absolute path: a bare file name would make dlopen search the library path instead.
-        return {name: ca.external(name, str(library.absolute())) for name in names}
+        return {name: ca.external(name, str(library)) for name in names}
     except RuntimeError as error:
         raise CompilationError(f"could not load {library} with casadi.external: {error}") from error
 
@@ -358,8 +572,10 @@ def compile_functions(
         Functions to put in one C file; their names (unique, C identifiers) become the C symbols
         and the names passed to :func:`casadi.external`.
     directory : path-like
-        Output directory (created if missing); receives ``{name}.c``, ``{name}.h`` and
-        ``{name}_{digest[:16]}.so``.
+        Output directory (created with mode ``0700`` if missing; refused if it is owned by
+        another user or writable by its group or others, see :func:`secure_directory`);
+        receives ``{name}.c``, ``{name}.h``, ``{name}_{digest[:16]}.so`` and the library's
+        ``.sha256`` sidecar.
     name : str, default ``"uuv_ocp_gen"``
         Base name of the generated files (a C identifier).
     compile : bool, default True
@@ -396,6 +612,8 @@ def compile_functions(
         No compiler (see :func:`find_c_compiler`); ``cc`` not executable.
     CompilationError
         The compiler failed (message: command and compiler stderr) or the library did not load.
+    BuildDirectoryError
+        ``directory`` is not safe to build in or load from (see :func:`secure_directory`).
     VerificationError
         A compiled function differs from its symbolic twin by more than ``tolerance``.
     ValueError, TypeError
@@ -403,14 +621,17 @@ def compile_functions(
 
     Notes
     -----
-    The library is content addressed: if ``{name}_{digest[:16]}.so`` already exists it is loaded
-    without recompiling.  The digest covers the source text, the compiler path and the flags, not
-    the compiler's version: after upgrading a compiler in place, clear the directory.
+    The library is content addressed: if ``{name}_{digest[:16]}.so`` already exists and its bytes
+    match the SHA-256 in its sidecar it is loaded without recompiling; otherwise (no sidecar,
+    planted, modified or truncated) it is rebuilt before anything is loaded.  The digest covers
+    the source text, the compiler path and the flags, not the compiler's version: after
+    upgrading a compiler in place, clear the directory.
     """
     functions, external = list(functions), list(external)
     _check_functions([*functions, *external], name)
-    directory = Path(directory)
-    directory.mkdir(parents=True, exist_ok=True)
+    if isinstance(tolerance, bool) or not isinstance(tolerance, int | float) or not tolerance >= 0:
+        raise ValueError(f"tolerance must be a number >= 0, got {tolerance!r}")
+    directory = secure_directory(directory)
     flags = tuple(flags)
 
     generator = ca.CodeGenerator(f"{name}.c", {"with_header": True})
@@ -453,7 +674,8 @@ def compile_functions(
         link = _link_flags(source_text)
         digest = _digest(source_text, compiler, (*flags, *link, *_machine_key(flags)))
         library = directory / f"{name}_{digest[:16]}.so"
-        if not library.exists():
+        reused = library_intact(library)
+        if not reused:
             # A unique name, not pre-created (mkstemp's 0600 mode would leak into the library).
             temporary = directory / f".{library.stem}-{os.getpid()}-{secrets.token_hex(6)}.so.tmp"
             command = [compiler, *flags, str(staged_source), "-o", str(temporary), *link]
@@ -481,6 +703,7 @@ def compile_functions(
         digest=digest,
         compiler=compiler,
         max_error=errors,
+        reused=reused,
     )
 
 

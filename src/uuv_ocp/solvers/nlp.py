@@ -258,7 +258,7 @@ class NlpSolver:
 
     def _compiled_nlpsol(self, name: str, plugin: str, nlp: dict, options: dict) -> ca.Function:
         """NLP functions compiled to C by CasADi's JIT (system compiler); VM if that fails."""
-        from uuv_ocp.codegen import CompilerNotFoundError, find_c_compiler
+        from uuv_ocp.codegen import CompilerNotFoundError, find_c_compiler, jit_directory
 
         try:
             compiler = find_c_compiler()
@@ -267,7 +267,9 @@ class NlpSolver:
                 "compiler": "shell",
                 "jit_options": {"compiler": compiler, "flags": ["-O2"], "verbose": False},
             }
-            return ca.nlpsol(name, plugin, nlp, {**options, **jit})
+            with jit_directory() as directory:  # CasADi writes jit_tmp*.c to the working directory
+                jit["jit_options"]["directory"] = directory
+                return ca.nlpsol(name, plugin, nlp, {**options, **jit})
         except (CompilerNotFoundError, RuntimeError) as error:
             warnings.warn(
                 f"compiled=True unavailable for {self.name} ({error}); using CasADi's virtual machine",

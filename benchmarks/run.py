@@ -14,6 +14,7 @@ BENCHMARKS = (
     "benchmarks.bench_swarm_functions",
     "benchmarks.bench_6dof",
     "benchmarks.bench_baseline",
+    "benchmarks.bench_nonconvex",
 )
 
 

@@ -39,6 +39,9 @@ class SolverRegistry:
 
     A ``"<first>+<second>"`` name is a hybrid whenever ``first`` is registered with
     ``kind="swarm"`` and ``second`` with ``kind="exact"``: plug-ins can be either half.
+    ``"multistart-<exact>"`` (:mod:`uuv_ocp.solvers.multistart`) exists for every ``kind="exact"``
+    name; it is resolved here like a hybrid, not registered as an exact backend, so no
+    ``"<swarm>+multistart-<exact>"`` hybrid is offered.
     """
 
     def __init__(self, factories: dict[str, tuple[SolverFactory, str]] | None = None) -> None:
@@ -59,18 +62,19 @@ class SolverRegistry:
         self._factories[name] = (factory, kind)
 
     def kind(self, name: str) -> str:
-        """``"exact"``, ``"swarm"`` or ``"hybrid"``."""
+        """``"exact"``, ``"swarm"``, ``"hybrid"`` or ``"multistart"``."""
         if name in self._factories:
             return self._factories[name][1]
         self.factory(name)  # raises for unknown names
-        return "hybrid"
+        return "hybrid" if "+" in name else "multistart"
 
     def names(self) -> list[str]:
         """Sorted list of registered names, including the ``"<swarm>+<exact>"`` hybrids."""
         swarms = [name for name, (_, kind) in self._factories.items() if kind == "swarm"]
         exact = [name for name, (_, kind) in self._factories.items() if kind == "exact"]
         hybrids = [f"{first}+{second}" for first in swarms for second in exact]
-        return sorted([*self._factories, *hybrids])
+        multistarts = [f"multistart-{second}" for second in exact]
+        return sorted({*self._factories, *hybrids, *multistarts})
 
     def factory(self, name: str) -> SolverFactory:
         """Return the factory for ``name``; raise ``ValueError`` listing valid names otherwise."""
@@ -85,7 +89,15 @@ class SolverRegistry:
             swarm, exact = self._factories.get(first), self._factories.get(second)
             if swarm is not None and exact is not None and swarm[1] == "swarm" and exact[1] == "exact":
                 return hybrid_factory(name, swarm[0], exact[0])
-        raise ValueError(f"solver must be one of {self.names()} (or '<swarm>+<exact>'), got {name!r}")
+        elif name.startswith("multistart-"):
+            from uuv_ocp.solvers.multistart import multistart_factory
+
+            inner = self._factories.get(name[len("multistart-") :])
+            if inner is not None and inner[1] == "exact":
+                return multistart_factory(name, inner[0])
+        raise ValueError(
+            f"solver must be one of {self.names()} (or '<swarm>+<exact>', 'multistart-<exact>'), got {name!r}"
+        )
 
 
 REGISTRY = SolverRegistry(_BUILTIN)

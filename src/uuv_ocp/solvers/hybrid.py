@@ -5,6 +5,20 @@ rollout through the same RK4 model, becomes the exact solver's initial guess.  T
 solver's result is returned (``solver="igwo+ipopt"``), with the swarm's evaluations added and
 its best fitness in ``details["swarm_fitness"]``.  In a closed loop the next swarm is centred
 on the exact solver's shifted plan.
+
+The exact stage keeps its terminal strategy across steps: the guess built from the swarm's
+plan carries the incoming warm start's ``terminal_relaxed`` and NLP ``variant``, so after a
+relaxed step a ``"sticky"`` exact backend starts with the soft NLP, as it does on its own.
+
+Option ``candidates=k`` (default 1): the exact solver starts from the swarm's best k distinct
+plans (``details["candidates"]`` of the swarm, see :class:`~uuv_ocp.solvers.swarm.SwarmSolver`:
+the best plan, then the best plans evaluated during the run whose predicted state trajectories
+are farther than ``candidate_distance`` — an RMS distance, each state over its spread in the
+initial population, default 0.5 — from every plan already taken) and the best result is
+returned: feasible first, then the cost (:func:`~uuv_ocp.solvers.multistart.rank_key`).
+``details["candidates"]`` lists each start's swarm fitness, cost, success and status,
+``details["chosen"]`` the index of the one returned.  With k > 1 the swarm half must accept the
+``candidates`` and ``candidate_distance`` options (the built-in swarms do).
 """
 
 from __future__ import annotations
@@ -16,20 +30,29 @@ from typing import Any
 
 import numpy as np
 
+from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
+from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.solvers.multistart import best_result, plan_guess
 from uuv_ocp.solvers.result import Iterate, SolveResult
 
 
 class HybridSolver:
     """Run ``first`` (a swarm), then ``second`` (an exact solver) from the swarm's best plan.
 
-    Options: ``{"swarm": {...}, "exact": {...}}`` passed to the two backends.
+    Options: ``{"swarm": {...}, "exact": {...}}`` passed to the two backends, ``candidates``
+    (int >= 1, default 1) and ``candidate_distance`` (float > 0, passed to the swarm).
     """
 
-    def __init__(self, name: str, first: Any, second: Any) -> None:
+    def __init__(
+        self, name: str, first: Any, second: Any, candidates: int = 1, problem: Transcribed | None = None
+    ) -> None:
         self.name = name
         self.first = first
         self.second = second
+        self.candidates = candidates
+        self.problem = problem if problem is not None else getattr(first, "problem", None)
+        self._decode: BufferedFunction | None = None
 
     def solve(
         self,
@@ -40,15 +63,55 @@ class HybridSolver:
         """Swarm, then exact solve warm-started on the swarm's plan."""
         start = time.perf_counter()
         swarm = self.first.solve(p, warm_start, rng)
-        guess = Iterate(scaled_controls=swarm.iterate.scaled_controls, states=swarm.iterate.states)
-        exact = self.second.solve(p, guess)
-        details = dict(exact.details)
+        # the exact stage's terminal strategy (sticky soft start after a relaxed step) carries on
+        relaxed = warm_start.terminal_relaxed if warm_start is not None else False
+        variant = warm_start.variant if warm_start is not None else "hard"
+        guess = Iterate(
+            scaled_controls=swarm.iterate.scaled_controls,
+            states=swarm.iterate.states,
+            variant=variant,
+            terminal_relaxed=relaxed,
+        )
+        plans = swarm.details.get("candidates") if self.candidates > 1 else None
+        if not plans:
+            exact = self.second.solve(p, guess)
+            details = dict(exact.details)
+            iterations, evaluations = exact.iterations, exact.evaluations
+        else:
+            problem = self.problem
+            if problem is None:
+                raise ValueError(f"{self.name}: candidates > 1 needs the problem (pass problem=)")
+            if self._decode is None:
+                self._decode = BufferedFunction(problem.build().decode)
+            guesses = [guess] + [
+                plan_guess(problem, plan, p, warm_start, self._decode) for plan in plans[1 : self.candidates]
+            ]
+            results = [self.second.solve(p, g) for g in guesses]
+            chosen = best_result(results)
+            exact = results[chosen]
+            details = dict(exact.details)
+            fitness = list(swarm.details.get("candidate_fitness", [])) + [None] * len(results)
+            details["candidates"] = [
+                {
+                    "swarm_fitness": fitness[i],
+                    "cost": r.cost,
+                    "max_violation": r.max_violation,
+                    "success": r.success,
+                    "status": r.status,
+                    "time": r.solve_time,
+                }
+                for i, r in enumerate(results)
+            ]
+            details["chosen"] = chosen
+            iterations = sum(r.iterations for r in results)
+            evaluations = sum(r.evaluations for r in results)
         details.update({"swarm_fitness": swarm.details.get("fitness"), "swarm_cost": swarm.cost})
         return dataclasses.replace(
             exact,
             solver=self.name,
             solve_time=time.perf_counter() - start,
-            evaluations=exact.evaluations + swarm.evaluations,
+            iterations=iterations,
+            evaluations=evaluations + swarm.evaluations,
             history=swarm.history,
             details=details,
         )
@@ -61,10 +124,24 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
         options = dict(options or {})
         swarm_options = options.pop("swarm", None)
         exact_options = options.pop("exact", None)
+        candidates = check.positive_int("options['candidates']", options.pop("candidates", 1))
+        distance = options.pop("candidate_distance", None)
         if options:
             raise ValueError(
-                f"options of {name!r} take only 'swarm' and 'exact' dicts, got {sorted(options)}"
+                f"options of {name!r} take only 'swarm' and 'exact' dicts, 'candidates' and "
+                f"'candidate_distance', got {sorted(options)}"
             )
-        return HybridSolver(name, first(problem, swarm_options), second(problem, exact_options))
+        if swarm_options is not None and not isinstance(swarm_options, dict):
+            raise ValueError(f"options['swarm'] of {name!r} must be a dict, got {swarm_options!r}")
+        if candidates > 1 or distance is not None:
+            swarm_options = dict(swarm_options or {})
+            swarm_options["candidates"] = candidates
+            if distance is not None:
+                swarm_options["candidate_distance"] = check.positive_float(
+                    "options['candidate_distance']", distance
+                )
+        return HybridSolver(
+            name, first(problem, swarm_options), second(problem, exact_options), candidates, problem
+        )
 
     return factory

@@ -33,7 +33,9 @@ def tracking_metrics(run: ClosedLoopResult, settle_time: float = 5.0) -> dict[st
         ``max_abs_ex``, ``max_abs_ey`` (m, whole run); ``max_abs_ex_settled``,
         ``max_abs_ey_settled`` (m, after ``settle_time``); ``rms_ex``, ``rms_ey``, ``std_ex``,
         ``std_ey`` (m); ``var_ex``, ``var_ey`` (m²); ``solve_time_median``, ``solve_time_p90``,
-        ``solve_time_max``, ``solve_time_mean`` (s); ``failures``, ``relaxed_steps``, ``steps``.
+        ``solve_time_max``, ``solve_time_mean`` (s); ``failures``, ``relaxed_steps``, ``steps``;
+        ``deadline_misses`` (an ``int``: steps whose solve the backend's deadline stopped or
+        outlasted).
     """
     errors = run.errors
     settled = run.t >= run.t[0] + settle_time - 1e-9
@@ -57,4 +59,5 @@ def tracking_metrics(run: ClosedLoopResult, settle_time: float = 5.0) -> dict[st
         "failures": float(run.failures),
         "relaxed_steps": float(np.sum(run.relaxed_steps)),
         "steps": float(run.controls.shape[0]),
+        "deadline_misses": int(run.deadline_misses),
     }

@@ -12,6 +12,13 @@ it has one, otherwise it holds the last applied control.  The step is counted in
 backend's status or exception is in ``StepOutput.message``.  ``KeyboardInterrupt`` (CasADi's,
 raised as a ``RuntimeError`` naming it, included) always propagates.
 
+Deadlines (backend option ``deadline``, seconds; see docs/solvers.md): a step whose backend
+reports ``details["deadline_hit"]`` sets ``StepOutput.deadline_hit`` and is counted in
+``ClosedLoopResult.deadline_misses``.  An exact solver (or a hybrid's exact stage) stopped by
+the deadline reports ``success=False``, so the step takes the fallback above; a swarm stopped by
+it returns its best plan so far, which is applied when feasible (``success``) — a swarm is an
+anytime method, its plan is ready at the deadline.
+
 Every applied control, fresh or fallback, is projected on the control box and on the rate
 bound around the last applied control: the plant never sees a bound violated, whatever the
 backend's tolerance.
@@ -47,12 +54,16 @@ class StepOutput:
     message : str
         Why the fallback was used: the backend's status, or ``"exception: <type>: <message>"``
         when the backend raised (empty when the fresh solution is applied).
+    deadline_hit : bool
+        Whether the backend's ``deadline`` option stopped or outlasted this solve
+        (``result.details["deadline_hit"]``; see the module doc).
     """
 
     control: np.ndarray
     result: SolveResult | None
     fallback: bool
     message: str = ""
+    deadline_hit: bool = False
 
 
 class NMPC:
@@ -124,14 +135,19 @@ class NMPC:
             failure_reason = f"exception: {type(error).__name__}: {error}"
         else:
             failure_reason = "" if result.success and np.all(np.isfinite(result.controls)) else result.status
+        late = result is not None and bool(result.details.get("deadline_hit", False))
         if not failure_reason:
             self._plan = result.controls
             self._iterate = result.iterate.shift()
-            return StepOutput(self._admissible(result.controls[0], u_prev), result, False)
+            return StepOutput(self._admissible(result.controls[0], u_prev), result, False, deadline_hit=late)
         control = self._admissible(self._fallback_control(u_prev), u_prev)
-        if self._iterate is not None:
+        if late and result is not None and np.all(np.isfinite(result.iterate.scaled_controls)):
+            # the stopped solve's progress warm-starts the next one (iterations carry on across
+            # steps, as in real-time iteration schemes); its plan is not applied
+            self._iterate = result.iterate.shift()
+        elif self._iterate is not None:
             self._iterate = self._iterate.shift()
-        return StepOutput(control, result, True, failure_reason)
+        return StepOutput(control, result, True, failure_reason, deadline_hit=late)
 
     def _admissible(self, control: np.ndarray, u_prev: object | None) -> np.ndarray:
         """``control`` projected on the box and on the rate bound around ``u_prev``.

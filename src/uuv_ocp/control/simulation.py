@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import casadi as ca
@@ -58,6 +58,10 @@ class ClosedLoopResult:
         Solver name.
     interrupted : bool
         Whether the run was stopped early by the user.
+    deadline_steps : numpy.ndarray of bool, shape (n,), optional
+        Steps whose solve the backend's ``deadline`` option stopped or outlasted
+        (:attr:`StepOutput.deadline_hit <uuv_ocp.control.mpc.StepOutput>`); all False when
+        omitted.
     """
 
     t: np.ndarray
@@ -72,11 +76,22 @@ class ClosedLoopResult:
     statuses: tuple[str, ...]
     solver: str
     interrupted: bool = False
+    deadline_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+
+    def __post_init__(self) -> None:
+        """Fill ``deadline_steps`` (all False) when omitted."""
+        if np.size(self.deadline_steps) == 0 and len(self.fallback_steps):
+            object.__setattr__(self, "deadline_steps", np.zeros(len(self.fallback_steps), dtype=bool))
 
     @property
     def failures(self) -> int:
         """Number of steps where the solver failed and the fallback was applied."""
         return int(np.sum(self.fallback_steps))
+
+    @property
+    def deadline_misses(self) -> int:
+        """Number of steps whose solve missed the backend's deadline (see ``deadline_steps``)."""
+        return int(np.sum(self.deadline_steps))
 
     @property
     def errors(self) -> np.ndarray:
@@ -103,6 +118,7 @@ class ClosedLoopResult:
             statuses=np.array(self.statuses, dtype=str),
             solver=np.array(self.solver),
             interrupted=np.array(self.interrupted),
+            deadline_steps=self.deadline_steps,
         )
 
     @classmethod
@@ -122,6 +138,10 @@ class ClosedLoopResult:
                 statuses=tuple(str(s) for s in data["statuses"]),
                 solver=str(data["solver"]),
                 interrupted=bool(data["interrupted"]),
+                # files written before deadlines existed have no deadline_steps
+                deadline_steps=(
+                    data["deadline_steps"] if "deadline_steps" in data.files else np.zeros(0, dtype=bool)
+                ),
             )
 
 
@@ -233,6 +253,7 @@ def simulate(
     iterations = np.zeros(steps, dtype=int)
     fallback = np.zeros(steps, dtype=bool)
     relaxed = np.zeros(steps, dtype=bool)
+    deadline_steps = np.zeros(steps, dtype=bool)
     statuses: list[str] = []
     controller.reset()
     u_prev = np.clip(np.zeros(nu), spec.lower, spec.upper)
@@ -253,6 +274,7 @@ def simulate(
                 result = output.result
                 controls[k] = output.control
                 fallback[k] = output.fallback
+                deadline_steps[k] = output.deadline_hit
                 if result is not None:
                     iterations[k] = result.iterations
                     relaxed[k] = result.terminal_relaxed
@@ -287,6 +309,7 @@ def simulate(
         statuses=tuple(statuses[:n]),
         solver=controller.solver_name,
         interrupted=interrupted,
+        deadline_steps=deadline_steps[:n],
     )
 
 

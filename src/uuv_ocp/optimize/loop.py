@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -82,7 +83,8 @@ class MinimizeResult:
         Number of individual cost evaluations (rows passed to ``fun``), initial population
         included.
     iterations : int
-        Iterations actually run (fewer than requested if ``max_evaluations`` stopped the run).
+        Iterations actually run (fewer than requested if ``max_evaluations`` or ``time_limit``
+        stopped the run).
     method : str
         Algorithm name.
     population : numpy.ndarray, shape (population, dim)
@@ -92,6 +94,9 @@ class MinimizeResult:
     success : bool
         ``True`` iff a finite best cost was found (read-only property derived from ``fun``,
         so it cannot disagree with it).
+    deadline_hit : bool
+        Whether ``time_limit`` stopped the run before its iteration budget (``x`` is then the
+        best point found so far).
     """
 
     x: np.ndarray
@@ -102,6 +107,7 @@ class MinimizeResult:
     method: str
     population: np.ndarray
     message: str
+    deadline_hit: bool = False
 
     @property
     def success(self) -> bool:
@@ -285,6 +291,7 @@ class PopulationAlgorithm:
         rng: np.random.Generator,
         initial_population: np.ndarray | None = None,
         max_evaluations: int | None = None,
+        time_limit: float | None = None,
     ) -> MinimizeResult:
         """Run the optimiser (inputs already validated by :func:`uuv_ocp.optimize.minimize`).
 
@@ -298,11 +305,17 @@ class PopulationAlgorithm:
             Seeds placed first (clipped to the box).
         max_evaluations : int, optional
             Stop before an iteration that would exceed this many evaluations.
+        time_limit : float, optional
+            Wall-clock seconds from the start of this call: checked after the initial
+            population and after each iteration (an evaluation of ``fun`` is never
+            interrupted); once exceeded, no further iteration starts and the best point so far
+            is returned with ``deadline_hit=True``.
 
         Returns
         -------
         MinimizeResult
         """
+        started = time.perf_counter()
         n = self.population
         seeds = np.empty((0, self.dim)) if initial_population is None else initial_population
         uniform = rng.random((n - seeds.shape[0], self.dim))
@@ -317,11 +330,19 @@ class PopulationAlgorithm:
         history = [best_f]
         message = f"reached the iteration budget ({self.iterations})"
         done = 0
+        deadline_hit = False
         for t in range(self.iterations):
             if max_evaluations is not None and evaluations + n > max_evaluations:
                 message = (
                     f"stopped after {done} iterations: another iteration would exceed "
                     f"max_evaluations={max_evaluations}"
+                )
+                break
+            if time_limit is not None and time.perf_counter() - started >= time_limit:
+                deadline_hit = True
+                message = (
+                    f"stopped by the deadline: time_limit={time_limit:g} s exceeded after {done} of "
+                    f"{self.iterations} iterations; x is the best point so far"
                 )
                 break
             positions = np.clip(self.propose(t, rng), self.lower, self.upper)
@@ -348,4 +369,5 @@ class PopulationAlgorithm:
             method=self.name,
             population=self.final_population(),
             message=message,
+            deadline_hit=deadline_hit,
         )

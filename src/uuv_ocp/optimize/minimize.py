@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from uuv_ocp._validation import positive_int
+from uuv_ocp._validation import positive_float, positive_int
 from uuv_ocp.optimize.gwo import GreyWolf
 from uuv_ocp.optimize.igwo import ImprovedGreyWolf
 from uuv_ocp.optimize.loop import MinimizeResult, Objective, PopulationAlgorithm, validate_bounds
@@ -54,6 +54,7 @@ def minimize(
     seed: int | np.random.Generator | None = None,
     initial_population: object = None,
     options: Mapping[str, Any] | None = None,
+    time_limit: float | None = None,
 ) -> MinimizeResult:
     """Minimise a vectorised objective over a box with a population optimiser.
 
@@ -86,6 +87,12 @@ def minimize(
         shifted previous plan; the remaining individuals are uniform in the box.
     options : mapping, optional
         Algorithm parameters, see each algorithm class.
+    time_limit : float, optional
+        Wall-clock budget in seconds (finite, > 0) from the start of the call.  Checked after
+        the initial population and after every iteration (a call of ``fun`` is never
+        interrupted): once exceeded, no further iteration starts and the best point so far is
+        returned with ``deadline_hit=True`` and a message saying the deadline stopped it.
+        Random draws are those of the unlimited run up to the stop.
 
     Returns
     -------
@@ -143,5 +150,7 @@ def minimize(
         raise ValueError(
             f"seed must be an int >= 0, a numpy.random.Generator or None, got {seed!r}"
         ) from error
+    if time_limit is not None:
+        time_limit = positive_float("time_limit", time_limit)
     algorithm = cls(lo, up, n, T, options)
-    return algorithm.run(fun, rng, seeds, max_evaluations)
+    return algorithm.run(fun, rng, seeds, max_evaluations, time_limit)

@@ -15,6 +15,11 @@ class FatropSolver(NlpSolver):
     initial barrier saves one of the six median iterations (s2 closed loop, measured); the two
     steps of that loop it does not solve (the cold start from rest, one saturated step) are
     solved by the last-resort retry with fatrop's conservative ``mu_init = 1e-3``.
+
+    ``deadline``: CasADi 3.8's fatrop interface has no time limit among its options and calls
+    no iteration callback, so an attempt cannot be stopped once started; the deadline is
+    enforced between the attempts of the fallback chain (see :mod:`~uuv_ocp.solvers.nlp`), and
+    ``max_iter`` bounds the length of one attempt.
     """
 
     name = "fatrop"

@@ -19,11 +19,23 @@ returned: feasible first, then the cost (:func:`~uuv_ocp.solvers.multistart.rank
 ``details["candidates"]`` lists each start's swarm fitness, cost, success and status,
 ``details["chosen"]`` the index of the one returned.  With k > 1 the swarm half must accept the
 ``candidates`` and ``candidate_distance`` options (the built-in swarms do).
+
+Option ``deadline`` (seconds, finite > 0): the wall-time budget of the whole hybrid solve.  The
+swarm gets :data:`SWARM_SHARE` (50 %) of it (it returns its best plan so far when that share is
+used up), the exact stage what is left when the swarm returns (built with ``deadline`` too, so
+its in-attempt stops are active; see :mod:`~uuv_ocp.solvers.nlp`); with ``candidates=k`` no
+further start begins after the deadline.  If the swarm leaves no time at all, the exact stage
+does not start and the swarm's plan is returned (``success`` = the swarm's feasibility).
+``details["deadline_hit"]`` says whether the hybrid's plan was late (the exact stage's own
+flag, or no time left for it); ``details["swarm_deadline_hit"]`` whether the swarm's share
+stopped the swarm.  Both halves must accept ``solve(..., time_limit=seconds)`` (the built-in
+backends do).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import time
 from collections.abc import Callable
 from typing import Any
@@ -36,21 +48,32 @@ from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers.multistart import best_result, plan_guess
 from uuv_ocp.solvers.result import Iterate, SolveResult
 
+SWARM_SHARE = 0.5
+"""Share of a hybrid's ``deadline`` given to its swarm; the exact stage gets the rest."""
+
 
 class HybridSolver:
     """Run ``first`` (a swarm), then ``second`` (an exact solver) from the swarm's best plan.
 
     Options: ``{"swarm": {...}, "exact": {...}}`` passed to the two backends, ``candidates``
-    (int >= 1, default 1) and ``candidate_distance`` (float > 0, passed to the swarm).
+    (int >= 1, default 1), ``candidate_distance`` (float > 0, passed to the swarm) and
+    ``deadline`` (seconds, see the module doc).
     """
 
     def __init__(
-        self, name: str, first: Any, second: Any, candidates: int = 1, problem: Transcribed | None = None
+        self,
+        name: str,
+        first: Any,
+        second: Any,
+        candidates: int = 1,
+        problem: Transcribed | None = None,
+        deadline: float | None = None,
     ) -> None:
         self.name = name
         self.first = first
         self.second = second
         self.candidates = candidates
+        self.deadline = deadline
         self.problem = problem if problem is not None else getattr(first, "problem", None)
         self._decode: BufferedFunction | None = None
 
@@ -62,7 +85,19 @@ class HybridSolver:
     ) -> SolveResult:
         """Swarm, then exact solve warm-started on the swarm's plan."""
         start = time.perf_counter()
-        swarm = self.first.solve(p, warm_start, rng)
+        deadline = self.deadline
+        if deadline is None:
+            swarm = self.first.solve(p, warm_start, rng)
+        else:
+            swarm = self.first.solve(p, warm_start, rng, time_limit=SWARM_SHARE * deadline)
+
+        def exact_solve(guess: Iterate) -> SolveResult | None:
+            """Run the exact stage from ``guess`` in what is left of the deadline (None: nothing left)."""
+            if deadline is None:
+                return self.second.solve(p, guess)
+            remaining = deadline - (time.perf_counter() - start)
+            return None if remaining <= 0.0 else self.second.solve(p, guess, time_limit=remaining)
+
         # the exact stage's terminal strategy (sticky soft start after a relaxed step) carries on
         relaxed = warm_start.terminal_relaxed if warm_start is not None else False
         variant = warm_start.variant if warm_start is not None else "hard"
@@ -73,8 +108,22 @@ class HybridSolver:
             terminal_relaxed=relaxed,
         )
         plans = swarm.details.get("candidates") if self.candidates > 1 else None
+        first_exact = exact_solve(guess)
+        if first_exact is None:  # the swarm used up the whole deadline: no exact stage
+            return dataclasses.replace(
+                swarm,
+                solver=self.name,
+                status=f"deadline: {deadline:g} s used up by the swarm, no exact stage; {swarm.status}",
+                solve_time=time.perf_counter() - start,
+                details={
+                    **swarm.details,
+                    "deadline_hit": True,
+                    "swarm_deadline_hit": bool(swarm.details.get("deadline_hit", False)),
+                },
+            )
+        results = [first_exact]
         if not plans:
-            exact = self.second.solve(p, guess)
+            exact = first_exact
             details = dict(exact.details)
             iterations, evaluations = exact.iterations, exact.evaluations
         else:
@@ -86,7 +135,11 @@ class HybridSolver:
             guesses = [guess] + [
                 plan_guess(problem, plan, p, warm_start, self._decode) for plan in plans[1 : self.candidates]
             ]
-            results = [self.second.solve(p, g) for g in guesses]
+            for g in guesses[1:]:  # no start begins after the deadline
+                result = exact_solve(g)
+                if result is None:
+                    break
+                results.append(result)
             chosen = best_result(results)
             exact = results[chosen]
             details = dict(exact.details)
@@ -106,6 +159,10 @@ class HybridSolver:
             iterations = sum(r.iterations for r in results)
             evaluations = sum(r.evaluations for r in results)
         details.update({"swarm_fitness": swarm.details.get("fitness"), "swarm_cost": swarm.cost})
+        if deadline is not None:
+            late = any(r.details.get("deadline_hit", False) for r in results)
+            details["deadline_hit"] = bool(late or time.perf_counter() - start > deadline)
+            details["swarm_deadline_hit"] = bool(swarm.details.get("deadline_hit", False))
         return dataclasses.replace(
             exact,
             solver=self.name,
@@ -126,11 +183,18 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
         exact_options = options.pop("exact", None)
         candidates = check.positive_int("options['candidates']", options.pop("candidates", 1))
         distance = options.pop("candidate_distance", None)
+        deadline = options.pop("deadline", None)
         if options:
             raise ValueError(
-                f"options of {name!r} take only 'swarm' and 'exact' dicts, 'candidates' and "
-                f"'candidate_distance', got {sorted(options)}"
+                f"options of {name!r} take only 'swarm' and 'exact' dicts, 'candidates', "
+                f"'candidate_distance' and 'deadline', got {sorted(options)}"
             )
+        if deadline is not None:
+            deadline = check.positive_float(f"options['deadline'] of {name!r}", deadline)
+            if exact_options is not None and not isinstance(exact_options, dict):
+                raise ValueError(f"options['exact'] of {name!r} must be a dict, got {exact_options!r}")
+            # built with the deadline: the exact stage's in-attempt stops (iteration callback)
+            exact_options = {"deadline": deadline, **(exact_options or {})}
         if swarm_options is not None and not isinstance(swarm_options, dict):
             raise ValueError(f"options['swarm'] of {name!r} must be a dict, got {swarm_options!r}")
         if candidates > 1 or distance is not None:
@@ -140,8 +204,16 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
                 swarm_options["candidate_distance"] = check.positive_float(
                     "options['candidate_distance']", distance
                 )
-        return HybridSolver(
-            name, first(problem, swarm_options), second(problem, exact_options), candidates, problem
+        hybrid = HybridSolver(
+            name, first(problem, swarm_options), second(problem, exact_options), candidates, problem, deadline
         )
+        if deadline is not None:
+            for half in (hybrid.first, hybrid.second):
+                if "time_limit" not in inspect.signature(half.solve).parameters:
+                    raise ValueError(
+                        f"options['deadline'] of {name!r} needs both halves to accept "
+                        f"solve(..., time_limit=seconds); {type(half).__name__} does not"
+                    )
+        return hybrid
 
     return factory

@@ -15,8 +15,16 @@ class IpoptSolver(NlpSolver):
     plugin = "ipopt"
 
     def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
-        """IPOPT with MUMPS, tolerance 1e-8 and warm starts of primal and dual variables."""
+        """IPOPT with MUMPS, tolerance 1e-8 and warm starts of primal and dual variables.
+
+        With a ``deadline``, IPOPT's own ``max_wall_time`` and ``max_cpu_time`` are set to it
+        too (per attempt; the iteration callback enforces what is left of it across attempts).
+        """
+        limits: dict[str, float] = {}
+        if self.deadline is not None:
+            limits = {"ipopt.max_wall_time": self.deadline, "ipopt.max_cpu_time": self.deadline}
         return {
+            **limits,
             "ipopt.print_level": 0,
             "ipopt.sb": "yes",
             "ipopt.tol": 1e-8,

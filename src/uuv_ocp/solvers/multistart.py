@@ -26,6 +26,14 @@ cost from :func:`uuv_ocp.score` — with ``solve_time``, ``iterations`` and ``ev
 over the starts and ``details["starts"]`` listing every start's label, cost, violation,
 success, status and time.
 
+Option ``deadline`` (seconds, finite > 0): the wall-time budget of the whole multi-start solve.
+Each start gets what is left of it (``solve(..., time_limit=)``; the exact backend is built with
+``deadline`` too, so its in-attempt stops are active), no start begins after it, and the best
+result of the starts that ran is returned — a plan that a start finished in time stays usable,
+so ``success`` is the chosen start's own.  ``details["deadline_hit"]`` says whether the deadline
+stopped a start or kept one from starting, or the solve outlasted it;
+``details["starts_skipped"]`` counts the starts that did not begin.
+
 Naming: ``multistart-<name>`` exists for every backend registered with ``kind="exact"``
 (plug-ins included) and is resolved by the registry like a hybrid name.  It is not itself
 registered as an exact backend, so ``"<swarm>+multistart-<exact>"`` hybrids are not offered.
@@ -34,6 +42,7 @@ registered as an exact backend, so ``"<swarm>+multistart-<exact>"`` hybrids are 
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import time
 from collections.abc import Callable, Sequence
 from typing import Any
@@ -111,10 +120,21 @@ class MultistartSolver:
         Number of starts K >= 1 (default 8).
     seed : int
         Seed of the random starts when the caller passes no generator (default 0).
+    deadline : float or None
+        Wall-time budget of a solve in seconds (see the module notes).
     """
 
-    def __init__(self, name: str, problem: Transcribed, exact: Any, starts: int, seed: int) -> None:
+    def __init__(
+        self,
+        name: str,
+        problem: Transcribed,
+        exact: Any,
+        starts: int,
+        seed: int,
+        deadline: float | None = None,
+    ) -> None:
         self.name = name
+        self.deadline = deadline
         self.problem = problem
         self.exact = exact
         self.starts = starts
@@ -170,8 +190,16 @@ class MultistartSolver:
         start = time.perf_counter()
         results: list[SolveResult] = []
         rows: list[dict[str, Any]] = []
-        for label, guess in self.guesses(p, warm_start, rng):
-            result = self.exact.solve(p, guess)
+        deadline = self.deadline
+        guesses = self.guesses(p, warm_start, rng)
+        for label, guess in guesses:
+            if deadline is None:
+                result = self.exact.solve(p, guess)
+            else:
+                remaining = deadline - (time.perf_counter() - start)
+                if remaining <= 0.0 and results:  # no start begins after the deadline
+                    break
+                result = self.exact.solve(p, guess, time_limit=max(remaining, 1e-9))
             results.append(result)
             rows.append(
                 {
@@ -188,6 +216,11 @@ class MultistartSolver:
         best = results[chosen]
         details = dict(best.details)
         details.update({"starts": rows, "chosen": rows[chosen]["start"]})
+        if deadline is not None:
+            skipped = len(guesses) - len(results)
+            stopped = any(r.details.get("deadline_hit", False) for r in results)
+            late = time.perf_counter() - start > deadline
+            details.update({"deadline_hit": bool(stopped or skipped or late), "starts_skipped": skipped})
         return dataclasses.replace(
             best,
             solver=self.name,
@@ -211,8 +244,8 @@ def _component_names(problem: Transcribed, nu: int) -> list[str] | None:
 def multistart_factory(name: str, exact: Callable) -> Callable:
     """Registry factory for ``"multistart-<exact>"``.
 
-    Options: ``starts`` (int >= 1, default 8), ``seed`` (int >= 0, default 0) and ``exact``
-    (a dict passed to the exact backend).
+    Options: ``starts`` (int >= 1, default 8), ``seed`` (int >= 0, default 0), ``exact``
+    (a dict passed to the exact backend) and ``deadline`` (seconds, see the module notes).
     """
 
     def factory(problem: Transcribed, options: dict[str, Any] | None = None) -> MultistartSolver:
@@ -222,10 +255,22 @@ def multistart_factory(name: str, exact: Callable) -> Callable:
         exact_options = options.pop("exact", None)
         if exact_options is not None and not isinstance(exact_options, dict):
             raise ValueError(f"options['exact'] of {name!r} must be a dict, got {exact_options!r}")
+        deadline = options.pop("deadline", None)
         if options:
             raise ValueError(
-                f"unknown options for solver {name!r}: {sorted(options)}; valid: ['exact', 'seed', 'starts']"
+                f"unknown options for solver {name!r}: {sorted(options)}; "
+                "valid: ['deadline', 'exact', 'seed', 'starts']"
             )
-        return MultistartSolver(name, problem, exact(problem, exact_options), starts, seed)
+        if deadline is not None:
+            deadline = check.positive_float(f"options['deadline'] of {name!r}", deadline)
+            # built with the deadline: the exact backend's in-attempt stops (iteration callback)
+            exact_options = {"deadline": deadline, **(exact_options or {})}
+        backend = exact(problem, exact_options)
+        if deadline is not None and "time_limit" not in inspect.signature(backend.solve).parameters:
+            raise ValueError(
+                f"options['deadline'] of {name!r} needs an exact backend that accepts "
+                f"solve(..., time_limit=seconds); {type(backend).__name__} does not"
+            )
+        return MultistartSolver(name, problem, backend, starts, seed, deadline)
 
     return factory

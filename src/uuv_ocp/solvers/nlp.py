@@ -17,6 +17,19 @@ accelerates from rest.  Every exact backend therefore handles ``terminal="equali
 ``"soft"``
     Always solve the soft NLP.
 
+Deadline (``deadline`` option, seconds of wall time per :meth:`NlpSolver.solve`).  Checked at
+two levels: *between attempts* — after the deadline no new attempt of the fallback chain
+(hard → soft → cold retry → penalty escalations → robust retry) starts — and *inside an
+attempt* where the plugin offers a hook: ``ipopt`` and ``sqpmethod`` call CasADi's
+``iteration_callback`` after every iteration and stop when it reports the deadline passed
+(IPOPT additionally gets ``max_wall_time`` and ``max_cpu_time`` = the deadline).  CasADi 3.8's
+``fatrop`` interface calls no iteration callback and its options hold no time limit (only
+``max_iter``), and ``blocksqp`` (sqp's last resort) calls no callback either: an attempt of
+theirs that starts before the deadline runs to its own iteration limit.  A solve whose wall time
+exceeds the deadline reports ``success=False``, a status starting with ``deadline``, and
+``details["deadline_hit"] = True``: its plan was not ready in time, whatever the last attempt
+reached.
+
 The backends themselves live one per module: :mod:`~uuv_ocp.solvers.ipopt`,
 :mod:`~uuv_ocp.solvers.fatrop` and :mod:`~uuv_ocp.solvers.sqp` (their classes stay importable
 from here).
@@ -42,6 +55,68 @@ from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.transcription.multiple_shooting import NlpData, transfer_map
 
 TERMINAL_STRATEGIES = ("sticky", "hard-first", "soft")
+# nlpsol plugins that call CasADi's ``iteration_callback`` after each iteration (checked on
+# CasADi 3.8: fatrop and blocksqp never call it)
+CALLBACK_PLUGINS = ("ipopt", "sqpmethod")
+# plugin statuses of a stop by the plugin's own time limit (IPOPT's max_wall_time / max_cpu_time)
+_TIME_LIMIT_STATUSES = ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
+
+
+class _DeadlineClock:
+    """The absolute deadline (``time.perf_counter`` time) of the solve that runs.
+
+    Shared with the iteration callbacks; ``fired`` says whether a callback asked the plugin to
+    stop during the current attempt.
+    """
+
+    def __init__(self) -> None:
+        self.at = math.inf
+        self.fired = False
+
+
+class _DeadlineCallback(ca.Callback):
+    """``iteration_callback`` that asks the plugin to stop once ``clock.at`` has passed.
+
+    It reads no iterate (``eval_buffer``, no conversion of its inputs): one clock read per
+    iteration.
+    """
+
+    def __init__(self, name: str, sizes: tuple[int, int, int], clock: _DeadlineClock) -> None:
+        ca.Callback.__init__(self)
+        nx, ng, np_ = sizes
+        dense = ca.Sparsity.dense
+        # inputs: the nlpsol outputs x, f, g, lam_x, lam_g, lam_p
+        self._sparsities = [dense(nx), ca.Sparsity.scalar(), dense(ng), dense(nx), dense(ng), dense(np_)]
+        self._clock = clock
+        self.construct(name, {})
+
+    def get_n_in(self) -> int:
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self) -> int:
+        return 1
+
+    def get_name_in(self, i: int) -> str:
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i: int) -> str:
+        return "stop"
+
+    def get_sparsity_in(self, i: int) -> ca.Sparsity:
+        return self._sparsities[i]
+
+    def get_sparsity_out(self, i: int) -> ca.Sparsity:
+        return ca.Sparsity.scalar()
+
+    def has_eval_buffer(self) -> bool:
+        return True
+
+    def eval_buffer(self, arg: tuple[memoryview, ...], res: tuple[memoryview, ...]) -> int:
+        stop = time.perf_counter() >= self._clock.at
+        if stop:
+            self._clock.fired = True
+        res[0].cast("d")[0] = 1.0 if stop else 0.0  # nonzero: the plugin stops
+        return 0
 
 
 def _transfer(values: np.ndarray | None, mapping: np.ndarray, fill: float = 0.0) -> np.ndarray | None:
@@ -74,8 +149,9 @@ class NlpSolver:
     problem : Ocp or TrackingProblem
     options : dict, optional
         ``terminal_strategy`` (see module doc), ``slack_tolerance`` (default 1e-7),
-        ``max_iter``, ``plugin_options`` (a dict merged into the CasADi plugin options) and
-        ``still_water`` (default ``True``, see below).
+        ``max_iter``, ``plugin_options`` (a dict merged into the CasADi plugin options),
+        ``deadline`` (seconds, finite > 0, see module doc) and ``still_water`` (default
+        ``True``, see below).
 
     Notes
     -----
@@ -102,6 +178,7 @@ class NlpSolver:
     # every key ``options`` may hold; a subclass that pops options of its own extends this tuple
     option_names: tuple[str, ...] = (
         "compiled",
+        "deadline",
         "max_iter",
         "objective_scale",
         "penalty_escalation",
@@ -128,7 +205,13 @@ class NlpSolver:
             "options['objective_scale']",
             options.pop("objective_scale", self.default_objective_scale),
         )
-        penalty_escalation = tuple(options.pop("penalty_escalation", self.default_penalty_escalation))
+        penalty_escalation = options.pop("penalty_escalation", self.default_penalty_escalation)
+        if not isinstance(penalty_escalation, tuple | list | np.ndarray):
+            raise ValueError(
+                "options['penalty_escalation'] must be a tuple of factors > 0, e.g. (100.0, 1e4), "
+                f"got {check.shown(penalty_escalation)}"
+            )
+        penalty_escalation = tuple(penalty_escalation)
         for factor in penalty_escalation:
             check.positive_float("options['penalty_escalation'] entries", factor)
         terminal_penalty = options.pop("terminal_penalty", self.default_terminal_penalty)
@@ -140,6 +223,8 @@ class NlpSolver:
         max_iter = options.pop("max_iter", None)
         self.max_iter = None if max_iter is None else check.positive_int("options['max_iter']", max_iter)
         self.compiled = check.boolean("options['compiled']", options.pop("compiled", False))
+        deadline = options.pop("deadline", None)
+        self.deadline = None if deadline is None else check.positive_float("options['deadline']", deadline)
         self.still_water = check.boolean("options['still_water']", options.pop("still_water", True))
         plugin_options = options.pop("plugin_options", {})
         if not isinstance(plugin_options, dict):
@@ -167,6 +252,8 @@ class NlpSolver:
                 for name in ("soft", *self._escalations):
                     self.variants[name] = _with_slack_curvature(self.variants[name], self.slack_curvature)
         self._solvers: dict[tuple[str, bool, bool], BufferedFunction] = {}
+        self._clock = _DeadlineClock()
+        self._deadline_callbacks: list[_DeadlineCallback] = []  # kept alive for their nlpsols
         self._still_water_slice = problem.still_water_slice
         self._state_dim = built.spec.state_dim
         self._lifted = built.spec.lifted
@@ -249,6 +336,11 @@ class NlpSolver:
             nlp = self._still_water_nlp(data) if still_water else dict(data.nlp)
             nlp["f"] = nlp["f"] * self.objective_scale
             name = f"{plugin}_{variant}{'_robust' if robust else ''}{'_still_water' if still_water else ''}"
+            if self.deadline is not None and plugin in CALLBACK_PLUGINS:
+                sizes = (nlp["x"].numel(), nlp["g"].numel(), nlp["p"].numel())
+                callback = _DeadlineCallback(f"{name}_deadline", sizes, self._clock)
+                self._deadline_callbacks.append(callback)
+                options["iteration_callback"] = callback
             if self.compiled:
                 solver = self._compiled_nlpsol(name, plugin, nlp, options)
             else:
@@ -325,6 +417,7 @@ class NlpSolver:
         still_water = self._uses_still_water(p)
         solver = self._solver(variant, robust, still_water)
         scale = self.objective_scale
+        self._clock.fired = False
         start = time.perf_counter()
         # nlpsol inputs in order: x0, p, lbx, ubx, lbg, ubg, lam_x0, lam_g0 (zero = CasADi's default)
         primal, _, _, lam_x, lam_g, _ = solver(
@@ -332,7 +425,13 @@ class NlpSolver:
         )
         plugin_time = time.perf_counter() - start
         stats = solver.stats()
-        reraise_interrupt(str(stats.get("return_status", "")))  # Ctrl-C inside the plugin
+        status = str(stats.get("return_status", "unknown"))
+        # the deadline callback's stop is reported as a user stop: not a Ctrl-C
+        stopped = self._clock.fired or status in _TIME_LIMIT_STATUSES
+        if not self._clock.fired:
+            reraise_interrupt(status)  # Ctrl-C inside the plugin
+        if stopped:
+            status = f"stopped by the deadline ({status})"
         return {
             "variant": variant,
             "robust": robust,
@@ -340,8 +439,8 @@ class NlpSolver:
             "primal": primal,
             "lam_g": lam_g / scale,
             "lam_x": lam_x / scale,
-            "success": bool(stats.get("success", False)),
-            "status": str(stats.get("return_status", "unknown")),
+            "success": bool(stats.get("success", False)) and not stopped,
+            "status": status,
             "iterations": int(stats.get("iter_count", 0) or 0),
             "evaluations": int(stats.get("n_call_nlp_f", 0) or stats.get("n_call_nlp_fg", 0) or 0),
             "plugin_time": plugin_time,
@@ -357,14 +456,32 @@ class NlpSolver:
         p: np.ndarray,
         warm_start: Iterate | None = None,
         rng: np.random.Generator | None = None,
+        *,
+        time_limit: float | None = None,
     ) -> SolveResult:
         """Solve the instance with parameter vector ``p`` (see ``Ocp.parameters``).
 
         ``rng`` is accepted for a uniform backend interface and ignored (exact solvers are
-        deterministic).
+        deterministic).  ``time_limit`` (seconds from the call) replaces the ``deadline``
+        option for this call (a hybrid gives its exact stage what its swarm left); inside an
+        attempt it is enforced only if the solver was built with a ``deadline`` (that is what
+        installs the plugins' iteration callback), between attempts always.
         """
         start = time.perf_counter()
-        attempts = []
+        limit = self.deadline if time_limit is None else check.positive_float("time_limit", time_limit)
+        self._clock.at = math.inf if limit is None else start + limit
+        attempts: list[dict[str, Any]] = []
+        skipped = 0
+
+        def attempt(variant: str, warm: Iterate | None, robust: bool = False) -> bool:
+            """Run one attempt unless the deadline has passed (the first one always runs)."""
+            nonlocal skipped
+            if attempts and time.perf_counter() >= self._clock.at:
+                skipped += 1
+                return False
+            attempts.append(self._attempt(variant, p, warm, robust=robust))
+            return True
+
         soft_available = "soft" in self.variants
         strategy = self.terminal_strategy if soft_available else "hard-first"
         soft_first = strategy == "soft" or (
@@ -374,28 +491,49 @@ class NlpSolver:
         if soft_first and warm_start is not None and warm_start.variant in self._escalations:
             soft_variant = warm_start.variant  # stay at the escalated penalty while relaxed
         if soft_first:
-            attempts.append(self._attempt(soft_variant, p, warm_start))
+            attempt(soft_variant, warm_start)
         else:
-            attempts.append(self._attempt("hard", p, warm_start))
+            attempt("hard", warm_start)
             if not attempts[-1]["success"] and soft_available:
-                attempts.append(self._attempt("soft", p, warm_start))
+                attempt("soft", warm_start)
         if not attempts[-1]["success"] and warm_start is not None:
             # A warm start can sit in a bad region (e.g. after a burst of saturation): one
             # retry from the reference-based cold guess, same NLP variant.
-            attempts.append(self._attempt(attempts[-1]["variant"], p, None))
+            attempt(attempts[-1]["variant"], None)
         start_index = self._escalations.index(soft_variant) + 1 if soft_variant != "soft" else 0
         for variant in self._escalations[start_index:]:
             if attempts[-1]["success"] or not attempts[-1]["variant"].startswith("soft"):
                 break
             # classic exact-penalty update: a larger ρ, warm-started from the closest iterate
-            attempts.append(self._attempt(variant, p, warm_start))
+            if not attempt(variant, warm_start):
+                break
         if not attempts[-1]["success"] and self.robust_options():
             # last resort: the same NLP with the backend's conservative settings
-            attempts.append(self._attempt(attempts[-1]["variant"], p, warm_start, robust=True))
+            attempt(attempts[-1]["variant"], warm_start, robust=True)
+        self._clock.at = math.inf
         final = attempts[-1]
         relaxed = final["variant"].startswith("soft") and self._slack(final) > self.slack_tolerance
         elapsed = time.perf_counter() - start
-        return self._result(p, final, attempts, relaxed, elapsed)
+        result = self._result(p, final, attempts, relaxed, elapsed)
+        if limit is None or elapsed <= limit:
+            return dataclasses.replace(result, details={**result.details, "deadline_hit": False})
+        # not ready in time: a failure, whatever the last attempt reached (see module doc)
+        reason = f"{skipped} further attempt(s) not started" if skipped else "no attempt skipped"
+        iterate = result.iterate
+        if strategy == "sticky" and soft_available and final["variant"] == "hard":
+            # a warm start from this iterate (a closed loop keeps it) goes to the soft NLP, which
+            # is always feasible: a hard NLP that never finishes in time would never yield to it
+            iterate = dataclasses.replace(iterate, terminal_relaxed=True)
+        return dataclasses.replace(
+            result,
+            success=False,
+            iterate=iterate,
+            status=(
+                f"deadline: {limit:g} s exceeded ({elapsed:.3g} s, {len(attempts)} attempt(s), "
+                f"{reason}); last attempt: {result.status}"
+            ),
+            details={**result.details, "deadline_hit": True, "attempts_skipped": skipped},
+        )
 
     def _result(
         self,

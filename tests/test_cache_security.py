@@ -283,6 +283,19 @@ def test_unsafe_solver_cache_warns_and_falls_back(tmp_path, monkeypatch):
     assert build is None and list(cache.iterdir()) == []
 
 
+def test_unwritable_solver_cache_warns_and_falls_back(tmp_path, monkeypatch):
+    """A cache the user cannot write (simulated: root may write anywhere) no longer raises."""
+    cache = secure_directory(tmp_path / "cache")
+    monkeypatch.setenv("UUV_OCP_CACHE", str(cache))
+    real_access = os.access
+    monkeypatch.setattr(
+        cg.os, "access", lambda path, mode: False if Path(path) == cache else real_access(path, mode)
+    )
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=3)
+    with pytest.warns(RuntimeWarning, match=rf"{cache} is not writable"):
+        assert codegen.compiled_build(problem, 4) is None
+
+
 def test_cache_that_cannot_be_created_warns_and_falls_back(tmp_path, monkeypatch):
     blocker = tmp_path / "file"
     blocker.write_text("")

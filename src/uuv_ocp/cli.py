@@ -1,19 +1,48 @@
-"""Command line: ``uuv-ocp demo | track | solvers`` (also ``python -m uuv_ocp.cli``)."""
+"""Command line: ``uuv-ocp demo | track | solvers | compare | campaign | codegen``.
+
+Also ``python -m uuv_ocp.cli``.  Exit status: 0 on success; 2 for a bad flag or value, with one
+line ``error: ...`` on standard error naming the flag (nothing runs); 2 without a subcommand,
+after the help and the suggestion ``uuv-ocp demo``; 130 when interrupted (finished runs are
+saved and resumed by the same command).
+"""
 
 from __future__ import annotations
 
 import argparse
+import math
+import os
 import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
+from typing import NoReturn
 
+from uuv_ocp.ocp import MAX_HORIZON
 from uuv_ocp.reference.path import PAPER_REFERENCES
-from uuv_ocp.solvers import available_solvers
+from uuv_ocp.solvers import REGISTRY, available_solvers
 from uuv_ocp.studies.compare import format_tracking_table, track_references
+
+DEMO_HINT = "start with `uuv-ocp demo` (all ten paper references, NMPC + IPOPT, 30 s each)"
+
+
+class _UsageError(Exception):
+    """A bad flag or value: printed as one line, exit status 2."""
+
+
+class _Parser(argparse.ArgumentParser):
+    """``argparse`` whose errors are one line (``error: <prog>: ...``) and exit status 2."""
+
+    def error(self, message: str) -> NoReturn:
+        """Raise :class:`_UsageError` instead of printing the usage and exiting."""
+        raise _UsageError(f"{self.prog}: {message} (see {self.prog} --help)")
 
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="uuv-ocp", description="Optimal control of UUVs with CasADi.")
+    parser = _Parser(
+        prog="uuv-ocp",
+        description="Optimal control of UUVs with CasADi.",
+        epilog=DEMO_HINT,
+    )
     commands = parser.add_subparsers(dest="command")
 
     demo = commands.add_parser("demo", help="track all ten paper references with NMPC + IPOPT for 30 s")
@@ -60,6 +89,70 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _fail(message: str) -> int:
+    """Print ``error: message`` as one line on standard error; return the exit status 2."""
+    print("error: " + " ".join(str(message).split()), file=sys.stderr)
+    return 2
+
+
+def _finite(flag: str, value: float, *, positive: bool = True) -> None:
+    if not math.isfinite(value) or (positive and value <= 0):
+        raise _UsageError(f"{flag} must be a finite number{' > 0' if positive else ''}, got {value:g}")
+
+
+def _horizon(value: int) -> None:
+    if not 1 <= value <= MAX_HORIZON:
+        raise _UsageError(f"--horizon must be an integer in [1, {MAX_HORIZON}], got {value}")
+
+
+def _solver(flag: str, name: str) -> None:
+    try:
+        REGISTRY.factory(name)
+    except ValueError:
+        raise _UsageError(
+            f"{flag} must be one of {available_solvers()} (or '<swarm>+<exact>'), got {name!r}"
+        ) from None
+
+
+def _references(names: Sequence[str]) -> None:
+    unknown = [name for name in names if name not in PAPER_REFERENCES]
+    if unknown:
+        raise _UsageError(f"--reference must be among {list(PAPER_REFERENCES)}, got {unknown}")
+
+
+def _output_folder(folder: str) -> None:
+    """Create ``--out`` now (so that a bad folder fails before any run) and check it is writable."""
+    path = Path(folder)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise _UsageError(f"--out {folder}: cannot create the folder ({error.strerror or error})") from None
+    if not os.access(path, os.W_OK | os.X_OK):
+        raise _UsageError(f"--out {folder}: the folder is not writable")
+
+
+def _check_track(args: argparse.Namespace) -> None:
+    from uuv_ocp.reference.path import Reference
+
+    _references(args.reference)
+    _solver("--solver", args.solver)
+    _finite("--duration", args.duration)
+    _finite("--dt", args.dt)
+    _horizon(args.horizon)
+    if args.duration < args.dt:
+        raise _UsageError(
+            f"--duration must be at least one sampling interval --dt = {args.dt:g} s, got {args.duration:g}"
+        )
+    for name in args.reference:
+        reference = Reference.paper(name)
+        if args.horizon * args.dt >= reference.t_end - reference.t_start:
+            raise _UsageError(
+                f"--horizon {args.horizon} x --dt {args.dt:g} s = {args.horizon * args.dt:g} s must be "
+                f"shorter than the window of {name}, [{reference.t_start:g}, {reference.t_end:g}] s"
+            )
+    _output_folder(args.out)
+
+
 def _problem(name: str, horizon: int = 20):
     from uuv_ocp import TrackingProblem, Vehicle
     from uuv_ocp.reference.path import Reference
@@ -70,7 +163,13 @@ def _problem(name: str, horizon: int = 20):
 def _run_compare(args: argparse.Namespace) -> int:
     from uuv_ocp.studies.compare import compare, format_comparison
 
+    _finite("--t0", args.t0, positive=False)
+    for name in args.solvers:
+        _solver("--solvers", name)
+    if args.seed < 0:
+        raise _UsageError(f"--seed must be an integer >= 0, got {args.seed}")
     problem = _problem(args.reference)
+    problem.check_time(args.t0)
     x0 = problem.reference.evaluate([args.t0])[0]
     rows = compare(problem, args.solvers, x0=x0, t0=args.t0, seed=args.seed)
     print(f"{args.reference} at t0 = {args.t0} s, on the reference (moving); cost from uuv_ocp.score()")
@@ -79,9 +178,17 @@ def _run_compare(args: argparse.Namespace) -> int:
 
 
 def _run_codegen(args: argparse.Namespace) -> int:
-    from uuv_ocp.codegen import generate_c
+    from uuv_ocp.codegen import MIN_IGWO_POPULATION, BuildDirectoryError, generate_c
 
-    generated = generate_c(_problem(args.reference, args.horizon), args.out, population=args.population)
+    _horizon(args.horizon)
+    if args.population < MIN_IGWO_POPULATION:
+        raise _UsageError(
+            f"--population must be an integer >= {MIN_IGWO_POPULATION} (the IGWO step), got {args.population}"
+        )
+    try:
+        generated = generate_c(_problem(args.reference, args.horizon), args.out, population=args.population)
+    except BuildDirectoryError as refused:
+        raise _UsageError(f"--out: {refused}") from None
     print(f"library   {generated.library}{' (reused from cache)' if generated.reused else ''}")
     print(f"source    {generated.source}\nheader    {generated.header}")
     for name, error in generated.max_error.items():
@@ -92,9 +199,21 @@ def _run_codegen(args: argparse.Namespace) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``uuv-ocp`` console script."""
-    args = _parser().parse_args(argv)
-    command = args.command or "demo"
+    """Entry point of the ``uuv-ocp`` console script; returns the exit status (see module doc)."""
+    parser = _parser()
+    try:
+        args = parser.parse_args(argv)
+        if args.command is None:
+            parser.print_help(sys.stderr)
+            print(f"\nno command given: {DEMO_HINT}", file=sys.stderr)
+            return 2
+        return _dispatch(args)
+    except _UsageError as error:
+        return _fail(str(error))
+
+
+def _dispatch(args: argparse.Namespace) -> int:
+    command = args.command
     if command == "solvers":
         print("\n".join(available_solvers()))
         return 0
@@ -102,6 +221,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from uuv_ocp.studies.campaign import CampaignConfig, format_summary, run_campaign
 
         try:
+            _solver("--solver", args.solver)
             config = CampaignConfig(
                 reference=args.reference,
                 solver=args.solver,
@@ -110,13 +230,14 @@ def main(argv: Sequence[str] | None = None) -> int:
                 max_current=args.max_current,
                 seed=args.seed,
             )
-            available = available_solvers()
-            if args.solver not in available:
-                raise ValueError(f"--solver must be one of {available}, got {args.solver!r}")
+            if args.workers < 1:
+                raise _UsageError(f"--workers must be an integer >= 1, got {args.workers}")
+            _output_folder(args.out)
             result = run_campaign(config, args.out, executor=args.executor, workers=args.workers)
         except ValueError as error:
-            print(f"error: {error}", file=sys.stderr)
-            return 2
+            return _fail(str(error))
+        except OSError as error:
+            return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
         except KeyboardInterrupt:
             print("\ninterrupted: finished trials are saved; rerun the command to resume", file=sys.stderr)
             return 130
@@ -125,32 +246,21 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     if command in ("compare", "codegen"):
         if args.reference not in PAPER_REFERENCES:
-            print(
-                f"error: --reference must be one of {list(PAPER_REFERENCES)}, got {args.reference!r}",
-                file=sys.stderr,
-            )
-            return 2
+            return _fail(f"--reference must be one of {list(PAPER_REFERENCES)}, got {args.reference!r}")
         try:
             return _run_compare(args) if command == "compare" else _run_codegen(args)
-        except (ValueError, RuntimeError) as error:
+        except ValueError as error:
+            return _fail(str(error))
+        except RuntimeError as error:  # e.g. a compiler's failure: its output, as it came
             print(f"error: {error}", file=sys.stderr)
             return 2
+        except OSError as error:
+            return _fail(f"{error.strerror or error}: {error.filename or ''}")
     if command == "demo":
+        _output_folder(args.out)
         names, solver, duration, horizon, dt = PAPER_REFERENCES, "ipopt", 30.0, 20, 0.1
     else:
-        unknown = [name for name in args.reference if name not in PAPER_REFERENCES]
-        if unknown:
-            print(
-                f"error: --reference must be among {list(PAPER_REFERENCES)}, got {unknown}",
-                file=sys.stderr,
-            )
-            return 2
-        if args.solver not in available_solvers() and "+" not in args.solver:
-            print(
-                f"error: --solver must be one of {available_solvers()}, got {args.solver!r}",
-                file=sys.stderr,
-            )
-            return 2
+        _check_track(args)
         names, solver, duration, horizon, dt = (
             args.reference,
             args.solver,
@@ -172,6 +282,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt as interrupt:
         print(f"\ninterrupted: {interrupt}. Run the same command again to resume.", file=sys.stderr)
         return 130
+    except ValueError as error:
+        return _fail(str(error))
+    except OSError as error:
+        return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
     print()
     print(f"NMPC tracking, RexROV, N = {horizon}, dt = {dt} s, terminal equality, solver {solver}")
     print("errors in m over the whole run and for t >= t0 + 5 s; solve times per step in ms")

@@ -432,9 +432,16 @@ class Ocp(Transcribed):
         u_prev : array_like, shape (nu,), optional
             Last applied control (for rate bounds and ``previous()``); zero by default; it
             must lie in the control box (to 1e-6 relative: a solver's bound tolerance).
+
+        Raises
+        ------
+        ValueError
+            A wrong shape, a non-finite entry, an entry of ``x0`` beyond ±1e9 (the plausibility
+            bound :data:`uuv_ocp._validation.PLAUSIBLE_MAGNITUDE`), ``u_prev`` outside the box,
+            an unknown, missing or non-numeric parameter.
         """
         spec = self.spec()
-        x0 = check.finite_array("x0", x0, (spec.state_dim,))
+        x0 = check.plausible_array("x0", x0, (spec.state_dim,))
         u_prev = np.zeros(spec.control_size) if u_prev is None else u_prev
         u_prev = check.finite_array("u_prev", u_prev, (spec.control_size,))
         # solvers hold the box to their tolerance (IPOPT: ~1e-8 relative); more is an error
@@ -445,9 +452,9 @@ class Ocp(Transcribed):
             raise ValueError(
                 f"u_prev must lie inside the control bounds [{spec.lower}, {spec.upper}], got {u_prev}"
             )
-        given = dict(parameters or {})
         if not isinstance(parameters, (Mapping, type(None))):
-            raise ValueError(f"parameters must be a dict of name -> value, got {parameters!r}")
+            raise ValueError(f"parameters must be a dict of name -> value, got {check.shown(parameters)}")
+        given = dict(parameters or {})
         unknown = sorted(set(given) - set(spec.layout.entries))
         if unknown:
             raise ValueError(
@@ -459,9 +466,12 @@ class Ocp(Transcribed):
         for name, (part, size, stagewise) in spec.layout.entries.items():
             if name not in given:
                 raise ValueError(f"parameter {name!r} is missing: pass parameters={{{name!r}: ...}}")
-            value = np.asarray(given[name], dtype=float) if not isinstance(given[name], str) else None
+            try:
+                value = np.asarray(given[name], dtype=float) if not isinstance(given[name], str) else None
+            except (TypeError, ValueError):
+                value = None
             if value is None:
-                raise ValueError(f"parameter {name!r} must be numbers, got {given[name]!r}")
+                raise ValueError(f"parameter {name!r} must be numbers, got {check.shown(given[name])}")
             if (
                 stagewise
                 and value.shape in ((size,), (1, size))

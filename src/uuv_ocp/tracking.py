@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -128,6 +129,46 @@ class Weights:
             set_field(self, name, check.vector(f"weights.{name}", value, length, nonnegative=True))
         for name in ("terminal_penalty", "rate_penalty", "tube_penalty"):
             set_field(self, name, check.positive_float(f"weights.{name}", getattr(self, name)))
+
+
+class ReferenceSpeedWarning(RuntimeWarning):
+    """The reference moves faster than the vehicle can go somewhere on a closed-loop run."""
+
+
+def warn_if_reference_too_fast(
+    reference: Reference, vehicle: Any, times: np.ndarray, *, stacklevel: int = 3
+) -> float | None:
+    """Warn (:class:`ReferenceSpeedWarning`) if the path speed on ``times`` exceeds the top speed.
+
+    The top speed is :meth:`Vehicle.max_horizontal_speed <uuv_ocp.model.planar.Vehicle.
+    max_horizontal_speed>` (over ground in still water, crabbing allowed: the physical limit of
+    position tracking; the surge-only ``Vehicle.max_speed()[0]`` is lower); the path speed is
+    ``hypot(u_R, v_R)`` of the reference state.  Only 3-DOF :class:`Vehicle` models have a top
+    speed; other models are not checked.
+
+    Returns
+    -------
+    float or None
+        The first time (s) the path speed exceeds the top speed, or ``None``.
+    """
+    if not isinstance(vehicle, Vehicle) or reference.spatial:
+        return None
+    states = reference.evaluate(times)
+    speed = np.hypot(states[:, 3], states[:, 4])
+    top, crab = vehicle.max_horizontal_speed()
+    over = np.flatnonzero(speed > top)
+    if over.size == 0:
+        return None
+    when = float(times[over[0]])
+    warnings.warn(
+        f"reference {reference.name!r} is faster than the vehicle {vehicle.name!r} can go: path "
+        f"speed {float(speed[over[0]]):.3g} m/s > top speed {top:.3g} m/s (over ground, crabbing at "
+        f"{math.degrees(crab):.0f} deg) from t = {when:g} s (peak {float(speed.max()):.3g} m/s); "
+        "the tracking error grows from there",
+        ReferenceSpeedWarning,
+        stacklevel=stacklevel,
+    )
+    return when
 
 
 @dataclass(frozen=True)
@@ -422,7 +463,7 @@ class TrackingProblem(Transcribed):
             current = np.tile(current, (n + 1, 1))
         elif current.shape == (n, nc):
             current = np.vstack([current, current[-1:]])
-        current = check.finite_array("current", current, (n + 1, nc))
+        current = check.plausible_array("current", current, (n + 1, nc))
         window = self.reference_window(t0, heading=x0[self._heading_index])
         values = {"reference": window, "current": current}
         times = t0 + self.dt * np.arange(n + 1)

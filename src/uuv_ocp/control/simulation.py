@@ -24,7 +24,7 @@ from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.progress import ProgressBar
-from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions
+from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions, warn_if_reference_too_fast
 from uuv_ocp.transcription.multiple_shooting import parameter_blocks
 
 
@@ -231,6 +231,8 @@ def simulate(
                 f"the reference window [{reference.t_start}, {reference.t_end}] s"
             )
         plant_step, nc = _vehicle_plant(problem, plant, dt, plant_substeps)
+        window = np.minimum(t0 + dt * np.arange(steps + problem.horizon + 1), reference.t_end)
+        warn_if_reference_too_fast(reference, problem.vehicle if plant is None else plant, window)
     else:
         if current is not None:
             raise ValueError("current is for tracking problems; an Ocp's plant is a Function f(x, u)")

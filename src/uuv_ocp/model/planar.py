@@ -21,6 +21,7 @@ relative motion"), and the body-frame current velocity changes as the vehicle tu
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 
 import casadi as ca
@@ -146,15 +147,16 @@ class Vehicle:
     def max_speed(self) -> np.ndarray:
         """Steady-state top speed on each axis under full thrust, no current (m/s, m/s, rad/s).
 
-        Solves ``d_lin s + d_quad s² = tau_max`` for each axis.
+        Solves ``d_lin s + d_quad s² = tau_max`` for each axis, as
+        ``2 tau_max / (d_lin + sqrt(d_lin² + 4 d_quad tau_max))`` (no cancellation when the
+        linear damping dominates; ``tau_max / d_lin`` without quadratic damping; ``inf``
+        without any damping).
         """
         d_lin = np.asarray(self.linear_damping)
         d_quad = np.asarray(self.quadratic_damping)
         tau = np.asarray(self.max_thrust)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            quadratic_root = (-d_lin + np.sqrt(d_lin**2 + 4.0 * d_quad * tau)) / (2.0 * d_quad)
-            linear_root = tau / d_lin
-        speed = np.where(d_quad > 0, quadratic_root, linear_root)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            speed = 2.0 * tau / (d_lin + np.sqrt(d_lin**2 + 4.0 * d_quad * tau))
         return np.where(np.isfinite(speed), speed, np.inf)
 
     def max_horizontal_speed(self, resolution: int = 9001) -> tuple[float, float]:
@@ -176,11 +178,10 @@ class Vehicle:
 
         def axis_limit(share: np.ndarray, linear: float, quadratic: float, force: float) -> np.ndarray:
             # largest s with linear (s share) + quadratic (s share)² <= force
-            with np.errstate(divide="ignore", invalid="ignore"):
-                if quadratic > 0:
-                    root = (-linear + np.sqrt(linear**2 + 4.0 * quadratic * force)) / (2.0 * quadratic)
-                else:
-                    root = np.full_like(share, force / linear if linear > 0 else np.inf)
+            with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+                # the root of quadratic s² + linear s = force without cancellation (as max_speed)
+                denominator = linear + math.sqrt(linear**2 + 4.0 * quadratic * force)
+                root = np.full_like(share, 2.0 * force / denominator if denominator > 0 else np.inf)
                 return np.where(share > 0, root / share, np.inf)
 
         limits = [

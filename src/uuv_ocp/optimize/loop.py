@@ -171,7 +171,8 @@ def validate_bounds(lower: object, upper: object) -> tuple[np.ndarray, np.ndarra
     if np.any(lo >= up):
         bad = int(np.argmax(lo >= up))
         raise ValueError(
-            f"lower must be < upper element-wise, got lower[{bad}]={lo[bad]!r} >= upper[{bad}]={up[bad]!r}"
+            f"lower must be < upper element-wise, got lower[{bad}]={float(lo[bad]):g} "
+            f">= upper[{bad}]={float(up[bad]):g}"
         )
     return lo, up
 

@@ -229,8 +229,8 @@ class Reference:
         1.4 m/s.  See ``docs/references.md`` for how the paper's garbled formulas were read.
         """
         catalogue = _paper_catalogue()
-        if name not in catalogue:
-            raise ValueError(f"reference name must be one of {list(catalogue)}, got {name!r}")
+        if not isinstance(name, str) or name not in catalogue:
+            raise ValueError(f"reference name must be one of {list(catalogue)}, got {check.shown(name)}")
         path_y, t_start, t_end, formula = catalogue[name]
         return cls(lambda t: 0.5 * t, path_y, name, t_start, t_end, f"x = 0.5t, {formula}")
 
@@ -491,11 +491,14 @@ class Reference:
             (m, rad, m/s, rad/s).  ``ψ_R`` (column :attr:`heading_index`) at the first time
             lies in (−π, π]; later values are unwrapped.
         """
-        times = np.atleast_1d(np.asarray(times, dtype=float))
+        try:
+            times = np.atleast_1d(np.asarray(times, dtype=float))
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"times must be real numbers (s), got {check.shown(times)}") from error
         if times.ndim != 1 or times.size == 0:
             raise ValueError(f"times must be a non-empty 1-D array (s), got shape {times.shape}")
         if not np.all(np.isfinite(times)):
-            raise ValueError(f"times must be finite, got {times!r}")
+            raise ValueError(f"times must be finite, got {check.shown(times)}")
         if np.any(np.diff(times) < 0):
             raise ValueError("times must be non-decreasing")
         outside = (times < self.t_start - 1e-12) | (times > self.t_end + 1e-12)
@@ -564,7 +567,7 @@ class Reference:
             kind = "horizontal speed" if self.spatial else "speed"
             raise ValueError(
                 f"reference {self.name!r} has a vanishing or non-finite {kind} at t = {when} s "
-                f"(speed {speed!r} m/s): its heading is undefined there"
+                f"(speed {speed:g} m/s): its heading is undefined there"
             )
         raise ValueError(
             f"reference {self.name!r} has a non-finite heading, velocity or yaw rate at t = {when} s "

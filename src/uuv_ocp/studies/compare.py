@@ -8,6 +8,7 @@ saved files (pass ``fresh=True`` to recompute).
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,7 @@ from uuv_ocp.judge import score_terms
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
-from uuv_ocp.tracking import TrackingProblem
+from uuv_ocp.tracking import ReferenceSpeedWarning, TrackingProblem
 
 
 @dataclass(frozen=True)
@@ -91,13 +92,15 @@ def track_references(
             run = ClosedLoopResult.load(str(path))
         else:
             controller = NMPC(problem, solver, options=solver_options)
-            run = simulate(
-                controller,
-                reference.initial_state(t0),
-                run_duration,
-                progress=progress,
-                label=f"{name} {solver}",
-            )
+            with warnings.catch_warnings():  # the row's note says it (reference_speed_note)
+                warnings.simplefilter("ignore", ReferenceSpeedWarning)
+                run = simulate(
+                    controller,
+                    reference.initial_state(t0),
+                    run_duration,
+                    progress=progress,
+                    label=f"{name} {solver}",
+                )
             if run.interrupted:
                 raise KeyboardInterrupt(f"interrupted during {name}; finished runs are in {runs_dir}")
             run.save(str(path))

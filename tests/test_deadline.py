@@ -91,12 +91,13 @@ def test_minimize_rejects_a_bad_time_limit(bad):
 
 
 # ------------------------------------------------------------------------------------ swarms
-def assert_box_and_rate(problem, controls, u_prev):
+def assert_box_and_rate(problem, controls, u_prev, tolerance=1e-9):
+    """Box and rate bounds of a plan; ``tolerance`` relative (an exact solver's: ~1e-8)."""
     vehicle = problem.vehicle
     assert np.all(np.abs(controls) <= np.asarray(vehicle.max_thrust) * (1 + 1e-12))
     bound = np.asarray(vehicle.max_thrust_rate) * problem.dt
     increments = np.abs(np.diff(np.vstack([u_prev, controls]), axis=0))
-    assert np.max(increments - bound) <= 1e-9 * np.max(bound)
+    assert np.max(increments - bound) <= tolerance * np.max(bound)
 
 
 @pytest.mark.parametrize("method", SWARMS)
@@ -283,8 +284,8 @@ def test_hybrid_gives_its_swarm_a_share_and_the_exact_stage_the_rest(s2_problem,
     assert loosely_within(result.solve_time, deadline)
     if result.details["deadline_hit"]:  # the exact stage was stopped: its iterate is no plan
         assert result.success is False and result.status.startswith("deadline")
-    else:
-        assert_box_and_rate(s2_problem, result.controls, u_prev)
+    else:  # an interior-point plan holds the rate bound to IPOPT's tolerance
+        assert_box_and_rate(s2_problem, result.controls, u_prev, tolerance=1e-7)
 
 
 def test_hybrid_starts_no_exact_stage_when_the_swarm_used_the_deadline(s2_problem, moving):

@@ -372,3 +372,21 @@ def test_compare_ranks_feasible_rows_first_and_reports_violations_by_kind():
     assert by_name["ipopt"].ratio == pytest.approx(1.0, rel=1e-6)
     table = uo.format_comparison(rows)
     assert table.splitlines()[1].split()[1] in ("ipopt", "sqp")
+
+
+def test_fatrop_stalling_on_an_obstacle_is_finished_by_ipopt_from_its_iterate():
+    """Finish fatrop's stalled solves next to an obstacle with IPOPT from its iterate.
+
+    Fatrop reaches the optimum but stalls (dual infeasibility under a large inertia-correction
+    regularisation); the rescue converges to the optimum IPOPT finds on its own.
+    """
+    line = uo.Reference.from_xy(lambda t: 0.5 * t, lambda t: 0 * t, name="line")
+    rock = uo.Obstacle.circle((5.0, 0.2), 1.0, margin=1.0)
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), line, horizon=20, terminal="cost", obstacles=[rock])
+    x0 = np.array([2.5, 0.0, 0.0, 0.5, 0.0, 0.0])
+    fatrop = uo.solve(problem, "fatrop", x0=x0, t0=5.0)
+    ipopt = uo.solve(problem, "ipopt", x0=x0, t0=5.0)
+    assert fatrop.success and fatrop.max_violation <= 1e-6
+    assert fatrop.details["attempts"][-1][0].endswith("(rescue)")
+    assert fatrop.cost == pytest.approx(ipopt.cost, rel=1e-8)
+    assert np.min(rock.signed_distance(fatrop.states[1:])) >= -1e-6

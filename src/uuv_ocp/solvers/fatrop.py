@@ -40,3 +40,16 @@ class FatropSolver(NlpSolver):
     def robust_options(self) -> dict[str, Any]:
         """Fatrop's conservative initial barrier, ``mu_init = 1e-3``."""
         return {"fatrop.mu_init": 1e-3}
+
+    def rescue_options(self) -> dict[str, Any]:
+        """IPOPT (this package's settings) from fatrop's last iterate, duals included.
+
+        On non-convex path constraints (circular obstacles) fatrop reaches the optimum but its
+        inertia correction keeps a large Hessian regularisation (~1e2), so the dual
+        infeasibility stalls near 4e-4 and it stops at ``max_iter`` (measured: RexROV course of
+        ``examples/obstacles.py``, cost equal to IPOPT's to 3e-9); IPOPT warm-started there
+        converges in a few iterations.
+        """
+        from uuv_ocp.solvers.ipopt import ipopt_options
+
+        return {"plugin": "ipopt", **ipopt_options(self.max_iter, self.deadline)}

@@ -15,23 +15,28 @@ class IpoptSolver(NlpSolver):
     plugin = "ipopt"
 
     def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
-        """IPOPT with MUMPS, tolerance 1e-8 and warm starts of primal and dual variables.
+        """Return :func:`ipopt_options` for this backend's ``max_iter`` and ``deadline``."""
+        return ipopt_options(self.max_iter, self.deadline)
 
-        With a ``deadline``, IPOPT's own ``max_wall_time`` and ``max_cpu_time`` are set to it
-        too (per attempt; the iteration callback enforces what is left of it across attempts).
-        """
-        limits: dict[str, float] = {}
-        if self.deadline is not None:
-            limits = {"ipopt.max_wall_time": self.deadline, "ipopt.max_cpu_time": self.deadline}
-        return {
-            **limits,
-            "ipopt.print_level": 0,
-            "ipopt.sb": "yes",
-            "ipopt.tol": 1e-8,
-            "ipopt.max_iter": self.max_iter or 200,
-            "ipopt.warm_start_init_point": "yes",
-            "ipopt.warm_start_bound_push": 1e-8,
-            "ipopt.warm_start_mult_bound_push": 1e-8,
-            "ipopt.mu_init": 1e-3,
-            "ipopt.linear_solver": "mumps",
-        }
+
+def ipopt_options(max_iter: int | None, deadline: float | None) -> dict[str, Any]:
+    """IPOPT with MUMPS, tolerance 1e-8 and warm starts of primal and dual variables.
+
+    With a ``deadline``, IPOPT's own ``max_wall_time`` and ``max_cpu_time`` are set to it
+    too (per attempt; the iteration callback enforces what is left of it across attempts).
+    """
+    limits: dict[str, float] = {}
+    if deadline is not None:
+        limits = {"ipopt.max_wall_time": deadline, "ipopt.max_cpu_time": deadline}
+    return {
+        **limits,
+        "ipopt.print_level": 0,
+        "ipopt.sb": "yes",
+        "ipopt.tol": 1e-8,
+        "ipopt.max_iter": max_iter or 200,
+        "ipopt.warm_start_init_point": "yes",
+        "ipopt.warm_start_bound_push": 1e-8,
+        "ipopt.warm_start_mult_bound_push": 1e-8,
+        "ipopt.mu_init": 1e-3,
+        "ipopt.linear_solver": "mumps",
+    }

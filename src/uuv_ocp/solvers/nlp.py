@@ -251,7 +251,7 @@ class NlpSolver:
             if self.slack_curvature > 0.0:
                 for name in ("soft", *self._escalations):
                     self.variants[name] = _with_slack_curvature(self.variants[name], self.slack_curvature)
-        self._solvers: dict[tuple[str, bool, bool], BufferedFunction] = {}
+        self._solvers: dict[tuple[str, bool | str, bool], BufferedFunction] = {}
         self._clock = _DeadlineClock()
         self._deadline_callbacks: list[_DeadlineCallback] = []  # kept alive for their nlpsols
         self._still_water_slice = problem.still_water_slice
@@ -298,6 +298,26 @@ class NlpSolver:
         """
         return {}
 
+    def rescue_options(self) -> dict[str, Any]:
+        """Options (with a ``"plugin"`` key) of a retry by another plugin from the last iterate.
+
+        Tried after every other attempt failed; ``{}`` (the default): none.
+        """
+        return {}
+
+    def _iterate_of(self, attempt: dict[str, Any]) -> Iterate:
+        """Warm start carrying an attempt's primal and dual vectors, in its variant's layout."""
+        data = self.variants[attempt["variant"]]
+        primal = attempt["primal"]
+        return Iterate(
+            scaled_controls=primal[data.control_index],
+            states=primal[data.state_index],
+            primal=primal,
+            lam_g=attempt["lam_g"],
+            lam_x=attempt["lam_x"],
+            variant=attempt["variant"],
+        )
+
     def _uses_still_water(self, p: np.ndarray) -> bool:
         """Whether the instance ``p`` is solved with the still-water NLP (see class notes)."""
         part = self._still_water_slice
@@ -312,7 +332,9 @@ class NlpSolver:
         f, g = ca.substitute([data.nlp["f"], data.nlp["g"]], [current], [zero])
         return {**data.nlp, "f": f, "g": g}
 
-    def _solver(self, variant: str, robust: bool = False, still_water: bool = False) -> BufferedFunction:
+    def _solver(
+        self, variant: str, robust: bool | str = False, still_water: bool = False
+    ) -> BufferedFunction:
         """Return the variant's ``nlpsol``, called zero-copy (no numpy -> DM conversions per step)."""
         key = (variant, robust, still_water)
         if key not in self._solvers:
@@ -325,7 +347,10 @@ class NlpSolver:
                 "error_on_fail": False,
                 "oracle_options": {"ad_weight": 1.0},
             }
-            robust_options = dict(self.robust_options()) if robust else {}
+            if robust == "rescue":
+                robust_options = dict(self.rescue_options())
+            else:
+                robust_options = dict(self.robust_options()) if robust else {}
             plugin = robust_options.pop("plugin", self.plugin)
             if plugin == self.plugin:
                 options.update(self.plugin_defaults(data))
@@ -335,7 +360,8 @@ class NlpSolver:
                 options.update(robust_options)
             nlp = self._still_water_nlp(data) if still_water else dict(data.nlp)
             nlp["f"] = nlp["f"] * self.objective_scale
-            name = f"{plugin}_{variant}{'_robust' if robust else ''}{'_still_water' if still_water else ''}"
+            stage = {"rescue": "_rescue", True: "_robust"}.get(robust, "")
+            name = f"{plugin}_{variant}{stage}{'_still_water' if still_water else ''}"
             if self.deadline is not None and plugin in CALLBACK_PLUGINS:
                 sizes = (nlp["x"].numel(), nlp["g"].numel(), nlp["p"].numel())
                 callback = _DeadlineCallback(f"{name}_deadline", sizes, self._clock)
@@ -406,7 +432,7 @@ class NlpSolver:
         return primal, None, None
 
     def _attempt(
-        self, variant: str, p: np.ndarray, warm_start: Iterate | None, robust: bool = False
+        self, variant: str, p: np.ndarray, warm_start: Iterate | None, robust: bool | str = False
     ) -> dict[str, Any]:
         data = self.variants[variant]
         primal, lam_g, lam_x = self._initial_point(variant, p, warm_start)
@@ -473,7 +499,7 @@ class NlpSolver:
         attempts: list[dict[str, Any]] = []
         skipped = 0
 
-        def attempt(variant: str, warm: Iterate | None, robust: bool = False) -> bool:
+        def attempt(variant: str, warm: Iterate | None, robust: bool | str = False) -> bool:
             """Run one attempt unless the deadline has passed (the first one always runs)."""
             nonlocal skipped
             if attempts and time.perf_counter() >= self._clock.at:
@@ -510,6 +536,10 @@ class NlpSolver:
         if not attempts[-1]["success"] and self.robust_options():
             # last resort: the same NLP with the backend's conservative settings
             attempt(attempts[-1]["variant"], warm_start, robust=True)
+        if not attempts[-1]["success"] and self.rescue_options():
+            # a backend that stalls near a solution (fatrop under inertia correction on
+            # non-convex constraints) hands its last iterate, duals included, to another plugin
+            attempt(attempts[-1]["variant"], self._iterate_of(attempts[-1]), robust="rescue")
         self._clock.at = math.inf
         final = attempts[-1]
         relaxed = final["variant"].startswith("soft") and self._slack(final) > self.slack_tolerance
@@ -583,7 +613,11 @@ class NlpSolver:
             iterate=iterate,
             details={
                 "attempts": [
-                    (a["variant"] + (" (robust)" if a["robust"] else ""), a["status"], a["iterations"])
+                    (
+                        a["variant"] + {"rescue": " (rescue)", True: " (robust)"}.get(a["robust"], ""),
+                        a["status"],
+                        a["iterations"],
+                    )
                     for a in attempts
                 ],
                 "plugin_time": sum(a["plugin_time"] for a in attempts),

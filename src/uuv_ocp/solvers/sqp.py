@@ -162,9 +162,9 @@ class SqpSolver(NlpSolver):
         }
 
     def _attempt(
-        self, variant: str, p: np.ndarray, warm_start: Iterate | None, robust: bool = False
+        self, variant: str, p: np.ndarray, warm_start: Iterate | None, robust: bool | str = False
     ) -> dict[str, Any]:
         if not robust:
             return super()._attempt(variant, p, warm_start)
         with _silenced_c_stdout():  # qpOASES' licence banner, printed on every blockSQP solve
-            return super()._attempt(variant, p, warm_start, robust=True)
+            return super()._attempt(variant, p, warm_start, robust=robust)

@@ -442,16 +442,7 @@ class Ocp(Transcribed):
         """
         spec = self.spec()
         x0 = check.plausible_array("x0", x0, (spec.state_dim,))
-        u_prev = np.zeros(spec.control_size) if u_prev is None else u_prev
-        u_prev = check.finite_array("u_prev", u_prev, (spec.control_size,))
-        # solvers hold the box to their tolerance (IPOPT: ~1e-8 relative); more is an error
-        slack = 1e-6 * np.maximum(1.0, np.abs(np.concatenate([spec.lower, spec.upper])))
-        if np.any(u_prev < spec.lower - slack[: spec.control_size]) or np.any(
-            u_prev > spec.upper + slack[spec.control_size :]
-        ):
-            raise ValueError(
-                f"u_prev must lie inside the control bounds [{spec.lower}, {spec.upper}], got {u_prev}"
-            )
+        u_prev = self.check_previous(u_prev)
         if not isinstance(parameters, (Mapping, type(None))):
             raise ValueError(f"parameters must be a dict of name -> value, got {check.shown(parameters)}")
         given = dict(parameters or {})
@@ -460,10 +451,8 @@ class Ocp(Transcribed):
             raise ValueError(
                 f"parameters has unknown name(s) {unknown}; declared: {sorted(spec.layout.entries)}"
             )
-        p = np.empty(spec.layout.size)
-        p[spec.layout.x0] = x0
-        p[spec.layout.u_prev] = u_prev
-        for name, (part, size, stagewise) in spec.layout.entries.items():
+        checked = {}
+        for name, (_, size, stagewise) in spec.layout.entries.items():
             if name not in given:
                 raise ValueError(f"parameter {name!r} is missing: pass parameters={{{name!r}: ...}}")
             try:
@@ -484,7 +473,33 @@ class Ocp(Transcribed):
             if stagewise and size == 1 and value.shape == (spec.horizon + 1,):
                 value = value.reshape(-1, 1)
             value = check.finite_array(f"parameters[{name!r}]", value, expected)
-            p[part] = value.ravel()
+            checked[name] = value
+        return self.pack(x0, u_prev, checked)
+
+    def check_previous(self, u_prev: object | None) -> np.ndarray:
+        """Validate the last applied control (zero if ``None``): finite, inside the box."""
+        spec = self.spec()
+        u_prev = np.zeros(spec.control_size) if u_prev is None else u_prev
+        u_prev = check.finite_array("u_prev", u_prev, (spec.control_size,))
+        # solvers hold the box to their tolerance (IPOPT: ~1e-8 relative); more is an error
+        slack = 1e-6 * np.maximum(1.0, np.abs(spec.lower)), 1e-6 * np.maximum(1.0, np.abs(spec.upper))
+        if np.any(u_prev < spec.lower - slack[0]) or np.any(u_prev > spec.upper + slack[1]):
+            raise ValueError(
+                f"u_prev must lie inside the control bounds [{spec.lower}, {spec.upper}], got {u_prev}"
+            )
+        return u_prev
+
+    def pack(self, x0: np.ndarray, u_prev: np.ndarray, values: Mapping[str, np.ndarray]) -> np.ndarray:
+        """Assemble ``p`` from already checked parts (no validation: the closed loop's hot path).
+
+        ``values`` holds every declared parameter in the shape :meth:`parameters` checks.
+        """
+        spec = self.spec()
+        p = np.empty(spec.layout.size)
+        p[spec.layout.x0] = x0
+        p[spec.layout.u_prev] = u_prev
+        for name, (part, _, _) in spec.layout.entries.items():
+            p[part] = np.ravel(values[name])
         return p
 
 

@@ -349,7 +349,7 @@ class TrackingProblem(Transcribed):
     # ------------------------------------------------------------- parameters
     def check_state(self, x0: object, name: str = "x0") -> np.ndarray:
         """Validate a state vector: shape (nx,), finite."""
-        return check.finite_array(name, x0, (self.state_dim,))
+        return check.plausible_array(name, x0, (self.state_dim,))
 
     def check_time(self, t0: object) -> float:
         """Validate a start time: finite and inside ``[t_start, latest_start()]``."""
@@ -470,7 +470,8 @@ class TrackingProblem(Transcribed):
         for i, obstacle in enumerate(self.obstacles):
             if obstacle.is_moving:
                 values[f"obstacle{i}"] = obstacle.centre_at(times)
-        return self.ocp.parameters(x0, values, u_prev)
+        # every part is checked here (the window is finite by construction): pack directly
+        return self.ocp.pack(x0, self.ocp.check_previous(u_prev), values)
 
     def parameter_parts(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Numeric ``p`` -> (x0 (nx,), reference (N+1, nx), u_prev (nu,), current (N, nc))."""

@@ -252,6 +252,7 @@ class NlpSolver:
                 for name in ("soft", *self._escalations):
                     self.variants[name] = _with_slack_curvature(self.variants[name], self.slack_curvature)
         self._solvers: dict[tuple[str, bool | str, bool], BufferedFunction] = {}
+        self._maps: dict[tuple[str, str, str], tuple[np.ndarray, np.ndarray]] = {}
         self._clock = _DeadlineClock()
         self._deadline_callbacks: list[_DeadlineCallback] = []  # kept alive for their nlpsols
         self._still_water_slice = problem.still_water_slice
@@ -304,6 +305,18 @@ class NlpSolver:
         Tried after every other attempt failed; ``{}`` (the default): none.
         """
         return {}
+
+    def _transfer_maps(self, source: str, target: str) -> tuple[np.ndarray, np.ndarray]:
+        """Index maps moving primal and dual vectors from one NLP variant to another (cached)."""
+        key = ("transfer", source, target)
+        if key not in self._maps:
+            a, b = self.variants[source], self.variants[target]
+            self._maps[key] = (
+                transfer_map(a.variable_keys, b.variable_keys),
+                transfer_map(a.constraint_keys, b.constraint_keys),
+            )
+        maps: tuple[np.ndarray, np.ndarray] = self._maps[key]
+        return maps
 
     def _iterate_of(self, attempt: dict[str, Any]) -> Iterate:
         """Warm start carrying an attempt's primal and dual vectors, in its variant's layout."""
@@ -417,12 +430,9 @@ class NlpSolver:
             states, scaled = problem.initial_guess(p)
             return self.compose_primal(variant, states, scaled, scaled_prev), None, None
         if warm_start.primal is not None and warm_start.variant in self.variants:
-            source = self.variants[warm_start.variant]
-            target = self.variants[variant]
             if warm_start.variant == variant:
                 return warm_start.primal, warm_start.lam_g, warm_start.lam_x
-            x_map = transfer_map(source.variable_keys, target.variable_keys)
-            g_map = transfer_map(source.constraint_keys, target.constraint_keys)
+            x_map, g_map = self._transfer_maps(warm_start.variant, variant)
             return (
                 _transfer(warm_start.primal, x_map),
                 _transfer(warm_start.lam_g, g_map),

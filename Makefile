@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench lint clean
+.PHONY: demo test bench lint docs clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -34,7 +34,7 @@ bench: $(BENCH_STAMP)
 
 # ruff, mypy and the stubs they need come from the `lint` extra (versions in pyproject.toml).
 # All three checks run (so one run reports everything); the target fails if any of them does.
-LINT_PATHS := src tests benchmarks examples
+LINT_PATHS := src tests benchmarks examples $(wildcard docs/tutorials/*.py)
 LINT_STAMP := $(VENV)/.lint-installed
 
 $(LINT_STAMP): $(STAMP) pyproject.toml
@@ -47,6 +47,17 @@ lint: $(LINT_STAMP)
 	$(VENV)/bin/ruff format --check $(LINT_PATHS) || status=1; \
 	$(VENV)/bin/mypy src/uuv_ocp || status=1; \
 	exit $$status
+
+# The documentation site (mkdocs.yml) into build/site.  --strict: a broken link or anchor, a
+# missing tutorial snippet or an API reference mkdocstrings cannot resolve fails the target.
+DOCS_STAMP := $(VENV)/.docs-installed
+
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	$(PY) -m pip install --quiet -e ".[docs]"
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	NO_MKDOCS_2_WARNING=1 $(PY) -m mkdocs build --strict -d build/site
 
 clean:
 	rm -rf $(VENV) $(BENCH_VENV) out build .pytest_cache

@@ -9,7 +9,7 @@ Importing the package has no side effects: nothing is built, compiled or plotted
 from uuv_ocp.codegen import GeneratedCode, generate_c
 from uuv_ocp.control.disturbances import Current, GaussMarkov, MeasurementNoise
 from uuv_ocp.control.mpc import NMPC, StepOutput
-from uuv_ocp.control.simulation import ClosedLoopResult, simulate
+from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.judge import score
 from uuv_ocp.model.planar import Vehicle
@@ -44,6 +44,7 @@ __all__ = [
     "Obstacle",
     "Ocp",
     "Reference",
+    "SimulationInterrupted",
     "SolveResult",
     "StepOutput",
     "TrackingProblem",

@@ -3,8 +3,10 @@
 The plant is the vehicle model (possibly with different parameters: model mismatch) integrated
 with RK4 at ``plant_substeps`` steps per control interval (default 10, i.e. 10 ms for
 dt = 0.1 s), under a Gauss–Markov current; the controller sees the state plus optional
-measurement noise.  A :class:`KeyboardInterrupt` stops the loop early and returns everything
-computed so far (``interrupted=True``).
+measurement noise.  A :class:`KeyboardInterrupt` (Ctrl-C, CasADi's included) stops the loop
+and reaches the caller as :class:`SimulationInterrupted`, a ``KeyboardInterrupt`` that carries
+everything computed so far (``error.result``, with ``interrupted=True``): nothing is lost, and
+nothing that was not finished is passed off as a finished run.
 """
 
 from __future__ import annotations
@@ -26,6 +28,14 @@ from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions, warn_if_reference_too_fast
 from uuv_ocp.transcription.multiple_shooting import parameter_blocks
+
+
+class SimulationInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`simulate`; ``result`` holds the run up to the interrupt."""
+
+    def __init__(self, result: ClosedLoopResult) -> None:
+        super().__init__(f"simulation interrupted after {result.controls.shape[0]} steps")
+        self.result = result
 
 
 @dataclass(frozen=True)
@@ -294,7 +304,7 @@ def simulate(
         except KeyboardInterrupt:
             interrupted = True
     n = completed
-    return ClosedLoopResult(
+    run = ClosedLoopResult(
         t=times[: n + 1],
         states=states[: n + 1],
         controls=controls[:n],
@@ -313,6 +323,9 @@ def simulate(
         interrupted=interrupted,
         deadline_steps=deadline_steps[:n],
     )
+    if interrupted:
+        raise SimulationInterrupted(run)
+    return run
 
 
 def _vehicle_plant(problem: TrackingProblem, plant: Any, dt: float, substeps: int) -> tuple[ca.Function, int]:

@@ -27,7 +27,7 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.mpc import NMPC
-from uuv_ocp.control.simulation import ClosedLoopResult, simulate
+from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.reference.path import Reference
@@ -143,18 +143,19 @@ def run_trial(config: CampaignConfig, index: int, directory: str | Path) -> dict
     problem = TrackingProblem(model, reference, horizon=config.horizon)
     current, noise, simulation_seed = _trial_setup(config, index)
     controller = NMPC(problem, config.solver, options=config.solver_options or None, seed=simulation_seed)
-    run = simulate(
-        controller,
-        reference.initial_state(reference.t_start),
-        min(config.duration, problem.latest_start() - reference.t_start),
-        current=current,
-        current_known=config.current_known,
-        noise=noise,
-        plant=Vehicle.rexrov(),
-        seed=simulation_seed,
-    )
-    if run.interrupted:
-        raise KeyboardInterrupt(f"trial {index} interrupted; finished trials are saved")
+    try:
+        run = simulate(
+            controller,
+            reference.initial_state(reference.t_start),
+            min(config.duration, problem.latest_start() - reference.t_start),
+            current=current,
+            current_known=config.current_known,
+            noise=noise,
+            plant=Vehicle.rexrov(),
+            seed=simulation_seed,
+        )
+    except SimulationInterrupted as stop:  # no record of an unfinished trial is written
+        raise KeyboardInterrupt(f"trial {index} interrupted; finished trials are saved") from stop
     partial = path.with_suffix(".partial.npz")
     run.save(str(partial))
     partial.replace(path)  # atomic: a killed run never leaves a half-written trial

@@ -17,7 +17,7 @@ import numpy as np
 
 from uuv_ocp.build import Transcribed
 from uuv_ocp.control.mpc import NMPC
-from uuv_ocp.control.simulation import ClosedLoopResult, simulate
+from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
 from uuv_ocp.judge import score_terms
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
@@ -94,15 +94,18 @@ def track_references(
             controller = NMPC(problem, solver, options=solver_options)
             with warnings.catch_warnings():  # the row's note says it (reference_speed_note)
                 warnings.simplefilter("ignore", ReferenceSpeedWarning)
-                run = simulate(
-                    controller,
-                    reference.initial_state(t0),
-                    run_duration,
-                    progress=progress,
-                    label=f"{name} {solver}",
-                )
-            if run.interrupted:
-                raise KeyboardInterrupt(f"interrupted during {name}; finished runs are in {runs_dir}")
+                try:
+                    run = simulate(
+                        controller,
+                        reference.initial_state(t0),
+                        run_duration,
+                        progress=progress,
+                        label=f"{name} {solver}",
+                    )
+                except SimulationInterrupted as stop:  # the unfinished run is not saved
+                    raise KeyboardInterrupt(
+                        f"interrupted during {name}; finished runs are in {runs_dir}"
+                    ) from stop
             run.save(str(path))
         speed_max, note = reference_speed_note(reference, vehicle, t0, run_duration)
         if figures:

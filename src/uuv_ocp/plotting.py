@@ -447,26 +447,23 @@ def _control_labels(
     nu: int, vehicle: Any, names: Sequence[str] | None, units: Sequence[str] | None
 ) -> tuple[list[str], list[str]]:
     """Names and units of ``nu`` controls: given, from the vehicle, or by dimension."""
+    from uuv_ocp.model.fossen6dof import FORCE_NAMES, FORCE_UNITS
     from uuv_ocp.model.planar import CONTROL_NAMES, CONTROL_UNITS, Vehicle
 
+    # the models own their labels; by dimension: the 3-DOF or the 6-DOF generalised force
+    by_dimension = {3: (CONTROL_NAMES, CONTROL_UNITS), 6: (FORCE_NAMES, FORCE_UNITS)}
+    if vehicle is not None:
+        planar = isinstance(vehicle, Vehicle)
+        default_names = CONTROL_NAMES if planar else vehicle.control_names
+        default_units = CONTROL_UNITS if planar else vehicle.control_units
+    else:
+        default_names, default_units = by_dimension.get(nu, (None, None))
     if names is None:
-        if vehicle is not None:
-            names = CONTROL_NAMES if isinstance(vehicle, Vehicle) else vehicle.control_names
-        elif nu == 3:
-            names = CONTROL_NAMES
-        elif nu == 6:
-            names = ("X", "Y", "Z", "K", "M", "N")
-        else:
-            names = tuple(f"u_{index + 1}" for index in range(nu))
+        names = default_names or tuple(f"u_{index + 1}" for index in range(nu))
     if units is None:
-        if vehicle is not None:
-            units = CONTROL_UNITS if isinstance(vehicle, Vehicle) else vehicle.control_units
-        elif nu == 3:
-            units = CONTROL_UNITS
-        elif nu == 6:
-            units = ("N", "N", "N", "N·m", "N·m", "N·m")
-        else:
+        if default_units is None:
             raise ValueError(f"give units= (one per control) for {nu} controls, or vehicle=")
+        units = default_units
     names, units = list(names), list(units)
     if len(names) != nu or len(units) != nu:
         raise ValueError(f"names and units must have one entry per control ({nu}), got {names!r}, {units!r}")

@@ -232,3 +232,22 @@ def reference_from_spec(
     else:
         raise ValueError(f"{usage}, got {' '.join(words)!r}")
     return lift_to_depth(reference, depth) if spatial else reference
+
+
+def split_reference_specs(words: Sequence[str]) -> list[list[str]]:
+    """Group command-line words into reference specs: ``s1 waypoints a.csv s2`` -> three specs.
+
+    ``waypoints``, ``lawnmower`` and ``hold`` take the word after them; every other word is a
+    spec of its own (a paper name or a TOML file).
+    """
+    groups: list[list[str]] = []
+    index = 0
+    while index < len(words):
+        word = str(words[index])
+        width = 2 if word in _TAKES_ARGUMENT else 1
+        groups.append([str(w) for w in words[index : index + width]])
+        index += width
+    return groups
+
+
+_TAKES_ARGUMENT = ("waypoints", "lawnmower", "hold")

@@ -143,3 +143,16 @@ def test_bad_reference_file_fields_name_the_file(tmp_path):
     path.write_text("[reference]\nkind = 'spiral'\n")
     with pytest.raises(ValueError, match="kind must be one of"):
         reference_from_spec(str(path))
+
+
+def test_example_spec_files_of_docs_cli_parse():
+    """The files docs/cli.md shows and its commands use."""
+    from pathlib import Path
+
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    light = vehicle_from_spec(examples / "vehicles" / "light_rov.toml")
+    assert light.name == "light-rov" and light.mass == 1200.0 and light.max_thrust[0] == 1500.0
+    survey = reference_from_spec(["waypoints", str(examples / "paths" / "survey.csv")])
+    np.testing.assert_allclose(survey.evaluate([survey.t_end])[0][:2], [0.0, 8.0], atol=1e-9)
+    mower = reference_from_spec(["lawnmower", str(examples / "paths" / "lawnmower.toml")])
+    assert mower.t_end > 5.0

@@ -91,7 +91,11 @@ def test_every_registered_backend_declares_its_options(name):
     assert len(set(names)) == len(names)
     factory = REGISTRY.factory(name)
     if hasattr(factory, "option_names"):  # the tuple the unknown-option error lists
-        assert set(factory.option_names) == set(names)
+        assert set(factory.option_names) == set(names), (
+            f"{name}: option_names differ from its OPTIONS declaration by "
+            f"{sorted(set(factory.option_names) ^ set(names))}; declare OPTIONS and derive "
+            "option_names from it (see uuv_ocp.solvers.options)"
+        )
 
 
 @pytest.mark.parametrize("name", NAMES)

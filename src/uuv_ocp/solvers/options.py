@@ -13,7 +13,7 @@ How a backend declares its options (e.g. a new exact backend on :class:`NlpSolve
 
     RTI_OPTIONS = (
         # the options NlpSolver reads, with this backend's own defaults or meanings where they differ
-        *revise(NLP_OPTIONS, max_iter={"meaning": "1 SQP step per call"}),
+        *revise(NLP_OPTIONS, max_iter={"meaning": "50 (converged mode)"}),
         Option("mode", "rti", one_of(MODES), "one SQP step per call, or iterate to `tol`"),
         Option("tol", 1e-8, "float > 0", "stopping tolerance of the converged mode"),
     )
@@ -39,8 +39,11 @@ fails for a registered backend without one, for a default the constructor does n
 for an option the constructor accepts but does not declare.
 
 A default the backend works out when it is built (from the machine, the environment or
-another option) is :data:`AUTO` with a ``meaning`` saying how; a ``None`` default has a
-``meaning`` too (what ``None`` stands for).
+another option) is :data:`AUTO` with a ``meaning`` saying how, and the constructor replaces
+:data:`AUTO` by that value (``value = rule() if value is AUTO else value``;
+``expected_held`` of ``tests/test_solver_options.py`` computes each rule independently, so a
+new one needs a line there); a ``None`` default has a ``meaning`` too (what ``None`` stands
+for).
 """
 
 from __future__ import annotations

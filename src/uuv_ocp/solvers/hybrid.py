@@ -73,7 +73,7 @@ HYBRID_OPTIONS: tuple[Option, ...] = (
         "deadline",
         None,
         "float > 0 or `None`",
-        "wall-time budget of the whole solve: the swarm gets `SWARM_SHARE` of it, the exact half the rest",
+        f"wall-time budget of the whole solve: {SWARM_SHARE:.0%} for the swarm, the rest for the exact half",
         unit="s",
         meaning="none",
     ),

@@ -154,7 +154,7 @@ NLP_OPTIONS: tuple[Option, ...] = (
         None,
         "float > 0 or `None`",
         "ρ of the soft NLP's exact penalty ρ Σ|x_N − x_R,N| on the terminal equality",
-        unit="cost per state unit",
+        unit="cost per unit of the terminal equality",
         meaning="the problem's (`Ocp(terminal_penalty=)`; tracking preset: `Weights.terminal_penalty`)",
     ),
     Option(
@@ -175,7 +175,7 @@ NLP_OPTIONS: tuple[Option, ...] = (
         1e-7,
         "float > 0",
         "largest terminal slack of a soft solve still reported as the equality held",
-        unit="state units",
+        unit="those of the terminal equality (tracking: the states')",
     ),
     Option(
         "max_iter",

@@ -635,6 +635,15 @@ def write_report(
     )
     results = {
         "settings": _settings_rows(settings),
+        "campaigns": [
+            {
+                "reference": ref,
+                "solver": solver,
+                "directory": str(result.directory),
+                "elapsed": elapsed.get((ref, solver)),
+            }
+            for (ref, solver), result in campaigns.items()
+        ],
         "tables": tables,
         "verdicts": [asdict(verdict) for verdict in verdicts],
     }

@@ -24,7 +24,7 @@ from uuv_ocp.studies.reproduce import (
 
 
 def run_with_errors(t, ex, ey=None):
-    """A ClosedLoopResult whose position errors are ``ex``, ``ey`` (reference at the origin)."""
+    """Return a ClosedLoopResult whose position errors are ``ex``, ``ey`` (reference at the origin)."""
     n = len(t)
     states = np.zeros((n, 6))
     states[:, 0] = ex
@@ -105,7 +105,8 @@ def test_s8_s9_pass_the_crab_top_speed_where_their_analytic_path_speed_says():
         assert limit.crab_speed == crab and limit.crab_angle == angle
     # the issue's reading (2.11 m/s at 41°, s8 after 11.4 s, s9 after 8.9 s), from the model
     assert (round(crab, 2), round(math.degrees(angle))) == (2.11, 41)
-    assert (round(speed_limit("s8").exceeds_crab_at, 1), round(speed_limit("s9").exceeds_crab_at, 1)) == (11.4, 8.9)
+    s8, s9 = speed_limit("s8").exceeds_crab_at, speed_limit("s9").exceeds_crab_at
+    assert (round(s8, 1), round(s9, 1)) == (11.4, 8.9)
     assert speed_limit("s2").exceeds_crab_at is None
 
 
@@ -136,7 +137,8 @@ def test_settings_give_the_paper_budgets_and_campaigns():
     assert len(pairs) == len(paper_data.REFERENCES) + len(SOLVERS) - 1
     assert len(ReproductionSettings(every_pair=True).pairs()) == len(paper_data.REFERENCES) * len(SOLVERS)
     config = settings.config("s2", "gwo")
-    assert config.mismatch and config.trials == 50 and config.solver_options == {"population": 30, "iterations": 40}
+    assert config.mismatch and config.trials == 50
+    assert config.solver_options == {"population": 30, "iterations": 40}
 
 
 @pytest.mark.parametrize(
@@ -193,7 +195,7 @@ def independent_time_to_band(t, error, band):
 
 
 def close(text, value, rel=6e-4):
-    """The report prints 4 significant digits."""
+    """Compare a number of the report (4 significant digits) with ``value``."""
     if text == "∞":
         return math.isinf(value)
     return float(text) == pytest.approx(value, rel=rel, abs=1e-12)
@@ -252,7 +254,8 @@ def test_quick_reproduction_writes_every_table_and_figure(tmp_path, capsys):
 
     band = {row["solver"]: row for row in markdown_table(report, "## Time to the stable x band")}
     for solver in SOLVERS:
-        times = [independent_time_to_band(t, e[:, 0], PRIMARY_BAND) for t, e in trial_errors(directories["s2", solver])]
+        runs = trial_errors(directories["s2", solver])
+        times = [independent_time_to_band(t, e[:, 0], PRIMARY_BAND) for t, e in runs]
         mean = float(np.mean(times)) if all(map(math.isfinite, times)) else math.inf
         assert close(band[solver][f"ours ±{PRIMARY_BAND:g} m (s)"], mean, rel=2e-3), solver
 

@@ -455,7 +455,14 @@ def _universal_verdicts(
 
 # -------------------------------------------------------------------------------- report
 def _settings_rows(settings: Any) -> list[dict]:
+    import inspect
+
+    from uuv_ocp.control.simulation import simulate
+    from uuv_ocp.tracking import TrackingProblem
+
     config = settings.campaign
+    dt = float(TrackingProblem.dt)  # the default: the campaign builds its problems without dt
+    substeps = inspect.signature(simulate).parameters["plant_substeps"].default
     rows = [
         {"setting": "references", "value": ", ".join(settings.references)},
         {"setting": "solvers", "value": ", ".join(settings.solvers)},
@@ -472,7 +479,7 @@ def _settings_rows(settings: Any) -> list[dict]:
         },
         {
             "setting": "sampling time dt (s), horizon N",
-            "value": f"0.1, {config.horizon} (TrackingProblem defaults)",
+            "value": f"{fmt(dt)}, {config.horizon}",
         },
         {
             "setting": "swarm budgets (population × iterations)",
@@ -482,7 +489,7 @@ def _settings_rows(settings: Any) -> list[dict]:
             "setting": "controller model",
             "value": "Vehicle.rexrov_controller_model() (rounded)" if config.mismatch else "exact",
         },
-        {"setting": "plant", "value": "Vehicle.rexrov() (exact), RK4 at 10 substeps"},
+        {"setting": "plant", "value": f"Vehicle.rexrov() (exact), RK4 at {substeps} substeps per dt"},
         {
             "setting": "current",
             "value": f"Gauss–Markov speed and direction, mean speed U[0, {fmt(config.max_current)}] m/s, "
@@ -748,6 +755,10 @@ def _render(
     paired = ["paper x", "ours x", "ours/paper x", "paper y", "ours y", "ours/paper y"]
     s8, s9 = limits["s8"], limits["s9"]
     total = sum(elapsed.values())
+    from uuv_ocp.model.planar import Vehicle
+
+    surge_thrust = Vehicle.rexrov().max_thrust[0]
+    extrapolated = total * paper_data.TRIALS / settings.trials
     out: list[str] = [
         "# Reproduction of Gan, Xia & Chu (2023), IGWO-NMPC for UUV trajectory tracking",
         "",
@@ -822,13 +833,21 @@ def _render(
             tables["all_solvers"], list(tables["all_solvers"][0]) if tables["all_solvers"] else ["reference"]
         ),
         "",
-        f"Wall time of this call: {fmt(total)} s (campaigns resumed from disk only load their trials).",
+        f"Wall time of the campaigns in this call: {fmt(total)} s (campaigns resumed from disk only "
+        "load their trials)"
+        + (
+            f"; scaled linearly to {paper_data.TRIALS} trials per campaign: {fmt(extrapolated / 3600)} h "
+            "(an extrapolation, with the same executor and workers; per-campaign start-up is scaled too, "
+            "so it errs long)."
+            if settings.trials < paper_data.TRIALS and not settings.quick
+            else "."
+        ),
         "",
         "## Which references the RexROV can track",
         "",
         f"Top speeds in still water from `Vehicle.rexrov()`: surge only {fmt(s8.surge_speed)} m/s "
-        f"(`max_speed()[0]`, damping = 2000 N); with sway thrust {fmt(s8.crab_speed)} m/s crabbing at "
-        f"{fmt(math.degrees(s8.crab_angle))}° (`max_horizontal_speed()`). The path speed "
+        f"(`max_speed()[0]`, damping = {fmt(surge_thrust)} N); with sway thrust {fmt(s8.crab_speed)} m/s "
+        f"crabbing at {fmt(math.degrees(s8.crab_angle))}° (`max_horizontal_speed()`). The path speed "
         f"`hypot(u_R, v_R)` of s8 exceeds the latter from t = {fmt(s8.exceeds_crab_at)} s and that of s9 "
         f"from t = {fmt(s9.exceeds_crab_at)} s (first crossings, bisected to 1e-9 s; `speed_limit`): after "
         "that no controller can hold them.",

@@ -444,7 +444,7 @@ def _universal_verdicts(
         verdicts.append(
             Verdict(
                 f"§4.2/§5: IGWO-NMPC tracks {reference} (universal applicability)",
-                "tracked (Fig. 10)",
+                "tracked (Figs. 7, 8, 10)",
                 f"{settled}/{total} settled",
                 HOLDS if settled == total else NOT_HOLD,
                 reason,
@@ -484,6 +484,10 @@ def _settings_rows(settings: Any) -> list[dict]:
         {
             "setting": "swarm budgets (population × iterations)",
             "value": ", ".join(f"{name} {p} × {i}" for name, (p, i) in settings.budgets.items()),
+        },
+        {
+            "setting": "further swarm options",
+            "value": ", ".join(f"{k}={v}" for k, v in settings.swarm_options.items()) or "none",
         },
         {
             "setting": "controller model",

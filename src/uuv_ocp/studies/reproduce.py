@@ -225,6 +225,10 @@ class ReproductionSettings:
         Simulated time per trial (s), clipped to each reference's window by the campaign.
     budgets : mapping of str to (int, int)
         Swarm (population, iterations) by swarm name; a hybrid's swarm half uses its swarm's.
+    swarm_options : mapping
+        Further options of every swarm (and of a hybrid's swarm half); quick mode:
+        ``{"compiled": False}``, since compiling the tiny swarms' cost would take longer than
+        running them on CasADi's virtual machine.
     seed : int
         Campaign seed (trial ``i`` of every campaign draws from ``default_rng([seed, i])``).
     quick : bool
@@ -241,6 +245,7 @@ class ReproductionSettings:
     trials: int = paper_data.TRIALS
     duration: float = 30.0
     budgets: Mapping[str, tuple[int, int]] = field(default_factory=lambda: dict(FULL_BUDGETS))
+    swarm_options: Mapping[str, Any] = field(default_factory=dict)
     seed: int = 0
     quick: bool = False
     every_pair: bool = False
@@ -279,6 +284,9 @@ class ReproductionSettings:
                 check.positive_int(f"budgets[{name!r}] iterations", budget[1]),
             )
         object.__setattr__(self, "budgets", MappingProxyType(budgets))
+        if not isinstance(self.swarm_options, Mapping):
+            raise ValueError(f"swarm_options must be a mapping, got {self.swarm_options!r}")
+        object.__setattr__(self, "swarm_options", MappingProxyType(dict(self.swarm_options)))
         if not isinstance(self.campaign, CampaignConfig):
             raise ValueError(f"campaign must be a CampaignConfig, got {type(self.campaign).__name__}")
 
@@ -290,6 +298,7 @@ class ReproductionSettings:
             "trials": QUICK_TRIALS,
             "duration": QUICK_DURATION,
             "budgets": dict(QUICK_BUDGETS),
+            "swarm_options": {"compiled": False},
             "quick": True,
         }
         settings.update(changes)
@@ -301,7 +310,7 @@ class ReproductionSettings:
         if swarm not in self.budgets:
             return {}
         population, iterations = self.budgets[swarm]
-        options = {"population": population, "iterations": iterations}
+        options = {"population": population, "iterations": iterations, **self.swarm_options}
         return {"swarm": options} if plus else options
 
     def config(self, reference: str, solver: str) -> CampaignConfig:

@@ -274,3 +274,18 @@ def test_quick_reproduction_writes_every_table_and_figure(tmp_path, capsys):
     assert {row["verdict"] for row in verdicts} <= {"holds", "does not hold", "not comparable"}
     assert all(row["reason"] for row in verdicts)
     assert "Quick mode" in report
+
+
+def test_a_subset_without_s2_reports_the_missing_comparisons_as_not_comparable(tmp_path):
+    from uuv_ocp.studies.reproduce import reproduce
+
+    result = reproduce(tmp_path, quick=True, trials=1, references=["s5"], solvers=["igwo"], progress=False)
+    assert set(result.campaigns) == {("s5", "igwo")}
+    verdicts = {v.claim: v for v in result.verdicts}
+    ranking = [v for claim, v in verdicts.items() if claim.startswith("Table 4/§4.3")]
+    assert [v.verdict for v in ranking] == ["not comparable"]
+    assert all(v.verdict == "not comparable" for c, v in verdicts.items() if c.startswith("Table 3 (s2)"))
+    report = result.report.read_text(encoding="utf-8")
+    rows = {row["solver"]: row for row in markdown_table(report, "## Table 4")}
+    assert rows["igwo"]["ours x"] == "not run"
+    assert set(result.figures) == {"fig5_convergence_factor", "fig10_other_references", "solve_times"}

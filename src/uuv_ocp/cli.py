@@ -220,8 +220,9 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     executor = args.executor or ("process" if "process" in EXECUTORS else "local")
     if executor not in EXECUTORS:
         raise _UsageError(f"--executor must be one of {list(EXECUTORS)}, got {args.executor!r}")
-    if args.references is not None:
-        _references(args.references)
+    unknown = [name for name in args.references or () if name not in PAPER_REFERENCES]
+    if unknown:  # the paper's references only: its tables have no others
+        raise _UsageError(f"--references must be among {list(PAPER_REFERENCES)}, got {unknown}")
     for name in args.solvers or ():
         _solver("--solvers", name)
     _output_folder(args.out)

@@ -28,9 +28,9 @@ from __future__ import annotations
 import json
 import math
 import platform
+import time
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
-from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -767,7 +767,7 @@ def _render(
         "# Reproduction of Gan, Xia & Chu (2023), IGWO-NMPC for UUV trajectory tracking",
         "",
         f"Written by `{command}` (uuv_ocp {version}, Python {platform.python_version()}, "
-        f"{datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC')}); every number below is computed "
+        f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}); every number below is computed "
         "from the saved trials (`campaigns/`) except the paper's, which come from "
         "`uuv_ocp/studies/paper_data.py`. Machine-readable copy: `results.json`.",
         "",

@@ -33,6 +33,16 @@ $(BENCH_STAMP): pyproject.toml
 bench: $(BENCH_STAMP)
 	$(BENCH_VENV)/bin/python -m benchmarks.run
 
+# The paper's experiment (docs/paper.md): report, figures and verdicts in docs/reproduction/.
+# Resumable: rerun after Ctrl-C.  `make reproduce QUICK=1` (or `make reproduce-quick`) is the
+# reduced size that CI runs.
+.PHONY: reproduce reproduce-quick
+reproduce: $(STAMP)
+	$(PY) -m uuv_ocp.cli reproduce --out docs/reproduction $(if $(QUICK),--quick)
+
+reproduce-quick: $(STAMP)
+	$(PY) -m uuv_ocp.cli reproduce --out docs/reproduction --quick
+
 # ruff, mypy and the stubs they need come from the `lint` extra (versions in pyproject.toml).
 # All three checks run (so one run reports everything); the target fails if any of them does.
 LINT_PATHS := src tests benchmarks examples $(wildcard docs/tutorials/*.py)

@@ -1,4 +1,4 @@
-"""Command line: ``uuv-ocp demo | track | solvers | compare | campaign | codegen``.
+"""Command line: ``uuv-ocp demo | track | solvers | compare | campaign | reproduce | codegen``.
 
 Also ``python -m uuv_ocp.cli``.  Exit status: 0 on success; 2 for a bad flag or value, with one
 line ``error: ...`` on standard error naming the flag (nothing runs); 2 without a subcommand,
@@ -87,6 +87,16 @@ def _parser() -> argparse.ArgumentParser:
     campaign.add_argument("--executor", choices=["local", "process"], default="local")
     campaign.add_argument("--workers", type=int, default=2)
     campaign.add_argument("--out", default="out/campaigns")
+
+    reproduce = commands.add_parser("reproduce", help="the paper's experiment: tables, figures, verdicts")
+    reproduce.add_argument("--out", default="docs/reproduction", help="report.md, figures/, campaigns/")
+    reproduce.add_argument("--quick", action="store_true", help="reduced size (CI): 3 references, 2 trials")
+    reproduce.add_argument("--trials", type=int, default=None, help="per campaign (default 50; quick 2)")
+    reproduce.add_argument("--references", "-r", nargs="+", default=None, help="subset of the references")
+    reproduce.add_argument("--solvers", nargs="+", default=None, help="subset of the solvers")
+    reproduce.add_argument("--every-pair", action="store_true", help="every solver on every reference")
+    reproduce.add_argument("--executor", default=None, help="campaign executor (default: processes)")
+    reproduce.add_argument("--workers", type=int, default=2)
 
     codegen = commands.add_parser("codegen", help="generate, compile and verify C for a problem")
     codegen.add_argument("--reference", "-r", nargs="+", default=["s2"], help=_REFERENCE_HELP)
@@ -233,6 +243,50 @@ def _run_codegen(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_reproduce(args: argparse.Namespace) -> int:
+    from uuv_ocp.studies.campaign import EXECUTORS
+    from uuv_ocp.studies.reproduce import reproduce
+
+    if args.trials is not None and args.trials < 1:
+        raise _UsageError(f"--trials must be an integer >= 1, got {args.trials}")
+    if args.workers < 1:
+        raise _UsageError(f"--workers must be an integer >= 1, got {args.workers}")
+    # processes on this machine: "process" where campaign.py names it so, else its "local"
+    executor = args.executor or ("process" if "process" in EXECUTORS else "local")
+    if executor not in EXECUTORS:
+        raise _UsageError(f"--executor must be one of {list(EXECUTORS)}, got {args.executor!r}")
+    unknown = [name for name in args.references or () if name not in PAPER_REFERENCES]
+    if unknown:  # the paper's references only: its tables have no others
+        raise _UsageError(f"--references must be among {list(PAPER_REFERENCES)}, got {unknown}")
+    for name in args.solvers or ():
+        _solver("--solvers", name)
+    _output_folder(args.out)
+    start = time.perf_counter()
+    try:
+        result = reproduce(
+            args.out,
+            quick=args.quick,
+            trials=args.trials,
+            references=args.references,
+            solvers=args.solvers,
+            every_pair=args.every_pair,
+            executor=executor,
+            workers=args.workers,
+        )
+    except KeyboardInterrupt:
+        print("\ninterrupted: finished trials are saved; rerun the command to resume", file=sys.stderr)
+        return 130
+    counts = {name: sum(v.verdict == name for v in result.verdicts) for name in ("holds", "does not hold")}
+    print(f"report    {result.report}  ({len(result.figures)} figures, {time.perf_counter() - start:.1f} s)")
+    print(
+        f"verdicts  {counts['holds']} hold, {counts['does not hold']} do not hold, "
+        f"{len(result.verdicts) - sum(counts.values())} not comparable"
+    )
+    for (reference, solver), seconds in result.elapsed.items():
+        print(f"campaign  {reference:>4} {solver:<12} {seconds:8.1f} s")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``uuv-ocp`` console script; returns the exit status (see module doc)."""
     parser = _parser()
@@ -283,6 +337,13 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(format_summary(result))
         print(f"trials saved in {result.directory}")
         return 0
+    if command == "reproduce":
+        try:
+            return _run_reproduce(args)
+        except ValueError as error:
+            return _fail(str(error))
+        except OSError as error:
+            return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
     if command in ("compare", "codegen"):
         try:
             return _run_compare(args) if command == "compare" else _run_codegen(args)

@@ -105,9 +105,9 @@ def reference_from_spec(spec: str, spatial: bool) -> Reference:
     specs = _specs()
     if specs is not None:
         return specs.reference_from_spec(spec, spatial=spatial)
-    if spatial:
-        raise ValueError("reference: a 6-DOF vehicle needs uuv_ocp.specs to lift a planar reference")
-    return Reference.paper(spec)
+    reference = Reference.paper(spec)
+    # flown at 5 m depth (z down) by a 6-DOF vehicle, as uuv_ocp.specs.lift_to_depth does
+    return dataclasses.replace(reference, path_z=lambda t: 0.0 * t + 5.0) if spatial else reference
 
 
 def _reference_fingerprint(reference: Reference, t_end: float) -> str:

@@ -19,7 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
-    """The 3-trial campaign run once, in this process, start to end."""
+    """Return the 3-trial campaign run once, in this process, start to end."""
     return run_campaign(small(), tmp_path_factory.mktemp("reference"), workers=1, progress=False)
 
 

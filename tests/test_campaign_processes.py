@@ -1,0 +1,151 @@
+"""Campaigns against real processes: Ctrl-C, SIGKILL of the parent, two writers in one folder.
+
+Each case ends with the same records as an uninterrupted run (wall-clock solve times aside).
+"""
+
+import multiprocessing
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+from helpers_campaign import CLI_FLAGS, assert_same_records, small
+from uuv_ocp.studies.campaign import run_campaign
+from uuv_ocp.studies.records import query_trials, read_record, write_record
+
+ROOT = Path(__file__).resolve().parents[1]
+TRIALS = 6
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+
+
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """Return the 6-trial campaign run once, in this process, start to end."""
+    return run_campaign(small(trials=TRIALS), tmp_path_factory.mktemp("reference"), workers=1, progress=False)
+
+
+def start_campaign(out, workers):
+    env = {**os.environ, "PYTHONPATH": f"{ROOT / 'src'}{os.pathsep}{ROOT}", "UUV_OCP_COMPILED": "0"}
+    command = [sys.executable, "-m", "uuv_ocp.cli", "campaign", *CLI_FLAGS, "--trials", str(TRIALS)]
+    command += ["--workers", str(workers), "--out", str(out)]
+    return subprocess.Popen(
+        command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+
+
+def wait_for_records(directory, count, process, timeout=120.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if len(list(directory.glob("trial_*.npz"))) >= count:
+            return
+        assert process.poll() is None, process.communicate()
+        time.sleep(0.05)
+    raise AssertionError(f"no {count} records in {directory} after {timeout} s")
+
+
+def _state(pid):
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (FileNotFoundError, ProcessLookupError):
+        return "gone"
+
+
+def descendants(pid):
+    children = {}
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
+    found, todo = [], [pid]
+    while todo:
+        for child in children.get(todo.pop(), []):
+            found.append(child)
+            todo.append(child)
+    return found
+
+
+def check_sound_records(directory, config):
+    """Every record on disk verifies for its trial; no temporary file is left."""
+    records = sorted(directory.glob("trial_*.npz"))
+    for path in records:
+        assert read_record(path, config.trial_settings(int(path.stem[-4:])), steps=config.steps()) is not None
+    assert not list(directory.glob(".*.tmp"))
+    return len(records)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_ctrl_c_stops_the_campaign_writes_no_unfinished_trial_and_resume_matches(
+    tmp_path, uninterrupted, workers
+):
+    process = start_campaign(tmp_path, workers)
+    directory = tmp_path / small().name
+    wait_for_records(directory, 1, process)
+    os.killpg(process.pid, signal.SIGINT)  # Ctrl-C reaches the whole foreground group
+    _, err = process.communicate(timeout=60)
+    assert process.returncode == 130, err
+    assert "interrupted" in err
+    assert check_sound_records(directory, small(trials=TRIALS)) < TRIALS
+    resumed = run_campaign(small(trials=TRIALS), tmp_path, workers=1, progress=False)
+    assert resumed.resumed >= 1 and not resumed.recomputed
+    assert_same_records(directory, uninterrupted.directory, TRIALS)
+
+
+def test_sigkill_of_the_parent_takes_its_workers_and_resume_matches(tmp_path, uninterrupted):
+    process = start_campaign(tmp_path, workers=2)
+    directory = tmp_path / small().name
+    wait_for_records(directory, 1, process)
+    children = descendants(process.pid)
+    assert len(children) >= 2  # the two workers (and the spawn context's resource tracker)
+    process.kill()
+    process.wait(timeout=30)  # not communicate(): orphans would hold its pipes open
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline and any(_state(pid) not in ("gone", "Z") for pid in children):
+        time.sleep(0.1)
+    assert {pid: _state(pid) for pid in children if _state(pid) not in ("gone", "Z")} == {}
+    assert check_sound_records(directory, small(trials=TRIALS)) < TRIALS
+    resumed = run_campaign(small(trials=TRIALS), tmp_path, workers=1, progress=False)
+    assert not resumed.recomputed
+    assert_same_records(directory, uninterrupted.directory, TRIALS)
+
+
+def test_two_campaigns_into_one_folder_give_complete_sound_records(tmp_path, uninterrupted):
+    first, second = start_campaign(tmp_path, 1), start_campaign(tmp_path, 1)
+    for process in (first, second):
+        _, err = process.communicate(timeout=300)
+        assert process.returncode == 0, err
+        assert "Warning" not in err  # neither read a half-written record of the other
+    directory = tmp_path / small().name
+    assert check_sound_records(directory, small(trials=TRIALS)) == TRIALS
+    assert_same_records(directory, uninterrupted.directory, TRIALS)
+    assert [row["trial"] for row in query_trials(tmp_path)] == list(range(TRIALS))
+
+
+def _hammer(path, source, barrier, writes):
+    from uuv_ocp import ClosedLoopResult
+
+    run = ClosedLoopResult.load(source)
+    barrier.wait()
+    for _ in range(writes):
+        write_record(path, run, {"trial": 0})
+
+
+def test_synchronised_writers_of_one_record_never_clash(tmp_path, uninterrupted):
+    # the issue's race: 400 synchronised writes of one trial gave 201 FileNotFoundErrors
+    source = str(uninterrupted.directory / "trial_0000.npz")
+    path = tmp_path / "trial_0000.npz"
+    context = multiprocessing.get_context("spawn")
+    barrier = context.Barrier(2)
+    writers = [context.Process(target=_hammer, args=(path, source, barrier, 200)) for _ in range(2)]
+    for writer in writers:
+        writer.start()
+    for writer in writers:
+        writer.join(120)
+    assert [writer.exitcode for writer in writers] == [0, 0]
+    assert read_record(path, {"trial": 0}) is not None
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["trial_0000.npz"]

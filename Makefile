@@ -12,8 +12,9 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e ".[test]"
 	touch $(STAMP)
 
+# `make demo FRESH=1` recomputes the runs a previous demo saved in out/runs.
 demo: $(STAMP)
-	$(PY) -m uuv_ocp.cli demo
+	$(PY) -m uuv_ocp.cli demo $(if $(FRESH),--fresh)
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -519,7 +519,7 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("track-s3-horizon-400", ["track", "-r", "s3", "--horizon", "400"], r"--horizon 400 x --dt 0.1 s = 40 s"),
     ("track-solver-hybrid", ["track", "-s", "igwo+foo"], r"--solver must be one of .*'igwo\+foo'"),
     ("track-solver-unknown", ["track", "-s", "newton"], r"--solver must be one of .*'newton'"),
-    ("track-reference", ["track", "-r", "s42"], r"--reference must be among .*s42"),
+    ("track-reference", ["track", "-r", "s42"], r"--reference must be one of .*s42"),
     ("track-out-proc", ["track", "--out", "/proc/x"], r"--out /proc/x: cannot create the folder"),
     ("track-unknown-flag", ["track", "--bogus"], r"unrecognized arguments: --bogus"),
     ("demo-out-proc", ["demo", "--out", "/proc/x"], r"--out /proc/x: cannot create the folder"),
@@ -541,6 +541,12 @@ CLI_CASES: list[tuple[str, list[str], str]] = [
     ("codegen-population-2", ["codegen", "--population", "2"], r"--population must be an integer >= 4"),
     ("codegen-horizon-0", ["codegen", "--horizon", "0"], r"--horizon must be an integer in"),
     ("codegen-reference", ["codegen", "-r", "s42"], r"--reference must be one of"),
+    ("solver-did-you-mean", ["track", "-s", "ipop"], r"got 'ipop'; did you mean 'ipopt'"),
+    ("vehicle-unknown", ["track", "--vehicle", "bluerov"], r"--vehicle must be one of .*'bluerov'"),
+    ("vehicle-file", ["compare", "--vehicle", "no.toml"], r"--vehicle must be one of .*existing \.toml"),
+    ("waypoints-missing", ["track", "-r", "waypoints"], r"--reference must be one of .*'waypoints'"),
+    ("waypoints-no-file", ["track", "-r", "waypoints", "x.csv"], r"--reference: x.csv: cannot read"),
+    ("compare-two-references", ["compare", "-r", "s1", "s2"], r"--reference takes one reference here"),
 ]
 
 

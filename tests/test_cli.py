@@ -46,3 +46,76 @@ def test_bad_arguments_exit_with_a_message(capsys):
     assert cli.main(["track", "-s", "newton"]) == 2
     assert "newton" in capsys.readouterr().err
     assert cli.main(["compare", "--solvers", "newton"]) == 2
+
+
+def _replay(vehicle, run):
+    """Integrate the saved controls through ``vehicle`` with scipy's RK45 (a second integrator)."""
+    import numpy as np
+    from scipy.integrate import solve_ivp
+
+    rhs = vehicle.dynamics_function()
+    state = run.states[0]
+    for k, control in enumerate(run.controls):
+        step = solve_ivp(
+            lambda _, x, u=control: np.asarray(rhs(x, u, np.zeros(2))).ravel(),
+            (run.t[k], run.t[k + 1]),
+            state,
+            rtol=1e-10,
+            atol=1e-10,
+        )
+        state = step.y[:, -1]
+    return state
+
+
+def test_track_any_vehicle_file_and_waypoint_file(tmp_path, capsys):
+    """A TOML vehicle on a CSV waypoint path: the saved run is that vehicle flying that path."""
+    import numpy as np
+
+    from uuv_ocp.control.simulation import ClosedLoopResult
+    from uuv_ocp.specs import vehicle_from_spec
+
+    vehicle_file = tmp_path / "light.toml"
+    vehicle_file.write_text('[vehicle]\npreset = "rexrov"\nname = "light-rov"\nmass = 900.0\n')
+    path_file = tmp_path / "legs.csv"
+    path_file.write_text("0, 0\n6, 0\n6, 6\n")
+    argv = ["track", "--vehicle", str(vehicle_file), "-r", "waypoints", str(path_file), "-s", "IPOPT"]
+    argv += ["--duration", "1.0", "--horizon", "5", "--out", str(tmp_path / "out")]
+    assert cli.main(argv) == 0
+    output = capsys.readouterr().out
+    assert "light-rov" in output and "legs" in output and "solver ipopt" in output
+    for name in ("legs_xoy.png", "legs_errors.png", "legs_thrust.png", "legs_states.png"):
+        assert (tmp_path / "out" / name).exists(), name
+    (saved,) = (tmp_path / "out" / "runs").glob("legs*.npz")
+    run = ClosedLoopResult.load(str(saved))
+    assert run.solver == "ipopt" and len(run.controls) == 10
+    np.testing.assert_allclose(run.states[0][:2], [0.0, 0.0], atol=1e-12)  # starts on the first waypoint
+    # the plant was the file's vehicle (900 kg), not the RexROV preset (1862.87 kg)
+    np.testing.assert_allclose(_replay(vehicle_from_spec(vehicle_file), run), run.states[-1], atol=1e-6)
+    assert not np.allclose(_replay(vehicle_from_spec("rexrov"), run), run.states[-1], atol=1e-4)
+
+
+def test_track_six_dof_vehicle_flies_a_paper_reference_at_depth(tmp_path, capsys):
+    import numpy as np
+
+    from uuv_ocp.control.simulation import ClosedLoopResult
+    from uuv_ocp.specs import DEFAULT_DEPTH
+
+    argv = ["track", "--vehicle", "bluerov2-heavy", "-r", "s2", "--duration", "0.5", "--horizon", "5"]
+    assert cli.main([*argv, "--out", str(tmp_path)]) == 0
+    assert "bluerov2" in capsys.readouterr().out.lower()
+    (saved,) = (tmp_path / "runs").glob("s2*.npz")
+    run = ClosedLoopResult.load(str(saved))
+    assert run.states.shape == (6, 12)
+    np.testing.assert_allclose(run.reference[:, 2], DEFAULT_DEPTH, atol=1e-12)
+
+
+def test_solver_names_are_case_insensitive():
+    import uuv_ocp as uo
+    from uuv_ocp.solvers import REGISTRY
+
+    assert REGISTRY.resolve("IPOPT") == "ipopt"
+    assert REGISTRY.resolve("IGWO+Fatrop") == "igwo+fatrop"
+    assert REGISTRY.resolve("Multistart-SQP") == "multistart-sqp"
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=5)
+    assert uo.NMPC(problem, "SQP").solver_name == "sqp"
+    assert uo.get_solver(problem, "SQP") is uo.get_solver(problem, "sqp")  # one backend per name

@@ -12,7 +12,9 @@ from uuv_ocp.control.mpc import NMPC, StepOutput
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.judge import score
+from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.model.thrusters import ThrusterConfiguration
 from uuv_ocp.obstacles import Obstacle
 from uuv_ocp.ocp import Ocp
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
@@ -47,8 +49,10 @@ __all__ = [
     "SimulationInterrupted",
     "SolveResult",
     "StepOutput",
+    "ThrusterConfiguration",
     "TrackingProblem",
     "Vehicle",
+    "Vehicle6DOF",
     "Weights",
     "available_solvers",
     "compare",

@@ -15,14 +15,20 @@ import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import Any, NoReturn
 
 from uuv_ocp.ocp import MAX_HORIZON
 from uuv_ocp.reference.path import PAPER_REFERENCES
-from uuv_ocp.solvers import REGISTRY, available_solvers
+from uuv_ocp.solvers import REGISTRY
+from uuv_ocp.specs import VEHICLE_PRESETS
 from uuv_ocp.studies.compare import format_tracking_table, track_references
 
 DEMO_HINT = "start with `uuv-ocp demo` (all ten paper references, NMPC + IPOPT, 30 s each)"
+_VEHICLE_HELP = f"{' | '.join(VEHICLE_PRESETS)} | FILE.toml (docs/vehicles.md)"
+_REFERENCE_HELP = (
+    f"{PAPER_REFERENCES[0]}..{PAPER_REFERENCES[-1]} | waypoints FILE | lawnmower FILE | hold X,Y,PSI | "
+    "FILE.toml (docs/references.md)"
+)
 
 
 class _UsageError(Exception):
@@ -50,9 +56,8 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--fresh", action="store_true", help="recompute runs already saved in --out")
 
     track = commands.add_parser("track", help="closed-loop tracking of chosen references")
-    track.add_argument(
-        "--reference", "-r", nargs="+", default=["s2"], help=f"names from {list(PAPER_REFERENCES)}"
-    )
+    track.add_argument("--reference", "-r", nargs="+", default=["s2"], help=_REFERENCE_HELP)
+    track.add_argument("--vehicle", "-v", default="rexrov", help=_VEHICLE_HELP)
     track.add_argument("--solver", "-s", default="ipopt", help="a name from `uuv-ocp solvers`")
     track.add_argument("--duration", type=float, default=30.0, help="simulated time (s)")
     track.add_argument("--horizon", type=int, default=20, help="shooting intervals N")
@@ -63,7 +68,8 @@ def _parser() -> argparse.ArgumentParser:
     commands.add_parser("solvers", help="list the registered solver names")
 
     compare = commands.add_parser("compare", help="one instance, several solvers, one judge")
-    compare.add_argument("--reference", "-r", default="s2")
+    compare.add_argument("--reference", "-r", nargs="+", default=["s2"], help=_REFERENCE_HELP)
+    compare.add_argument("--vehicle", "-v", default="rexrov", help=_VEHICLE_HELP)
     compare.add_argument(
         "--solvers", nargs="+", default=["ipopt", "sqp", "fatrop", "igwo", "gwo", "ssa", "pso"]
     )
@@ -74,8 +80,8 @@ def _parser() -> argparse.ArgumentParser:
     campaign.add_argument(
         "--config", help="campaign file (TOML, docs/campaigns.md); replaces the trial flags"
     )
-    campaign.add_argument("--reference", "-r", default="s2")
-    campaign.add_argument("--vehicle", default="rexrov", help="plant vehicle spec (preset or FILE.toml)")
+    campaign.add_argument("--reference", "-r", nargs="+", default=["s2"], help=_REFERENCE_HELP)
+    campaign.add_argument("--vehicle", "-v", default="rexrov", help="the plant: " + _VEHICLE_HELP)
     campaign.add_argument("--solver", "-s", default="ipopt")
     campaign.add_argument("--trials", type=int, default=50)
     campaign.add_argument("--duration", type=float, default=30.0)
@@ -94,7 +100,8 @@ def _parser() -> argparse.ArgumentParser:
     campaign.add_argument("--out", default=None, help="output folder (default out/campaigns)")
 
     codegen = commands.add_parser("codegen", help="generate, compile and verify C for a problem")
-    codegen.add_argument("--reference", "-r", default="s2")
+    codegen.add_argument("--reference", "-r", nargs="+", default=["s2"], help=_REFERENCE_HELP)
+    codegen.add_argument("--vehicle", "-v", default="rexrov", help=_VEHICLE_HELP)
     codegen.add_argument("--out", default="build", help="output folder")
     codegen.add_argument("--horizon", type=int, default=20)
     codegen.add_argument("--population", type=int, default=20)
@@ -117,19 +124,43 @@ def _horizon(value: int) -> None:
         raise _UsageError(f"--horizon must be an integer in [1, {MAX_HORIZON}], got {value}")
 
 
-def _solver(flag: str, name: str) -> None:
+def _flag_error(flag: str, noun: str, error: ValueError) -> _UsageError:
+    """``--flag must be ...`` from the API's ``noun must be ...`` message (others: ``--flag: ...``)."""
+    message = str(error)
+    if message.startswith(f"{noun} "):
+        return _UsageError(f"{flag} {message.removeprefix(noun + ' ')}")
+    return _UsageError(f"{flag}: {message}")
+
+
+def _solver(flag: str, name: str) -> str:
+    """Return the registered spelling of solver ``name`` (case-insensitive), or a usage error."""
     try:
-        REGISTRY.factory(name)
-    except ValueError:
-        raise _UsageError(
-            f"{flag} must be one of {available_solvers()} (or '<swarm>+<exact>'), got {name!r}"
-        ) from None
+        return REGISTRY.resolve(name)
+    except ValueError as error:
+        raise _flag_error(flag, "solver", error) from None
 
 
-def _references(names: Sequence[str]) -> None:
-    unknown = [name for name in names if name not in PAPER_REFERENCES]
-    if unknown:
-        raise _UsageError(f"--reference must be among {list(PAPER_REFERENCES)}, got {unknown}")
+def _vehicle(spec: str):
+    from uuv_ocp.specs import vehicle_from_spec
+
+    try:
+        return vehicle_from_spec(spec)
+    except ValueError as error:
+        raise _flag_error("--vehicle", "vehicle", error) from None
+
+
+def _references(words: Sequence[str], vehicle, *, single: bool = False) -> list:
+    """Build the references the ``--reference`` words name (6-DOF: paper ones at a depth)."""
+    from uuv_ocp.model.fossen6dof import Vehicle6DOF
+    from uuv_ocp.specs import reference_from_spec, split_reference_specs
+
+    groups = split_reference_specs(words)
+    if single and len(groups) != 1:
+        raise _UsageError(f"--reference takes one reference here, got {len(groups)}: {' '.join(words)}")
+    try:
+        return [reference_from_spec(group, spatial=isinstance(vehicle, Vehicle6DOF)) for group in groups]
+    except ValueError as error:
+        raise _flag_error("--reference", "reference", error) from None
 
 
 def _output_folder(folder: str) -> None:
@@ -143,11 +174,9 @@ def _output_folder(folder: str) -> None:
         raise _UsageError(f"--out {folder}: the folder is not writable")
 
 
-def _check_track(args: argparse.Namespace) -> None:
-    from uuv_ocp.reference.path import Reference
-
-    _references(args.reference)
-    _solver("--solver", args.solver)
+def _check_track(args: argparse.Namespace) -> tuple[Any, list]:
+    """Validate the ``track`` flags; return the vehicle and the references."""
+    args.solver = _solver("--solver", args.solver)
     _finite("--duration", args.duration)
     _finite("--dt", args.dt)
     _horizon(args.horizon)
@@ -155,36 +184,41 @@ def _check_track(args: argparse.Namespace) -> None:
         raise _UsageError(
             f"--duration must be at least one sampling interval --dt = {args.dt:g} s, got {args.duration:g}"
         )
-    for name in args.reference:
-        reference = Reference.paper(name)
+    vehicle = _vehicle(args.vehicle)
+    references = _references(args.reference, vehicle)
+    for reference in references:
         if args.horizon * args.dt >= reference.t_end - reference.t_start:
             raise _UsageError(
                 f"--horizon {args.horizon} x --dt {args.dt:g} s = {args.horizon * args.dt:g} s must be "
-                f"shorter than the window of {name}, [{reference.t_start:g}, {reference.t_end:g}] s"
+                f"shorter than the window of {reference.name}, [{reference.t_start:g}, {reference.t_end:g}] s"
             )
     _output_folder(args.out)
+    return vehicle, references
 
 
-def _problem(name: str, horizon: int = 20):
-    from uuv_ocp import TrackingProblem, Vehicle
-    from uuv_ocp.reference.path import Reference
+def _problem(args: argparse.Namespace, horizon: int = 20):
+    from uuv_ocp import TrackingProblem
 
-    return TrackingProblem(Vehicle.rexrov(), Reference.paper(name), horizon=horizon)
+    vehicle = _vehicle(args.vehicle)
+    (reference,) = _references(args.reference, vehicle, single=True)
+    return TrackingProblem(vehicle, reference, horizon=horizon)
 
 
 def _run_compare(args: argparse.Namespace) -> int:
     from uuv_ocp.studies.compare import compare, format_comparison
 
     _finite("--t0", args.t0, positive=False)
-    for name in args.solvers:
-        _solver("--solvers", name)
+    solvers = [_solver("--solvers", name) for name in args.solvers]
     if args.seed < 0:
         raise _UsageError(f"--seed must be an integer >= 0, got {args.seed}")
-    problem = _problem(args.reference)
+    problem = _problem(args)
     problem.check_time(args.t0)
     x0 = problem.reference.evaluate([args.t0])[0]
-    rows = compare(problem, args.solvers, x0=x0, t0=args.t0, seed=args.seed)
-    print(f"{args.reference} at t0 = {args.t0} s, on the reference (moving); cost from uuv_ocp.score()")
+    rows = compare(problem, solvers, x0=x0, t0=args.t0, seed=args.seed)
+    print(
+        f"{problem.reference.name} ({problem.vehicle.name}) at t0 = {args.t0} s, on the reference (moving); "
+        "cost from uuv_ocp.score()"
+    )
     print(format_comparison(rows))
     return 0
 
@@ -198,7 +232,7 @@ def _run_codegen(args: argparse.Namespace) -> int:
             f"--population must be an integer >= {MIN_IGWO_POPULATION} (the IGWO step), got {args.population}"
         )
     try:
-        generated = generate_c(_problem(args.reference, args.horizon), args.out, population=args.population)
+        generated = generate_c(_problem(args, args.horizon), args.out, population=args.population)
     except BuildDirectoryError as refused:
         raise _UsageError(f"--out: {refused}") from None
     print(f"library   {generated.library}{' (reused from cache)' if generated.reused else ''}")
@@ -220,12 +254,11 @@ def _run_campaign(args: argparse.Namespace) -> int:
             loaded = load_campaign_file(args.config)
             configs, run = loaded.configs, loaded.run
         else:
-            _solver("--solver", args.solver)
             configs = (
                 CampaignConfig(
-                    reference=args.reference,
+                    reference=" ".join(args.reference),
                     vehicle=args.vehicle,
-                    solver=args.solver,
+                    solver=_solver("--solver", args.solver),
                     trials=args.trials,
                     duration=args.duration,
                     horizon=args.horizon,
@@ -282,13 +315,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _dispatch(args: argparse.Namespace) -> int:
     command = args.command
     if command == "solvers":
-        print("\n".join(available_solvers()))
+        print("\n".join(REGISTRY.names()))
         return 0
     if command == "campaign":
         return _run_campaign(args)
     if command in ("compare", "codegen"):
-        if args.reference not in PAPER_REFERENCES:
-            return _fail(f"--reference must be one of {list(PAPER_REFERENCES)}, got {args.reference!r}")
         try:
             return _run_compare(args) if command == "compare" else _run_codegen(args)
         except ValueError as error:
@@ -299,12 +330,15 @@ def _dispatch(args: argparse.Namespace) -> int:
         except OSError as error:
             return _fail(f"{error.strerror or error}: {error.filename or ''}")
     if command == "demo":
+        from uuv_ocp.model.planar import Vehicle
+
         _output_folder(args.out)
-        names, solver, duration, horizon, dt = PAPER_REFERENCES, "ipopt", 30.0, 20, 0.1
+        vehicle: Any = Vehicle.rexrov()
+        names: list = list(PAPER_REFERENCES)
+        solver, duration, horizon, dt = "ipopt", 30.0, 20, 0.1
     else:
-        _check_track(args)
-        names, solver, duration, horizon, dt = (
-            args.reference,
+        vehicle, names = _check_track(args)
+        solver, duration, horizon, dt = (
             args.solver,
             args.duration,
             args.horizon,
@@ -318,6 +352,7 @@ def _dispatch(args: argparse.Namespace) -> int:
             duration=duration,
             horizon=horizon,
             dt=dt,
+            vehicle=vehicle,
             out_dir=args.out,
             fresh=args.fresh,
         )
@@ -329,7 +364,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     except OSError as error:
         return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
     print()
-    print(f"NMPC tracking, RexROV, N = {horizon}, dt = {dt} s, terminal equality, solver {solver}")
+    print(f"NMPC tracking, {vehicle.name}, N = {horizon}, dt = {dt} s, terminal equality, solver {solver}")
     print("errors in m over the whole run and for t >= t0 + 5 s; solve times per step in ms")
     print(format_tracking_table(rows))
     print(f"\nfigures and saved runs in {args.out}/  ({time.perf_counter() - start:.1f} s)")

@@ -34,7 +34,7 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import instance_parameters
-from uuv_ocp.solvers import get_solver
+from uuv_ocp.solvers import REGISTRY, get_solver
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.result import Iterate, SolveResult
 
@@ -92,7 +92,7 @@ class NMPC:
         warm_start: bool = True,
     ) -> None:
         self.problem = problem
-        self.solver_name = solver
+        self.solver_name = REGISTRY.resolve(solver)  # the registered spelling: "IPOPT" -> "ipopt"
         self.backend = get_solver(problem, solver, options)
         if seed is not None:
             seed = check.positive_int("seed", seed, minimum=0)

@@ -8,6 +8,7 @@ of the same problem never rebuild CasADi objects.
 
 from __future__ import annotations
 
+import difflib
 import json
 from collections.abc import Callable
 from typing import Any
@@ -63,9 +64,9 @@ class SolverRegistry:
 
     def kind(self, name: str) -> str:
         """``"exact"``, ``"swarm"``, ``"hybrid"`` or ``"multistart"``."""
+        name = self.resolve(name)
         if name in self._factories:
             return self._factories[name][1]
-        self.factory(name)  # raises for unknown names
         return "hybrid" if "+" in name else "multistart"
 
     def names(self) -> list[str]:
@@ -76,28 +77,56 @@ class SolverRegistry:
         multistarts = [f"multistart-{second}" for second in exact]
         return sorted({*self._factories, *hybrids, *multistarts})
 
-    def factory(self, name: str) -> SolverFactory:
-        """Return the factory for ``name``; raise ``ValueError`` listing valid names otherwise."""
+    def resolve(self, name: str) -> str:
+        """Return the registered spelling of ``name`` (case-insensitive, halves of hybrids too).
+
+        Raises
+        ------
+        ValueError
+            Unknown name; the message lists the valid names and suggests the closest ones.
+        """
         if not isinstance(name, str):
             raise ValueError(f"solver must be a string from available_solvers(), got {name!r}")
+        if name in self._factories:
+            return name
+        spelled = {registered.lower(): registered for registered in self._factories}
+        lowered = name.strip().lower()
+        if "+" in lowered:
+            first, _, second = lowered.partition("+")
+            swarm, exact = spelled.get(first), spelled.get(second)
+            if (
+                swarm
+                and exact
+                and self._factories[swarm][1] == "swarm"
+                and self._factories[exact][1] == "exact"
+            ):
+                return f"{swarm}+{exact}"
+        elif lowered.startswith("multistart-"):
+            inner = spelled.get(lowered[len("multistart-") :])
+            if inner is not None and self._factories[inner][1] == "exact":
+                return f"multistart-{inner}"
+        elif lowered in spelled:
+            return spelled[lowered]
+        names = self.names()
+        close = difflib.get_close_matches(lowered, [known.lower() for known in names], n=3, cutoff=0.6)
+        hint = f"; did you mean {' or '.join(repr(n) for n in close)}?" if close else ""
+        raise ValueError(
+            f"solver must be one of {names} (or '<swarm>+<exact>', 'multistart-<exact>'), got {name!r}{hint}"
+        )
+
+    def factory(self, name: str) -> SolverFactory:
+        """Return the factory for ``name`` (see :meth:`resolve`); ``ValueError`` if unknown."""
+        name = self.resolve(name)
         if name in self._factories:
             return self._factories[name][0]
         if "+" in name:
             from uuv_ocp.solvers.hybrid import hybrid_factory
 
             first, _, second = name.partition("+")
-            swarm, exact = self._factories.get(first), self._factories.get(second)
-            if swarm is not None and exact is not None and swarm[1] == "swarm" and exact[1] == "exact":
-                return hybrid_factory(name, swarm[0], exact[0])
-        elif name.startswith("multistart-"):
-            from uuv_ocp.solvers.multistart import multistart_factory
+            return hybrid_factory(name, self._factories[first][0], self._factories[second][0])
+        from uuv_ocp.solvers.multistart import multistart_factory
 
-            inner = self._factories.get(name[len("multistart-") :])
-            if inner is not None and inner[1] == "exact":
-                return multistart_factory(name, inner[0])
-        raise ValueError(
-            f"solver must be one of {self.names()} (or '<swarm>+<exact>', 'multistart-<exact>'), got {name!r}"
-        )
+        return multistart_factory(name, self._factories[name[len("multistart-") :]][0])
 
 
 REGISTRY = SolverRegistry(_BUILTIN)
@@ -128,6 +157,7 @@ def get_solver(problem: Transcribed, name: str, options: dict[str, Any] | None =
         raise ValueError(f"problem must be a uuv_ocp.Ocp or TrackingProblem, got {type(problem).__name__}")
     if options is not None and not isinstance(options, dict):
         raise ValueError(f"options must be a dict or None, got {options!r}")
+    name = REGISTRY.resolve(name)
     factory = REGISTRY.factory(name)
     cache = problem._store.setdefault("solvers", {})
     key = (name, _options_key(options))

@@ -24,10 +24,9 @@ from __future__ import annotations
 import dataclasses
 import functools
 import hashlib
-import importlib
 import math
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -39,9 +38,9 @@ from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
-from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.reference.path import Reference
+from uuv_ocp.specs import reference_from_spec, vehicle_from_spec
 from uuv_ocp.studies.executors import EXECUTORS, TaskRunner, require_dask
 from uuv_ocp.studies.records import (
     INDEX_NAME,
@@ -72,42 +71,6 @@ __all__ = [
 
 #: Vehicles whose rounded "controller" model ``mismatch=True`` uses when no model is named.
 ROUNDED_MODELS = {"rexrov": "rexrov-controller"}
-
-
-def _specs() -> Any:
-    """Return :mod:`uuv_ocp.specs`, or ``None`` in a version without it."""
-    try:
-        return importlib.import_module("uuv_ocp.specs")
-    except ImportError:
-        return None
-
-
-def vehicle_from_spec(spec: str) -> Any:
-    """Return a vehicle from a spec string (:func:`uuv_ocp.specs.vehicle_from_spec`; presets without it)."""
-    specs = _specs()
-    if specs is not None:
-        return specs.vehicle_from_spec(spec)
-    from uuv_ocp.model.fossen6dof import Vehicle6DOF
-
-    presets: dict[str, Callable[[], Any]] = {
-        "rexrov": Vehicle.rexrov,
-        "rexrov-controller": Vehicle.rexrov_controller_model,
-        "bluerov2-heavy": Vehicle6DOF.bluerov2_heavy,
-        "rexrov2": Vehicle6DOF.rexrov2,
-    }
-    if spec not in presets:
-        raise ValueError(f"vehicle must be one of {list(presets)}, got {spec!r}")
-    return presets[spec]()
-
-
-def reference_from_spec(spec: str, spatial: bool) -> Reference:
-    """Return a reference from a spec (:func:`uuv_ocp.specs.reference_from_spec`; s1..s10 without it)."""
-    specs = _specs()
-    if specs is not None:
-        return specs.reference_from_spec(spec, spatial=spatial)
-    reference = Reference.paper(spec)
-    # flown at 5 m depth (z down) by a 6-DOF vehicle, as uuv_ocp.specs.lift_to_depth does
-    return dataclasses.replace(reference, path_z=lambda t: 0.0 * t + 5.0) if spatial else reference
 
 
 def _reference_fingerprint(reference: Reference, t_end: float) -> str:

@@ -37,18 +37,13 @@ the working directory, as on the command line.
 
 from __future__ import annotations
 
-import sys
+import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from uuv_ocp.studies.campaign import CampaignConfig
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10 reads TOML through the tomli backport
-    import tomli as tomllib
 
 CAMPAIGN_KEYS = (
     "vehicle",

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import re
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -23,11 +24,14 @@ from uuv_ocp.build import Transcribed
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import SimulationInterrupted, simulate
 from uuv_ocp.judge import score_terms
+from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
-from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
+from uuv_ocp.plotting import save_tracking_figures
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
 from uuv_ocp.studies.records import config_key, read_record, write_record
 from uuv_ocp.tracking import ReferenceSpeedWarning, TrackingProblem
+
+AnyVehicle = Vehicle | Vehicle6DOF
 
 
 @dataclass(frozen=True)
@@ -42,25 +46,46 @@ class TrackingRow:
     note: str
 
 
-def reference_speed_note(
-    reference: Reference, vehicle: Vehicle, t0: float, duration: float
-) -> tuple[float, str]:
-    """Largest path speed on the run (m/s) and a note if it exceeds the vehicle's top speed.
+def unreachable_from(reference: Reference, vehicle: AnyVehicle, t0: float, duration: float) -> float | None:
+    """First time (s) on ``[t0, t0 + duration]`` at which the path is faster than the vehicle.
 
     The top speed is over ground with crabbing allowed (:meth:`Vehicle.max_horizontal_speed`:
     surge and sway thrust together, the Munk moment held by the yaw thrust), the physical
-    limit of position tracking; the surge-only figure (``max_speed()[0]``) is lower.
+    limit of position tracking; the surge-only figure (``max_speed()[0]``) is lower.  ``None``
+    when the path stays within reach, or for a vehicle without that bound (6-DOF).
     """
+    if not isinstance(vehicle, Vehicle):
+        return None
     times = np.linspace(t0, t0 + duration, 3001)
-    speed = reference.evaluate(times)[:, 3]
+    speed = _path_speed(reference, times)
+    over = times[speed > vehicle.max_horizontal_speed()[0]]
+    return float(over[0]) if over.size else None
+
+
+def _path_speed(reference: Reference, times: np.ndarray) -> np.ndarray:
+    states = reference.evaluate(times)
+    if reference.spatial:  # body-frame horizontal velocity (u_R, v_R) in columns 6, 7
+        return np.hypot(states[:, 6], states[:, 7])
+    return np.hypot(states[:, 3], states[:, 4])
+
+
+def reference_speed_note(
+    reference: Reference, vehicle: AnyVehicle, t0: float, duration: float
+) -> tuple[float, str]:
+    """Largest path speed on the run (m/s) and a note if it exceeds the vehicle's top speed.
+
+    See :func:`unreachable_from` for the top speed.
+    """
+    speed = float(_path_speed(reference, np.linspace(t0, t0 + duration, 3001)).max())
+    start = unreachable_from(reference, vehicle, t0, duration)
+    if start is None:
+        return speed, ""
+    assert isinstance(vehicle, Vehicle)
     top, crab = vehicle.max_horizontal_speed()
-    over = times[speed > top]
-    if over.size:
-        return float(speed.max()), (
-            f"path speed > {top:.2f} m/s (top speed, crabbing at {np.degrees(crab):.0f}°) "
-            f"from t = {over[0]:.1f} s"
-        )
-    return float(speed.max()), ""
+    return (
+        speed,
+        f"path speed > {top:.2f} m/s (top speed, crabbing at {np.degrees(crab):.0f}°) from t = {start:.1f} s",
+    )
 
 
 def run_settings(
@@ -88,36 +113,39 @@ def run_settings(
 
 
 def track_references(
-    names: Sequence[str] = PAPER_REFERENCES,
+    names: Sequence[str | Reference] = PAPER_REFERENCES,
     solver: str = "ipopt",
     *,
     duration: float = 30.0,
     horizon: int = 20,
     dt: float = 0.1,
-    vehicle: Vehicle | None = None,
+    vehicle: AnyVehicle | None = None,
     out_dir: str | Path = "out",
     fresh: bool = False,
     progress: bool = True,
     figures: bool = True,
     solver_options: dict | None = None,
 ) -> list[TrackingRow]:
-    """Closed-loop NMPC on each named reference, from rest on the path; resumable.
+    """Closed-loop NMPC on each reference (paper name or :class:`Reference`) from rest; resumable.
 
-    Returns one :class:`TrackingRow` per reference and writes ``<ref>_xoy.png`` and
-    ``<ref>_errors.png`` into ``out_dir`` when ``figures`` is true.
+    Returns one :class:`TrackingRow` per reference and, when ``figures`` is true, writes
+    ``<ref>_xoy.png``, ``<ref>_errors.png``, ``<ref>_thrust.png`` and ``<ref>_states.png`` into
+    ``out_dir``, the part of the run where the path is faster than the vehicle shaded.
     """
     vehicle = vehicle or Vehicle.rexrov()
     out_dir = Path(out_dir)
     runs_dir = out_dir / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
     rows = []
-    for name in names:
-        reference = Reference.paper(name)
+    for item in names:
+        reference = item if isinstance(item, Reference) else Reference.paper(item)
+        name = reference.name
         problem = TrackingProblem(vehicle, reference, horizon=horizon, dt=dt)
         t0 = reference.t_start
         run_duration = min(duration, problem.latest_start() - t0)
         settings = run_settings(problem, solver, solver_options, t0, run_duration)
-        path = runs_dir / f"{name}_{solver.replace('+', '-')}_{config_key(settings)[:12]}.npz"
+        label = re.sub(r"[^A-Za-z0-9_.-]+", "-", f"{name}_{solver}")  # a file name whatever the path's name
+        path = runs_dir / f"{label}_{config_key(settings)[:12]}.npz"
         saved = None if fresh else read_record(path, settings, steps=int(np.floor(run_duration / dt + 1e-9)))
         if saved is not None:
             run = saved[0]
@@ -140,8 +168,14 @@ def track_references(
             write_record(path, run, settings)
         speed_max, note = reference_speed_note(reference, vehicle, t0, run_duration)
         if figures:
-            save_figure(xoy_figure(run, f"{name}: {reference.description}"), out_dir / f"{name}_xoy.png")
-            save_figure(error_figure(run, f"{name}: tracking error"), out_dir / f"{name}_errors.png")
+            save_tracking_figures(
+                run,
+                out_dir,
+                prefix=f"{name}_",
+                labels=[f"{name} {solver}"],
+                vehicle=vehicle,
+                unreachable_from=unreachable_from(reference, vehicle, t0, run_duration),
+            )
         rows.append(TrackingRow(name, solver, run.metrics(), run_duration, speed_max, note))
     return rows
 

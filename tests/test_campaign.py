@@ -291,3 +291,16 @@ def test_a_campaign_file_with_an_unknown_key_is_one_error_naming_it(tmp_path, ca
     bad.write_text('[campaign]\nreference = "s2"\n[disturbances]\nmax_current = 1\n')
     assert cli.main(["campaign", "--config", str(bad), "--out", str(tmp_path)]) == 2
     assert "unknown key 'disturbances'" in capsys.readouterr().err
+
+
+def test_any_vehicle_and_path_from_files_and_the_key_follows_their_content(tmp_path):
+    vehicle = tmp_path / "rov.toml"
+    vehicle.write_text((ROOT / "examples" / "vehicles" / "light_rov.toml").read_text())
+    path = f"waypoints {ROOT / 'examples' / 'paths' / 'survey.csv'}"
+    config = small(vehicle=str(vehicle), controller_model="rexrov", reference=path, trials=1)
+    result = run_campaign(config, tmp_path / "out", workers=1, progress=False)
+    assert result.summary["faults"] == 0 and result.trials[0]["steps"] == 20
+    assert result.config.settings()["plant_content"].mass == 1200.0
+    vehicle.write_text(vehicle.read_text().replace("mass = 1200.0", "mass = 1300.0"))  # same spec, new vehicle
+    edited = small(vehicle=str(vehicle), controller_model="rexrov", reference=path, trials=1)
+    assert edited.name != config.name

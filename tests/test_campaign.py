@@ -301,6 +301,7 @@ def test_any_vehicle_and_path_from_files_and_the_key_follows_their_content(tmp_p
     result = run_campaign(config, tmp_path / "out", workers=1, progress=False)
     assert result.summary["faults"] == 0 and result.trials[0]["steps"] == 20
     assert result.config.settings()["plant_content"].mass == 1200.0
-    vehicle.write_text(vehicle.read_text().replace("mass = 1200.0", "mass = 1300.0"))  # same spec, new vehicle
+    # the same spec, another vehicle
+    vehicle.write_text(vehicle.read_text().replace("mass = 1200.0", "mass = 1300.0"))
     edited = small(vehicle=str(vehicle), controller_model="rexrov", reference=path, trials=1)
     assert edited.name != config.name

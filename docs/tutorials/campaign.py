@@ -34,7 +34,8 @@ def main(
     # the same campaign with more trials: the same folder, the first trials read back
     bigger = CampaignConfig(reference="s2", solver=solver, trials=more, duration=duration, horizon=horizon)
     second = run_campaign(bigger, out, workers=workers, progress=False)
-    print(f"{more} trials: {second.resumed} read back from {second.directory.name}, {more - second.resumed} run")
+    ran = more - second.resumed
+    print(f"{more} trials: {second.resumed} read back from {second.directory.name}, {ran} run")
     print(format_summary(second))
     rows = query_trials(out, campaign=bigger.name)
     print(f"\n{'trial':>5}{'current m/s':>12}{'max|e_x| m':>12}{'max|e_y| m':>12}{'fallbacks':>10}")

@@ -119,3 +119,13 @@ def test_solver_names_are_case_insensitive():
     problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=5)
     assert uo.NMPC(problem, "SQP").solver_name == "sqp"
     assert uo.get_solver(problem, "SQP") is uo.get_solver(problem, "sqp")  # one backend per name
+
+
+def test_solvers_name_prints_that_backends_declared_options(capsys):
+    from uuv_ocp.solvers.options import declared_options
+
+    assert cli.main(["solvers", "Fatrop"]) == 0
+    rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| `")]
+    assert [row.split("`")[1] for row in rows] == [option.name for option in declared_options("fatrop")]
+    assert cli.main(["solvers", "fatrp"]) == 2
+    assert "did you mean 'fatrop'" in capsys.readouterr().err

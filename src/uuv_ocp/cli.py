@@ -65,7 +65,8 @@ def _parser() -> argparse.ArgumentParser:
     track.add_argument("--out", default="out", help="output folder")
     track.add_argument("--fresh", action="store_true", help="recompute saved runs")
 
-    commands.add_parser("solvers", help="list the registered solver names")
+    solvers = commands.add_parser("solvers", help="list the registered solver names, or one's options")
+    solvers.add_argument("name", nargs="?", help="print this solver's options (a Markdown table)")
 
     compare = commands.add_parser("compare", help="one instance, several solvers, one judge")
     compare.add_argument("--reference", "-r", nargs="+", default=["s2"], help=_REFERENCE_HELP)
@@ -315,7 +316,12 @@ def main(argv: Sequence[str] | None = None) -> int:
 def _dispatch(args: argparse.Namespace) -> int:
     command = args.command
     if command == "solvers":
-        print("\n".join(REGISTRY.names()))
+        if args.name is None:
+            print("\n".join(REGISTRY.names()))
+            return 0
+        from uuv_ocp.solvers.options import options_table
+
+        print(options_table(_solver("NAME", args.name)))
         return 0
     if command == "campaign":
         return _run_campaign(args)

@@ -4,8 +4,21 @@ from __future__ import annotations
 
 from typing import Any
 
-from uuv_ocp.solvers.nlp import NlpSolver
+from uuv_ocp.solvers.ipopt import IPOPT_MAX_ITER
+from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
+from uuv_ocp.solvers.options import Option, option_names, revise
 from uuv_ocp.transcription.multiple_shooting import NlpData
+
+FATROP_MAX_ITER = 200
+"""Fatrop's iteration limit when ``max_iter`` is ``None``."""
+
+FATROP_OPTIONS: tuple[Option, ...] = revise(
+    NLP_OPTIONS,
+    max_iter={"meaning": f"{FATROP_MAX_ITER} (`fatrop.max_iter`; its IPOPT rescue: {IPOPT_MAX_ITER})"},
+    plugin_options={
+        "description": "merged into the CasADi `nlpsol` options of every fatrop attempt (robust retry too)"
+    },
+)
 
 
 class FatropSolver(NlpSolver):
@@ -24,6 +37,8 @@ class FatropSolver(NlpSolver):
 
     name = "fatrop"
     plugin = "fatrop"
+    OPTIONS = FATROP_OPTIONS
+    option_names = option_names(FATROP_OPTIONS)
 
     def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
         """Fatrop on the detected stage structure, tolerance 1e-8, ``mu_init = 1e-4``."""
@@ -33,7 +48,7 @@ class FatropSolver(NlpSolver):
             "expand": True,
             "fatrop.print_level": 0,
             "fatrop.tol": 1e-8,
-            "fatrop.max_iter": self.max_iter or 200,
+            "fatrop.max_iter": self.max_iter or FATROP_MAX_ITER,
             "fatrop.mu_init": 1e-4,
         }
 

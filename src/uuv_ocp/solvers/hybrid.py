@@ -46,10 +46,39 @@ from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers.multistart import best_result, plan_guess
+from uuv_ocp.solvers.options import Option, option_defaults
 from uuv_ocp.solvers.result import Iterate, SolveResult
 
 SWARM_SHARE = 0.5
 """Share of a hybrid's ``deadline`` given to its swarm; the exact stage gets the rest."""
+
+
+HYBRID_OPTIONS: tuple[Option, ...] = (
+    Option("swarm", None, "dict or `None`", "options of the swarm half", meaning="its defaults"),
+    Option("exact", None, "dict or `None`", "options of the exact half", meaning="its defaults"),
+    Option(
+        "candidates",
+        1,
+        "int >= 1",
+        "the exact half starts from the swarm's best k distinct plans; the best result is returned",
+    ),
+    Option(
+        "candidate_distance",
+        None,
+        "float > 0 or `None`",
+        "passed to the swarm: RMS distance by which two candidate plans must differ",
+        meaning="the swarm's default",
+    ),
+    Option(
+        "deadline",
+        None,
+        "float > 0 or `None`",
+        f"wall-time budget of the whole solve: {SWARM_SHARE:.0%} for the swarm, the rest for the exact half",
+        unit="s",
+        meaning="none",
+    ),
+)
+"""Options of every ``"<swarm>+<exact>"`` hybrid."""
 
 
 class HybridSolver:
@@ -179,11 +208,14 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
 
     def factory(problem: Transcribed, options: dict[str, Any] | None = None) -> HybridSolver:
         options = dict(options or {})
-        swarm_options = options.pop("swarm", None)
-        exact_options = options.pop("exact", None)
-        candidates = check.positive_int("options['candidates']", options.pop("candidates", 1))
-        distance = options.pop("candidate_distance", None)
-        deadline = options.pop("deadline", None)
+        default = option_defaults(HYBRID_OPTIONS)
+        swarm_options = options.pop("swarm", default["swarm"])
+        exact_options = options.pop("exact", default["exact"])
+        candidates = check.positive_int(
+            "options['candidates']", options.pop("candidates", default["candidates"])
+        )
+        distance = options.pop("candidate_distance", default["candidate_distance"])
+        deadline = options.pop("deadline", default["deadline"])
         if options:
             raise ValueError(
                 f"options of {name!r} take only 'swarm' and 'exact' dicts, 'candidates', "
@@ -216,4 +248,5 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
                     )
         return hybrid
 
+    factory.OPTIONS = HYBRID_OPTIONS  # type: ignore[attr-defined]  # the declaration the docs read
     return factory

@@ -4,8 +4,16 @@ from __future__ import annotations
 
 from typing import Any
 
-from uuv_ocp.solvers.nlp import NlpSolver
+from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
+from uuv_ocp.solvers.options import Option, option_names, revise
 from uuv_ocp.transcription.multiple_shooting import NlpData
+
+IPOPT_MAX_ITER = 200
+"""IPOPT's iteration limit when ``max_iter`` is ``None``."""
+
+IPOPT_OPTIONS: tuple[Option, ...] = revise(
+    NLP_OPTIONS, max_iter={"meaning": f"{IPOPT_MAX_ITER} (`ipopt.max_iter`)"}
+)
 
 
 class IpoptSolver(NlpSolver):
@@ -13,6 +21,8 @@ class IpoptSolver(NlpSolver):
 
     name = "ipopt"
     plugin = "ipopt"
+    OPTIONS = IPOPT_OPTIONS
+    option_names = option_names(IPOPT_OPTIONS)
 
     def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
         """Return :func:`ipopt_options` for this backend's ``max_iter`` and ``deadline``."""
@@ -33,7 +43,7 @@ def ipopt_options(max_iter: int | None, deadline: float | None) -> dict[str, Any
         "ipopt.print_level": 0,
         "ipopt.sb": "yes",
         "ipopt.tol": 1e-8,
-        "ipopt.max_iter": max_iter or 200,
+        "ipopt.max_iter": max_iter or IPOPT_MAX_ITER,
         "ipopt.warm_start_init_point": "yes",
         "ipopt.warm_start_bound_push": 1e-8,
         "ipopt.warm_start_mult_bound_push": 1e-8,

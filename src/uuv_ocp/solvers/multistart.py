@@ -52,6 +52,7 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.solvers.options import Option, option_defaults, option_names
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.transcription.condensed import encode
 
@@ -59,6 +60,24 @@ PREFIX = "multistart-"
 DEFAULT_STARTS = 8
 STRUCTURED_LEVEL = 0.5  # scaled control of the "±50 %" starts
 RANDOM_KNOTS = 4
+
+
+MULTISTART_OPTIONS: tuple[Option, ...] = (
+    Option(
+        "starts", DEFAULT_STARTS, "int >= 1", "number of initial guesses K (the first K of the list above)"
+    ),
+    Option("seed", 0, "int >= 0", "seed of the random starts when the caller passes no generator"),
+    Option("exact", None, "dict or `None`", "options of the exact backend", meaning="its defaults"),
+    Option(
+        "deadline",
+        None,
+        "float > 0 or `None`",
+        "wall-time budget of the whole solve; no start begins after it",
+        unit="s",
+        meaning="none",
+    ),
+)
+"""Options of every ``"multistart-<exact>"`` backend."""
 
 
 def rank_key(result: SolveResult) -> tuple[int, int, float]:
@@ -250,16 +269,17 @@ def multistart_factory(name: str, exact: Callable) -> Callable:
 
     def factory(problem: Transcribed, options: dict[str, Any] | None = None) -> MultistartSolver:
         options = dict(options or {})
-        starts = check.positive_int("options['starts']", options.pop("starts", DEFAULT_STARTS))
-        seed = check.positive_int("options['seed']", options.pop("seed", 0), minimum=0)
-        exact_options = options.pop("exact", None)
+        default = option_defaults(MULTISTART_OPTIONS)
+        starts = check.positive_int("options['starts']", options.pop("starts", default["starts"]))
+        seed = check.positive_int("options['seed']", options.pop("seed", default["seed"]), minimum=0)
+        exact_options = options.pop("exact", default["exact"])
         if exact_options is not None and not isinstance(exact_options, dict):
             raise ValueError(f"options['exact'] of {name!r} must be a dict, got {exact_options!r}")
-        deadline = options.pop("deadline", None)
+        deadline = options.pop("deadline", default["deadline"])
         if options:
             raise ValueError(
                 f"unknown options for solver {name!r}: {sorted(options)}; "
-                "valid: ['deadline', 'exact', 'seed', 'starts']"
+                f"valid: {list(option_names(MULTISTART_OPTIONS))}"
             )
         if deadline is not None:
             deadline = check.positive_float(f"options['deadline'] of {name!r}", deadline)
@@ -273,4 +293,5 @@ def multistart_factory(name: str, exact: Callable) -> Callable:
             )
         return MultistartSolver(name, problem, backend, starts, seed, deadline)
 
+    factory.OPTIONS = MULTISTART_OPTIONS  # type: ignore[attr-defined]  # the declaration the docs read
     return factory

@@ -51,6 +51,7 @@ from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import score_parameters
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers.base import reraise_interrupt
+from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.transcription.multiple_shooting import NlpData, transfer_map
 
@@ -141,6 +142,84 @@ def _with_slack_curvature(data: NlpData, curvature: float) -> NlpData:
     return dataclasses.replace(data, nlp=nlp, residual=ca.vertcat(data.residual, extra))
 
 
+NLP_OPTIONS: tuple[Option, ...] = (
+    Option(
+        "terminal_strategy",
+        "sticky",
+        one_of(TERMINAL_STRATEGIES),
+        'hard NLP, soft fallback and which is tried first (see "Terminal equality policy")',
+    ),
+    Option(
+        "terminal_penalty",
+        None,
+        "float > 0 or `None`",
+        "ρ of the soft NLP's exact penalty ρ Σ|x_N − x_R,N| on the terminal equality",
+        unit="cost per unit of the terminal equality",
+        meaning="the problem's (`Ocp(terminal_penalty=)`; tracking preset: `Weights.terminal_penalty`)",
+    ),
+    Option(
+        "penalty_escalation",
+        (),
+        "tuple of factors > 0",
+        "factors ρ is multiplied by in turn, warm-started, while the soft solve fails",
+        meaning="none",
+    ),
+    Option(
+        "slack_curvature",
+        0.0,
+        "float >= 0",
+        "μ of an added (μ/2) Σ s² on the terminal slacks (an L1 + L2 exact penalty)",
+    ),
+    Option(
+        "slack_tolerance",
+        1e-7,
+        "float > 0",
+        "largest terminal slack of a soft solve still reported as the equality held",
+        unit="those of the terminal equality (tracking: the states')",
+    ),
+    Option(
+        "max_iter",
+        None,
+        "int >= 1 or `None`",
+        "iteration limit of one attempt of the plugin",
+        meaning="the backend's own limit",
+    ),
+    Option(
+        "objective_scale",
+        1.0,
+        "float > 0",
+        "factor on the objective the plugin sees (its absolute tolerances against the weights)",
+    ),
+    Option(
+        "deadline",
+        None,
+        "float > 0 or `None`",
+        'wall-time budget of one solve (see "Deadlines")',
+        unit="s",
+        meaning="none",
+    ),
+    Option(
+        "compiled",
+        False,
+        "`True` or `False`",
+        "JIT-compile the NLP functions with the system C compiler (none: the virtual machine, one warning)",
+    ),
+    Option(
+        "still_water",
+        True,
+        "`True` or `False`",
+        "solve the NLP specialised to zero current when the model's current is zero on the whole horizon",
+    ),
+    Option(
+        "plugin_options",
+        {},
+        "dict",
+        "merged into the CasADi `nlpsol` options, over this backend's settings",
+    ),
+)
+"""Options of every :class:`NlpSolver` (subclasses revise defaults and add their own)."""
+
+
 class NlpSolver:
     """Solve any :class:`~uuv_ocp.ocp.Ocp` (or tracking preset) with one ``casadi.nlpsol`` plugin.
 
@@ -148,10 +227,10 @@ class NlpSolver:
     ----------
     problem : Ocp or TrackingProblem
     options : dict, optional
-        ``terminal_strategy`` (see module doc), ``slack_tolerance`` (default 1e-7),
-        ``max_iter``, ``plugin_options`` (a dict merged into the CasADi plugin options),
-        ``deadline`` (seconds, finite > 0, see module doc) and ``still_water`` (default
-        ``True``, see below).
+        The options of :data:`OPTIONS` (for this class :data:`NLP_OPTIONS`: name, default,
+        values and meaning of each; rendered as a table in docs/solvers.md), among them
+        ``terminal_strategy`` and ``deadline`` (see module doc) and ``still_water`` (see
+        below).
 
     Notes
     -----
@@ -170,42 +249,29 @@ class NlpSolver:
     name = "nlp"
     plugin = ""
     uses_duals = True
-    default_objective_scale = 1.0
-    default_terminal_penalty: float | None = None  # None: the problem's Weights.terminal_penalty
-    default_penalty_escalation: tuple[float, ...] = ()
-    default_slack_curvature = 0.0
     levenberg_marquardt = 0.0
-    # every key ``options`` may hold; a subclass that pops options of its own extends this tuple
-    option_names: tuple[str, ...] = (
-        "compiled",
-        "deadline",
-        "max_iter",
-        "objective_scale",
-        "penalty_escalation",
-        "plugin_options",
-        "slack_curvature",
-        "slack_tolerance",
-        "still_water",
-        "terminal_penalty",
-        "terminal_strategy",
-    )
+    # the options ``options`` may hold, with their defaults (see uuv_ocp.solvers.options); a
+    # subclass with options or defaults of its own declares its own tuple
+    OPTIONS: tuple[Option, ...] = NLP_OPTIONS
+    option_names: tuple[str, ...] = option_names(NLP_OPTIONS)
 
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
         options = dict(options or {})
+        default = option_defaults(self.OPTIONS)
         self.problem = problem
         self.terminal_strategy = check.choice(
             "options['terminal_strategy']",
-            options.pop("terminal_strategy", "sticky"),
+            options.pop("terminal_strategy", default["terminal_strategy"]),
             TERMINAL_STRATEGIES,
         )
         self.slack_tolerance = check.positive_float(
-            "options['slack_tolerance']", options.pop("slack_tolerance", 1e-7)
+            "options['slack_tolerance']", options.pop("slack_tolerance", default["slack_tolerance"])
         )
         self.objective_scale = check.positive_float(
             "options['objective_scale']",
-            options.pop("objective_scale", self.default_objective_scale),
+            options.pop("objective_scale", default["objective_scale"]),
         )
-        penalty_escalation = options.pop("penalty_escalation", self.default_penalty_escalation)
+        penalty_escalation = options.pop("penalty_escalation", default["penalty_escalation"])
         if not isinstance(penalty_escalation, tuple | list | np.ndarray):
             raise ValueError(
                 "options['penalty_escalation'] must be a tuple of factors > 0, e.g. (100.0, 1e4), "
@@ -214,19 +280,23 @@ class NlpSolver:
         penalty_escalation = tuple(penalty_escalation)
         for factor in penalty_escalation:
             check.positive_float("options['penalty_escalation'] entries", factor)
-        terminal_penalty = options.pop("terminal_penalty", self.default_terminal_penalty)
+        self.penalty_escalation = penalty_escalation
+        terminal_penalty = options.pop("terminal_penalty", default["terminal_penalty"])
         if terminal_penalty is not None:
             terminal_penalty = check.positive_float("options['terminal_penalty']", terminal_penalty)
+        self.terminal_penalty = terminal_penalty
         self.slack_curvature = check.nonnegative_float(
-            "options['slack_curvature']", options.pop("slack_curvature", self.default_slack_curvature)
+            "options['slack_curvature']", options.pop("slack_curvature", default["slack_curvature"])
         )
-        max_iter = options.pop("max_iter", None)
+        max_iter = options.pop("max_iter", default["max_iter"])
         self.max_iter = None if max_iter is None else check.positive_int("options['max_iter']", max_iter)
-        self.compiled = check.boolean("options['compiled']", options.pop("compiled", False))
-        deadline = options.pop("deadline", None)
+        self.compiled = check.boolean("options['compiled']", options.pop("compiled", default["compiled"]))
+        deadline = options.pop("deadline", default["deadline"])
         self.deadline = None if deadline is None else check.positive_float("options['deadline']", deadline)
-        self.still_water = check.boolean("options['still_water']", options.pop("still_water", True))
-        plugin_options = options.pop("plugin_options", {})
+        self.still_water = check.boolean(
+            "options['still_water']", options.pop("still_water", default["still_water"])
+        )
+        plugin_options = options.pop("plugin_options", default["plugin_options"])
         if not isinstance(plugin_options, dict):
             raise ValueError(f"options['plugin_options'] must be a dict, got {plugin_options!r}")
         if options:

@@ -17,7 +17,8 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
-from uuv_ocp.solvers.nlp import NlpSolver
+from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
+from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names, revise
 from uuv_ocp.solvers.result import Iterate
 from uuv_ocp.transcription.multiple_shooting import NlpData
 
@@ -54,6 +55,42 @@ def _silenced_c_stdout():
             os.close(devnull)
 
 
+HESSIANS = ("gauss-newton", "exact")
+SQP_MAX_ITER = 100
+"""``sqpmethod``'s iteration limit when ``max_iter`` is ``None``."""
+BLOCKSQP_MAX_ITER = 300
+"""The ``blocksqp`` last-resort retry's iteration limit when ``max_iter`` is ``None``."""
+
+# Why these defaults: see the comments in SqpSolver and docs/solvers.md (measured)
+SQP_OPTIONS: tuple[Option, ...] = (
+    *revise(
+        NLP_OPTIONS,
+        penalty_escalation={"default": (100.0, 1e4), "meaning": ""},
+        slack_curvature={"default": 1e4},
+        max_iter={"meaning": f"{SQP_MAX_ITER} (`blocksqp` retry: {BLOCKSQP_MAX_ITER})"},
+        objective_scale={"default": 1e-3},
+    ),
+    Option(
+        "hessian",
+        "gauss-newton",
+        one_of(HESSIANS),
+        "Hessian of the QPs: Gauss–Newton 2JᵣᵀJᵣ (PSD by construction) or CasADi's exact one",
+    ),
+    Option(
+        "levenberg_marquardt",
+        1e-7,
+        "float >= 0",
+        "multiple of the identity added to the Gauss–Newton Hessian (scaled variables)",
+    ),
+    Option(
+        "soft_plugin_options",
+        {"qpsol": "hpipm", "qpsol_options": {"error_on_fail": False}, "max_iter_ls": 15},
+        "dict",
+        "plugin options of the soft NLP variants only (before `plugin_options`)",
+    ),
+)
+
+
 class SqpSolver(NlpSolver):
     """CasADi ``sqpmethod`` with a Gauss–Newton Hessian and the QRQP active-set QP solver.
 
@@ -81,7 +118,6 @@ class SqpSolver(NlpSolver):
 
     name = "sqp"
     plugin = "sqpmethod"
-    default_objective_scale = 1e-3
     # On references the vehicle cannot follow (s8, s9) the soft problem is solved at every
     # step; with ρ = 1e4 sqpmethod cycles between two points (failed line searches) on 135 of
     # 300 steps of s8, with ρ = 1e6 on 50 — but ρ = 1e6 from the start costs failures on the
@@ -92,24 +128,22 @@ class SqpSolver(NlpSolver):
     # ×100 then ×1e4, and (μ/2) Σ s² with μ = 1e4 on the slacks: 44 / 36 -> 24 / 27 failures.
     # The rest is genuine SQP cycling: the Gauss–Newton Hessian omits the dynamics' curvature
     # weighted by multipliers of size ρ, which dominates once the terminal penalty is active.
-    default_penalty_escalation = (100.0, 1e4)
-    default_slack_curvature = 1e4
-    option_names = (*NlpSolver.option_names, "hessian", "levenberg_marquardt", "soft_plugin_options")
-    default_soft_plugin_options: dict[str, Any] = {
-        "qpsol": "hpipm",
-        "qpsol_options": {"error_on_fail": False},
-        "max_iter_ls": 15,
-    }
+    # (defaults in SQP_OPTIONS: penalty_escalation (100, 1e4), slack_curvature 1e4,
+    # soft_plugin_options with HPIPM and max_iter_ls 15)
+    OPTIONS = SQP_OPTIONS
+    option_names = option_names(SQP_OPTIONS)
 
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
         options = dict(options or {})
+        default = option_defaults(self.OPTIONS)
         self.hessian = check.choice(
-            "options['hessian']", options.pop("hessian", "gauss-newton"), ("gauss-newton", "exact")
+            "options['hessian']", options.pop("hessian", default["hessian"]), HESSIANS
         )
         self.levenberg_marquardt = check.nonnegative_float(
-            "options['levenberg_marquardt']", options.pop("levenberg_marquardt", 1e-7)
+            "options['levenberg_marquardt']",
+            options.pop("levenberg_marquardt", default["levenberg_marquardt"]),
         )
-        soft_plugin_options = options.pop("soft_plugin_options", self.default_soft_plugin_options)
+        soft_plugin_options = options.pop("soft_plugin_options", default["soft_plugin_options"])
         if not isinstance(soft_plugin_options, dict):
             raise ValueError(f"options['soft_plugin_options'] must be a dict, got {soft_plugin_options!r}")
         self.soft_plugin_options = soft_plugin_options
@@ -127,7 +161,7 @@ class SqpSolver(NlpSolver):
                 "error_on_fail": False,
                 "max_iter": 100,
             },
-            "max_iter": self.max_iter or 100,
+            "max_iter": self.max_iter or SQP_MAX_ITER,
             "tol_pr": 1e-8,
             "tol_du": 1e-6,
             "print_header": False,
@@ -155,7 +189,7 @@ class SqpSolver(NlpSolver):
             # its feasibility restoration builds an inner blockSQP on MA27 as well: without it
             # a failed line search is a failure, not a missing-library exception (cold starts)
             "restore_feas": False,
-            "max_iter": self.max_iter or 300,
+            "max_iter": self.max_iter or BLOCKSQP_MAX_ITER,
             "print_header": False,
             "print_iteration": False,
             "print_maxit_reached": False,

@@ -50,6 +50,7 @@ from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import score_terms
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
+from uuv_ocp.solvers.options import AUTO, Option, format_value, one_of, option_defaults, option_names
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.transcription.condensed import encode
 
@@ -111,6 +112,106 @@ of the coordinate range on average).  ``"states"`` is the default because plans 
 homotopy class can be far apart in ``W`` while paths in different classes can be close: on a
 planar obstacle field (benchmarks/bench_nonconvex.py) the 6 best plans at ``W`` distance 0.2 all
 passed the obstacles on the same side in 10 of 10 instances."""
+
+
+PARALLELIZATIONS = ("serial", "thread")
+
+
+def swarm_options(method: str) -> tuple[Option, ...]:
+    """Options of the swarm backend ``method``: the population and iterations are its algorithm's."""
+    check.choice("method", method, sorted(ALGORITHMS))
+    algorithm = ALGORITHMS[method]
+    per_metric = ", ".join(f'{d:g} for `candidate_metric="{m}"`' for m, d in CANDIDATE_DISTANCE.items())
+    own = format_value(dict(algorithm.default_options))
+    return (
+        Option(
+            "population",
+            algorithm.default_population,
+            "int >= 4",
+            "individuals evaluated per iteration",
+            meaning="the paper's budget",
+        ),
+        Option(
+            "iterations",
+            algorithm.default_iterations,
+            "int >= 1",
+            "iteration budget T (the schedules run over it)",
+            meaning="the paper's budget",
+        ),
+        Option(
+            "max_evaluations",
+            None,
+            "int >= `population` or `None`",
+            "cap on the cost evaluations of one solve, initial population included",
+            meaning="no cap",
+        ),
+        Option(
+            "seed", 0, "int >= 0", "seed of `numpy.random.default_rng` when the caller passes no generator"
+        ),
+        Option(
+            "search",
+            "deviation",
+            one_of(SEARCH_MODES),
+            "search the deviation from a centre plan (the shifted previous plan) or the controls themselves",
+        ),
+        Option(
+            "seed_warm_start", True, "`True` or `False`", "the centre plan is one of the initial individuals"
+        ),
+        Option(
+            "parallelization",
+            "serial",
+            one_of(PARALLELIZATIONS),
+            "CasADi `map` evaluation of the population's cost on the virtual machine",
+        ),
+        Option(
+            "algorithm_options",
+            None,
+            "dict or `None`",
+            "parameters of the algorithm, each replacing its default",
+            meaning=f"the algorithm's defaults, `{own}`",
+        ),
+        Option(
+            "compiled",
+            "auto",
+            '`"auto"`, `True` or `False`',
+            "compiled SIMD fitness and, for IGWO, the all-C step (a problem's first build takes a while)",
+            meaning=f"compiled wherever a C compiler exists, unless the environment sets `{COMPILED_ENV}=0`",
+        ),
+        Option(
+            "rng_thread",
+            AUTO,
+            "`True` or `False`",
+            "the all-C IGWO step draws 7/8 of its random numbers on a second thread (the same numbers)",
+            meaning="`True` on a machine with 2 or more usable CPUs",
+        ),
+        Option(
+            "deadline",
+            None,
+            "float > 0 or `None`",
+            "wall-time budget of one solve; the best plan so far is returned when it is used up",
+            unit="s",
+            meaning="none",
+        ),
+        Option(
+            "candidates",
+            1,
+            "int >= 1",
+            'k > 1: up to k distinct good plans of the run in `details["candidates"]`',
+        ),
+        Option(
+            "candidate_metric",
+            "states",
+            one_of(CANDIDATE_METRICS),
+            "distance between candidates: predicted states (over their initial spread) or search coordinates",
+        ),
+        Option(
+            "candidate_distance",
+            AUTO,
+            "float > 0",
+            "RMS distance by which two candidates must differ",
+            meaning=per_metric,
+        ),
+    )
 
 
 def candidate_fitness(problem: Transcribed) -> ca.Function:
@@ -209,31 +310,26 @@ class SwarmSolver:
     problem : Ocp or TrackingProblem
         Every control needs finite box bounds (the search box).
     options : dict, optional
-        ``population``, ``iterations``, ``max_evaluations`` (defaults: the paper's budgets per
-        method), ``seed`` (used when the caller passes no generator; default 0),
-        ``search`` ("deviation" | "absolute"), ``seed_warm_start`` (bool),
-        ``parallelization`` ("serial" | "thread" for the mapped cost), ``algorithm_options``
-        (dict passed to the algorithm), ``compiled`` (``"auto"``, default: compiled wherever
-        a C compiler exists, else the virtual machine with one warning; ``True``/``False``;
-        the compiled SIMD fitness and, for IGWO, the all-C step, see docs/codegen.md),
-        ``deadline`` (seconds, finite > 0: wall-time budget of a solve, see the module doc),
-        ``candidates`` (int, default 1; k > 1 adds ``details["candidates"]``: at most k scaled
-        control plans (N, nu), the best plan first, then the best candidates evaluated during
-        the run that are farther than ``candidate_distance`` from every plan taken before (a
+        The options of :func:`swarm_options` ``(method)`` (name, default, values and meaning
+        of each; rendered as a table in docs/solvers.md).  Why some of them are what they are:
+
+        ``candidates`` k > 1 adds ``details["candidates"]``: at most k scaled control plans
+        (N, nu), the best plan first, then the best candidates evaluated during the run that
+        are farther than ``candidate_distance`` from every plan taken before (a
         :class:`CandidateArchive`), with their fitness in ``details["candidate_fitness"]``.
         The whole run, not the final population: IGWO's and GWO's final wolves lie within
         ~0.03 RMS of each other in ``W`` (measured on a planar obstacle problem), PSO's
         particles ~0.45.  The archive needs every population, so IGWO then runs the Python
         loop on the same compiled fitness, like with a deadline; the ``"states"`` metric rolls
-        out each point that may enter the archive; k = 1 costs nothing),
-        ``candidate_metric`` (``"states"``, default, or ``"controls"``) and
-        ``candidate_distance`` (float > 0; default per metric, :data:`CANDIDATE_DISTANCE`),
-        ``rng_thread`` (bool; default True on a
-        machine with two or more CPUs: the all-C IGWO step draws 7/8 of its random numbers on
-        a second thread, one iteration ahead — the same numbers; an iteration whose block the
-        thread is late with is drawn by the step itself, so a late thread never stalls the
-        step; False keeps the step on one thread: better for the tail latency on a machine
-        whose other CPUs are busy, e.g. inside a process pool, see docs/codegen.md).
+        out each point that may enter the archive; k = 1 costs nothing.
+        ``candidate_distance`` defaults per metric to :data:`CANDIDATE_DISTANCE`.
+
+        ``rng_thread``: the all-C IGWO step draws 7/8 of its random numbers on a second
+        thread, one iteration ahead — the same numbers; an iteration whose block the thread is
+        late with is drawn by the step itself, so a late thread never stalls the step; False
+        keeps the step on one thread: better for the tail latency on a machine whose other
+        CPUs are busy, e.g. inside a process pool, see docs/codegen.md.  ``compiled``: see
+        docs/codegen.md; ``deadline``: see the module doc.
     method : str
         ``"igwo"``, ``"gwo"``, ``"ssa"`` or ``"pso"``.
     """
@@ -242,52 +338,58 @@ class SwarmSolver:
         options = dict(options or {})
         check.choice("method", method, sorted(ALGORITHMS))
         algorithm = ALGORITHMS[method]
+        self.OPTIONS = swarm_options(method)
+        default = option_defaults(self.OPTIONS)
         self.name = method
         self.problem = problem
         self.method = method
         self.population = check.positive_int(
             "options['population']",
-            options.pop("population", algorithm.default_population),
+            options.pop("population", default["population"]),
             minimum=4,
         )
         self.iterations = check.positive_int(
-            "options['iterations']", options.pop("iterations", algorithm.default_iterations)
+            "options['iterations']", options.pop("iterations", default["iterations"])
         )
-        max_evaluations = options.pop("max_evaluations", None)
+        max_evaluations = options.pop("max_evaluations", default["max_evaluations"])
         self.max_evaluations = (
             None
             if max_evaluations is None
             else check.positive_int("options['max_evaluations']", max_evaluations, minimum=self.population)
         )
-        self.seed = check.positive_int("options['seed']", options.pop("seed", 0), minimum=0)
-        self.search = check.choice("options['search']", options.pop("search", "deviation"), SEARCH_MODES)
+        self.seed = check.positive_int("options['seed']", options.pop("seed", default["seed"]), minimum=0)
+        self.search = check.choice(
+            "options['search']", options.pop("search", default["search"]), SEARCH_MODES
+        )
         self.seed_warm_start = check.boolean(
-            "options['seed_warm_start']", options.pop("seed_warm_start", True)
+            "options['seed_warm_start']", options.pop("seed_warm_start", default["seed_warm_start"])
         )
         self.parallelization = check.choice(
             "options['parallelization']",
-            options.pop("parallelization", "serial"),
-            ("serial", "thread"),
+            options.pop("parallelization", default["parallelization"]),
+            PARALLELIZATIONS,
         )
-        self.algorithm_options = options.pop("algorithm_options", None)
-        self.compiled = _compiled_default(options.pop("compiled", "auto"))
-        self.rng_thread = options.pop("rng_thread", _usable_cpus() >= 2)
-        deadline = options.pop("deadline", None)
+        self.algorithm_options = options.pop("algorithm_options", default["algorithm_options"])
+        self.compiled = _compiled_default(options.pop("compiled", default["compiled"]))
+        rng_thread = options.pop("rng_thread", default["rng_thread"])
+        self.rng_thread = _usable_cpus() >= 2 if rng_thread is AUTO else rng_thread
+        deadline = options.pop("deadline", default["deadline"])
         self.deadline = None if deadline is None else check.positive_float("options['deadline']", deadline)
-        self.candidates = check.positive_int("options['candidates']", options.pop("candidates", 1))
-        self.candidate_metric = check.choice(
-            "options['candidate_metric']", options.pop("candidate_metric", "states"), CANDIDATE_METRICS
+        self.candidates = check.positive_int(
+            "options['candidates']", options.pop("candidates", default["candidates"])
         )
+        self.candidate_metric = check.choice(
+            "options['candidate_metric']",
+            options.pop("candidate_metric", default["candidate_metric"]),
+            CANDIDATE_METRICS,
+        )
+        distance = options.pop("candidate_distance", default["candidate_distance"])
         self.candidate_distance = check.positive_float(
             "options['candidate_distance']",
-            options.pop("candidate_distance", CANDIDATE_DISTANCE[self.candidate_metric]),
+            CANDIDATE_DISTANCE[self.candidate_metric] if distance is AUTO else distance,
         )
         if options:
-            valid = [
-                "algorithm_options", "candidate_distance", "candidate_metric", "candidates",
-                "compiled", "deadline", "iterations", "max_evaluations", "parallelization",
-                "population", "rng_thread", "search", "seed", "seed_warm_start",
-            ]  # fmt: skip
+            valid = list(option_names(self.OPTIONS))
             unknown = sorted(options)
             raise ValueError(f"unknown options for solver {method!r}: {unknown}; valid: {valid}")
         # validate algorithm options now, before any solve (the constructor checks them)
@@ -542,4 +644,5 @@ def swarm_factory(method: str):
         return SwarmSolver(problem, options, method=method)
 
     factory.__name__ = f"{method}_factory"
+    factory.OPTIONS = swarm_options(method)  # type: ignore[attr-defined]  # the declaration the docs read
     return factory

@@ -1,0 +1,276 @@
+"""Declared solver options: one source of truth for the constructors, their errors and the docs.
+
+Every backend declares the options its constructor accepts as a tuple of :class:`Option`
+(name, default, accepted values, unit, one-line description), kept next to its code, and its
+constructor reads every default from that tuple.  The tables of ``docs/solvers.md`` are
+rendered from the same tuples (:func:`options_table`, called by the mkdocs hook
+``docs/hooks/solver_options.py``), so the documented default *is* the one used.
+
+How a backend declares its options (e.g. a new exact backend on :class:`NlpSolver`)::
+
+    from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
+    from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names, revise
+
+    RTI_OPTIONS = (
+        # the options NlpSolver reads, with this backend's own defaults or meanings where they differ
+        *revise(NLP_OPTIONS, max_iter={"meaning": "50 (converged mode)"}),
+        Option("mode", "rti", one_of(MODES), "one SQP step per call, or iterate to `tol`"),
+        Option("tol", 1e-8, "float > 0", "stopping tolerance of the converged mode"),
+    )
+
+
+    class RtiSolver(NlpSolver):
+        OPTIONS = RTI_OPTIONS  # what declared_options() and the docs read
+        option_names = option_names(RTI_OPTIONS)  # the keys the unknown-option error lists
+
+        def __init__(self, problem, options=None):
+            options = dict(options or {})
+            default = option_defaults(self.OPTIONS)
+            # pop with the literal name: tests/test_solvers.py reads the names from the source
+            self.mode = check.choice("options['mode']", options.pop("mode", default["mode"]), MODES)
+            ...
+            super().__init__(problem, options)  # pops and checks the NlpSolver options
+
+Then add a marker ``<!-- solver-options: sqp-rti -->`` where its section of ``docs/solvers.md``
+lists the options; the hook replaces it by the table.  The registry finds a declaration as the
+``OPTIONS`` attribute of the registered factory (a class attribute, or an attribute set on a
+factory function: :func:`~uuv_ocp.solvers.swarm.swarm_factory`); ``tests/test_solver_options.py``
+fails for a registered backend without one, for a default the constructor does not use, and
+for an option the constructor accepts but does not declare.
+
+A default the backend works out when it is built (from the machine, the environment or
+another option) is :data:`AUTO` with a ``meaning`` saying how, and the constructor replaces
+:data:`AUTO` by that value (``value = rule() if value is AUTO else value``;
+``expected_held`` of ``tests/test_solver_options.py`` computes each rule independently, so a
+new one needs a line there); a ``None`` default has a ``meaning`` too (what ``None`` stands
+for).
+"""
+
+from __future__ import annotations
+
+import copy
+import dataclasses
+import math
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+__all__ = [
+    "AUTO",
+    "Option",
+    "declared_options",
+    "format_value",
+    "one_of",
+    "option_defaults",
+    "option_names",
+    "options_table",
+    "revise",
+]
+
+
+class _Auto:
+    """Type of :data:`AUTO` (a single instance; private so no user value equals it)."""
+
+    _instance: _Auto | None = None
+
+    def __new__(cls) -> _Auto:
+        if cls._instance is None:
+            cls._instance = super().__new__(cls)
+        return cls._instance
+
+    def __repr__(self) -> str:
+        return "auto"
+
+    def __deepcopy__(self, memo: dict) -> _Auto:
+        return self
+
+
+AUTO = _Auto()
+"""A default worked out when the backend is built; the option's ``meaning`` says how."""
+
+_NAME = re.compile(r"[a-z][a-z0-9_]*\Z")
+
+
+@dataclasses.dataclass(frozen=True)
+class Option:
+    """One option of a backend's ``options`` dict.
+
+    Parameters
+    ----------
+    name : str
+        The key in ``options`` (lower-case identifier).
+    default : object
+        The value the constructor uses when the key is absent (:data:`AUTO`: worked out when
+        the backend is built, see ``meaning``).  Mutable defaults are copied for every backend
+        (:func:`option_defaults`).
+    kind : str
+        Accepted values, as Markdown (e.g. ``"float > 0"``, :func:`one_of`).
+    description : str
+        One line, Markdown.
+    unit : str
+        Physical unit of the value (``""``: none).
+    meaning : str
+        What a ``None`` or :data:`AUTO` default stands for (required for those), or a note on
+        the default; shown next to it.
+    """
+
+    name: str
+    default: Any
+    kind: str
+    description: str
+    unit: str = ""
+    meaning: str = ""
+
+    def __post_init__(self) -> None:
+        """Check the fields (a declaration error is the backend author's, raised at import)."""
+        if not isinstance(self.name, str) or not _NAME.match(self.name):
+            raise ValueError(f"Option.name must be a lower-case identifier, got {self.name!r}")
+        for field in ("kind", "description"):
+            text = getattr(self, field)
+            if not isinstance(text, str) or not text.strip() or "\n" in text:
+                raise ValueError(f"Option.{field} of {self.name!r} must be one non-empty line, got {text!r}")
+        for field in ("unit", "meaning"):
+            text = getattr(self, field)
+            if not isinstance(text, str) or "\n" in text:
+                raise ValueError(f"Option.{field} of {self.name!r} must be one line, got {text!r}")
+        if (self.default is None or self.default is AUTO) and not self.meaning:
+            raise ValueError(
+                f"Option {self.name!r} has default {self.default!r}: its meaning must say what it stands for"
+            )
+
+
+def one_of(values: Sequence[object]) -> str:
+    """Markdown list of the accepted values, e.g. ``one_of(("a", "b"))`` -> ```"a"` or `"b"```."""
+    shown = [f"`{format_value(v)}`" for v in values]
+    if len(shown) < 2:
+        return "".join(shown)
+    return f"{', '.join(shown[:-1])} or {shown[-1]}"
+
+
+def option_names(options: Sequence[Option]) -> tuple[str, ...]:
+    """Sorted names of a declaration (a backend's ``option_names``); duplicates are an error."""
+    names = [option.name for option in options]
+    if len(set(names)) != len(names):
+        twice = sorted({name for name in names if names.count(name) > 1})
+        raise ValueError(f"options declared twice: {twice}")
+    return tuple(sorted(names))
+
+
+def option_defaults(options: Sequence[Option]) -> dict[str, Any]:
+    """``{name: default}`` of a declaration, mutable defaults copied (no backend shares one)."""
+    return {option.name: copy.deepcopy(option.default) for option in options}
+
+
+def revise(options: Sequence[Option], **changes: Mapping[str, Any]) -> tuple[Option, ...]:
+    """Return ``options`` with fields of the named ones replaced, order kept.
+
+    ``revise(NLP_OPTIONS, objective_scale={"default": 1e-3})``: a subclass's own default.
+    """
+    known = {option.name for option in options}
+    unknown = sorted(set(changes) - known)
+    if unknown:
+        raise ValueError(f"revise: no declared option {unknown}; declared: {sorted(known)}")
+    return tuple(dataclasses.replace(o, **changes[o.name]) if o.name in changes else o for o in options)
+
+
+def declared_options(name: str) -> tuple[Option, ...]:
+    """Return the declaration of the backend registered as ``name`` (its factory's ``OPTIONS``).
+
+    Raises
+    ------
+    ValueError
+        Unknown solver name (the registry's message), or a backend that declares no options.
+    """
+    from uuv_ocp.solvers import REGISTRY
+
+    resolved = REGISTRY.resolve(name)
+    options = getattr(REGISTRY.factory(resolved), "OPTIONS", None)
+    if options is None:
+        raise ValueError(
+            f"solver {resolved!r} declares no options: give its factory an OPTIONS tuple of "
+            "uuv_ocp.solvers.options.Option (see that module's docstring)"
+        )
+    return tuple(options)
+
+
+# ------------------------------------------------------------------------------ rendering
+
+
+def _number(value: float) -> str:
+    """Return a short valid Python literal: ``0.0``, ``0.5``, ``100.0``, ``1e-7``, ``1e4``."""
+    if value == 0.0 or (1e-3 <= abs(value) < 1e4):
+        return repr(value)
+    mantissa, exponent = f"{value:.6e}".split("e")
+    mantissa = mantissa.rstrip("0").rstrip(".")
+    return f"{mantissa}e{int(exponent)}"
+
+
+def format_value(value: object) -> str:
+    """Python-like text of an option value: ``"sticky"``, ``1e-7``, ``(100, 1e4)``, ``{}``."""
+    if isinstance(value, str):
+        return f'"{value}"'
+    if isinstance(value, bool) or value is None or value is AUTO:
+        return repr(value)
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        return _number(value) if math.isfinite(value) else repr(value)
+    if isinstance(value, tuple | list):
+        inner = ", ".join(format_value(v) for v in value)
+        if isinstance(value, tuple):
+            return f"({inner},)" if len(value) == 1 else f"({inner})"
+        return f"[{inner}]"
+    if isinstance(value, Mapping):
+        return "{" + ", ".join(f"{format_value(k)}: {format_value(v)}" for k, v in value.items()) + "}"
+    return repr(value)
+
+
+def default_cell(option: Option) -> str:
+    """Markdown of an option's default: the value in code, then what it means."""
+    text = "auto" if option.default is AUTO else f"`{format_value(option.default)}`"
+    return f"{text}: {option.meaning}" if option.meaning else text
+
+
+def _cell(text: str) -> str:
+    """Return a table cell: ``|`` escaped, empty as a dash."""
+    return text.replace("|", "\\|") if text else "—"
+
+
+def options_table(names: str | Sequence[str]) -> str:
+    """Markdown table of the options of one backend, or of several that share one declaration.
+
+    One row per declared option, in declaration order.  With several names (e.g. the four
+    swarms) their declarations must list the same options in the same order; a default that
+    differs between them reads "per solver" and a second table gives it for each name (one
+    row per name, one column per such option).
+    """
+    group = [names] if isinstance(names, str) else list(names)
+    if not group:
+        raise ValueError("options_table needs at least one solver name, got none")
+    declarations = [declared_options(name) for name in group]
+    first = declarations[0]
+    for name, options in zip(group[1:], declarations[1:], strict=True):
+        if [o.name for o in options] != [o.name for o in first]:
+            raise ValueError(
+                f"options_table: {group[0]!r} and {name!r} declare different options "
+                f"({[o.name for o in first]} vs {[o.name for o in options]}); render them separately"
+            )
+    header = ["option", "default", "values", "unit", "description"]
+    lines = [_row(header), _row(["---"] * len(header))]
+    differing: list[int] = []
+    for row, option in enumerate(first):
+        shown = {default_cell(options[row]) for options in declarations}
+        if len(shown) > 1:
+            differing.append(row)
+        default = "per solver, see below" if len(shown) > 1 else default_cell(option)
+        lines.append(_row([f"`{option.name}`", default, option.kind, option.unit, option.description]))
+    if differing:
+        lines += ["", _row(["solver", *(f"`{first[row].name}`" for row in differing)])]
+        lines.append(_row(["---"] * (len(differing) + 1)))
+        for name, options in zip(group, declarations, strict=True):
+            lines.append(_row([f"`{name}`", *(default_cell(options[row]) for row in differing)]))
+    return "\n".join(lines) + "\n"
+
+
+def _row(cells: Sequence[str]) -> str:
+    return "| " + " | ".join(_cell(cell) for cell in cells) + " |"

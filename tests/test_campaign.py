@@ -86,6 +86,13 @@ def _nan_fill(path, other):
     _rewrite(path, lambda a: a.update(states=np.full_like(a["states"], np.nan)))
 
 
+def _alter(path, other):  # finite, the right length: only the checksum tells
+    def nudge(a):
+        a["states"][5, 0] += 0.1
+
+    _rewrite(path, nudge)
+
+
 def _shorten(path, other):
     def cut(a):
         for key in ("t", "states", "reference", "currents"):
@@ -119,7 +126,8 @@ def _plain_save(path, other):
 
 
 @pytest.mark.parametrize(
-    "corrupt", [_truncate, _empty, _nan_fill, _shorten, _copy_other_trial, _copy_other_campaign, _plain_save]
+    "corrupt",
+    [_truncate, _empty, _nan_fill, _alter, _shorten, _copy_other_trial, _copy_other_campaign, _plain_save],
 )
 def test_a_bad_record_is_reported_by_path_and_recomputed(tmp_path, uninterrupted, corrupt):
     other = run_campaign(small(seed=9, trials=2), tmp_path / "other", workers=1, progress=False).directory

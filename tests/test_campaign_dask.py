@@ -2,12 +2,13 @@
 
 import os
 import signal
+import sys
 import threading
 import time
 
 import pytest
 
-from helpers_campaign import assert_same_records, small
+from helpers_campaign import alive, assert_same_records, descendants, small, start_campaign, wait_for_records
 from uuv_ocp.studies.campaign import run_campaign
 
 distributed = pytest.importorskip("dask.distributed", reason="the dask extra is not installed")
@@ -60,3 +61,14 @@ def test_a_dask_worker_killed_mid_campaign_loses_no_trial(tmp_path, uninterrupte
     assert len(killed) == 1 and killed[0] < TRIALS  # records on disk when the worker died: mid-campaign
     assert result.resumed == 0 and len(result.trials) == TRIALS
     assert_same_records(result.directory, uninterrupted.directory, TRIALS)
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_sigkill_of_the_parent_takes_its_dask_workers(tmp_path):
+    process = start_campaign(tmp_path, 2, TRIALS, executor="dask")
+    wait_for_records(tmp_path / small().name, 1, process)
+    children = descendants(process.pid)
+    assert len(children) >= 2
+    process.kill()
+    process.wait(timeout=30)
+    assert alive(children, within=10.0) == {}

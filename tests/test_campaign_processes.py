@@ -6,18 +6,14 @@ Each case ends with the same records as an uninterrupted run (wall-clock solve t
 import multiprocessing
 import os
 import signal
-import subprocess
 import sys
-import time
-from pathlib import Path
 
 import pytest
 
-from helpers_campaign import CLI_FLAGS, assert_same_records, small
+from helpers_campaign import alive, assert_same_records, descendants, small, start_campaign, wait_for_records
 from uuv_ocp.studies.campaign import run_campaign
 from uuv_ocp.studies.records import query_trials, read_record, write_record
 
-ROOT = Path(__file__).resolve().parents[1]
 TRIALS = 6
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
@@ -26,48 +22,6 @@ pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="re
 def uninterrupted(tmp_path_factory):
     """Return the 6-trial campaign run once, in this process, start to end."""
     return run_campaign(small(trials=TRIALS), tmp_path_factory.mktemp("reference"), workers=1, progress=False)
-
-
-def start_campaign(out, workers):
-    env = {**os.environ, "PYTHONPATH": f"{ROOT / 'src'}{os.pathsep}{ROOT}", "UUV_OCP_COMPILED": "0"}
-    command = [sys.executable, "-m", "uuv_ocp.cli", "campaign", *CLI_FLAGS, "--trials", str(TRIALS)]
-    command += ["--workers", str(workers), "--out", str(out)]
-    return subprocess.Popen(
-        command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
-    )
-
-
-def wait_for_records(directory, count, process, timeout=120.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if len(list(directory.glob("trial_*.npz"))) >= count:
-            return
-        assert process.poll() is None, process.communicate()
-        time.sleep(0.05)
-    raise AssertionError(f"no {count} records in {directory} after {timeout} s")
-
-
-def _state(pid):
-    try:
-        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
-    except (FileNotFoundError, ProcessLookupError):
-        return "gone"
-
-
-def descendants(pid):
-    children = {}
-    for stat in Path("/proc").glob("[0-9]*/stat"):
-        try:
-            fields = stat.read_text().rsplit(")", 1)[1].split()
-        except OSError:
-            continue
-        children.setdefault(int(fields[1]), []).append(int(stat.parent.name))
-    found, todo = [], [pid]
-    while todo:
-        for child in children.get(todo.pop(), []):
-            found.append(child)
-            todo.append(child)
-    return found
 
 
 def check_sound_records(directory, config):
@@ -83,7 +37,7 @@ def check_sound_records(directory, config):
 def test_ctrl_c_stops_the_campaign_writes_no_unfinished_trial_and_resume_matches(
     tmp_path, uninterrupted, workers
 ):
-    process = start_campaign(tmp_path, workers)
+    process = start_campaign(tmp_path, workers, TRIALS)
     directory = tmp_path / small().name
     wait_for_records(directory, 1, process)
     os.killpg(process.pid, signal.SIGINT)  # Ctrl-C reaches the whole foreground group
@@ -97,17 +51,14 @@ def test_ctrl_c_stops_the_campaign_writes_no_unfinished_trial_and_resume_matches
 
 
 def test_sigkill_of_the_parent_takes_its_workers_and_resume_matches(tmp_path, uninterrupted):
-    process = start_campaign(tmp_path, workers=2)
+    process = start_campaign(tmp_path, 2, TRIALS)
     directory = tmp_path / small().name
     wait_for_records(directory, 1, process)
     children = descendants(process.pid)
     assert len(children) >= 2  # the two workers (and the spawn context's resource tracker)
     process.kill()
     process.wait(timeout=30)  # not communicate(): orphans would hold its pipes open
-    deadline = time.monotonic() + 5.0
-    while time.monotonic() < deadline and any(_state(pid) not in ("gone", "Z") for pid in children):
-        time.sleep(0.1)
-    assert {pid: _state(pid) for pid in children if _state(pid) not in ("gone", "Z")} == {}
+    assert alive(children, within=5.0) == {}
     assert check_sound_records(directory, small(trials=TRIALS)) < TRIALS
     resumed = run_campaign(small(trials=TRIALS), tmp_path, workers=1, progress=False)
     assert not resumed.recomputed
@@ -115,7 +66,7 @@ def test_sigkill_of_the_parent_takes_its_workers_and_resume_matches(tmp_path, un
 
 
 def test_two_campaigns_into_one_folder_give_complete_sound_records(tmp_path, uninterrupted):
-    first, second = start_campaign(tmp_path, 1), start_campaign(tmp_path, 1)
+    first, second = start_campaign(tmp_path, 1, TRIALS), start_campaign(tmp_path, 1, TRIALS)
     for process in (first, second):
         _, err = process.communicate(timeout=300)
         assert process.returncode == 0, err

@@ -25,7 +25,9 @@ import dataclasses
 import functools
 import hashlib
 import math
+import os
 import re
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -446,9 +448,6 @@ def run_campaign(
 
 def _write_text(path: Path, text: str) -> None:
     """Write ``text`` atomically (unique temporary name, then rename)."""
-    import os
-    import tempfile
-
     handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(handle, "w", encoding="utf-8") as stream:

@@ -23,6 +23,12 @@ def uninterrupted(tmp_path_factory):
     return run_campaign(small(), tmp_path_factory.mktemp("reference"), workers=1, progress=False)
 
 
+@pytest.fixture(scope="module")
+def other_campaign(tmp_path_factory):
+    """Return another campaign (another seed) whose records can be copied over ours."""
+    return run_campaign(small(seed=9, trials=2), tmp_path_factory.mktemp("other"), workers=1, progress=False)
+
+
 def test_more_trials_reuse_the_first_ones_and_match_an_uninterrupted_run(tmp_path, uninterrupted):
     two = run_campaign(small(trials=2), tmp_path, workers=1, progress=False)
     stamps = [p.stat().st_mtime_ns for p in sorted(two.directory.glob("trial_*.npz"))]
@@ -129,8 +135,8 @@ def _plain_save(path, other):
     "corrupt",
     [_truncate, _empty, _nan_fill, _alter, _shorten, _copy_other_trial, _copy_other_campaign, _plain_save],
 )
-def test_a_bad_record_is_reported_by_path_and_recomputed(tmp_path, uninterrupted, corrupt):
-    other = run_campaign(small(seed=9, trials=2), tmp_path / "other", workers=1, progress=False).directory
+def test_a_bad_record_is_reported_by_path_and_recomputed(tmp_path, uninterrupted, other_campaign, corrupt):
+    other = other_campaign.directory
     out = tmp_path / "out"
     shutil.copytree(uninterrupted.directory, out / uninterrupted.directory.name)
     victim = out / uninterrupted.directory.name / "trial_0001.npz"
@@ -313,3 +319,11 @@ def test_any_vehicle_and_path_from_files_and_the_key_follows_their_content(tmp_p
     vehicle.write_text(vehicle.read_text().replace("mass = 1200.0", "mass = 1300.0"))
     edited = small(vehicle=str(vehicle), controller_model="rexrov", reference=path, trials=1)
     assert edited.name != config.name
+
+
+def test_cli_dask_without_the_extra_is_one_line_saying_how_to_install(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)
+    assert cli.main(["campaign", "--trials", "1", "--executor", "dask", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "pip install 'uuv_ocp[dask]'" in err
+    assert not any(tmp_path.iterdir())

@@ -129,3 +129,21 @@ def test_solvers_name_prints_that_backends_declared_options(capsys):
     assert [row.split("`")[1] for row in rows] == [option.name for option in declared_options("fatrop")]
     assert cli.main(["solvers", "fatrp"]) == 2
     assert "did you mean 'fatrop'" in capsys.readouterr().err
+
+
+def test_track_recomputes_a_corrupted_saved_run_and_names_it(tmp_path):
+    import numpy as np
+    import pytest
+
+    from uuv_ocp.studies.records import RecordWarning
+
+    first = track_references(
+        ["s2"], "sqp", out_dir=tmp_path, duration=1.0, horizon=8, progress=False, figures=False
+    )
+    (record,) = (tmp_path / "runs").glob("s2_sqp_*.npz")
+    record.write_bytes(record.read_bytes()[:300])  # truncated, as by a full disk
+    with pytest.warns(RecordWarning, match=record.name):
+        again = track_references(
+            ["s2"], "sqp", out_dir=tmp_path, duration=1.0, horizon=8, progress=False, figures=False
+        )
+    np.testing.assert_equal(again[0].metrics["max_abs_ex"], first[0].metrics["max_abs_ex"])

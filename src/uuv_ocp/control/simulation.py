@@ -226,6 +226,17 @@ def simulate(
         Progress-bar label.
     parameters : dict, optional
         An Ocp's parameter values, held for the whole run.
+
+    Returns
+    -------
+    ClosedLoopResult
+        The whole run; shorter, with the reason in ``fault``, when a measurement was not
+        finite or the plant blew up (module doc).
+
+    Raises
+    ------
+    SimulationInterrupted
+        On Ctrl-C, carrying the run up to the interrupt.
     """
     if not isinstance(controller, NMPC):
         raise ValueError(f"controller must be a uuv_ocp.NMPC, got {type(controller).__name__}")

@@ -327,3 +327,14 @@ def test_cli_dask_without_the_extra_is_one_line_saying_how_to_install(tmp_path, 
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "pip install 'uuv_ocp[dask]'" in err
     assert not any(tmp_path.iterdir())
+
+
+def test_several_campaigns_on_one_executor_give_each_its_own_records(tmp_path, uninterrupted, other_campaign):
+    from uuv_ocp.studies.campaign import run_campaigns
+
+    ours, other = run_campaigns([small(), small(seed=9, trials=2)], tmp_path, workers=2, progress=False)
+    assert_same_records(ours.directory, uninterrupted.directory, 3)
+    assert_same_records(other.directory, other_campaign.directory, 2)
+    assert ours.summary["mean_max_abs_ex"] == uninterrupted.summary["mean_max_abs_ex"]
+    with pytest.raises(ValueError, match="same campaign twice"):
+        run_campaigns([small(), small(trials=5)], tmp_path)

@@ -247,7 +247,7 @@ def _run_codegen(args: argparse.Namespace) -> int:
 
 def _run_campaign(args: argparse.Namespace) -> int:
     """``uuv-ocp campaign``: flags or ``--config FILE``; the file's ``[run]`` fills unset run flags."""
-    from uuv_ocp.studies.campaign import CampaignConfig, format_summary, format_summary_table, run_campaign
+    from uuv_ocp.studies.campaign import CampaignConfig, format_summary, format_summary_table, run_campaigns
     from uuv_ocp.studies.campaign_file import load_campaign_file
 
     try:
@@ -275,10 +275,7 @@ def _run_campaign(args: argparse.Namespace) -> int:
         out = args.out or run.get("out", "out/campaigns")
         if not isinstance(workers, int) or workers < 1:
             raise _UsageError(f"--workers must be an integer >= 1, got {workers}")
-        results = [
-            run_campaign(config, out, executor=executor, workers=workers, scheduler=scheduler)
-            for config in configs
-        ]
+        results = run_campaigns(configs, out, executor=executor, workers=workers, scheduler=scheduler)
     except ValueError as error:
         return _fail(str(error))
     except OSError as error:

@@ -66,6 +66,7 @@ __all__ = [
     "format_summary_table",
     "query_trials",
     "run_campaign",
+    "run_campaigns",
     "run_trial",
     "summarise",
     "trial_task",
@@ -389,8 +390,31 @@ def run_campaign(
     -------
     CampaignResult
     """
-    if not isinstance(config, CampaignConfig):
-        raise ValueError(f"config must be a CampaignConfig, got {type(config).__name__}")
+    return run_campaigns(
+        [config], out_dir, executor=executor, workers=workers, progress=progress, scheduler=scheduler
+    )[0]
+
+
+def run_campaigns(
+    configs: Sequence[CampaignConfig],
+    out_dir: str | Path = "out/campaigns",
+    *,
+    executor: str = "local",
+    workers: int = 2,
+    progress: bool = True,
+    scheduler: str | None = None,
+) -> tuple[CampaignResult, ...]:
+    """Run several campaigns on one executor (started once, trials of all campaigns interleaved).
+
+    Parameters are those of :func:`run_campaign`, with a sequence of configurations; each
+    campaign gets its own folder in ``out_dir``.  Returns one :class:`CampaignResult` per
+    configuration, in order.
+    """
+    configs = list(configs)
+    if not configs or not all(isinstance(config, CampaignConfig) for config in configs):
+        raise ValueError(f"configs must be a non-empty sequence of CampaignConfig, got {configs!r}")
+    if len({config.name for config in configs}) != len(configs):
+        raise ValueError("configs must be different campaigns, got the same campaign twice")
     check.choice("executor", executor, EXECUTORS)
     workers = check.positive_int("workers", workers)
     if scheduler is not None:
@@ -401,49 +425,69 @@ def run_campaign(
     if executor == "dask":
         require_dask()
     out = check_writable(out_dir)
-    directory = out / config.name
-    directory.mkdir(exist_ok=True)
-    steps = config.steps()
-    metrics: dict[int, dict] = {}
-    faults: dict[int, str | None] = {}
-    recomputed = []
-    for index in range(config.trials):  # resumed trials load in milliseconds: not part of the bar's rate
-        path = _trial_path(directory, index)
-        existed = path.exists()
-        saved = _load(config, index, directory, steps)
-        if saved is None:
-            if existed:
-                recomputed.append(index)
-            continue
-        run, digest = saved
-        metrics[index], faults[index] = run.metrics(), run.fault
-        settings = config.trial_settings(index)  # rebuild the index row: the files are the authority
-        index_trial(
-            out,
-            path,
-            campaign=config.name,
-            trial=index,
-            config=settings,
-            digest=digest,
-            run=run,
-            metrics=metrics[index],
-        )
-    resumed = len(metrics)
-    pending = [(i, (config, i)) for i in range(config.trials) if i not in metrics]
-    with ProgressBar(config.trials, f"campaign {config.name}", progress, initial=resumed) as bar:
+    metrics: list[dict[int, dict]] = [{} for _ in configs]
+    faults: list[dict[int, str | None]] = [{} for _ in configs]
+    recomputed: list[list[int]] = [[] for _ in configs]
+    for c, config in enumerate(configs):  # resumed trials load in milliseconds: not part of the bar's rate
+        directory = out / config.name
+        directory.mkdir(exist_ok=True)
+        steps = config.steps()
+        for index in range(config.trials):
+            path = _trial_path(directory, index)
+            existed = path.exists()
+            saved = _load(config, index, directory, steps)
+            if saved is None:
+                if existed:
+                    recomputed[c].append(index)
+                continue
+            run, digest = saved
+            metrics[c][index], faults[c][index] = run.metrics(), run.fault
+            settings = config.trial_settings(index)  # rebuild the index row: the files are the authority
+            index_trial(
+                out,
+                path,
+                campaign=config.name,
+                trial=index,
+                config=settings,
+                digest=digest,
+                run=run,
+                metrics=metrics[c][index],
+            )
+    resumed = [len(m) for m in metrics]
+    pending = [
+        ((c, i), (config, i))
+        for c, config in enumerate(configs)
+        for i in range(config.trials)
+        if i not in metrics[c]
+    ]
+    total = sum(config.trials for config in configs)
+    label = f"campaign {configs[0].name}" if len(configs) == 1 else f"{len(configs)} campaigns"
+    with ProgressBar(total, label, progress, initial=sum(resumed)) as bar:
         if pending:
             with TaskRunner(executor, workers, scheduler) as runner:
-                for index, run in runner.run(trial_task, pending):
-                    metrics[index], faults[index] = _record(config, index, directory, run), run.fault
+                for (c, index), run in runner.run(trial_task, pending):
+                    config = configs[c]
+                    metrics[c][index] = _record(config, index, out / config.name, run)
+                    faults[c][index] = run.fault
                     bar.update(1)
-    trials = tuple(metrics[i] for i in range(config.trials))
-    fault_list = tuple(faults[i] for i in range(config.trials))
-    result = CampaignResult(
-        config, trials, summarise(trials, fault_list), directory, fault_list, tuple(recomputed), resumed
-    )
-    _write_text(directory / "config.toml", _config_toml(config))
-    _write_text(directory / "summary.txt", format_summary(result) + "\n")
-    return result
+    results = []
+    for c, config in enumerate(configs):
+        trials = tuple(metrics[c][i] for i in range(config.trials))
+        fault_list = tuple(faults[c][i] for i in range(config.trials))
+        directory = out / config.name
+        result = CampaignResult(
+            config,
+            trials,
+            summarise(trials, fault_list),
+            directory,
+            fault_list,
+            tuple(recomputed[c]),
+            resumed[c],
+        )
+        _write_text(directory / "config.toml", _config_toml(config))
+        _write_text(directory / "summary.txt", format_summary(result) + "\n")
+        results.append(result)
+    return tuple(results)
 
 
 def _write_text(path: Path, text: str) -> None:

@@ -338,3 +338,13 @@ def test_several_campaigns_on_one_executor_give_each_its_own_records(tmp_path, u
     assert ours.summary["mean_max_abs_ex"] == uninterrupted.summary["mean_max_abs_ex"]
     with pytest.raises(ValueError, match="same campaign twice"):
         run_campaigns([small(), small(trials=5)], tmp_path)
+
+
+def test_the_process_alias_runs_the_pool_even_for_one_worker(tmp_path, uninterrupted, monkeypatch):
+    def no_simulation_in_this_process(*args, **kwargs):
+        raise AssertionError("the trial ran in the driver")
+
+    # a spawned worker imports its own, unpatched module
+    monkeypatch.setattr(campaign_module, "simulate", no_simulation_in_this_process)
+    result = run_campaign(small(trials=1), tmp_path, executor="process", workers=1, progress=False)
+    assert_same_records(result.directory, uninterrupted.directory, 1)

@@ -13,6 +13,7 @@ from uuv_ocp.studies.campaign import run_campaign
 
 distributed = pytest.importorskip("dask.distributed", reason="the dask extra is not installed")
 TRIALS = 4
+pytestmark = pytest.mark.slow  # clusters and subprocesses: seconds each, still run in CI
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,10 @@ from uuv_ocp.studies.campaign import run_campaign
 from uuv_ocp.studies.records import query_trials, read_record, write_record
 
 TRIALS = 6
-pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+pytestmark = [
+    pytest.mark.slow,
+    pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc"),
+]
 
 
 @pytest.fixture(scope="module")

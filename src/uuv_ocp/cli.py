@@ -273,6 +273,7 @@ def _run_campaign(args: argparse.Namespace) -> int:
         workers = args.workers if args.workers is not None else run.get("workers", 2)
         scheduler = args.scheduler or run.get("scheduler")
         out = args.out or run.get("out", "out/campaigns")
+        _output_folder(str(out))
         if not isinstance(workers, int) or workers < 1:
             raise _UsageError(f"--workers must be an integer >= 1, got {workers}")
         results = run_campaigns(configs, out, executor=executor, workers=workers, scheduler=scheduler)

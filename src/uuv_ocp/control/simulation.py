@@ -34,7 +34,8 @@ from uuv_ocp.progress import ProgressBar
 from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions, warn_if_reference_too_fast
 from uuv_ocp.transcription.multiple_shooting import parameter_blocks
 
-#: A plant state entry larger than this in magnitude (SI units) counts as a blow-up fault.
+#: A plant state entry larger than this in magnitude (SI units) counts as a blow-up fault; below the
+#: plausibility bound (``_validation.PLAUSIBLE_MAGNITUDE``) past which the controller refuses a state.
 BLOW_UP = 1e8
 
 

@@ -14,12 +14,30 @@ def test_track_writes_figures_and_resumes(tmp_path, capsys):
     assert cli.main(["track", "-r", "s2", "--duration", "1.0", "--out", str(tmp_path)]) == 0
     output = capsys.readouterr().out
     assert "s2" in output and "ipopt" in output
-    for name in ("s2_xoy.png", "s2_errors.png", "runs/s2_ipopt.npz"):
+    for name in ("s2_xoy.png", "s2_errors.png"):
         assert (tmp_path / name).exists()
-    saved = (tmp_path / "runs" / "s2_ipopt.npz").stat().st_mtime_ns
+    (record,) = (tmp_path / "runs").glob("s2_ipopt_*.npz")
+    saved = record.stat().st_mtime_ns
     rows = track_references(["s2"], out_dir=tmp_path, duration=1.0, progress=False, figures=False)
-    assert (tmp_path / "runs" / "s2_ipopt.npz").stat().st_mtime_ns == saved  # resumed, not rerun
+    assert record.stat().st_mtime_ns == saved  # resumed, not rerun
     assert rows[0].metrics["steps"] == 10
+
+
+def test_track_reuses_a_saved_run_only_for_the_same_configuration(tmp_path):
+    # the issue: after `make demo`, `track -r s2 --horizon 5 --dt 0.2 --duration 12` printed the demo's row
+    first = track_references(
+        ["s2"], "sqp", out_dir=tmp_path, duration=1.0, horizon=8, progress=False, figures=False
+    )
+    other = track_references(
+        ["s2"], "sqp", out_dir=tmp_path, duration=1.2, horizon=5, dt=0.2, progress=False, figures=False
+    )
+    assert len(list((tmp_path / "runs").glob("s2_sqp_*.npz"))) == 2
+    assert other[0].metrics["steps"] == 6 and first[0].metrics["steps"] == 10
+    again = track_references(
+        ["s2"], "sqp", out_dir=tmp_path, duration=1.2, horizon=5, dt=0.2, progress=False, figures=False
+    )
+    assert again[0].metrics["max_abs_ex"] == other[0].metrics["max_abs_ex"]
+    assert len(list((tmp_path / "runs").glob("s2_sqp_*.npz"))) == 2
 
 
 def test_bad_arguments_exit_with_a_message(capsys):
@@ -111,3 +129,21 @@ def test_solvers_name_prints_that_backends_declared_options(capsys):
     assert [row.split("`")[1] for row in rows] == [option.name for option in declared_options("fatrop")]
     assert cli.main(["solvers", "fatrp"]) == 2
     assert "did you mean 'fatrop'" in capsys.readouterr().err
+
+
+def test_track_recomputes_a_corrupted_saved_run_and_names_it(tmp_path):
+    import numpy as np
+    import pytest
+
+    from uuv_ocp.studies.records import RecordWarning
+
+    first = track_references(
+        ["s2"], "sqp", out_dir=tmp_path, duration=1.0, horizon=8, progress=False, figures=False
+    )
+    (record,) = (tmp_path / "runs").glob("s2_sqp_*.npz")
+    record.write_bytes(record.read_bytes()[:300])  # truncated, as by a full disk
+    with pytest.warns(RecordWarning, match=record.name):
+        again = track_references(
+            ["s2"], "sqp", out_dir=tmp_path, duration=1.0, horizon=8, progress=False, figures=False
+        )
+    np.testing.assert_equal(again[0].metrics["max_abs_ex"], first[0].metrics["max_abs_ex"])

@@ -1,5 +1,6 @@
 """Closed loop: tracking accuracy, fallback on failure, disturbances, interruption, saving."""
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -232,3 +233,65 @@ def test_bad_simulation_arguments_raise(s2_problem, kwargs, name):
 def test_bad_current_raises():
     with pytest.raises(ValueError, match="speed"):
         uo.Current(speed=-0.1)
+
+
+class _NoiseThatFails(uo.MeasurementNoise):
+    """Zero noise, then NaN from the ``fail_at``-th measurement on (a broken sensor)."""
+
+    def __init__(self, fail_at):
+        super().__init__((0.0,) * 6)
+        object.__setattr__(self, "fail_at", fail_at)
+        object.__setattr__(self, "calls", [0])
+
+    def sample(self, rng):
+        self.calls[0] += 1
+        return np.full(6, np.nan) if self.calls[0] > self.fail_at else np.zeros(6)
+
+
+def test_a_nan_measurement_ends_the_run_with_its_reason_and_keeps_what_came_before(tmp_path):
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=8)
+    x0 = problem.reference.initial_state(0.0)
+    clean = uo.simulate(uo.NMPC(problem, "sqp"), x0, 1.0)
+    run = uo.simulate(uo.NMPC(problem, "sqp"), x0, 1.0, noise=_NoiseThatFails(4))
+    assert run.fault is not None and "non-finite measurement" in run.fault and "step 4" in run.fault
+    assert run.controls.shape[0] == 4 and run.states.shape[0] == 5
+    # the recorded prefix is the run without the fault (zero noise is no noise)
+    np.testing.assert_array_equal(run.states, clean.states[:5])
+    np.testing.assert_array_equal(run.controls, clean.controls[:4])
+    assert clean.fault is None
+    path = tmp_path / "fault.npz"
+    run.save(str(path))
+    assert uo.ClosedLoopResult.load(str(path)).fault == run.fault
+
+
+class _UnstablePlant:
+    """A 3-DOF-shaped plant ẋ = λ x (λ = 50 1/s): it blows up whatever the controls."""
+
+    state_dim, control_dim, current_dim, thrusters = 6, 3, 2, None
+    rate = 50.0
+
+    def __init__(self):
+        x, u, c = ca.SX.sym("x", 6), ca.SX.sym("u", 3), ca.SX.sym("c", 2)
+        self.dynamics = ca.Function("unstable", [x, u, c], [self.rate * x])
+
+    def rhs(self, x, u, c):
+        return self.rate * x
+
+
+def test_a_plant_that_blows_up_ends_the_run_at_the_last_finite_state():
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=8)
+    x0 = problem.reference.initial_state(0.0) + 1.0  # away from zero, where ẋ = λx would stay
+    run = uo.simulate(uo.NMPC(problem, "sqp"), x0, 2.0, plant=_UnstablePlant())
+    assert run.fault is not None and "blew up" in run.fault
+    # independent reference: RK4 of ẋ = λx over one 10 ms substep multiplies x by
+    # 1 + z + z²/2 + z³/6 + z⁴/24 (z = λh); ten substeps per 0.1 s interval
+    z = _UnstablePlant.rate * 0.01
+    growth = (1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24) ** 10
+    expected = [x0 * growth**k for k in range(run.states.shape[0])]
+    np.testing.assert_allclose(run.states, expected, rtol=1e-12)
+    assert (
+        np.max(np.abs(run.states[-1]))
+        <= uo.control.simulation.BLOW_UP
+        < np.max(np.abs(x0 * growth ** len(run.states)))
+    )
+    assert run.controls.shape[0] == run.states.shape[0] - 1

@@ -28,6 +28,7 @@ TESTED = {
     "closed_loop",
     "figures",
     "generated_c",
+    "campaign",
 }
 
 
@@ -225,6 +226,30 @@ def test_closed_loop():
     mismatch = runs["mismatch"]
     replayed = replay(uo.Vehicle.rexrov().dynamics_function(), mismatch, rtol=1e-9)
     np.testing.assert_allclose(replayed, mismatch.states, atol=1e-5)
+
+
+@pytest.mark.slow
+def test_campaign(tmp_path, capsys):
+    import uuv_ocp as uo
+
+    module = load("campaign")
+    out = module.main(trials=2, more=3, duration=2.0, horizon=8, workers=1, out=tmp_path)
+    first, second, rows = out["first"], out["second"], out["rows"]
+    assert second.resumed == 2 and second.directory == first.directory
+    np.testing.assert_equal(second.trials[:2], first.trials)  # NaN-aware: nothing is settled in 2 s
+    assert [row["trial"] for row in rows] == [0, 1, 2] and "3 trials: 2 read back" in capsys.readouterr().out
+    exact, path = uo.Vehicle.rexrov(), uo.Reference.paper("s2")
+    for row in rows:
+        run = uo.ClosedLoopResult.load(str(tmp_path / row["path"]))
+        # the metrics in the index are those of the recorded arrays, against the path itself
+        np.testing.assert_allclose(run.reference, path.evaluate(run.t), rtol=0, atol=1e-12)
+        assert row["max_abs_ex"] == pytest.approx(
+            np.max(np.abs(run.states[:, 0] - path.evaluate(run.t)[:, 0]))
+        )
+        # the plant was the exact RexROV under the recorded current: scipy replays it
+        np.testing.assert_allclose(replay(exact.dynamics_function(), run, rtol=1e-9), run.states, atol=1e-5)
+        assert np.all(np.hypot(*run.currents.T) > 0)
+    assert second.summary["mean_max_abs_ey"] == pytest.approx(np.mean([r["max_abs_ey"] for r in rows]))
 
 
 @pytest.mark.slow

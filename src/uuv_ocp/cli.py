@@ -78,15 +78,27 @@ def _parser() -> argparse.ArgumentParser:
     compare.add_argument("--seed", type=int, default=1)
 
     campaign = commands.add_parser("campaign", help="Monte Carlo trials with currents, noise, mismatch")
-    campaign.add_argument("--reference", "-r", default="s2")
+    campaign.add_argument(
+        "--config", help="campaign file (TOML, docs/campaigns.md); replaces the trial flags"
+    )
+    campaign.add_argument("--reference", "-r", nargs="+", default=["s2"], help=_REFERENCE_HELP)
+    campaign.add_argument("--vehicle", "-v", default="rexrov", help="the plant: " + _VEHICLE_HELP)
     campaign.add_argument("--solver", "-s", default="ipopt")
     campaign.add_argument("--trials", type=int, default=50)
     campaign.add_argument("--duration", type=float, default=30.0)
+    campaign.add_argument("--horizon", type=int, default=20)
+    campaign.add_argument("--dt", type=float, default=0.1, help="sampling time (s)")
     campaign.add_argument("--max-current", type=float, default=0.5, help="m/s")
     campaign.add_argument("--seed", type=int, default=0)
-    campaign.add_argument("--executor", choices=["local", "process"], default="local")
-    campaign.add_argument("--workers", type=int, default=2)
-    campaign.add_argument("--out", default="out/campaigns")
+    campaign.add_argument(
+        "--executor",
+        choices=["local", "dask", "process"],
+        default=None,
+        help="local: --workers processes on this machine (default); dask: dask.distributed",
+    )
+    campaign.add_argument("--workers", type=int, default=None, help="worker processes (default 2)")
+    campaign.add_argument("--scheduler", default=None, help="dask: join the scheduler at tcp://host:port")
+    campaign.add_argument("--out", default=None, help="output folder (default out/campaigns)")
 
     reproduce = commands.add_parser("reproduce", help="the paper's experiment: tables, figures, verdicts")
     reproduce.add_argument("--out", default="docs/reproduction", help="report.md, figures/, campaigns/")
@@ -287,6 +299,58 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _run_campaign(args: argparse.Namespace) -> int:
+    """``uuv-ocp campaign``: flags or ``--config FILE``; the file's ``[run]`` fills unset run flags."""
+    from uuv_ocp.studies.campaign import CampaignConfig, format_summary, format_summary_table, run_campaigns
+    from uuv_ocp.studies.campaign_file import load_campaign_file
+
+    try:
+        if args.config is not None:
+            loaded = load_campaign_file(args.config)
+            configs, run = loaded.configs, loaded.run
+        else:
+            configs = (
+                CampaignConfig(
+                    reference=" ".join(args.reference),
+                    vehicle=args.vehicle,
+                    solver=_solver("--solver", args.solver),
+                    trials=args.trials,
+                    duration=args.duration,
+                    horizon=args.horizon,
+                    dt=args.dt,
+                    max_current=args.max_current,
+                    seed=args.seed,
+                ),
+            )
+            run = {}
+        executor = args.executor or run.get("executor", "local")
+        workers = args.workers if args.workers is not None else run.get("workers", 2)
+        scheduler = args.scheduler or run.get("scheduler")
+        out = args.out or run.get("out", "out/campaigns")
+        _output_folder(str(out))
+        if not isinstance(workers, int) or workers < 1:
+            raise _UsageError(f"--workers must be an integer >= 1, got {workers}")
+        results = run_campaigns(configs, out, executor=executor, workers=workers, scheduler=scheduler)
+    except ValueError as error:
+        return _fail(str(error))
+    except OSError as error:
+        return _fail(f"--out: {error.strerror or error} ({error.filename or ''})")
+    except KeyboardInterrupt:
+        print("\ninterrupted: finished trials are saved; rerun the command to resume", file=sys.stderr)
+        return 130
+    for result in results:
+        print(format_summary(result))
+        print(f"trials saved in {result.directory}")
+    if args.config is not None:  # the file and the table of its campaigns, beside the results
+        stem = Path(args.config).stem
+        (Path(out) / f"{stem}.toml").write_text(loaded.text, encoding="utf-8")
+        table = format_summary_table(results)
+        (Path(out) / f"{stem}_summary.txt").write_text(table + "\n", encoding="utf-8")
+        print(table)
+        print(f"config and summary saved as {Path(out) / stem}.toml and {Path(out) / stem}_summary.txt")
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``uuv-ocp`` console script; returns the exit status (see module doc)."""
     parser = _parser()
@@ -312,31 +376,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         print(options_table(_solver("NAME", args.name)))
         return 0
     if command == "campaign":
-        from uuv_ocp.studies.campaign import CampaignConfig, format_summary, run_campaign
-
-        try:
-            config = CampaignConfig(
-                reference=args.reference,
-                solver=_solver("--solver", args.solver),
-                trials=args.trials,
-                duration=args.duration,
-                max_current=args.max_current,
-                seed=args.seed,
-            )
-            if args.workers < 1:
-                raise _UsageError(f"--workers must be an integer >= 1, got {args.workers}")
-            _output_folder(args.out)
-            result = run_campaign(config, args.out, executor=args.executor, workers=args.workers)
-        except ValueError as error:
-            return _fail(str(error))
-        except OSError as error:
-            return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
-        except KeyboardInterrupt:
-            print("\ninterrupted: finished trials are saved; rerun the command to resume", file=sys.stderr)
-            return 130
-        print(format_summary(result))
-        print(f"trials saved in {result.directory}")
-        return 0
+        return _run_campaign(args)
     if command == "reproduce":
         try:
             return _run_reproduce(args)

@@ -7,6 +7,11 @@ measurement noise.  A :class:`KeyboardInterrupt` (Ctrl-C, CasADi's included) sto
 and reaches the caller as :class:`SimulationInterrupted`, a ``KeyboardInterrupt`` that carries
 everything computed so far (``error.result``, with ``interrupted=True``): nothing is lost, and
 nothing that was not finished is passed off as a finished run.
+
+A *fault* ends the run early without losing it: a measurement that is not finite (before the
+controller sees it), a plant state that is not finite or whose magnitude exceeds
+:data:`BLOW_UP` (the plant blew up), or an exception of the plant's integrator.  The result
+then holds the run up to the last finite state and says why in ``fault``.
 """
 
 from __future__ import annotations
@@ -28,6 +33,10 @@ from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions, warn_if_reference_too_fast
 from uuv_ocp.transcription.multiple_shooting import parameter_blocks
+
+#: A plant state entry larger than this in magnitude (SI units) counts as a blow-up fault; below the
+#: plausibility bound (``_validation.PLAUSIBLE_MAGNITUDE``) past which the controller refuses a state.
+BLOW_UP = 1e8
 
 
 class SimulationInterrupted(KeyboardInterrupt):
@@ -72,6 +81,10 @@ class ClosedLoopResult:
         Steps whose solve the backend's ``deadline`` option stopped or outlasted
         (:attr:`StepOutput.deadline_hit <uuv_ocp.control.mpc.StepOutput>`); all False when
         omitted.
+    fault : str or None
+        Why the run stopped early (non-finite measurement, plant blow-up, plant exception), with
+        the time; ``None`` for a run that reached its end.  The arrays end at the last finite
+        state.
     """
 
     t: np.ndarray
@@ -87,6 +100,7 @@ class ClosedLoopResult:
     solver: str
     interrupted: bool = False
     deadline_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
+    fault: str | None = None
 
     def __post_init__(self) -> None:
         """Fill ``deadline_steps`` (all False) when omitted."""
@@ -112,10 +126,9 @@ class ClosedLoopResult:
         """Tracking and timing metrics (see :func:`uuv_ocp.control.metrics.tracking_metrics`)."""
         return tracking_metrics(self, settle_time=settle_time)
 
-    def save(self, path: str) -> None:
-        """Write all arrays to a compressed ``.npz`` file."""
-        np.savez_compressed(
-            path,
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Every field as a numpy array, by field name: what :meth:`save` writes."""
+        return dict(
             t=self.t,
             states=self.states,
             controls=self.controls,
@@ -129,30 +142,40 @@ class ClosedLoopResult:
             solver=np.array(self.solver),
             interrupted=np.array(self.interrupted),
             deadline_steps=self.deadline_steps,
+            fault=np.array(self.fault or ""),
         )
 
+    def save(self, path: Any) -> None:
+        """Write all arrays (:meth:`arrays`) to a compressed ``.npz`` file (a path or a binary file)."""
+        arrays: dict[str, Any] = self.arrays()
+        np.savez_compressed(path, **arrays)
+
     @classmethod
-    def load(cls, path: str) -> ClosedLoopResult:
-        """Read a result written by :meth:`save`."""
+    def load(cls, path: Any) -> ClosedLoopResult:
+        """Read a result written by :meth:`save` (a path or a binary file)."""
         with np.load(path, allow_pickle=False) as data:
-            return cls(
-                t=data["t"],
-                states=data["states"],
-                controls=data["controls"],
-                reference=data["reference"],
-                solve_times=data["solve_times"],
-                iterations=data["iterations"],
-                fallback_steps=data["fallback_steps"],
-                relaxed_steps=data["relaxed_steps"],
-                currents=data["currents"],
-                statuses=tuple(str(s) for s in data["statuses"]),
-                solver=str(data["solver"]),
-                interrupted=bool(data["interrupted"]),
-                # files written before deadlines existed have no deadline_steps
-                deadline_steps=(
-                    data["deadline_steps"] if "deadline_steps" in data.files else np.zeros(0, dtype=bool)
-                ),
-            )
+            return cls.from_arrays({name: data[name] for name in data.files})
+
+    @classmethod
+    def from_arrays(cls, data: dict[str, np.ndarray]) -> ClosedLoopResult:
+        """Rebuild a result from :meth:`arrays` (files of older versions lack some fields)."""
+        return cls(
+            t=data["t"],
+            states=data["states"],
+            controls=data["controls"],
+            reference=data["reference"],
+            solve_times=data["solve_times"],
+            iterations=data["iterations"],
+            fallback_steps=data["fallback_steps"],
+            relaxed_steps=data["relaxed_steps"],
+            currents=data["currents"],
+            statuses=tuple(str(s) for s in data["statuses"]),
+            solver=str(data["solver"]),
+            interrupted=bool(data["interrupted"]),
+            # files written before deadlines existed have no deadline_steps
+            deadline_steps=(data["deadline_steps"] if "deadline_steps" in data else np.zeros(0, dtype=bool)),
+            fault=(str(data["fault"]) or None) if "fault" in data else None,
+        )
 
 
 def simulate(
@@ -204,6 +227,17 @@ def simulate(
         Progress-bar label.
     parameters : dict, optional
         An Ocp's parameter values, held for the whole run.
+
+    Returns
+    -------
+    ClosedLoopResult
+        The whole run; shorter, with the reason in ``fault``, when a measurement was not
+        finite or the plant blew up (module doc).
+
+    Raises
+    ------
+    SimulationInterrupted
+        On Ctrl-C, carrying the run up to the interrupt.
     """
     if not isinstance(controller, NMPC):
         raise ValueError(f"controller must be a uuv_ocp.NMPC, got {type(controller).__name__}")
@@ -271,11 +305,15 @@ def simulate(
     u_prev = np.clip(np.zeros(nu), spec.lower, spec.upper)
     completed = 0
     interrupted = False
+    fault: str | None = None
     name = problem.reference.name if isinstance(problem, TrackingProblem) else spec.name
     with ProgressBar(steps, label or f"{name}/{controller.solver_name}", progress) as bar:
         try:
             for k in range(steps):
                 measured = states[k] + (noise.sample(rng) if noise is not None else 0.0)
+                if not np.all(np.isfinite(measured)):  # the controller would fail on it: stop here
+                    fault = f"non-finite measurement at t = {times[k]:.6g} s (step {k})"
+                    break
                 start = time.perf_counter()
                 if tracking:
                     model_current = currents[k] if current_known else np.zeros(nc)
@@ -293,11 +331,24 @@ def simulate(
                     statuses.append(result.status)
                 else:
                     statuses.append(output.message or "exception")
-                if tracking:
-                    next_state = plant_step(states[k], controls[k], currents[k])
-                else:
-                    next_state = plant_step(states[k], controls[k])
-                states[k + 1] = np.array(next_state, dtype=float).ravel()
+                try:
+                    if tracking:
+                        next_state = plant_step(states[k], controls[k], currents[k])
+                    else:
+                        next_state = plant_step(states[k], controls[k])
+                except Exception as error:  # CasADi's evaluation errors: a fault, not a lost run
+                    fault = (
+                        f"plant exception at t = {times[k]:.6g} s (step {k}): {type(error).__name__}: {error}"
+                    )
+                    break
+                next_state = np.array(next_state, dtype=float).ravel()
+                if not np.all(np.isfinite(next_state)) or np.max(np.abs(next_state)) > BLOW_UP:
+                    fault = (
+                        f"plant blew up at t = {times[k + 1]:.6g} s (step {k}): state not finite or "
+                        f"beyond {BLOW_UP:g} in magnitude"
+                    )
+                    break
+                states[k + 1] = next_state
                 u_prev = controls[k]
                 completed = k + 1
                 bar.update(1, postfix=f"fail={int(fallback[: k + 1].sum())}")
@@ -322,6 +373,7 @@ def simulate(
         solver=controller.solver_name,
         interrupted=interrupted,
         deadline_steps=deadline_steps[:n],
+        fault=fault,
     )
     if interrupted:
         raise SimulationInterrupted(run)

@@ -1,39 +1,86 @@
 """Monte Carlo campaigns: many closed-loop trials with random currents, noise and mismatch.
 
 The paper (§4.2) ran every reference 50 times and averaged the maximum absolute error and the
-error covariance per direction (its Tables 1–4).  :func:`run_campaign` does the same on our
-model: trial ``i`` draws its current (speed, direction), its Gauss–Markov path and its
+error covariance per direction (its Tables 1–4).  :func:`run_campaign` does the same for any
+vehicle and reference that :class:`~uuv_ocp.tracking.TrackingProblem` and
+:func:`~uuv_ocp.control.simulation.simulate` support (3-DOF and 6-DOF; the current is
+horizontal): trial ``i`` draws its current (speed, direction), its Gauss–Markov path and its
 measurement noise from ``numpy.random.default_rng([seed, i])``, so any single trial can be
-reproduced alone.  Every finished trial is written to ``<out>/<name>/trial_<i>.npz`` before
-the next one starts; a rerun skips trials already on disk (resume), so an interrupted campaign
-loses at most the trials in progress.
+reproduced alone, on any executor (:mod:`uuv_ocp.studies.executors`).
 
-Executors: ``"local"`` (one process, in order) and ``"process"`` (a
-``concurrent.futures.ProcessPoolExecutor`` with ``workers`` processes; each worker builds its
-own solver).
+Records (:mod:`uuv_ocp.studies.records`): trial ``i`` is written to
+``<out>/<name>/trial_<i>.npz`` with its full configuration (:meth:`CampaignConfig.trial_settings`:
+vehicles, reference, solver and options, horizon, dt, duration, disturbances, seed, trial index,
+package version) and a checksum, and indexed in ``<out>/index.sqlite``.  The folder ``<name>``
+is keyed by everything but the trial count, so a rerun, or the same campaign with more trials,
+reuses every sound record; a record that fails its checks is reported (:class:`RecordWarning`)
+and recomputed.  An interrupted campaign loses only the trials in progress and writes no
+record of them.  A trial whose run faults (non-finite measurement, plant blow-up) is recorded
+up to the fault and counted in the summary's ``faults``.
 """
 
 from __future__ import annotations
 
-import concurrent.futures
+import dataclasses
+import functools
 import hashlib
 import math
+import os
+import re
+import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+import uuv_ocp
 from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
-from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.reference.path import Reference
-from uuv_ocp.tracking import TrackingProblem
+from uuv_ocp.specs import reference_from_spec, vehicle_from_spec
+from uuv_ocp.studies.executors import EXECUTORS, TaskRunner, require_dask
+from uuv_ocp.studies.records import (
+    INDEX_NAME,
+    RecordWarning,
+    canonical,
+    check_writable,
+    index_trial,
+    query_trials,
+    read_record,
+    write_record,
+)
+from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions
 
-EXECUTORS = ("local", "process")
+__all__ = [
+    "EXECUTORS",
+    "INDEX_NAME",
+    "CampaignConfig",
+    "CampaignResult",
+    "RecordWarning",
+    "format_summary",
+    "format_summary_table",
+    "query_trials",
+    "run_campaign",
+    "run_campaigns",
+    "run_trial",
+    "summarise",
+    "trial_task",
+]
+
+#: Vehicles whose rounded "controller" model ``mismatch=True`` uses when no model is named.
+ROUNDED_MODELS = {"rexrov": "rexrov-controller"}
+
+
+def _reference_fingerprint(reference: Reference, t_end: float) -> str:
+    """SHA-256 of the reference's states sampled over the run: its content, whatever its source."""
+    times = np.linspace(reference.t_start, min(reference.t_end, t_end), 257)
+    samples = np.ascontiguousarray(reference.evaluate(times), dtype=float)
+    return hashlib.sha256(samples.tobytes() + repr((reference.t_start, reference.t_end)).encode()).hexdigest()
 
 
 @dataclass(frozen=True)
@@ -43,21 +90,23 @@ class CampaignConfig:
     Parameters
     ----------
     reference : str
-        Paper reference name (``"s1"`` … ``"s10"``).
+        Reference spec: a paper name (``"s1"`` … ``"s10"``) or anything
+        :func:`uuv_ocp.specs.reference_from_spec` takes (``"waypoints FILE"``, ``FILE.toml``, …).
     solver : str
         Solver name.
     trials : int
-        Number of trials, >= 1.
+        Number of trials, >= 1 (not part of the campaign's identity: more trials reuse the first).
     duration : float
-        Simulated time per trial (s), > 0.
+        Simulated time per trial (s), > 0; shortened to the reference window.
     max_current : float
         Trial current speeds are uniform in ``[0, max_current]`` (m/s), directions uniform.
     current_noise : float
         Gauss–Markov noise intensity of speed (m/s/√s) and direction (rad/√s).
-    noise_std : tuple of 6 floats
-        Measurement noise standard deviations (m, m, rad, m/s, m/s, rad/s).
+    noise_std : tuple of floats
+        Measurement noise standard deviations, one per state (3-DOF: m, m, rad, m/s, m/s, rad/s).
     mismatch : bool
-        Controller uses :meth:`Vehicle.rexrov_controller_model`, plant the exact RexROV.
+        The controller uses ``controller_model`` (default: the vehicle's rounded model,
+        ``rexrov-controller`` for ``rexrov``), the plant ``vehicle``; else both use ``vehicle``.
     current_known : bool
         Whether the controller is told the measured current.
     horizon : int
@@ -65,7 +114,15 @@ class CampaignConfig:
     seed : int
         Campaign seed.
     solver_options : dict
-        Backend options.
+        Backend options (plain data).
+    vehicle : str
+        Plant vehicle spec (``"rexrov"``, ``"bluerov2-heavy"``, ``"rexrov2"``, ``FILE.toml``).
+    controller_model : str or None
+        Vehicle spec of the controller's model when ``mismatch`` is true.
+    dt : float
+        Sampling time (s), > 0.
+    current_decay : float
+        Gauss–Markov decay rate of the current's speed and direction (1/s), >= 0.
     """
 
     reference: str = "s2"
@@ -80,41 +137,146 @@ class CampaignConfig:
     horizon: int = 20
     seed: int = 0
     solver_options: dict = field(default_factory=dict, hash=False)
+    vehicle: str = "rexrov"
+    controller_model: str | None = None
+    dt: float = 0.1
+    current_decay: float = 0.1
 
     def __post_init__(self) -> None:
         """Validate the fields (``ValueError`` names the first bad one)."""
-        Reference.paper(self.reference)  # validates the name
+        from uuv_ocp.solvers import REGISTRY
+
+        for name in ("reference", "solver", "vehicle"):
+            if not isinstance(getattr(self, name), str):
+                raise ValueError(f"{name} must be a string, got {getattr(self, name)!r}")
+        if self.controller_model is not None and not isinstance(self.controller_model, str):
+            raise ValueError(
+                f"controller_model must be a vehicle spec string or None, got {self.controller_model!r}"
+            )
+        REGISTRY.factory(self.solver)  # unknown names raise, naming the known ones
         object.__setattr__(self, "trials", check.positive_int("trials", self.trials))
         object.__setattr__(self, "duration", check.positive_float("duration", self.duration))
         object.__setattr__(self, "max_current", check.nonnegative_float("max_current", self.max_current))
         object.__setattr__(
             self, "current_noise", check.nonnegative_float("current_noise", self.current_noise)
         )
-        object.__setattr__(self, "noise_std", check.vector("noise_std", self.noise_std, 6, nonnegative=True))
+        object.__setattr__(
+            self, "current_decay", check.nonnegative_float("current_decay", self.current_decay)
+        )
+        check.boolean("mismatch", self.mismatch)
+        check.boolean("current_known", self.current_known)
         object.__setattr__(self, "horizon", check.positive_int("horizon", self.horizon))
+        object.__setattr__(self, "dt", check.positive_float("dt", self.dt))
         object.__setattr__(self, "seed", check.positive_int("seed", self.seed, minimum=0))
+        if not isinstance(self.solver_options, dict):
+            raise ValueError(f"solver_options must be a dict, got {self.solver_options!r}")
+        canonical(self.solver_options)  # plain data only: it is part of every record's key
+        if self.mismatch and self.controller_model is None and self.vehicle not in ROUNDED_MODELS:
+            raise ValueError(
+                f"controller_model must name the controller's vehicle when mismatch is true for vehicle "
+                f"{self.vehicle!r} (a rounded model is known only for {list(ROUNDED_MODELS)}), got None"
+            )
+        plant = self.plant()
+        states = vehicle_dimensions(plant)[0]
+        object.__setattr__(
+            self, "noise_std", check.vector("noise_std", self.noise_std, states, nonnegative=True)
+        )
+        self.problem()  # the horizon fits the reference, the model matches the plant
+
+    # ------------------------------------------------------------ what it builds
+    @property
+    def model_spec(self) -> str:
+        """Vehicle spec of the controller's model."""
+        if not self.mismatch:
+            return self.vehicle
+        return self.controller_model or ROUNDED_MODELS[self.vehicle]
+
+    def plant(self) -> Any:
+        """Return the plant vehicle."""
+        return vehicle_from_spec(self.vehicle)
+
+    def problem(self) -> TrackingProblem:
+        """Return the controller's tracking problem."""
+        model = vehicle_from_spec(self.model_spec)
+        if vehicle_dimensions(model) != vehicle_dimensions(self.plant()):
+            raise ValueError(
+                f"controller_model must have the plant's dimensions {vehicle_dimensions(self.plant())}, "
+                f"got {self.model_spec!r} with {vehicle_dimensions(model)}"
+            )
+        reference = reference_from_spec(self.reference, spatial=vehicle_dimensions(model)[0] == 12)
+        return TrackingProblem(model, reference, horizon=self.horizon, dt=self.dt)
+
+    def run_duration(self, problem: TrackingProblem | None = None) -> float:
+        """Return the simulated time of each trial (s): ``duration`` inside the reference window."""
+        problem = problem or self.problem()
+        return min(self.duration, problem.latest_start() - problem.reference.t_start)
+
+    def steps(self, problem: TrackingProblem | None = None) -> int:
+        """Control steps of a trial that does not fault."""
+        return int(np.floor(self.run_duration(problem) / self.dt + 1e-9))
+
+    def settings(self) -> dict[str, Any]:
+        """Return a copy of :attr:`_settings`: the configuration except the trial count."""
+        return dict(self._settings)
+
+    @functools.cached_property
+    def _settings(self) -> dict[str, Any]:
+        """The campaign's full configuration except the trial count, as plain data.
+
+        Vehicles and reference are given by spec and by content (parameter values; the
+        reference's states sampled over the run), so an edited vehicle or waypoint file makes a
+        new campaign.
+        """
+        problem = self.problem()
+        duration = self.run_duration(problem)
+        values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "trials"}
+        values.update(
+            model=self.model_spec,
+            plant_content=self.plant(),
+            model_content=problem.vehicle,
+            reference_content=_reference_fingerprint(
+                problem.reference, problem.reference.t_start + duration + self.horizon * self.dt
+            ),
+            run_duration=duration,
+            version=uuv_ocp.__version__,
+        )
+        return values
+
+    def trial_settings(self, index: int) -> dict[str, Any]:
+        """Return the configuration of trial ``index``: :meth:`settings` and the trial index."""
+        return {**self.settings(), "trial": int(index)}
 
     @property
     def name(self) -> str:
-        """Folder name: reference, solver, seed and a hash of every other setting."""
-        settings = repr({key: getattr(self, key) for key in sorted(self.__dataclass_fields__)})
-        digest = hashlib.sha256(settings.encode()).hexdigest()[:8]
-        return f"{self.reference}_{self.solver.replace('+', '-')}_seed{self.seed}_{digest}"
+        """Folder name: reference, solver, seed and a hash of every setting but the trial count."""
+        digest = hashlib.sha256(canonical(self.settings()).encode()).hexdigest()[:12]
+        label = re.sub(r"[^A-Za-z0-9.-]+", "-", Path(self.reference).name)[:32].strip("-")
+        vehicle = (
+            "" if self.vehicle == "rexrov" else re.sub(r"[^A-Za-z0-9.-]+", "-", Path(self.vehicle).stem) + "_"
+        )
+        return f"{vehicle}{label}_{self.solver.replace('+', '-')}_seed{self.seed}_{digest}"
 
 
 @dataclass(frozen=True)
 class CampaignResult:
     """Per-trial metrics and the paper-style averages.
 
-    ``summary`` holds the mean over trials of ``max_abs_ex``, ``max_abs_ey`` (m),
-    ``std_ex``, ``std_ey`` (m) and ``var_ex``, ``var_ey`` (m², the paper's "covariance"), and
-    the total ``failures``; ``trials`` the per-trial metric dicts in trial order.
+    ``summary`` holds the mean over the trials that ran to their end of ``max_abs_ex``,
+    ``max_abs_ey`` (m), ``std_ex``, ``std_ey`` (m), ``var_ex``, ``var_ey`` (m², the paper's
+    "covariance") and ``solve_time_median`` (s); the total ``failures`` (fallback steps),
+    ``faults`` (trials stopped by a fault), ``trials``; ``trials`` the per-trial metric dicts
+    in trial order (faulted ones included, up to their fault); ``faults`` the fault reason per
+    trial (``None`` for a complete one); ``recomputed`` the trials whose saved record failed its
+    checks; ``resumed`` how many trials were read back from sound records.
     """
 
     config: CampaignConfig
     trials: tuple[dict, ...]
     summary: dict
     directory: Path
+    faults: tuple[str | None, ...] = ()
+    recomputed: tuple[int, ...] = ()
+    resumed: int = 0
 
 
 def _trial_setup(config: CampaignConfig, index: int) -> tuple[Current, MeasurementNoise, int]:
@@ -124,6 +286,7 @@ def _trial_setup(config: CampaignConfig, index: int) -> tuple[Current, Measureme
         direction=float(rng.uniform(-math.pi, math.pi)),
         speed_noise=config.current_noise,
         direction_noise=config.current_noise,
+        decay=config.current_decay,
         max_speed=max(2.0, config.max_current),
     )
     return current, MeasurementNoise(config.noise_std), int(rng.integers(2**31))
@@ -133,33 +296,66 @@ def _trial_path(directory: str | Path, index: int) -> Path:
     return Path(directory) / f"trial_{index:04d}.npz"
 
 
-def run_trial(config: CampaignConfig, index: int, directory: str | Path) -> dict:
-    """Run (or load, if saved) trial ``index``; return its metrics."""
-    path = _trial_path(directory, index)
-    if path.exists():
-        return ClosedLoopResult.load(str(path)).metrics()
-    reference = Reference.paper(config.reference)
-    model = Vehicle.rexrov_controller_model() if config.mismatch else Vehicle.rexrov()
-    problem = TrackingProblem(model, reference, horizon=config.horizon)
+def trial_task(config: CampaignConfig, index: int) -> ClosedLoopResult:
+    """Simulate trial ``index`` of ``config``: the one task function of every executor.
+
+    Writes nothing: the campaign driver records what this returns.  A Ctrl-C raises
+    ``KeyboardInterrupt`` without a result.
+    """
+    problem = config.problem()
+    reference = problem.reference
     current, noise, simulation_seed = _trial_setup(config, index)
     controller = NMPC(problem, config.solver, options=config.solver_options or None, seed=simulation_seed)
     try:
-        run = simulate(
+        return simulate(
             controller,
             reference.initial_state(reference.t_start),
-            min(config.duration, problem.latest_start() - reference.t_start),
+            config.run_duration(problem),
             current=current,
             current_known=config.current_known,
             noise=noise,
-            plant=Vehicle.rexrov(),
+            plant=config.plant(),
             seed=simulation_seed,
         )
     except SimulationInterrupted as stop:  # no record of an unfinished trial is written
         raise KeyboardInterrupt(f"trial {index} interrupted; finished trials are saved") from stop
-    partial = path.with_suffix(".partial.npz")
-    run.save(str(partial))
-    partial.replace(path)  # atomic: a killed run never leaves a half-written trial
-    return run.metrics()
+
+
+def _record(config: CampaignConfig, index: int, directory: Path, run: ClosedLoopResult) -> dict:
+    """Write trial ``index``'s record and index row; return its metrics."""
+    settings = config.trial_settings(index)
+    path = _trial_path(directory, index)
+    digest = write_record(path, run, settings)
+    metrics = run.metrics()
+    index_trial(
+        directory.parent,
+        path,
+        campaign=config.name,
+        trial=index,
+        config=settings,
+        digest=digest,
+        run=run,
+        metrics=metrics,
+    )
+    return metrics
+
+
+def _load(
+    config: CampaignConfig, index: int, directory: Path, steps: int
+) -> tuple[ClosedLoopResult, str] | None:
+    return read_record(_trial_path(directory, index), config.trial_settings(index), steps=steps)
+
+
+def run_trial(config: CampaignConfig, index: int, directory: str | Path) -> dict:
+    """Run trial ``index`` into the campaign folder ``directory`` (or read its sound record).
+
+    Returns the trial's metrics (:meth:`ClosedLoopResult.metrics`).
+    """
+    directory = Path(directory)
+    saved = _load(config, index, directory, config.steps())
+    if saved is not None:
+        return saved[0].metrics()
+    return _record(config, index, directory, trial_task(config, index))
 
 
 def run_campaign(
@@ -169,39 +365,173 @@ def run_campaign(
     executor: str = "local",
     workers: int = 2,
     progress: bool = True,
+    scheduler: str | None = None,
 ) -> CampaignResult:
-    """Run all trials of ``config`` (resuming saved ones) and summarise them."""
-    if not isinstance(config, CampaignConfig):
-        raise ValueError(f"config must be a CampaignConfig, got {type(config).__name__}")
+    """Run all trials of ``config`` (reusing sound records) and summarise them.
+
+    Parameters
+    ----------
+    config : CampaignConfig
+    out_dir : str or Path
+        Output folder: the campaign's records go to ``out_dir / config.name``, the index to
+        ``out_dir / "index.sqlite"``.  Checked writable before any trial runs.
+    executor : {"local", "dask", "process"}
+        ``"local"``: ``workers`` processes on this machine (in this process for ``workers=1``);
+        ``"dask"``: dask.distributed (a LocalCluster of ``workers`` processes, or the cluster at
+        ``scheduler``); ``"process"``: the local pool even for one worker.
+    workers : int
+        Worker processes, >= 1.
+    progress : bool
+        Show a progress bar.
+    scheduler : str, optional
+        Dask scheduler address ``tcp://host:port`` (``executor="dask"`` only).
+
+    Returns
+    -------
+    CampaignResult
+    """
+    return run_campaigns(
+        [config], out_dir, executor=executor, workers=workers, progress=progress, scheduler=scheduler
+    )[0]
+
+
+def run_campaigns(
+    configs: Sequence[CampaignConfig],
+    out_dir: str | Path = "out/campaigns",
+    *,
+    executor: str = "local",
+    workers: int = 2,
+    progress: bool = True,
+    scheduler: str | None = None,
+) -> tuple[CampaignResult, ...]:
+    """Run several campaigns on one executor (started once, trials of all campaigns interleaved).
+
+    Parameters are those of :func:`run_campaign`, with a sequence of configurations; each
+    campaign gets its own folder in ``out_dir``.  Returns one :class:`CampaignResult` per
+    configuration, in order.
+    """
+    configs = list(configs)
+    if not configs or not all(isinstance(config, CampaignConfig) for config in configs):
+        raise ValueError(f"configs must be a non-empty sequence of CampaignConfig, got {configs!r}")
+    if len({config.name for config in configs}) != len(configs):
+        raise ValueError("configs must be different campaigns, got the same campaign twice")
     check.choice("executor", executor, EXECUTORS)
     workers = check.positive_int("workers", workers)
-    directory = Path(out_dir) / config.name
-    directory.mkdir(parents=True, exist_ok=True)
-    metrics: dict[int, dict] = {}
-    saved = [i for i in range(config.trials) if _trial_path(directory, i).exists()]
-    for index in saved:  # resumed trials load in milliseconds: not part of the bar's rate
-        metrics[index] = run_trial(config, index, directory)
-    pending = [i for i in range(config.trials) if i not in metrics]
-    with ProgressBar(config.trials, f"campaign {config.name}", progress, initial=len(saved)) as bar:
-        if executor == "local":
-            for index in pending:
-                metrics[index] = run_trial(config, index, directory)
-                bar.update(1)
-        elif pending:
-            with concurrent.futures.ProcessPoolExecutor(max_workers=workers) as pool:
-                futures = {pool.submit(run_trial, config, i, directory): i for i in pending}
-                for future in concurrent.futures.as_completed(futures):
-                    metrics[futures[future]] = future.result()
+    if scheduler is not None:
+        if executor != "dask":
+            raise ValueError(f"scheduler is for executor 'dask', got executor {executor!r}")
+        if not isinstance(scheduler, str) or "://" not in scheduler:
+            raise ValueError(f"scheduler must be an address like 'tcp://host:8786', got {scheduler!r}")
+    if executor == "dask":
+        require_dask()
+    out = check_writable(out_dir)
+    metrics: list[dict[int, dict]] = [{} for _ in configs]
+    faults: list[dict[int, str | None]] = [{} for _ in configs]
+    recomputed: list[list[int]] = [[] for _ in configs]
+    for c, config in enumerate(configs):  # resumed trials load in milliseconds: not part of the bar's rate
+        directory = out / config.name
+        directory.mkdir(exist_ok=True)
+        steps = config.steps()
+        for index in range(config.trials):
+            path = _trial_path(directory, index)
+            existed = path.exists()
+            saved = _load(config, index, directory, steps)
+            if saved is None:
+                if existed:
+                    recomputed[c].append(index)
+                continue
+            run, digest = saved
+            metrics[c][index], faults[c][index] = run.metrics(), run.fault
+            settings = config.trial_settings(index)  # rebuild the index row: the files are the authority
+            index_trial(
+                out,
+                path,
+                campaign=config.name,
+                trial=index,
+                config=settings,
+                digest=digest,
+                run=run,
+                metrics=metrics[c][index],
+            )
+    resumed = [len(m) for m in metrics]
+    pending = [
+        ((c, i), (config, i))
+        for c, config in enumerate(configs)
+        for i in range(config.trials)
+        if i not in metrics[c]
+    ]
+    total = sum(config.trials for config in configs)
+    label = f"campaign {configs[0].name}" if len(configs) == 1 else f"{len(configs)} campaigns"
+    with ProgressBar(total, label, progress, initial=sum(resumed)) as bar:
+        if pending:
+            with TaskRunner(executor, workers, scheduler) as runner:
+                for (c, index), run in runner.run(trial_task, pending):
+                    config = configs[c]
+                    metrics[c][index] = _record(config, index, out / config.name, run)
+                    faults[c][index] = run.fault
                     bar.update(1)
-    trials = tuple(metrics[i] for i in range(config.trials))
-    return CampaignResult(config, trials, summarise(trials), directory)
+    results = []
+    for c, config in enumerate(configs):
+        trials = tuple(metrics[c][i] for i in range(config.trials))
+        fault_list = tuple(faults[c][i] for i in range(config.trials))
+        directory = out / config.name
+        result = CampaignResult(
+            config,
+            trials,
+            summarise(trials, fault_list),
+            directory,
+            fault_list,
+            tuple(recomputed[c]),
+            resumed[c],
+        )
+        _write_text(directory / "config.toml", _config_toml(config))
+        _write_text(directory / "summary.txt", format_summary(result) + "\n")
+        results.append(result)
+    return tuple(results)
 
 
-def summarise(trials: Sequence[dict]) -> dict:
-    """Paper-style averages over trials (see :class:`CampaignResult`)."""
+def _write_text(path: Path, text: str) -> None:
+    """Write ``text`` atomically (unique temporary name, then rename)."""
+    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(handle, "w", encoding="utf-8") as stream:
+            stream.write(text)
+        os.chmod(temporary, 0o644)
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def _config_toml(config: CampaignConfig) -> str:
+    """Return the configuration as a campaign file (:mod:`uuv_ocp.studies.campaign_file`) of one solver."""
+    from uuv_ocp.studies.campaign_file import to_toml
+
+    return to_toml([config])
+
+
+def summarise(trials: Sequence[dict], faults: Sequence[str | None] | None = None) -> dict:
+    """Paper-style averages over trials (see :class:`CampaignResult`).
+
+    Parameters
+    ----------
+    trials : sequence of dict
+        Per-trial metrics (:meth:`ClosedLoopResult.metrics`).
+    faults : sequence of str or None, optional
+        Fault reason per trial; faulted trials are counted in ``faults`` and left out of the
+        means (their errors stop at the fault).  Default: no faults.
+    """
+    faults = list(faults) if faults is not None else [None] * len(trials)
+    if len(faults) != len(trials):
+        raise ValueError(f"faults must have one entry per trial ({len(trials)}), got {len(faults)}")
+    complete = [trial for trial, fault in zip(trials, faults, strict=True) if fault is None]
     keys = ("max_abs_ex", "max_abs_ey", "std_ex", "std_ey", "var_ex", "var_ey", "solve_time_median")
-    summary = {f"mean_{key}": float(np.mean([trial[key] for trial in trials])) for key in keys}
+    summary = {
+        f"mean_{key}": float(np.mean([trial[key] for trial in complete])) if complete else math.nan
+        for key in keys
+    }
     summary["failures"] = float(np.sum([trial["failures"] for trial in trials]))
+    summary["faults"] = float(len(trials) - len(complete))
     summary["trials"] = float(len(trials))
     return summary
 
@@ -214,5 +544,24 @@ def format_summary(result: CampaignResult) -> str:
         f"mean max|e_y| {s['mean_max_abs_ey']:.3f} m, mean std e_x {s['mean_std_ex']:.3f} m, "
         f"mean std e_y {s['mean_std_ey']:.3f} m\n"
         f"mean var e_x {s['mean_var_ex']:.4f} m², mean var e_y {s['mean_var_ey']:.4f} m², "
-        f"failures {int(s['failures'])}, median solve time {1e3 * s['mean_solve_time_median']:.2f} ms"
+        f"failures {int(s['failures'])}, faults {int(s.get('faults', 0))}, "
+        f"median solve time {1e3 * s['mean_solve_time_median']:.2f} ms"
     )
+
+
+def format_summary_table(results: Sequence[CampaignResult]) -> str:
+    """One row per campaign: trials, faults, fallback steps, mean errors (m), median solve time (ms)."""
+    header = (
+        f"{'vehicle':<16}{'reference':<12}{'solver':<12}{'trials':>7}{'faults':>7}{'fail':>6}"
+        f"{'max|ex|':>9}{'max|ey|':>9}{'std ex':>8}{'std ey':>8}{'var ex':>9}{'var ey':>9}{'med ms':>8}"
+    )
+    lines = [header, "-" * len(header)]
+    for result in results:
+        s, c = result.summary, result.config
+        lines.append(
+            f"{c.vehicle[:15]:<16}{c.reference[:11]:<12}{c.solver[:11]:<12}{int(s['trials']):>7}"
+            f"{int(s['faults']):>7}{int(s['failures']):>6}{s['mean_max_abs_ex']:>9.3f}{s['mean_max_abs_ey']:>9.3f}"
+            f"{s['mean_std_ex']:>8.3f}{s['mean_std_ey']:>8.3f}{s['mean_var_ex']:>9.4f}{s['mean_var_ey']:>9.4f}"
+            f"{1e3 * s['mean_solve_time_median']:>8.2f}"
+        )
+    return "\n".join(lines)

@@ -1,13 +1,18 @@
 """Reproduction jobs: track the paper's references and tabulate the results.
 
-Every finished run is written to ``<out>/runs/<reference>_<solver>.npz`` before the next one
-starts, so an interrupted job loses at most the run in progress and a rerun resumes from the
-saved files (pass ``fresh=True`` to recompute).
+Every finished run is written as a checked record (:mod:`uuv_ocp.studies.records`) to
+``<out>/runs/<reference>_<solver>_<key>.npz`` before the next one starts, ``key`` a hash of the
+run's whole configuration (vehicle, reference, solver and options, horizon, dt, duration, start
+time, package version).  An interrupted job loses at most the run in progress; a rerun reuses
+the records of the same configuration only, and recomputes one that fails its checks (a
+:class:`~uuv_ocp.studies.records.RecordWarning` names it); ``fresh=True`` recomputes all.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
+import re
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -17,12 +22,13 @@ import numpy as np
 
 from uuv_ocp.build import Transcribed
 from uuv_ocp.control.mpc import NMPC
-from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
+from uuv_ocp.control.simulation import SimulationInterrupted, simulate
 from uuv_ocp.judge import score_terms
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.plotting import save_tracking_figures
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
+from uuv_ocp.studies.records import config_key, read_record, write_record
 from uuv_ocp.tracking import ReferenceSpeedWarning, TrackingProblem
 
 AnyVehicle = Vehicle | Vehicle6DOF
@@ -82,6 +88,30 @@ def reference_speed_note(
     )
 
 
+def run_settings(
+    problem: TrackingProblem, solver: str, options: dict | None, t0: float, duration: float
+) -> dict:
+    """Return the whole configuration of one :func:`track_references` run (its record's key)."""
+    import uuv_ocp
+
+    reference = problem.reference
+    times = np.linspace(t0, t0 + duration + problem.horizon * problem.dt, 257)
+    samples = np.ascontiguousarray(reference.evaluate(np.minimum(times, reference.t_end)), dtype=float)
+    return {
+        "vehicle": problem.vehicle,
+        "reference": reference.name,
+        "reference_content": hashlib.sha256(samples.tobytes()).hexdigest(),
+        "solver": solver,
+        "solver_options": options or {},
+        "horizon": problem.horizon,
+        "dt": problem.dt,
+        "terminal": problem.terminal,
+        "t0": t0,
+        "duration": duration,
+        "version": uuv_ocp.__version__,
+    }
+
+
 def track_references(
     names: Sequence[str | Reference] = PAPER_REFERENCES,
     solver: str = "ipopt",
@@ -113,9 +143,12 @@ def track_references(
         problem = TrackingProblem(vehicle, reference, horizon=horizon, dt=dt)
         t0 = reference.t_start
         run_duration = min(duration, problem.latest_start() - t0)
-        path = runs_dir / f"{name}_{solver}.npz"
-        if path.exists() and not fresh:
-            run = ClosedLoopResult.load(str(path))
+        settings = run_settings(problem, solver, solver_options, t0, run_duration)
+        label = re.sub(r"[^A-Za-z0-9_.-]+", "-", f"{name}_{solver}")  # a file name whatever the path's name
+        path = runs_dir / f"{label}_{config_key(settings)[:12]}.npz"
+        saved = None if fresh else read_record(path, settings, steps=int(np.floor(run_duration / dt + 1e-9)))
+        if saved is not None:
+            run = saved[0]
         else:
             controller = NMPC(problem, solver, options=solver_options)
             with warnings.catch_warnings():  # the row's note says it (reference_speed_note)
@@ -132,7 +165,7 @@ def track_references(
                     raise KeyboardInterrupt(
                         f"interrupted during {name}; finished runs are in {runs_dir}"
                     ) from stop
-            run.save(str(path))
+            write_record(path, run, settings)
         speed_max, note = reference_speed_note(reference, vehicle, t0, run_duration)
         if figures:
             save_tracking_figures(

@@ -295,3 +295,14 @@ def test_a_plant_that_blows_up_ends_the_run_at_the_last_finite_state():
         < np.max(np.abs(x0 * growth ** len(run.states)))
     )
     assert run.controls.shape[0] == run.states.shape[0] - 1
+
+
+def test_metric_counts_are_integers():
+    """Counts come out as int (issue 15), and they count what the run holds."""
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=5)
+    run = uo.simulate(uo.NMPC(problem, "sqp"), problem.reference.initial_state(0.0), 0.5, progress=False)
+    metrics = run.metrics()
+    for key in ("failures", "relaxed_steps", "steps", "deadline_misses"):
+        assert type(metrics[key]) is int, key
+    assert metrics["steps"] == len(run.controls) == 5
+    assert metrics["relaxed_steps"] == int(np.count_nonzero(run.relaxed_steps))

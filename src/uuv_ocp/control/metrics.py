@@ -17,7 +17,7 @@ if TYPE_CHECKING:
     from uuv_ocp.control.simulation import ClosedLoopResult
 
 
-def tracking_metrics(run: ClosedLoopResult, settle_time: float = 5.0) -> dict[str, float]:
+def tracking_metrics(run: ClosedLoopResult, settle_time: float = 5.0) -> dict[str, float | int]:
     """Metrics of a closed-loop run.
 
     Parameters
@@ -33,9 +33,9 @@ def tracking_metrics(run: ClosedLoopResult, settle_time: float = 5.0) -> dict[st
         ``max_abs_ex``, ``max_abs_ey`` (m, whole run); ``max_abs_ex_settled``,
         ``max_abs_ey_settled`` (m, after ``settle_time``); ``rms_ex``, ``rms_ey``, ``std_ex``,
         ``std_ey`` (m); ``var_ex``, ``var_ey`` (m²); ``solve_time_median``, ``solve_time_p90``,
-        ``solve_time_max``, ``solve_time_mean`` (s); ``failures``, ``relaxed_steps``, ``steps``;
-        ``deadline_misses`` (an ``int``: steps whose solve the backend's deadline stopped or
-        outlasted).
+        ``solve_time_max``, ``solve_time_mean`` (s); the counts as ``int``: ``failures``,
+        ``relaxed_steps``, ``steps`` and ``deadline_misses`` (steps whose solve the backend's
+        deadline stopped or outlasted).
     """
     errors = run.errors
     settled = run.t >= run.t[0] + settle_time - 1e-9
@@ -56,8 +56,8 @@ def tracking_metrics(run: ClosedLoopResult, settle_time: float = 5.0) -> dict[st
         "solve_time_p90": float(np.percentile(times, 90)),
         "solve_time_max": float(np.max(times)),
         "solve_time_mean": float(np.mean(times)),
-        "failures": float(run.failures),
-        "relaxed_steps": float(np.sum(run.relaxed_steps)),
-        "steps": float(run.controls.shape[0]),
+        "failures": int(run.failures),
+        "relaxed_steps": int(np.sum(run.relaxed_steps)),
+        "steps": int(run.controls.shape[0]),
         "deadline_misses": int(run.deadline_misses),
     }

@@ -122,7 +122,7 @@ class ClosedLoopResult:
         """Position errors ``[x − x_R, y − y_R]`` (m), shape (n+1, 2)."""
         return self.states[:, :2] - self.reference[:, :2]
 
-    def metrics(self, settle_time: float = 5.0) -> dict[str, float]:
+    def metrics(self, settle_time: float = 5.0) -> dict[str, float | int]:
         """Tracking and timing metrics (see :func:`uuv_ocp.control.metrics.tracking_metrics`)."""
         return tracking_metrics(self, settle_time=settle_time)
 

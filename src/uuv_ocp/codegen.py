@@ -34,6 +34,8 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
+import math
 import numbers
 import os
 import warnings
@@ -46,6 +48,7 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
+from uuv_ocp.judge import instance_parameters
 from uuv_ocp.native.compile import (
     DEFAULT_FLAGS as CORE_FLAGS,
 )
@@ -69,6 +72,12 @@ from uuv_ocp.native.simd import UnsupportedOperation, batch_kernel_source
 #: step place its random-number thread on another CPU (Linux).
 DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off", "-march=native", "-D_GNU_SOURCE")
 FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step", "rollout", "score_terms")
+#: generated on request only: the exact NMPC step (one real-time iteration on HPIPM)
+NMPC_STEP = "nmpc_step"
+ACCEPTED_NAMES = (*FUNCTION_NAMES, NMPC_STEP)
+#: random states on which the generated ``nmpc_step`` is checked against the Python backend
+NMPC_CHECK_STATES = 100
+NMPC_TOLERANCE = 1e-9
 #: generated along with ``cost_batch``: CasADi's own (scalar, mapped) code of the same fitness
 EXACT_BATCH = "cost_batch_exact"
 #: smallest population of the IGWO step (three leaders and at least one other wolf)
@@ -119,6 +128,9 @@ class GeneratedCode:
     simd : bool
         Whether ``cost_batch`` is the SIMD kernel (else CasADi's mapped code: the problem's cost
         has an operation the kernel emitter does not support).
+    nmpc_library : Path or None
+        The library of ``nmpc_step`` (``uuv_ocp_nmpc_<digest>.so``, linked to the HPIPM and
+        BLASFEO libraries of the CasADi wheel), when requested and compiled.
     """
 
     directory: Path
@@ -131,6 +143,7 @@ class GeneratedCode:
     digest: str = ""
     reused: bool = False
     simd: bool = False
+    nmpc_library: Path | None = None
 
     def __getitem__(self, name: str) -> ca.Function:
         """Return the loaded Function ``name`` (``KeyError`` if it was not generated)."""
@@ -236,10 +249,10 @@ def generate_c(
         raise ValueError(
             f"functions must be a tuple of names from {list(FUNCTION_NAMES)}, got {check.shown(functions)}"
         )
-    unknown = [name for name in functions if name not in FUNCTION_NAMES]
+    unknown = [name for name in functions if name not in ACCEPTED_NAMES]
     if unknown or not functions:
         raise ValueError(
-            f"functions must be a non-empty subset of {list(FUNCTION_NAMES)}, got {check.shown(functions)}"
+            f"functions must be a non-empty subset of {list(ACCEPTED_NAMES)}, got {check.shown(functions)}"
         )
     minimum = MIN_IGWO_POPULATION if "cost_batch" in functions else 1
     population = check.positive_int("population", population, minimum)
@@ -276,6 +289,23 @@ def generate_c(
             external=external,
         )
 
+    nmpc = None
+    if NMPC_STEP in functions:
+        nmpc = _nmpc_build(problem, directory, compile, verify, seed, flags)
+    if not chosen:  # only the NMPC step was asked for
+        assert nmpc is not None
+        return GeneratedCode(
+            directory=directory,
+            source=nmpc.source,
+            header=nmpc.header,
+            library=nmpc.path,
+            functions=dict(nmpc.functions),
+            max_error=dict(nmpc.max_error),
+            population=population,
+            digest=nmpc.digest,
+            reused=nmpc.reused,
+            nmpc_library=nmpc.path,
+        )
     try:
         library = build(flags)
     except CompilationError:
@@ -283,18 +313,111 @@ def generate_c(
         if portable == tuple(flags):
             raise
         library = build(portable)  # a compiler that rejects -march=native: portable SIMD width
+    loaded, errors = dict(library.functions), dict(library.max_error)
+    if nmpc is not None:
+        loaded.update(nmpc.functions)
+        errors.update(nmpc.max_error)
     return GeneratedCode(
         directory=directory,
         source=library.source,
         header=library.header,
         library=library.path,
-        functions=library.functions,
-        max_error=library.max_error,
+        functions=loaded,
+        max_error=errors,
         population=population,
         digest=library.digest,
         reused=library.reused,
         simd=simd,
+        nmpc_library=None if nmpc is None else nmpc.path,
     )
+
+
+def hpipm_link_flags() -> tuple[str, ...]:
+    """Compiler and linker arguments for C that calls HPIPM: the CasADi wheel's own copy.
+
+    The wheel ships ``libhpipm`` and ``libblasfeo`` next to CasADi's libraries and their headers
+    in ``casadi/include``; the library records that folder as its run-time search path (an
+    absolute path, so programs linked to it run from any working directory).
+    """
+    folder = Path(ca.__file__).resolve().parent
+    return (
+        f"-I{folder / 'include'}",
+        f"-L{folder}",
+        "-Wl,--no-as-needed",
+        "-lhpipm",
+        "-lblasfeo",
+        f"-Wl,-rpath,{folder}",
+    )
+
+
+def _nmpc_build(problem: Transcribed, directory: Path, compile: bool, verify: bool, seed: int, flags):
+    """Compile ``nmpc_step`` into its own library and check it against the Python backend."""
+    from uuv_ocp.solvers.rti import nmpc_step_function
+
+    function, backend = nmpc_step_function(problem)
+    core_flags = tuple(flag for flag in flags if flag in CORE_FLAGS or flag.startswith("-O"))
+    library = compile_functions(
+        [function],
+        directory,
+        name="uuv_ocp_nmpc",
+        compile=compile,
+        verify=False,  # random inputs in [-1, 1] are no QP instances: checked below instead
+        flags=core_flags or CORE_FLAGS,
+        link=hpipm_link_flags(),
+    )
+    if compile and verify:
+        error = check_nmpc_step(problem, library.functions[NMPC_STEP], backend, np.random.default_rng(seed))
+        if not error <= NMPC_TOLERANCE:
+            raise VerificationError(
+                f"compiled nmpc_step disagrees with the Python sqp-rti backend: max error {error:.3e} "
+                f"(fraction of the control range) > {NMPC_TOLERANCE:g}"
+            )
+        library = dataclasses.replace(library, max_error={NMPC_STEP: error})
+    return library
+
+
+def check_nmpc_step(
+    problem: Transcribed,
+    compiled: ca.Function,
+    backend: Any,
+    rng: np.random.Generator,
+    states: int = NMPC_CHECK_STATES,
+) -> float:
+    """Largest difference of the compiled ``nmpc_step`` control from the Python backend's.
+
+    On ``states`` instances: the reference state at a random time plus Gaussian noise, a
+    random last control inside the box, one real-time iteration from the cold guess (the
+    backend of :func:`~uuv_ocp.solvers.rti.nmpc_step_function`, same NLP and QP solver).
+    Returned as a fraction of each control's range (largest over the instances).
+    """
+    spec = problem.spec()
+    variant = "soft" if "soft" in backend.variants else "hard"
+    span = spec.upper - spec.lower
+    worst = 0.0
+    for _ in range(states):
+        x0, t0 = _random_instance(problem, rng)
+        u_prev = spec.lower + span * rng.uniform(0.25, 0.75, spec.control_size)
+        p = instance_parameters(problem, x0, t0, u_prev=u_prev)
+        guess_states, guess_controls = problem.initial_guess(p)
+        w = backend.compose_primal(variant, guess_states, guess_controls, problem.previous_scaled(p))
+        result = backend.solve(p, None)
+        control, _, _ = compiled(x0, u_prev, p, w)
+        if not result.success:
+            return math.inf
+        difference = np.abs(np.asarray(control).ravel() - result.controls[0]) / span
+        worst = max(worst, float(np.max(difference)))
+    return worst
+
+
+def _random_instance(problem: Transcribed, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """A state near the reference at a random time (tracking problems), or random (an Ocp)."""
+    reference = getattr(problem, "reference", None)
+    nx = problem.state_dim
+    if reference is None:
+        return rng.normal(0.0, 1.0, nx), 0.0
+    t0 = float(rng.uniform(0.0, min(problem.latest_start(), 60.0)))  # type: ignore[attr-defined]
+    state = np.asarray(reference.evaluate([t0])[0], dtype=float)
+    return state + rng.normal(0.0, 0.05, nx), t0
 
 
 # ------------------------------------------------------------------ cached build for solvers

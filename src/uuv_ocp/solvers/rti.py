@@ -71,9 +71,11 @@ from uuv_ocp.transcription.multiple_shooting import NlpData
 
 QP_SOLVERS = ("hpipm", "qrqp", "osqp")
 MODES = ("rti", "converged")
-#: HPIPM's residual tolerances (its defaults are 1e-6 / 1e-8): with weights ~1e4 a 1e-6
-#: stationarity residual moved the converged Gauss–Newton point by 1.4e-6 in the scaled
-#: controls from IPOPT's optimum (tol 1e-12, no bound relaxation); with 1e-10 they agree to 3e-11
+#: HPIPM's residual tolerances in ``mode="converged"`` (its defaults, kept in ``mode="rti"``, are
+#: 1e-6 / 1e-8): with weights ~1e4 a 1e-6 stationarity residual moved the converged Gauss–Newton
+#: point by 1.4e-6 in the scaled controls from IPOPT's optimum (tol 1e-12, no bound relaxation);
+#: with 1e-10 they agree to 3e-11.  Not the RTI default: from a cold guess HPIPM cannot reach
+#: 1e-10 on the soft QP and runs its 100 iterations (14 with its defaults).
 HPIPM_DEFAULTS: dict[str, Any] = {
     "hpipm": {"res_g_max": 1e-10, "res_b_max": 1e-10, "res_d_max": 1e-10, "res_m_max": 1e-10}
 }
@@ -222,7 +224,8 @@ class RtiSolver(NlpSolver):
             "options['cold_start']", options.pop("cold_start", "ipopt"), COLD_STARTS
         )
         self.qpsol = check.choice("options['qpsol']", options.pop("qpsol", "hpipm"), QP_SOLVERS)
-        qpsol_options = options.pop("qpsol_options", HPIPM_DEFAULTS if self.qpsol == "hpipm" else {})
+        tight = self.qpsol == "hpipm" and self.mode == "converged"
+        qpsol_options = options.pop("qpsol_options", HPIPM_DEFAULTS if tight else {})
         if not isinstance(qpsol_options, dict):
             raise ValueError(f"options['qpsol_options'] must be a dict, got {check.shown(qpsol_options)}")
         self.qpsol_options = dict(qpsol_options)
@@ -437,3 +440,53 @@ class RtiSolver(NlpSolver):
             "evaluations": iterations,
             "plugin_time": time.perf_counter() - start,
         }
+
+
+def nmpc_step_function(problem: Transcribed, name: str = "nmpc_step") -> tuple[ca.Function, RtiSolver]:
+    """One real-time iteration as a single CasADi Function (what the generated C exports).
+
+    ``nmpc_step(x0, u_prev, p, w) -> (u, w_next, violation)``: the instance ``p`` with its
+    state and last-control blocks replaced by ``x0`` and ``u_prev``, one Gauss–Newton QP step
+    from the primal ``w`` of the exact-penalty NLP (the hard one if the problem has no terminal
+    equality: the soft QP is always feasible, so a C loop needs no fallback chain), ``u`` the
+    first control (physical units), ``w_next`` the new primal shifted by one stage (the next
+    call's ``w``) and ``violation`` the QP's linearised constraint violation (``inf``: not
+    finite).  The same computation as :class:`RtiSolver` with ``terminal_strategy="soft"``,
+    ``cold_start="rti"`` and ``still_water=False``, which is returned with it.
+    """
+    backend = RtiSolver(problem, {"terminal_strategy": "soft", "cold_start": "rti", "still_water": False})
+    variant = "soft" if "soft" in backend.variants else "hard"
+    data = backend.variants[variant]
+    linearise, hessian, jacobian = backend._sparsities(variant)
+    step = qp_step_function(hessian, jacobian, backend.qpsol, backend.qpsol_options, f"{name}_qp")
+    layout = problem.spec().layout
+    spec = problem.spec()
+    x0 = ca.MX.sym("x0", spec.state_dim)
+    u_prev = ca.MX.sym("u_prev", spec.control_size)
+    p = ca.MX.sym("p", layout.size)
+    w = ca.MX.sym("w", data.lbx.size)
+    pieces, position = [], 0
+    for part, value in sorted(((layout.x0, x0), (layout.u_prev, u_prev)), key=lambda item: item[0].start):
+        pieces += [p[position : part.start], value]
+        position = part.stop
+    pieces.append(p[position:])
+    full = ca.vertcat(*[piece for piece in pieces if piece.numel()])
+    h, grad, a, g = linearise(w, full)
+    d, _, _, violation = step(h, grad, a, g, w, data.lbx, data.ubx, data.lbg, data.ubg)
+    primal = w + d
+    first = primal[[int(i) for i in data.control_index[0]]]
+    control = spec.physical(first) if isinstance(first, ca.SX) else _physical_mx(spec, first)
+    shifted = primal[[int(i) for i in data.primal_shift]]
+    function = ca.Function(
+        name,
+        [x0, u_prev, p, w],
+        [control, shifted, violation],
+        ["x0", "u_prev", "p", "w"],
+        ["u", "w_next", "violation"],
+    )
+    return function, backend
+
+
+def _physical_mx(spec: Any, scaled: ca.MX) -> ca.MX:
+    value = scaled * ca.DM(spec.control_scale)
+    return value + ca.DM(spec.control_centre) if np.any(spec.control_centre) else value

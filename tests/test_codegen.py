@@ -90,20 +90,29 @@ def test_standalone_c_program_matches_score(tmp_path):
     data = write_input(tmp_path / "input.txt", seed=4)
     problem, p = data["problem"], data["p"]
     generated = codegen.generate_c(problem, tmp_path / "build", functions=("cost", "cost_batch"))
-    program = tmp_path / "igwo_demo"
+    # the program sits next to the library and finds it through $ORIGIN: no hand declaration
+    # of uuv_ocp_igwo (the generated header has it) and no dependence on the working directory
+    program = generated.directory / "igwo_demo"
     command = [
         codegen.find_c_compiler(),
+        "-Werror=implicit-function-declaration",
         str(EXAMPLES / "main.c"),
         f"-I{generated.directory}",
         str(generated.library),
-        f"-Wl,-rpath,{generated.directory}",
+        "-Wl,-rpath,$ORIGIN",
         "-lm",
         "-o",
         str(program),
     ]
     subprocess.run(command, check=True, capture_output=True, text=True)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
     output = subprocess.run(
-        [str(program), str(tmp_path / "input.txt")], check=True, capture_output=True, text=True
+        [str(program), str(tmp_path / "input.txt")],
+        check=True,
+        capture_output=True,
+        text=True,
+        cwd=elsewhere,
     ).stdout
     values = dict(re.findall(r"^(\w+) (\S+)$", output, flags=re.MULTILINE))
     assert float(values["cost"]) == pytest.approx(data["score"], rel=1e-12)

@@ -83,6 +83,22 @@ EXACT_BATCH = "cost_batch_exact"
 #: smallest population of the IGWO step (three leaders and at least one other wolf)
 MIN_IGWO_POPULATION = 4
 _IGWO_SOURCE = Path(__file__).parent / "native" / "igwo_step.c"
+#: declarations of the IGWO step's exported functions, added to the generated header
+IGWO_HEADER = """
+#include <stddef.h>
+#include <stdint.h>
+int uuv_ocp_igwo(const double* p, const double* offset, const double* lower, const double* upper,
+                 const double* positions0, const double* draws, const double* a_schedule,
+                 const double* w_schedule, double c1, double c2, int n, int dim, int iterations,
+                 double* best_x, double* best_f, double* history, double* final_positions);
+int uuv_ocp_igwo_pcg64(const double* p, const double* offset, const double* lower,
+                       const double* upper, const double* positions0, uint64_t* pcg, int rng_thread,
+                       const double* a_schedule, const double* w_schedule, double c1, double c2,
+                       int n, int dim, int iterations, double* best_x, double* best_f,
+                       double* history, double* final_positions);
+void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state_lo, uint64_t inc_hi, uint64_t inc_lo,
+                          double* out, size_t count);
+"""
 
 __all__ = [
     "BuildDirectoryError",
@@ -267,7 +283,7 @@ def generate_c(
     symbolic = symbolic_functions(problem, population)
     chosen = [symbolic[name] for name in FUNCTION_NAMES if name in functions]
     external = []
-    extra = ""
+    extra = header = ""
     simd = False
     if "cost_batch" in functions:
         kernel, simd = _batch_sources(problem, population)
@@ -275,6 +291,7 @@ def generate_c(
             chosen = [symbolic[EXACT_BATCH] if f.name() == "cost_batch" else f for f in chosen]
             external = [symbolic["cost_batch"]]
         extra = kernel + _IGWO_SOURCE.read_text()
+        header = IGWO_HEADER
 
     def build(build_flags: tuple[str, ...]):
         return compile_functions(
@@ -287,6 +304,7 @@ def generate_c(
             tolerance=tolerance,
             extra_source=extra,
             external=external,
+            extra_header=header,
         )
 
     nmpc = None

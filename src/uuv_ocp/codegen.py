@@ -35,9 +35,11 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import dataclasses
+import hashlib
 import math
 import numbers
 import os
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -147,6 +149,8 @@ class GeneratedCode:
     nmpc_library : Path or None
         The library of ``nmpc_step`` (``uuv_ocp_nmpc_<digest>.so``, linked to the HPIPM and
         BLASFEO libraries of the CasADi wheel), when requested and compiled.
+    prefix : str
+        What every exported C symbol starts with (see :func:`generate_c`).
     """
 
     directory: Path
@@ -160,6 +164,7 @@ class GeneratedCode:
     reused: bool = False
     simd: bool = False
     nmpc_library: Path | None = None
+    prefix: str = ""
 
     def __getitem__(self, name: str) -> ca.Function:
         """Return the loaded Function ``name`` (``KeyError`` if it was not generated)."""
@@ -183,12 +188,14 @@ def symbolic_functions(problem: Transcribed, population: int = 20) -> dict[str, 
     }
 
 
-def _batch_sources(problem: Transcribed, population: int) -> tuple[str, bool]:
+def _batch_sources(problem: Transcribed, population: int, prefix: str = "") -> tuple[str, bool]:
     """C of the SIMD ``cost_batch`` (or ``""`` if unsupported) and whether it is SIMD."""
     from uuv_ocp.solvers.swarm import candidate_fitness
 
     try:
-        kernel = batch_kernel_source(candidate_fitness(problem), "cost_batch", population, EXACT_BATCH)
+        kernel = batch_kernel_source(
+            candidate_fitness(problem), f"{prefix}cost_batch", population, f"{prefix}{EXACT_BATCH}"
+        )
     except UnsupportedOperation:
         return "", False
     return kernel, True
@@ -217,6 +224,7 @@ def generate_c(
     flags: tuple[str, ...] = DEFAULT_FLAGS,
     seed: int = 0,
     tolerance: float = 1e-12,
+    prefix: str = "",
 ) -> GeneratedCode:
     """Generate C for ``problem``, compile it, load it back and verify it.
 
@@ -243,6 +251,12 @@ def generate_c(
         Seed of the verification inputs.
     tolerance : float
         Largest accepted relative difference in the verification (>= 0).
+    prefix : str
+        Start of every exported C symbol and of the file names: ``""`` (default: ``cost``,
+        ``uuv_ocp_igwo``, ``uuv_ocp_gen.h``, …), a C identifier such as ``"s2_"``
+        (``s2_cost``, ``s2_uuv_ocp_igwo``, ``s2_uuv_ocp_gen.h``), or ``"auto"``: ``"p"`` and
+        the first 12 hex digits of the problem's content key and ``"_"``.  Libraries of
+        different prefixes link into one program; the loaded ``functions`` keep the plain names.
 
     Raises
     ------
@@ -279,6 +293,7 @@ def generate_c(
     if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {check.shown(seed)}")
     tolerance = check.nonnegative_float("tolerance", tolerance)
+    prefix = _prefix(problem, prefix)
     directory = Path(directory)
     symbolic = symbolic_functions(problem, population)
     chosen = [symbolic[name] for name in FUNCTION_NAMES if name in functions]
@@ -286,12 +301,12 @@ def generate_c(
     extra = header = ""
     simd = False
     if "cost_batch" in functions:
-        kernel, simd = _batch_sources(problem, population)
+        kernel, simd = _batch_sources(problem, population, prefix)
         if simd:  # CasADi's mapped code becomes cost_batch_exact; cost_batch is the kernel
             chosen = [symbolic[EXACT_BATCH] if f.name() == "cost_batch" else f for f in chosen]
             external = [symbolic["cost_batch"]]
-        extra = kernel + _IGWO_SOURCE.read_text()
-        header = IGWO_HEADER
+        extra = kernel + _prefixed(_IGWO_SOURCE.read_text(), prefix)
+        header = _prefixed(IGWO_HEADER, prefix)
 
     def build(build_flags: tuple[str, ...]):
         return compile_functions(
@@ -305,11 +320,13 @@ def generate_c(
             extra_source=extra,
             external=external,
             extra_header=header,
+            name=f"{prefix}uuv_ocp_gen",
+            prefix=prefix,
         )
 
     nmpc = None
     if NMPC_STEP in functions:
-        nmpc = _nmpc_build(problem, directory, compile, verify, seed, flags)
+        nmpc = _nmpc_build(problem, directory, compile, verify, seed, flags, prefix)
     if not chosen:  # only the NMPC step was asked for
         assert nmpc is not None
         return GeneratedCode(
@@ -323,6 +340,7 @@ def generate_c(
             digest=nmpc.digest,
             reused=nmpc.reused,
             nmpc_library=nmpc.path,
+            prefix=prefix,
         )
     try:
         library = build(flags)
@@ -347,7 +365,27 @@ def generate_c(
         reused=library.reused,
         simd=simd,
         nmpc_library=None if nmpc is None else nmpc.path,
+        prefix=prefix,
     )
+
+
+_EXPORTED = re.compile(r"\b(cost_batch\w*|uuv_ocp_igwo|uuv_ocp_igwo_pcg64|uuv_ocp_pcg64_random)\b")
+
+
+def _prefixed(source: str, prefix: str) -> str:
+    """Hand-written C (IGWO step, its declarations) with its exported names prefixed."""
+    return _EXPORTED.sub(lambda match: prefix + match.group(1), source) if prefix else source
+
+
+def _prefix(problem: Transcribed, prefix: object) -> str:
+    """Validate ``prefix`` (``""``, a C identifier, or ``"auto"``: derived from the content key)."""
+    if prefix == "auto":
+        return f"p{hashlib.sha256(str(problem.spec().key).encode()).hexdigest()[:12]}_"
+    if not isinstance(prefix, str) or (prefix and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix)):
+        raise ValueError(
+            f"prefix must be '', 'auto' or a C identifier such as 's2_', got {check.shown(prefix)}"
+        )
+    return prefix
 
 
 def hpipm_link_flags() -> tuple[str, ...]:
@@ -368,7 +406,9 @@ def hpipm_link_flags() -> tuple[str, ...]:
     )
 
 
-def _nmpc_build(problem: Transcribed, directory: Path, compile: bool, verify: bool, seed: int, flags):
+def _nmpc_build(
+    problem: Transcribed, directory: Path, compile: bool, verify: bool, seed: int, flags, prefix: str
+):
     """Compile ``nmpc_step`` into its own library and check it against the Python backend."""
     from uuv_ocp.solvers.rti import nmpc_step_function
 
@@ -377,7 +417,8 @@ def _nmpc_build(problem: Transcribed, directory: Path, compile: bool, verify: bo
     library = compile_functions(
         [function],
         directory,
-        name="uuv_ocp_nmpc",
+        name=f"{prefix}uuv_ocp_nmpc",
+        prefix=prefix,
         compile=compile,
         verify=False,  # random inputs in [-1, 1] are no QP instances: checked below instead
         flags=core_flags or CORE_FLAGS,
@@ -428,7 +469,7 @@ def check_nmpc_step(
 
 
 def _random_instance(problem: Transcribed, rng: np.random.Generator) -> tuple[np.ndarray, float]:
-    """A state near the reference at a random time (tracking problems), or random (an Ocp)."""
+    """Draw a state near the reference at a random time (tracking problems), or random (an Ocp)."""
     reference = getattr(problem, "reference", None)
     nx = problem.state_dim
     if reference is None:
@@ -529,14 +570,15 @@ class NativeIgwo:
         self.library = ctypes.CDLL(str(verify_library(build.library)))
         pointer = ctypes.POINTER(ctypes.c_double)
         tail: list[Any] = [ctypes.c_double, ctypes.c_double, *[ctypes.c_int] * 3, *[pointer] * 4]
-        self._given = self.library.uuv_ocp_igwo
+        prefix = build.prefix
+        self._given = getattr(self.library, f"{prefix}uuv_ocp_igwo")
         self._given.argtypes = [pointer] * 8 + tail
-        self._drawing = self.library.uuv_ocp_igwo_pcg64
+        self._drawing = getattr(self.library, f"{prefix}uuv_ocp_igwo_pcg64")
         words: list[Any] = [ctypes.POINTER(ctypes.c_uint64), ctypes.c_int]
         self._drawing.argtypes = [*[pointer] * 5, *words, *[pointer] * 2, *tail]
         for function in (self._given, self._drawing):
             function.restype = ctypes.c_int
-        self.random = self.library.uuv_ocp_pcg64_random
+        self.random = getattr(self.library, f"{prefix}uuv_ocp_pcg64_random")
         self.random.argtypes = [ctypes.c_uint64] * 4 + [pointer, ctypes.c_size_t]
         self.random.restype = None
 

@@ -142,7 +142,7 @@ class NMPC:
         current: object | None = None,
         parameters: dict[str, Any] | None = None,
     ) -> None:
-        """Preparation phase of the next step, before its state is measured.
+        """Run the preparation phase of the next step, before its state is measured.
 
         Stores the step's time, last control, current and parameters.  A backend with a
         preparation phase (``"sqp-rti"``: linearisation at the shifted previous iterate) runs
@@ -160,7 +160,7 @@ class NMPC:
         prepare(p, warm)
 
     def feedback(self, x: object) -> StepOutput:
-        """Feedback phase: the measured state ``x`` in, the control to apply out.
+        """Run the feedback phase: the measured state ``x`` in, the control to apply out.
 
         Uses the time, last control, current and parameters given to :meth:`prepare` (which
         must come first; ``ValueError`` otherwise).

@@ -592,6 +592,7 @@ def compile_functions(
     external: Sequence[ca.Function] = (),
     extra_header: str = "",
     link: Sequence[str] = (),
+    prefix: str = "",
 ) -> CompiledLibrary:
     """Generate C code for ``functions``, compile it (cached), load it back and verify it.
 
@@ -635,6 +636,12 @@ def compile_functions(
     link : Sequence[str], default ()
         Extra linker arguments placed after the source (libraries such as HPIPM's); part of
         the digest.
+    prefix : str, default ""
+        Put in front of every function's C symbol (``{prefix}{function}``, ``_work``, …);
+        ``functions`` of the result stay keyed by the unprefixed names.  CasADi names its
+        exported helpers after ``name``, so give each library its own ``name`` too: then two
+        libraries can be linked into one program.  ``external`` functions must already be
+        defined under ``{prefix}{name}`` by ``extra_source``.
 
     Returns
     -------
@@ -663,14 +670,17 @@ def compile_functions(
     upgrading a compiler in place, clear the directory.
     """
     functions, external = list(functions), list(external)
+    if prefix and not _IDENTIFIER.fullmatch(prefix):
+        raise ValueError(f"prefix must be empty or a C identifier, got {prefix!r}")
     _check_functions([*functions, *external], name)
+    generated = [_copy(function, prefix + function.name()) for function in functions] if prefix else functions
     if isinstance(tolerance, bool) or not isinstance(tolerance, int | float) or not tolerance >= 0:
         raise ValueError(f"tolerance must be a number >= 0, got {tolerance!r}")
     directory = secure_directory(directory)
     flags = tuple(flags)
 
     generator = ca.CodeGenerator(f"{name}.c", {"with_header": True})
-    for function in functions:
+    for function in generated:
         generator.add(function)
 
     source = directory / f"{name}.c"
@@ -734,7 +744,9 @@ def compile_functions(
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
-    loaded = _load([function.name() for function in (*functions, *external)], library)
+    names = [function.name() for function in (*functions, *external)]
+    prefixed = _load([prefix + entry for entry in names], library)
+    loaded = {entry: prefixed[prefix + entry] for entry in names}
     errors: dict[str, float] = {}
     if verify:
         generator_rng = np.random.default_rng(0) if rng is None else rng

@@ -142,7 +142,9 @@ def qp_functions(
 
 
 def _nonzeros(matrix: ca.SX) -> ca.SX:
-    return ca.vertcat(*matrix.nonzeros()) if matrix.nnz() else ca.SX(0, 1)
+    """Column of the structural nonzeros of ``matrix`` (column-major, CasADi's order)."""
+    entries: list[Any] = matrix.nonzeros()
+    return ca.vertcat(*entries) if entries else ca.SX(0, 1)
 
 
 def qp_step_function(

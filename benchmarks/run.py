@@ -15,6 +15,7 @@ BENCHMARKS = (
     "benchmarks.bench_6dof",
     "benchmarks.bench_baseline",
     "benchmarks.bench_nonconvex",
+    "benchmarks.bench_rti",
 )
 
 

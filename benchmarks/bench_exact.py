@@ -21,7 +21,7 @@ import numpy as np
 
 import uuv_ocp as uo
 
-SOLVERS = ("ipopt", "fatrop", "sqp")
+SOLVERS = ("ipopt", "fatrop", "sqp", "sqp-rti")
 
 
 def _problem(reference: str) -> uo.TrackingProblem:

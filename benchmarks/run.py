@@ -16,6 +16,7 @@ BENCHMARKS = (
     "benchmarks.bench_baseline",
     "benchmarks.bench_nonconvex",
     "benchmarks.bench_campaign",
+    "benchmarks.bench_rti",
 )
 
 

@@ -61,7 +61,7 @@ def test_design_section_3_snippet(tmp_path):
     assert judged == pytest.approx(expected, rel=1e-9) and expected[1] == pytest.approx(2.0)
     for attribute in ("success", "status", "solve_time", "iterations", "evaluations", "solver"):
         assert hasattr(res, attribute)
-    assert {"fatrop", "gwo", "igwo", "igwo+ipopt", "ipopt", "pso", "sqp", "ssa"} <= set(
+    assert {"fatrop", "gwo", "igwo", "igwo+ipopt", "ipopt", "pso", "sqp", "sqp-rti", "ssa"} <= set(
         uo.available_solvers()
     )
 

@@ -90,20 +90,29 @@ def test_standalone_c_program_matches_score(tmp_path):
     data = write_input(tmp_path / "input.txt", seed=4)
     problem, p = data["problem"], data["p"]
     generated = codegen.generate_c(problem, tmp_path / "build", functions=("cost", "cost_batch"))
-    program = tmp_path / "igwo_demo"
+    # the program sits next to the library and finds it through $ORIGIN: no hand declaration
+    # of uuv_ocp_igwo (the generated header has it) and no dependence on the working directory
+    program = generated.directory / "igwo_demo"
     command = [
         codegen.find_c_compiler(),
+        "-Werror=implicit-function-declaration",
         str(EXAMPLES / "main.c"),
         f"-I{generated.directory}",
         str(generated.library),
-        f"-Wl,-rpath,{generated.directory}",
+        "-Wl,-rpath,$ORIGIN",
         "-lm",
         "-o",
         str(program),
     ]
     subprocess.run(command, check=True, capture_output=True, text=True)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
     output = subprocess.run(
-        [str(program), str(tmp_path / "input.txt")], check=True, capture_output=True, text=True
+        [str(program), str(tmp_path / "input.txt")],
+        check=True,
+        capture_output=True,
+        text=True,
+        cwd=elsewhere,
     ).stdout
     values = dict(re.findall(r"^(\w+) (\S+)$", output, flags=re.MULTILINE))
     assert float(values["cost"]) == pytest.approx(data["score"], rel=1e-12)
@@ -161,3 +170,54 @@ def test_bad_arguments_raise(tmp_path, s2_problem):
         codegen.generate_c(s2_problem, tmp_path, functions=("solver",))
     with pytest.raises(ValueError, match="population"):
         codegen.generate_c(s2_problem, tmp_path, population=0)
+
+
+def test_two_prefixed_problems_link_into_one_program(tmp_path):
+    """Every exported symbol carries the prefix: two problems' libraries in one C program."""
+    problems = {
+        "s2_": uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=5, dt=0.1),
+        "s5_": uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s5"), horizon=7, dt=0.1),
+    }
+    rng = np.random.default_rng(2)
+    builds, expected, lines = {}, {}, ["#include <stdio.h>"]
+    for prefix, problem in problems.items():
+        build = codegen.generate_c(problem, tmp_path / prefix, functions=("cost",), prefix=prefix)
+        builds[prefix] = build
+        exported = subprocess.run(
+            ["nm", "-D", "--defined-only", str(build.library)], capture_output=True, text=True
+        ).stdout.split()[2::3]
+        assert exported and all(symbol.startswith(prefix) for symbol in exported), exported
+        lines.append(f'#include "{build.header}"')
+        controls = rng.uniform(-0.5, 0.5, problem.control_dim)
+        x0 = problem.reference.evaluate([1.0])[0]
+        p = problem.parameters(x0, 1.0)
+        expected[prefix] = float(problem.build().cost(controls, p)[0])
+        lines.append(f"static const double {prefix}U[] = {{{', '.join(repr(float(v)) for v in controls)}}};")
+        lines.append(f"static const double {prefix}P[] = {{{', '.join(repr(float(v)) for v in p)}}};")
+    lines.append("int main(void) {")
+    for prefix in problems:
+        lines += [
+            "  {",
+            "    double f = 0, g = 0, w[100000]; casadi_int iw[1000];",
+            f"    const double* arg[8] = {{{prefix}U, {prefix}P}}; double* res[8] = {{&f, &g}};",
+            f"    if ({prefix}cost(arg, res, iw, w, 0)) return 1;",
+            f'    printf("{prefix} %.17g\\n", f);',
+            "  }",
+        ]
+    lines += ["  return 0;", "}"]
+    (tmp_path / "both.c").write_text("\n".join(lines) + "\n")
+    program = tmp_path / "both"
+    command = [codegen.find_c_compiler(), "-Werror=implicit-function-declaration", str(tmp_path / "both.c")]
+    command += [str(build.library) for build in builds.values()]
+    command += [f"-Wl,-rpath,{build.directory}" for build in builds.values()] + ["-lm", "-o", str(program)]
+    subprocess.run(command, check=True, capture_output=True, text=True)
+    output = subprocess.run([str(program)], check=True, capture_output=True, text=True).stdout
+    values = dict(line.split() for line in output.splitlines())
+    for prefix, value in expected.items():
+        assert float(values[prefix]) == pytest.approx(value, rel=1e-12)
+    assert expected["s2_"] != pytest.approx(expected["s5_"])  # two different problems
+
+
+def test_bad_prefix_is_named(tmp_path, s2_problem):
+    with pytest.raises(ValueError, match="prefix"):
+        codegen.generate_c(s2_problem, tmp_path, functions=("cost",), prefix="2-bad")

@@ -1,7 +1,9 @@
 /* Standalone use of a uuv_ocp-generated library (no Python at run time).
  *
  *   uuv-ocp codegen --reference s2 --out build/        # writes uuv_ocp_gen_<hash>.{c,so}
- *   cc main.c -Ibuild build/uuv_ocp_gen_<hash>.so -Wl,-rpath,build -lm -o igwo_demo
+ *   cc main.c -Ibuild build/uuv_ocp_gen_<hash>.so -Wl,-rpath,'$ORIGIN' -lm -o build/igwo_demo
+ *   (uuv_ocp_igwo is declared in the generated header; $ORIGIN: the program finds the
+ *   library next to itself from any working directory)
  *   ./igwo_demo input.txt
  *
  * input.txt (whitespace-separated numbers, written by examples/c/write_input.py):
@@ -14,11 +16,6 @@
 #include <stdlib.h>
 
 #include "uuv_ocp_gen.h"
-
-int uuv_ocp_igwo(const double* p, const double* offset, const double* lower, const double* upper,
-                 const double* positions0, const double* draws, const double* a_schedule,
-                 const double* w_schedule, double c1, double c2, int n, int dim, int iterations,
-                 double* best_x, double* best_f, double* history, double* final_positions);
 
 static double* read_block(FILE* file, long count) {
   double* values = (double*)malloc(sizeof(double) * (count > 0 ? count : 1));

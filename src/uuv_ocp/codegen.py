@@ -34,8 +34,12 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
+import hashlib
+import math
 import numbers
 import os
+import re
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -46,6 +50,7 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
+from uuv_ocp.judge import instance_parameters
 from uuv_ocp.native.compile import (
     DEFAULT_FLAGS as CORE_FLAGS,
 )
@@ -69,11 +74,33 @@ from uuv_ocp.native.simd import UnsupportedOperation, batch_kernel_source
 #: step place its random-number thread on another CPU (Linux).
 DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off", "-march=native", "-D_GNU_SOURCE")
 FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step", "rollout", "score_terms")
+#: generated on request only: the exact NMPC step (one real-time iteration on HPIPM)
+NMPC_STEP = "nmpc_step"
+ACCEPTED_NAMES = (*FUNCTION_NAMES, NMPC_STEP)
+#: random states on which the generated ``nmpc_step`` is checked against the Python backend
+NMPC_CHECK_STATES = 100
+NMPC_TOLERANCE = 1e-9
 #: generated along with ``cost_batch``: CasADi's own (scalar, mapped) code of the same fitness
 EXACT_BATCH = "cost_batch_exact"
 #: smallest population of the IGWO step (three leaders and at least one other wolf)
 MIN_IGWO_POPULATION = 4
 _IGWO_SOURCE = Path(__file__).parent / "native" / "igwo_step.c"
+#: declarations of the IGWO step's exported functions, added to the generated header
+IGWO_HEADER = """
+#include <stddef.h>
+#include <stdint.h>
+int uuv_ocp_igwo(const double* p, const double* offset, const double* lower, const double* upper,
+                 const double* positions0, const double* draws, const double* a_schedule,
+                 const double* w_schedule, double c1, double c2, int n, int dim, int iterations,
+                 double* best_x, double* best_f, double* history, double* final_positions);
+int uuv_ocp_igwo_pcg64(const double* p, const double* offset, const double* lower,
+                       const double* upper, const double* positions0, uint64_t* pcg, int rng_thread,
+                       const double* a_schedule, const double* w_schedule, double c1, double c2,
+                       int n, int dim, int iterations, double* best_x, double* best_f,
+                       double* history, double* final_positions);
+void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state_lo, uint64_t inc_hi, uint64_t inc_lo,
+                          double* out, size_t count);
+"""
 
 __all__ = [
     "BuildDirectoryError",
@@ -119,6 +146,11 @@ class GeneratedCode:
     simd : bool
         Whether ``cost_batch`` is the SIMD kernel (else CasADi's mapped code: the problem's cost
         has an operation the kernel emitter does not support).
+    nmpc_library : Path or None
+        The library of ``nmpc_step`` (``uuv_ocp_nmpc_<digest>.so``, linked to the HPIPM and
+        BLASFEO libraries of the CasADi wheel), when requested and compiled.
+    prefix : str
+        What every exported C symbol starts with (see :func:`generate_c`).
     """
 
     directory: Path
@@ -131,6 +163,8 @@ class GeneratedCode:
     digest: str = ""
     reused: bool = False
     simd: bool = False
+    nmpc_library: Path | None = None
+    prefix: str = ""
 
     def __getitem__(self, name: str) -> ca.Function:
         """Return the loaded Function ``name`` (``KeyError`` if it was not generated)."""
@@ -154,12 +188,14 @@ def symbolic_functions(problem: Transcribed, population: int = 20) -> dict[str, 
     }
 
 
-def _batch_sources(problem: Transcribed, population: int) -> tuple[str, bool]:
+def _batch_sources(problem: Transcribed, population: int, prefix: str = "") -> tuple[str, bool]:
     """C of the SIMD ``cost_batch`` (or ``""`` if unsupported) and whether it is SIMD."""
     from uuv_ocp.solvers.swarm import candidate_fitness
 
     try:
-        kernel = batch_kernel_source(candidate_fitness(problem), "cost_batch", population, EXACT_BATCH)
+        kernel = batch_kernel_source(
+            candidate_fitness(problem), f"{prefix}cost_batch", population, f"{prefix}{EXACT_BATCH}"
+        )
     except UnsupportedOperation:
         return "", False
     return kernel, True
@@ -188,6 +224,7 @@ def generate_c(
     flags: tuple[str, ...] = DEFAULT_FLAGS,
     seed: int = 0,
     tolerance: float = 1e-12,
+    prefix: str = "",
 ) -> GeneratedCode:
     """Generate C for ``problem``, compile it, load it back and verify it.
 
@@ -214,6 +251,12 @@ def generate_c(
         Seed of the verification inputs.
     tolerance : float
         Largest accepted relative difference in the verification (>= 0).
+    prefix : str
+        Start of every exported C symbol and of the file names: ``""`` (default: ``cost``,
+        ``uuv_ocp_igwo``, ``uuv_ocp_gen.h``, …), a C identifier such as ``"s2_"``
+        (``s2_cost``, ``s2_uuv_ocp_igwo``, ``s2_uuv_ocp_gen.h``), or ``"auto"``: ``"p"`` and
+        the first 12 hex digits of the problem's content key and ``"_"``.  Libraries of
+        different prefixes link into one program; the loaded ``functions`` keep the plain names.
 
     Raises
     ------
@@ -236,10 +279,10 @@ def generate_c(
         raise ValueError(
             f"functions must be a tuple of names from {list(FUNCTION_NAMES)}, got {check.shown(functions)}"
         )
-    unknown = [name for name in functions if name not in FUNCTION_NAMES]
+    unknown = [name for name in functions if name not in ACCEPTED_NAMES]
     if unknown or not functions:
         raise ValueError(
-            f"functions must be a non-empty subset of {list(FUNCTION_NAMES)}, got {check.shown(functions)}"
+            f"functions must be a non-empty subset of {list(ACCEPTED_NAMES)}, got {check.shown(functions)}"
         )
     minimum = MIN_IGWO_POPULATION if "cost_batch" in functions else 1
     population = check.positive_int("population", population, minimum)
@@ -250,18 +293,20 @@ def generate_c(
     if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
         raise ValueError(f"seed must be an integer >= 0, got {check.shown(seed)}")
     tolerance = check.nonnegative_float("tolerance", tolerance)
+    prefix = _prefix(problem, prefix)
     directory = Path(directory)
     symbolic = symbolic_functions(problem, population)
     chosen = [symbolic[name] for name in FUNCTION_NAMES if name in functions]
     external = []
-    extra = ""
+    extra = header = ""
     simd = False
     if "cost_batch" in functions:
-        kernel, simd = _batch_sources(problem, population)
+        kernel, simd = _batch_sources(problem, population, prefix)
         if simd:  # CasADi's mapped code becomes cost_batch_exact; cost_batch is the kernel
             chosen = [symbolic[EXACT_BATCH] if f.name() == "cost_batch" else f for f in chosen]
             external = [symbolic["cost_batch"]]
-        extra = kernel + _IGWO_SOURCE.read_text()
+        extra = kernel + _prefixed(_IGWO_SOURCE.read_text(), prefix)
+        header = _prefixed(IGWO_HEADER, prefix)
 
     def build(build_flags: tuple[str, ...]):
         return compile_functions(
@@ -274,8 +319,29 @@ def generate_c(
             tolerance=tolerance,
             extra_source=extra,
             external=external,
+            extra_header=header,
+            name=f"{prefix}uuv_ocp_gen",
+            prefix=prefix,
         )
 
+    nmpc = None
+    if NMPC_STEP in functions:
+        nmpc = _nmpc_build(problem, directory, compile, verify, seed, flags, prefix)
+    if not chosen:  # only the NMPC step was asked for
+        assert nmpc is not None
+        return GeneratedCode(
+            directory=directory,
+            source=nmpc.source,
+            header=nmpc.header,
+            library=nmpc.path,
+            functions=dict(nmpc.functions),
+            max_error=dict(nmpc.max_error),
+            population=population,
+            digest=nmpc.digest,
+            reused=nmpc.reused,
+            nmpc_library=nmpc.path,
+            prefix=prefix,
+        )
     try:
         library = build(flags)
     except CompilationError:
@@ -283,18 +349,134 @@ def generate_c(
         if portable == tuple(flags):
             raise
         library = build(portable)  # a compiler that rejects -march=native: portable SIMD width
+    loaded, errors = dict(library.functions), dict(library.max_error)
+    if nmpc is not None:
+        loaded.update(nmpc.functions)
+        errors.update(nmpc.max_error)
     return GeneratedCode(
         directory=directory,
         source=library.source,
         header=library.header,
         library=library.path,
-        functions=library.functions,
-        max_error=library.max_error,
+        functions=loaded,
+        max_error=errors,
         population=population,
         digest=library.digest,
         reused=library.reused,
         simd=simd,
+        nmpc_library=None if nmpc is None else nmpc.path,
+        prefix=prefix,
     )
+
+
+_EXPORTED = re.compile(r"\b(cost_batch\w*|uuv_ocp_igwo|uuv_ocp_igwo_pcg64|uuv_ocp_pcg64_random)\b")
+
+
+def _prefixed(source: str, prefix: str) -> str:
+    """Hand-written C (IGWO step, its declarations) with its exported names prefixed."""
+    return _EXPORTED.sub(lambda match: prefix + match.group(1), source) if prefix else source
+
+
+def _prefix(problem: Transcribed, prefix: object) -> str:
+    """Validate ``prefix`` (``""``, a C identifier, or ``"auto"``: derived from the content key)."""
+    if prefix == "auto":
+        return f"p{hashlib.sha256(str(problem.spec().key).encode()).hexdigest()[:12]}_"
+    if not isinstance(prefix, str) or (prefix and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", prefix)):
+        raise ValueError(
+            f"prefix must be '', 'auto' or a C identifier such as 's2_', got {check.shown(prefix)}"
+        )
+    return prefix
+
+
+def hpipm_link_flags() -> tuple[str, ...]:
+    """Compiler and linker arguments for C that calls HPIPM: the CasADi wheel's own copy.
+
+    The wheel ships ``libhpipm`` and ``libblasfeo`` next to CasADi's libraries and their headers
+    in ``casadi/include``; the library records that folder as its run-time search path (an
+    absolute path, so programs linked to it run from any working directory).
+    """
+    folder = Path(ca.__file__).resolve().parent
+    return (
+        f"-I{folder / 'include'}",
+        f"-L{folder}",
+        "-Wl,--no-as-needed",
+        "-lhpipm",
+        "-lblasfeo",
+        f"-Wl,-rpath,{folder}",
+    )
+
+
+def _nmpc_build(
+    problem: Transcribed, directory: Path, compile: bool, verify: bool, seed: int, flags, prefix: str
+):
+    """Compile ``nmpc_step`` into its own library and check it against the Python backend."""
+    from uuv_ocp.solvers.rti import nmpc_step_function
+
+    function, backend = nmpc_step_function(problem)
+    core_flags = tuple(flag for flag in flags if flag in CORE_FLAGS or flag.startswith("-O"))
+    library = compile_functions(
+        [function],
+        directory,
+        name=f"{prefix}uuv_ocp_nmpc",
+        prefix=prefix,
+        compile=compile,
+        verify=False,  # random inputs in [-1, 1] are no QP instances: checked below instead
+        flags=core_flags or CORE_FLAGS,
+        link=hpipm_link_flags(),
+    )
+    if compile and verify:
+        error = check_nmpc_step(problem, library.functions[NMPC_STEP], backend, np.random.default_rng(seed))
+        if not error <= NMPC_TOLERANCE:
+            raise VerificationError(
+                f"compiled nmpc_step disagrees with the Python sqp-rti backend: max error {error:.3e} "
+                f"(fraction of the control range) > {NMPC_TOLERANCE:g}"
+            )
+        library = dataclasses.replace(library, max_error={NMPC_STEP: error})
+    return library
+
+
+def check_nmpc_step(
+    problem: Transcribed,
+    compiled: ca.Function,
+    backend: Any,
+    rng: np.random.Generator,
+    states: int = NMPC_CHECK_STATES,
+) -> float:
+    """Largest difference of the compiled ``nmpc_step`` control from the Python backend's.
+
+    On ``states`` instances: the reference state at a random time plus Gaussian noise, a
+    random last control inside the box, one real-time iteration from the cold guess (the
+    backend of :func:`~uuv_ocp.solvers.rti.nmpc_step_function`, same NLP and QP solver).
+    Returned as a fraction of each control's range (largest over the instances).
+    """
+    spec = problem.spec()
+    variant = "soft" if "soft" in backend.variants else "hard"
+    span = spec.upper - spec.lower
+    worst = 0.0
+    for _ in range(states):
+        x0, t0 = _random_instance(problem, rng)
+        u_prev = spec.lower + span * rng.uniform(0.25, 0.75, spec.control_size)
+        p = instance_parameters(problem, x0, t0, u_prev=u_prev)
+        guess_states, guess_controls = problem.initial_guess(p)
+        w = backend.compose_primal(variant, guess_states, guess_controls, problem.previous_scaled(p))
+        result = backend.solve(p, None)
+        control, _, _ = compiled(x0, u_prev, p, w)
+        if not result.success:
+            return math.inf
+        difference = np.abs(np.asarray(control).ravel() - result.controls[0]) / span
+        worst = max(worst, float(np.max(difference)))
+    return worst
+
+
+def _random_instance(problem: Transcribed, rng: np.random.Generator) -> tuple[np.ndarray, float]:
+    """Draw a state near the reference at a random time (tracking problems), or random (an Ocp)."""
+    reference = getattr(problem, "reference", None)
+    nx = problem.state_dim
+    if reference is None:
+        return rng.normal(0.0, 1.0, nx), 0.0
+    t0 = float(rng.uniform(0.0, min(problem.latest_start(), 60.0)))  # type: ignore[attr-defined]
+    state = np.asarray(reference.evaluate([t0])[0], dtype=float)
+    return state + rng.normal(0.0, 0.05, nx), t0
 
 
 # ------------------------------------------------------------------ cached build for solvers
@@ -388,14 +570,15 @@ class NativeIgwo:
         self.library = ctypes.CDLL(str(verify_library(build.library)))
         pointer = ctypes.POINTER(ctypes.c_double)
         tail: list[Any] = [ctypes.c_double, ctypes.c_double, *[ctypes.c_int] * 3, *[pointer] * 4]
-        self._given = self.library.uuv_ocp_igwo
+        prefix = build.prefix
+        self._given = getattr(self.library, f"{prefix}uuv_ocp_igwo")
         self._given.argtypes = [pointer] * 8 + tail
-        self._drawing = self.library.uuv_ocp_igwo_pcg64
+        self._drawing = getattr(self.library, f"{prefix}uuv_ocp_igwo_pcg64")
         words: list[Any] = [ctypes.POINTER(ctypes.c_uint64), ctypes.c_int]
         self._drawing.argtypes = [*[pointer] * 5, *words, *[pointer] * 2, *tail]
         for function in (self._given, self._drawing):
             function.restype = ctypes.c_int
-        self.random = self.library.uuv_ocp_pcg64_random
+        self.random = getattr(self.library, f"{prefix}uuv_ocp_pcg64_random")
         self.random.argtypes = [ctypes.c_uint64] * 4 + [pointer, ctypes.c_size_t]
         self.random.restype = None
 

@@ -19,6 +19,10 @@ the deadline reports ``success=False``, so the step takes the fallback above; a 
 it returns its best plan so far, which is applied when feasible (``success``) — a swarm is an
 anytime method, its plan is ready at the deadline.
 
+Phases: :meth:`NMPC.step` is :meth:`NMPC.prepare` (before the state is measured: the
+time, last control and data of the step; a real-time-iteration backend linearises then)
+followed by :meth:`NMPC.feedback` (the measured state in, the control out).
+
 Every applied control, fresh or fallback, is projected on the control box and on the rate
 bound around the last applied control: the plant never sees a bound violated, whatever the
 backend's tolerance.
@@ -101,11 +105,13 @@ class NMPC:
         self._rng = np.random.default_rng(seed)
         self._iterate: Iterate | None = None
         self._plan: np.ndarray | None = None
+        self._pending: tuple[Any, ...] | None = None
 
     def reset(self) -> None:
         """Forget the warm start and the previous plan; restart the random generator."""
         self._iterate = None
         self._plan = None
+        self._pending = None
         self._rng = np.random.default_rng(self.seed)
 
     @property
@@ -124,11 +130,52 @@ class NMPC:
         """Solve at state ``x`` and time ``t`` and return the control to apply.
 
         ``current`` is a tracking problem's model current; ``parameters`` an Ocp's data.
+        The same as :meth:`prepare` followed by :meth:`feedback`.
         """
+        self.prepare(t, u_prev, current, parameters)
+        return self.feedback(x)
+
+    def prepare(
+        self,
+        t: float = 0.0,
+        u_prev: object | None = None,
+        current: object | None = None,
+        parameters: dict[str, Any] | None = None,
+    ) -> None:
+        """Run the preparation phase of the next step, before its state is measured.
+
+        Stores the step's time, last control, current and parameters.  A backend with a
+        preparation phase (``"sqp-rti"``: linearisation at the shifted previous iterate) runs
+        it now, with the warm start's predicted first state standing in for the measurement;
+        :meth:`feedback` then only solves the QP.  Other backends do all their work in
+        :meth:`feedback`.  Without a warm start nothing is prepared.
+        """
+        self._pending = (t, u_prev, current, parameters)
+        prepare = getattr(self.backend, "prepare", None)
+        warm = self._iterate if self.use_warm_start else None
+        if prepare is None or warm is None:
+            return
+        guess = warm.states[0]
+        p = instance_parameters(self.problem, guess, t, u_prev=u_prev, current=current, parameters=parameters)
+        prepare(p, warm)
+
+    def feedback(self, x: object) -> StepOutput:
+        """Run the feedback phase: the measured state ``x`` in, the control to apply out.
+
+        Uses the time, last control, current and parameters given to :meth:`prepare` (which
+        must come first; ``ValueError`` otherwise).
+        """
+        if self._pending is None:
+            raise ValueError("NMPC.feedback(x) needs NMPC.prepare(t, u_prev, ...) first (or call step)")
+        (t, u_prev, current, parameters), self._pending = self._pending, None
         p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
         warm = self._iterate if self.use_warm_start else None
+        feedback = getattr(self.backend, "feedback", None)
         try:
-            result = self.backend.solve(p, warm, rng=self._rng)
+            if feedback is not None:
+                result = feedback(p, warm)
+            else:
+                result = self.backend.solve(p, warm, rng=self._rng)
         except Exception as error:  # a backend crash must never stop a closed loop ...
             reraise_interrupt(error)  # ... but Ctrl-C (CasADi's too) always reaches the user
             result = None

@@ -425,6 +425,33 @@ def _install_copy(staged: Path, final: Path) -> None:
     _install(copy, final)
 
 
+_HPIPM_ARG_COPY = "memcpy(&myarg, &p->hpipm_options, sizeof(struct d_ocp_qp_ipm_arg));"
+_HPIPM_FIELD = re.compile(r"p\.hpipm_options\.(\w+) = ")
+_HPIPM_FAILURE = re.compile(r"if \(d\.return_status!=0\) \{\s*return -1;\s*\}")
+
+
+def _patch_hpipm(source_text: str) -> str:
+    """Fix CasADi 3.8's generated HPIPM call, which copies a half-initialised argument struct.
+
+    The generated ``casadi_hpipm_solve`` copies its option struct over HPIPM's whole
+    ``d_ocp_qp_ipm_arg``, whose fields the generated code never set stay garbage; HPIPM then
+    stopped at ``iter_max`` (status 1) on a QP the CasADi plugin solves in 11 iterations
+    (measured on the RexROV RTI QP).  The patch sets HPIPM's defaults for the mode first and
+    copies only the fields the generated code sets.  Sources without HPIPM are unchanged.
+    """
+    if _HPIPM_ARG_COPY not in source_text:
+        return source_text
+    fields = [f for f in dict.fromkeys(_HPIPM_FIELD.findall(source_text)) if f not in ("mode", "memsize")]
+    replacement = "d_ocp_qp_ipm_arg_set_default((enum hpipm_mode) p->hpipm_options.mode, &myarg);" + "".join(
+        f" myarg.{field} = p->hpipm_options.{field};" for field in fields
+    )
+    # HPIPM's status (max_iter, min_step) is no verdict on the step: like the Python backend,
+    # the caller judges the QP solution by its linearised violation (an output), so a
+    # non-converged IPM does not abort the whole Function and lose that solution
+    source_text = _HPIPM_FAILURE.sub("", source_text)
+    return source_text.replace(_HPIPM_ARG_COPY, replacement)
+
+
 def _link_flags(source_text: str) -> list[str]:
     """Libraries to link: libm always; POSIX threads when a ``"thread"`` map was generated."""
     flags = ["-lm"]
@@ -563,6 +590,9 @@ def compile_functions(
     tolerance: float = 1e-12,
     extra_source: str = "",
     external: Sequence[ca.Function] = (),
+    extra_header: str = "",
+    link: Sequence[str] = (),
+    prefix: str = "",
 ) -> CompiledLibrary:
     """Generate C code for ``functions``, compile it (cached), load it back and verify it.
 
@@ -600,6 +630,18 @@ def compile_functions(
         Symbolic twins of functions that ``extra_source`` defines under CasADi's
         external-function ABI (e.g. a SIMD kernel): loaded and verified like the generated
         ones, under the twin's name.
+    extra_header : str, default ""
+        Declarations appended to the generated header (those of ``extra_source``'s exported
+        functions); part of the digest through the source, which includes the header.
+    link : Sequence[str], default ()
+        Extra linker arguments placed after the source (libraries such as HPIPM's); part of
+        the digest.
+    prefix : str, default ""
+        Put in front of every function's C symbol (``{prefix}{function}``, ``_work``, …);
+        ``functions`` of the result stay keyed by the unprefixed names.  CasADi names its
+        exported helpers after ``name``, so give each library its own ``name`` too: then two
+        libraries can be linked into one program.  ``external`` functions must already be
+        defined under ``{prefix}{name}`` by ``extra_source``.
 
     Returns
     -------
@@ -628,14 +670,17 @@ def compile_functions(
     upgrading a compiler in place, clear the directory.
     """
     functions, external = list(functions), list(external)
+    if prefix and not _IDENTIFIER.fullmatch(prefix):
+        raise ValueError(f"prefix must be empty or a C identifier, got {prefix!r}")
     _check_functions([*functions, *external], name)
+    generated = [_copy(function, prefix + function.name()) for function in functions] if prefix else functions
     if isinstance(tolerance, bool) or not isinstance(tolerance, int | float) or not tolerance >= 0:
         raise ValueError(f"tolerance must be a number >= 0, got {tolerance!r}")
     directory = secure_directory(directory)
     flags = tuple(flags)
 
     generator = ca.CodeGenerator(f"{name}.c", {"with_header": True})
-    for function in functions:
+    for function in generated:
         generator.add(function)
 
     source = directory / f"{name}.c"
@@ -645,10 +690,19 @@ def compile_functions(
         # The prefix is pasted in front of the file names: it needs the trailing separator.
         generator.generate(str(staging) + os.sep)
         staged_source, staged_header = staging / source.name, staging / header.name
-        source_text = staged_source.read_text()
+        source_text = _patch_hpipm(staged_source.read_text())
         if extra_source:
             source_text = f"{source_text}\n{extra_source}"
-            staged_source.write_text(source_text)
+        staged_source.write_text(source_text)
+        if extra_header:
+            header_text = staged_header.read_text()
+            closing = header_text.rfind("#ifdef __cplusplus")
+            if closing < 0:
+                header_text = f"{header_text}\n{extra_header}\n"
+            else:  # inside the header's extern "C" block
+                header_text = f"{header_text[:closing]}{extra_header}\n{header_text[closing:]}"
+            staged_header.write_text(header_text)
+            source_text = f"{source_text}\n/* header */\n{extra_header}"
 
         if not compile:
             _install(staged_source, source)
@@ -671,7 +725,7 @@ def compile_functions(
             if resolved is None:
                 raise CompilerNotFoundError(f"C compiler not found: cc={cc!r} is not executable")
             compiler = resolved
-        link = _link_flags(source_text)
+        link = [*_link_flags(source_text), *link]
         digest = _digest(source_text, compiler, (*flags, *link, *_machine_key(flags)))
         library = directory / f"{name}_{digest[:16]}.so"
         reused = library_intact(library)
@@ -690,7 +744,9 @@ def compile_functions(
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
-    loaded = _load([function.name() for function in (*functions, *external)], library)
+    names = [function.name() for function in (*functions, *external)]
+    prefixed = _load([prefix + entry for entry in names], library)
+    loaded = {entry: prefixed[prefix + entry] for entry in names}
     errors: dict[str, float] = {}
     if verify:
         generator_rng = np.random.default_rng(0) if rng is None else rng

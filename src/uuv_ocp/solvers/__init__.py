@@ -20,6 +20,7 @@ from uuv_ocp.solvers.fatrop import FatropSolver
 from uuv_ocp.solvers.ipopt import IpoptSolver
 from uuv_ocp.solvers.nlp import NlpSolver
 from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.rti import RtiSolver
 from uuv_ocp.solvers.sqp import SqpSolver
 from uuv_ocp.solvers.swarm import SwarmSolver, swarm_factory
 
@@ -30,6 +31,7 @@ _BUILTIN: dict[str, tuple[SolverFactory, str]] = {
     "ipopt": (IpoptSolver, "exact"),
     "fatrop": (FatropSolver, "exact"),
     "sqp": (SqpSolver, "exact"),
+    "sqp-rti": (RtiSolver, "exact"),
     **{method: (swarm_factory(method), "swarm") for method in ALGORITHMS},
 }
 EXACT_SOLVERS = ("fatrop", "ipopt", "sqp")
@@ -218,6 +220,7 @@ __all__ = [
     "Iterate",
     "NlpSolver",
     "REGISTRY",
+    "RtiSolver",
     "SolveResult",
     "SolverRegistry",
     "SqpSolver",

@@ -1,0 +1,184 @@
+"""Real-time iteration (``sqp-rti``) against the converged exact backends: speed and quality.
+
+Speed (s2, RexROV, N = 20, dt = 0.1 s, 30 s closed loop from rest, one process, so the ratios
+to fatrop are measured together): ``NMPC.step`` wall time, and for ``sqp-rti`` the two phases
+timed separately (``NMPC.prepare`` before the state, ``NMPC.feedback`` after it); the
+converged Gauss–Newton SQP (``mode="converged"``); the generated C ``nmpc_step`` called
+through ``casadi.external`` on the same loop (its own closed loop on the model).
+
+Quality: closed loops of 30 s on s1..s10 (RexROV) and on the BlueROV2 Heavy 6-DOF survey of
+``examples/bluerov2_depth.py``: the largest position errors after the transient (t ≥ 5 s,
+``metrics()["max_abs_e*_settled"]``) and over the whole run (the transient from rest), RTI
+against fatrop (converged to 1e-8), and the failures.
+
+Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table only).
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+
+import numpy as np
+
+import uuv_ocp as uo
+from uuv_ocp.codegen import default_cache_directory
+
+SPEED_VARIANTS: tuple[tuple[str, str, dict | None], ...] = (
+    ("sqp-rti", "sqp-rti", None),
+    ("sqp-rti compiled", "sqp-rti", {"compiled": True}),
+    ("sqp-rti converged", "sqp-rti", {"mode": "converged", "compiled": True}),
+    ("fatrop", "fatrop", None),
+    ("fatrop compiled", "fatrop", {"compiled": True}),
+    ("sqp compiled", "sqp", {"compiled": True}),
+    ("ipopt compiled", "ipopt", {"compiled": True}),
+)
+
+
+def _problem(reference: str = "s2") -> uo.TrackingProblem:
+    return uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper(reference), horizon=20, dt=0.1)
+
+
+def speed(duration: float = 30.0) -> list[dict]:
+    """Median per-step wall times (ms) of each variant on its own s2 closed loop."""
+    problem = _problem()
+    reference = problem.reference
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    steps = int(round(duration / problem.dt))
+    rows = []
+    for label, solver, options in SPEED_VARIANTS:
+        controller = uo.NMPC(problem, solver, options=options)
+        controller.step(reference.initial_state(0.0), 0.0)  # builds (and compiles) outside the timing
+        controller.step(reference.evaluate([3.0])[0], 3.0)
+        controller.reset()
+        state, control = reference.initial_state(0.0), np.zeros(3)
+        step_times, prepare_times, feedback_times, failures = [], [], [], 0
+        for k in range(steps):
+            start = time.perf_counter()
+            controller.prepare(k * problem.dt, control, np.zeros(2))
+            middle = time.perf_counter()
+            output = controller.feedback(state)
+            end = time.perf_counter()
+            step_times.append(end - start)
+            prepare_times.append(middle - start)
+            feedback_times.append(end - middle)
+            failures += int(output.fallback)
+            control = output.control
+            state = np.array(plant(state, control, np.zeros(2))).ravel()
+        # the first step (cold start: IPOPT for sqp-rti) is excluded from the medians of none
+        rows.append(
+            {
+                "label": label,
+                "median_ms": 1e3 * float(np.median(step_times)),
+                "p90_ms": 1e3 * float(np.percentile(step_times, 90)),
+                "prepare_ms": 1e3 * float(np.median(prepare_times)),
+                "feedback_ms": 1e3 * float(np.median(feedback_times)),
+                "failures": failures,
+            }
+        )
+    rows.append(generated_c_speed(problem, duration))
+    return rows
+
+
+def generated_c_speed(problem: uo.TrackingProblem, duration: float) -> dict:
+    """Median wall time of the generated ``nmpc_step`` in its own closed loop (via casadi.external)."""
+    from uuv_ocp.solvers.rti import nmpc_step_function
+
+    build = uo.generate_c(
+        problem, default_cache_directory() / "bench_rti", functions=("model_step", "nmpc_step"), verify=False
+    )
+    step, model = build["nmpc_step"], build["model_step"]
+    _, backend = nmpc_step_function(problem)
+    reference = problem.reference
+    x, u = reference.initial_state(0.0), np.zeros(3)
+    p = problem.parameters(x, 0.0, u)
+    warm = uo.solve(problem, "ipopt", x0=x, t0=0.0, options={"terminal_strategy": "soft"})
+    w = warm.iterate.primal[backend.variants["soft"].primal_shift]
+    times, failures = [], 0
+    for k in range(1, int(round(duration / problem.dt))):
+        x = np.array(model(x, u, np.zeros(8), np.zeros(0))).ravel()
+        p = problem.parameters(x, k * problem.dt, u)
+        start = time.perf_counter()
+        control, w_next, violation = step(x, u, p, w)
+        times.append(time.perf_counter() - start)
+        failures += int(not float(violation) <= 1e-6)
+        u, w = np.array(control).ravel(), np.array(w_next).ravel()
+    return {
+        "label": "generated C nmpc_step",
+        "median_ms": 1e3 * float(np.median(times)),
+        "p90_ms": 1e3 * float(np.percentile(times, 90)),
+        "prepare_ms": float("nan"),
+        "feedback_ms": float("nan"),
+        "failures": failures,
+    }
+
+
+def quality(
+    duration: float = 30.0, references: tuple[str, ...] = tuple(f"s{i}" for i in range(1, 11))
+) -> list:
+    """Errors after the transient and over the whole run, RTI vs fatrop, per reference."""
+    rows = []
+    for name in references:
+        problem = _problem(name)
+        reference = problem.reference
+        t0 = reference.t_start
+        # as uuv-ocp track: the run ends where the horizon's window still fits the reference
+        length = min(duration, reference.t_end - t0 - problem.horizon * problem.dt)
+        x0 = reference.initial_state(t0)
+        row: dict = {"reference": name}
+        for solver in ("sqp-rti", "fatrop"):
+            run = uo.simulate(uo.NMPC(problem, solver), x0=x0, duration=length, t0=t0)
+            metrics = run.metrics()
+            row[solver] = {
+                "settled": max(metrics["max_abs_ex_settled"], metrics["max_abs_ey_settled"]),
+                "whole": max(metrics["max_abs_ex"], metrics["max_abs_ey"]),
+                "failures": run.failures,
+            }
+        rows.append(row)
+    sys.path.insert(0, "examples")
+    try:
+        import bluerov2_depth
+    finally:
+        sys.path.pop(0)
+    row = {"reference": "bluerov2"}
+    for solver in ("sqp-rti", "fatrop"):
+        outcome = bluerov2_depth.main(duration=duration, solver=solver)
+        settled = outcome.run.t >= 5.0
+        error = np.linalg.norm((outcome.run.states - outcome.run.reference)[:, :3], axis=1)
+        row[solver] = {
+            "settled": float(np.max(error[settled])),
+            "whole": float(np.max(error)),
+            "failures": outcome.run.failures,
+        }
+    rows.append(row)
+    return rows
+
+
+def main(quick: bool = False) -> None:
+    """Print the speed table (ratios to fatrop) and, unless ``quick``, the quality table."""
+    rows = speed()
+    base = next(row["median_ms"] for row in rows if row["label"] == "fatrop")
+    print("\nsqp-rti vs converged exact backends, s2 closed loop (30 s from rest), ms per step")
+    print(f"{'variant':<24}{'median':>8}{'p90':>8}{'prepare':>9}{'feedback':>9}{'fail':>6}{'/fatrop':>9}")
+    for row in rows:
+        print(
+            f"{row['label']:<24}{row['median_ms']:>8.3f}{row['p90_ms']:>8.3f}{row['prepare_ms']:>9.3f}"
+            f"{row['feedback_ms']:>9.3f}{row['failures']:>6d}{row['median_ms'] / base:>9.2f}"
+        )
+    if quick:
+        return
+    print("\nlargest position error (m): after the transient (t >= 5 s) and over the run, 30 s")
+    print(
+        f"{'case':<10}{'rti settled':>12}{'fatrop':>10}{'ratio':>8}{'rti whole':>11}{'fatrop':>10}{'fail':>7}"
+    )
+    for row in quality():
+        rti, full = row["sqp-rti"], row["fatrop"]
+        print(
+            f"{row['reference']:<10}{rti['settled']:>12.2e}{full['settled']:>10.2e}"
+            f"{rti['settled'] / full['settled']:>8.2f}{rti['whole']:>11.3f}{full['whole']:>10.3f}"
+            f"{rti['failures']:>4d}/{full['failures']:<3d}"
+        )
+
+
+if __name__ == "__main__":
+    main(quick="--quick" in sys.argv)

@@ -1,0 +1,184 @@
+"""Real-time iteration backend ``"sqp-rti"`` and the NMPC preparation/feedback phases."""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import uuv_ocp as uo
+from uuv_ocp.solvers import REGISTRY, get_solver
+from uuv_ocp.solvers.result import Iterate
+
+TIGHT_HPIPM = {"hpipm": {f"res_{k}_max": 1e-12 for k in "gbdm"}}
+
+
+@pytest.fixture(scope="module")
+def problem() -> uo.TrackingProblem:
+    return uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1)
+
+
+@pytest.fixture(scope="module")
+def instance(problem):
+    x0 = problem.reference.evaluate([3.0])[0]
+    reference = uo.solve(
+        problem,
+        "ipopt",
+        x0=x0,
+        t0=3.0,
+        options={"plugin_options": {"ipopt.tol": 1e-12, "ipopt.bound_relax_factor": 0.0}},
+    )
+    assert reference.success
+    return x0, reference
+
+
+def test_registered_as_exact_backend():
+    assert "sqp-rti" in uo.available_solvers()
+    assert REGISTRY.kind("sqp-rti") == "exact"
+    assert "igwo+sqp-rti" in uo.available_solvers()  # a hybrid's exact half like the others
+
+
+def test_iterated_rti_reaches_the_full_solvers_optimum(problem, instance):
+    """Gauss–Newton iterated to convergence from the cold guess = IPOPT's KKT point (1e-8)."""
+    x0, reference = instance
+    options = {"mode": "converged", "tol": 1e-12, "cold_start": "converged", "qpsol_options": TIGHT_HPIPM}
+    result = uo.solve(problem, "sqp-rti", x0=x0, t0=3.0, options=options)
+    assert result.success and result.status.endswith("converged")
+    assert result.iterations > 2  # it really iterated from the held-state guess
+    np.testing.assert_allclose(
+        result.iterate.scaled_controls, reference.iterate.scaled_controls, rtol=0, atol=1e-8
+    )
+    assert result.cost == pytest.approx(reference.cost, rel=1e-8)
+
+
+def test_one_iteration_is_one_gauss_newton_step(problem, instance):
+    """One RTI call = the Gauss–Newton QP step, solved here by a dense KKT system in numpy."""
+    x0, reference = instance
+    backend = get_solver(problem, "sqp-rti", {"qpsol_options": TIGHT_HPIPM})
+    data = problem.build().hard
+    rng = np.random.default_rng(3)
+    w = reference.iterate.primal.copy()
+    free = data.state_index.ravel()  # perturb states only: controls stay inside their box
+    w[free] += 1e-4 * rng.standard_normal(free.size)
+    warm = Iterate(
+        scaled_controls=w[data.control_index], states=w[data.state_index], primal=w, variant="hard"
+    )
+    p = problem.parameters(x0, 3.0)
+    result = backend.solve(p, warm)
+    assert result.success and result.iterations == 1
+    # independent step: Jacobians by CasADi AD of the NLP's own expressions, KKT by numpy
+    nlp, residual = data.nlp, data.residual
+    jr = ca.Function("jr", [nlp["x"], nlp["p"]], [ca.jacobian(residual, nlp["x"])])
+    jg = ca.Function("jg", [nlp["x"], nlp["p"]], [ca.jacobian(nlp["g"], nlp["x"]), nlp["g"]])
+    gf = ca.Function("gf", [nlp["x"], nlp["p"]], [ca.gradient(nlp["f"], nlp["x"])])
+    jacobian_r = np.array(jr(w, p))
+    a, g = (np.array(v) for v in jg(w, p))
+    hessian = 2 * jacobian_r.T @ jacobian_r
+    gradient = np.array(gf(w, p)).ravel()
+    # active set of the QP guessed from IPOPT's multipliers at the nearby optimum (casadi's
+    # sign convention: lam > 0 at an upper bound); those rows become equalities at that bound
+    lam_g, lam_x = reference.iterate.lam_g, reference.iterate.lam_x
+    equality = data.lbg == data.ubg
+    active_g = ~equality & (np.abs(lam_g) > 1e-6)
+    active_x = np.abs(lam_x) > 1e-6
+    bound_g = np.where(lam_g > 0, data.ubg, data.lbg)
+    bound_x = np.where(lam_x > 0, data.ubx, data.lbx)
+    rows = equality | active_g
+    identity = np.eye(w.size)
+    constraint = np.vstack([a[rows], identity[active_x]])
+    target = np.concatenate(
+        [np.where(equality, data.lbg, bound_g)[rows] - g.ravel()[rows], bound_x[active_x] - w[active_x]]
+    )
+    n, m = hessian.shape[0], constraint.shape[0]
+    kkt = np.block([[hessian, constraint.T], [constraint, np.zeros((m, m))]])
+    # lstsq: box and rate bounds active on one control make the active rows dependent (the
+    # step is still unique: H is positive definite on their null space)
+    solution = np.linalg.lstsq(kkt, np.concatenate([-gradient, target]), rcond=None)[0]
+    step = solution[:n]
+    # the rest of the QP's constraints strictly feasible: a KKT point of the convex QP
+    linear = g.ravel() + a @ step
+    inactive = ~rows
+    assert np.all(linear[inactive] < data.ubg[inactive] - 1e-9)
+    assert np.all(linear[inactive] > data.lbg[inactive] + 1e-9)
+    free_x = ~active_x
+    assert np.all((w + step)[free_x] < data.ubx[free_x]) and np.all((w + step)[free_x] > data.lbx[free_x])
+    assert active_g.any()  # the instance has an active rate bound: a real inequality QP
+    np.testing.assert_allclose(result.iterate.primal, w + step, rtol=0, atol=1e-8)
+
+
+def test_prepare_then_feedback_equals_step(problem, monkeypatch):
+    """The prepared linearisation with the measured state patched in = linearising there."""
+    reference = problem.reference
+    split = uo.NMPC(problem, "sqp-rti")
+    # another backend instance (other options key, same values) that never prepares
+    whole = uo.NMPC(problem, "sqp-rti", options={"slack_tolerance": 1e-7})
+    assert whole.backend is not split.backend
+    monkeypatch.setattr(whole.backend, "prepare", None)
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    state, control = reference.initial_state(0.0), np.zeros(3)
+    rng = np.random.default_rng(0)
+    for k in range(6):
+        split.prepare(k * problem.dt, control)
+        measured = state + 1e-3 * rng.standard_normal(6)  # not the predicted state
+        a = split.feedback(measured)
+        b = whole.step(measured, k * problem.dt, control)
+        assert not a.fallback and not b.fallback
+        np.testing.assert_allclose(a.control, b.control, rtol=0, atol=1e-9)
+        control = a.control
+        state = np.array(plant(state, control, np.zeros(2))).ravel()
+    with pytest.raises(ValueError, match="prepare"):
+        split.feedback(state)
+
+
+def test_closed_loop_holds_box_and_rate_bounds(problem):
+    controller = uo.NMPC(problem, "sqp-rti")
+    run = uo.simulate(controller, x0=problem.reference.initial_state(0.0), duration=3.0)
+    assert run.failures == 0
+    limit = problem.max_thrust
+    assert np.all(np.abs(run.controls) <= limit * (1 + 1e-12))
+    rates = np.diff(np.vstack([np.zeros(3), run.controls]), axis=0)
+    assert np.all(np.abs(rates) <= problem.spec().max_rate * problem.dt * (1 + 1e-9))
+
+
+@pytest.mark.parametrize(
+    ("options", "name"),
+    [
+        ({"mode": "fast"}, "options['mode']"),
+        ({"iterations": 0}, "options['iterations']"),
+        ({"tol": -1.0}, "options['tol']"),
+        ({"qpsol": "nope"}, "options['qpsol']"),
+        ({"qpsol_options": 3}, "options['qpsol_options']"),
+        ({"cold_start": "warm"}, "options['cold_start']"),
+        ({"qp_tolerance": 0.0}, "options['qp_tolerance']"),
+        ({"plugin_options": {"a": 1}}, "options['plugin_options']"),
+        ({"banana": 1}, "banana"),
+    ],
+)
+def test_bad_options_are_named(problem, options, name):
+    with pytest.raises(ValueError, match=name.replace("[", r"\[").replace("]", r"\]")):
+        get_solver(problem, "sqp-rti", options)
+
+
+def test_failed_qp_takes_the_nmpc_fallback(problem, monkeypatch):
+    """A QP that never succeeds (and no IPOPT rescue) fails softly: the loop goes on."""
+    options = {"cold_start": "rti"}
+    controller = uo.NMPC(problem, "sqp-rti", options=options)
+    backend = controller.backend
+    monkeypatch.setattr(backend, "robust_options", lambda: {})
+    monkeypatch.setattr(backend, "qp_tolerance", 1e-300)  # no QP solution passes the test
+    output = controller.step(problem.reference.initial_state(0.0), 0.0)
+    assert output.fallback and "infeasible" in output.message
+    assert np.all(output.control == 0.0)
+
+
+def test_interrupt_inside_the_qp_propagates(problem, monkeypatch):
+    controller = uo.NMPC(problem, "sqp-rti", options={"cold_start": "rti"})
+    backend = controller.backend
+
+    class Interrupting:
+        def __call__(self, *args):
+            raise RuntimeError("Error in Function::call: KeyboardInterrupt")
+
+    monkeypatch.setattr(backend, "qp_step", lambda variant: Interrupting())
+    with pytest.raises(KeyboardInterrupt):
+        controller.step(problem.reference.initial_state(0.0), 0.0)

@@ -65,7 +65,8 @@ from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers.base import reraise_interrupt
-from uuv_ocp.solvers.nlp import NlpSolver
+from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
+from uuv_ocp.solvers.options import AUTO, Option, one_of, option_defaults, option_names, revise
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.transcription.multiple_shooting import NlpData
 
@@ -80,6 +81,36 @@ HPIPM_DEFAULTS: dict[str, Any] = {
     "hpipm": {"res_g_max": 1e-10, "res_b_max": 1e-10, "res_d_max": 1e-10, "res_m_max": 1e-10}
 }
 COLD_STARTS = ("ipopt", "converged", "rti")
+#: Iteration limit of the converged mode and of a cold start by Gauss–Newton steps.
+RTI_MAX_ITER = 50
+
+RTI_OPTIONS: tuple[Option, ...] = (
+    *revise(
+        NLP_OPTIONS,
+        max_iter={"meaning": f"{RTI_MAX_ITER} (converged mode and cold starts by SQP steps)"},
+        plugin_options={
+            "description": "must stay empty (no nlpsol plugin): the QP's options are `qpsol_options`"
+        },
+    ),
+    Option("mode", "rti", one_of(MODES), "one Gauss–Newton SQP step per call, or iterate to `tol`"),
+    Option("iterations", 1, "int >= 1", "SQP steps per call in `rti` mode"),
+    Option("tol", 1e-8, "float > 0", "step-size tolerance of the converged mode (scaled variables)"),
+    Option("cold_start", "ipopt", one_of(COLD_STARTS), "how a call without a warm start is solved"),
+    Option("qpsol", "hpipm", one_of(QP_SOLVERS), "CasADi `conic` plugin of the QP"),
+    Option(
+        "qpsol_options",
+        AUTO,
+        "dict",
+        "options of the QP solver",
+        meaning="`HPIPM_DEFAULTS` (residuals 1e-10) for hpipm in converged mode, else `{}`",
+    ),
+    Option(
+        "qp_tolerance",
+        1e-6,
+        "float > 0",
+        "largest violation of the linearised constraints a QP solution may have to count as solved",
+    ),
+)
 
 
 @dataclass(frozen=True)
@@ -205,33 +236,32 @@ class RtiSolver(NlpSolver):
 
     name = "sqp-rti"
     plugin = "rti"
-    default_max_iter = 50
-    option_names = (
-        *NlpSolver.option_names,
-        "cold_start",
-        "iterations",
-        "mode",
-        "qp_tolerance",
-        "qpsol",
-        "qpsol_options",
-        "tol",
-    )
+    default_max_iter = RTI_MAX_ITER
+    OPTIONS = RTI_OPTIONS
+    option_names = option_names(RTI_OPTIONS)
 
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
         options = dict(options or {})
-        self.mode = check.choice("options['mode']", options.pop("mode", "rti"), MODES)
-        self.iterations = check.positive_int("options['iterations']", options.pop("iterations", 1))
-        self.tol = check.positive_float("options['tol']", options.pop("tol", 1e-8))
-        self.cold_start = check.choice(
-            "options['cold_start']", options.pop("cold_start", "ipopt"), COLD_STARTS
+        default = option_defaults(self.OPTIONS)
+        self.mode = check.choice("options['mode']", options.pop("mode", default["mode"]), MODES)
+        self.iterations = check.positive_int(
+            "options['iterations']", options.pop("iterations", default["iterations"])
         )
-        self.qpsol = check.choice("options['qpsol']", options.pop("qpsol", "hpipm"), QP_SOLVERS)
+        self.tol = check.positive_float("options['tol']", options.pop("tol", default["tol"]))
+        self.cold_start = check.choice(
+            "options['cold_start']", options.pop("cold_start", default["cold_start"]), COLD_STARTS
+        )
+        self.qpsol = check.choice("options['qpsol']", options.pop("qpsol", default["qpsol"]), QP_SOLVERS)
         tight = self.qpsol == "hpipm" and self.mode == "converged"
-        qpsol_options = options.pop("qpsol_options", HPIPM_DEFAULTS if tight else {})
+        qpsol_options = options.pop("qpsol_options", default["qpsol_options"])
+        if qpsol_options is AUTO:
+            qpsol_options = HPIPM_DEFAULTS if tight else {}
         if not isinstance(qpsol_options, dict):
             raise ValueError(f"options['qpsol_options'] must be a dict, got {check.shown(qpsol_options)}")
         self.qpsol_options = dict(qpsol_options)
-        self.qp_tolerance = check.positive_float("options['qp_tolerance']", options.pop("qp_tolerance", 1e-6))
+        self.qp_tolerance = check.positive_float(
+            "options['qp_tolerance']", options.pop("qp_tolerance", default["qp_tolerance"])
+        )
         super().__init__(problem, options)
         if self.plugin_options:
             raise ValueError(

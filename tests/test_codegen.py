@@ -11,6 +11,7 @@ import pytest
 
 import uuv_ocp as uo
 from conftest import needs_compiler
+from helpers_c import build_and_run
 from uuv_ocp import codegen
 from uuv_ocp.optimize import minimize
 
@@ -92,28 +93,9 @@ def test_standalone_c_program_matches_score(tmp_path):
     generated = codegen.generate_c(problem, tmp_path / "build", functions=("cost", "cost_batch"))
     # the program sits next to the library and finds it through $ORIGIN: no hand declaration
     # of uuv_ocp_igwo (the generated header has it) and no dependence on the working directory
-    program = generated.directory / "igwo_demo"
-    command = [
-        codegen.find_c_compiler(),
-        "-Werror=implicit-function-declaration",
-        str(EXAMPLES / "main.c"),
-        f"-I{generated.directory}",
-        str(generated.library),
-        "-Wl,-rpath,$ORIGIN",
-        "-lm",
-        "-o",
-        str(program),
-    ]
-    subprocess.run(command, check=True, capture_output=True, text=True)
-    elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
-    output = subprocess.run(
-        [str(program), str(tmp_path / "input.txt")],
-        check=True,
-        capture_output=True,
-        text=True,
-        cwd=elsewhere,
-    ).stdout
+    output = build_and_run(
+        EXAMPLES / "main.c", [generated.library], generated.directory, tmp_path / "input.txt", tmp_path
+    )
     values = dict(re.findall(r"^(\w+) (\S+)$", output, flags=re.MULTILINE))
     assert float(values["cost"]) == pytest.approx(data["score"], rel=1e-12)
     assert float(values["penalty"]) == pytest.approx(data["penalty"], rel=1e-12)

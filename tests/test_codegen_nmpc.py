@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import re
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from helpers_c import build_and_run
 from uuv_ocp import codegen
 from uuv_ocp.solvers.result import Iterate
 from uuv_ocp.solvers.rti import nmpc_step_function
@@ -54,26 +54,13 @@ def test_generated_nmpc_closed_loop_equals_python(tmp_path):
     lines += [" ".join(repr(float(v)) for v in block) for block in first]
     lines += [" ".join(repr(float(v)) for v in window) for window in windows]
     (tmp_path / "loop.txt").write_text("\n".join(lines) + "\n")
-    program = generated.directory / "nmpc_loop"
-    compiler = codegen.find_c_compiler()
-    command = [
-        compiler,
-        "-Werror=implicit-function-declaration",
-        str(EXAMPLES / "nmpc_loop.c"),
-        f"-I{generated.directory}",
-        str(generated.nmpc_library),
-        str(generated.library),
-        "-Wl,-rpath,$ORIGIN",
-        "-lm",
-        "-o",
-        str(program),
-    ]
-    subprocess.run(command, check=True, capture_output=True, text=True)
-    elsewhere = tmp_path / "elsewhere"
-    elsewhere.mkdir()
-    output = subprocess.run(
-        [str(program), str(tmp_path / "loop.txt")], check=True, capture_output=True, text=True, cwd=elsewhere
-    ).stdout
+    output = build_and_run(
+        EXAMPLES / "nmpc_loop.c",
+        [generated.nmpc_library, generated.library],
+        generated.directory,
+        tmp_path / "loop.txt",
+        tmp_path,
+    )
     rows = [line.split()[2:] for line in output.splitlines() if re.match(r"^step \d+", line)]
     c_controls = np.array([[float(v) for v in row[:3]] for row in rows])
     assert c_controls.shape == (steps, 3)

@@ -321,23 +321,28 @@ def trial_task(config: CampaignConfig, index: int) -> ClosedLoopResult:
         raise KeyboardInterrupt(f"trial {index} interrupted; finished trials are saved") from stop
 
 
-def _record(config: CampaignConfig, index: int, directory: Path, run: ClosedLoopResult) -> dict:
-    """Write trial ``index``'s record and index row; return its metrics."""
-    settings = config.trial_settings(index)
-    path = _trial_path(directory, index)
-    digest = write_record(path, run, settings)
+def _index_row(
+    config: CampaignConfig, index: int, directory: Path, run: ClosedLoopResult, digest: str
+) -> dict:
+    """Write trial ``index``'s row of the folder's index; return its metrics."""
     metrics = run.metrics()
     index_trial(
         directory.parent,
-        path,
+        _trial_path(directory, index),
         campaign=config.name,
         trial=index,
-        config=settings,
+        config=config.trial_settings(index),
         digest=digest,
         run=run,
         metrics=metrics,
     )
     return metrics
+
+
+def _record(config: CampaignConfig, index: int, directory: Path, run: ClosedLoopResult) -> dict:
+    """Write trial ``index``'s record and index row; return its metrics."""
+    digest = write_record(_trial_path(directory, index), run, config.trial_settings(index))
+    return _index_row(config, index, directory, run, digest)
 
 
 def _load(
@@ -441,18 +446,8 @@ def run_campaigns(
                     recomputed[c].append(index)
                 continue
             run, digest = saved
-            metrics[c][index], faults[c][index] = run.metrics(), run.fault
-            settings = config.trial_settings(index)  # rebuild the index row: the files are the authority
-            index_trial(
-                out,
-                path,
-                campaign=config.name,
-                trial=index,
-                config=settings,
-                digest=digest,
-                run=run,
-                metrics=metrics[c][index],
-            )
+            # rebuild the index row: the files are the authority
+            metrics[c][index], faults[c][index] = _index_row(config, index, directory, run, digest), run.fault
     resumed = [len(m) for m in metrics]
     pending = [
         ((c, i), (config, i))

@@ -250,6 +250,14 @@ def test_campaign(tmp_path, capsys):
         np.testing.assert_allclose(replay(exact.dynamics_function(), run, rtol=1e-9), run.states, atol=1e-5)
         assert np.all(np.hypot(*run.currents.T) > 0)
     assert second.summary["mean_max_abs_ey"] == pytest.approx(np.mean([r["max_abs_ey"] for r in rows]))
+    # on Dask: the same trials, recorded in their own folder, with the same arrays
+    on_dask = out["dask"]
+    assert on_dask.directory.parent == tmp_path / "dask"
+    for row in rows:
+        local = uo.ClosedLoopResult.load(str(tmp_path / row["path"]))
+        remote = uo.ClosedLoopResult.load(str(on_dask.directory / Path(row["path"]).name))
+        np.testing.assert_array_equal(remote.states, local.states)
+        np.testing.assert_array_equal(remote.controls, local.controls)
 
 
 @pytest.mark.slow

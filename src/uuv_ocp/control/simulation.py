@@ -29,8 +29,10 @@ from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.metrics import tracking_metrics
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.integrators import rk4_step
+from uuv_ocp.interrupts import check_interrupt, interrupt_handled, remember_interrupts
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.progress import ProgressBar
+from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions, warn_if_reference_too_fast
 from uuv_ocp.transcription.multiple_shooting import parameter_blocks
 
@@ -307,9 +309,13 @@ def simulate(
     interrupted = False
     fault: str | None = None
     name = problem.reference.name if isinstance(problem, TrackingProblem) else spec.name
-    with ProgressBar(steps, label or f"{name}/{controller.solver_name}", progress) as bar:
+    with (
+        ProgressBar(steps, label or f"{name}/{controller.solver_name}", progress) as bar,
+        remember_interrupts(),
+    ):
         try:
             for k in range(steps):
+                check_interrupt()  # a Ctrl-C CasADi swallowed (uuv_ocp.interrupts) stops here
                 measured = states[k] + (noise.sample(rng) if noise is not None else 0.0)
                 if not np.all(np.isfinite(measured)):  # the controller would fail on it: stop here
                     fault = f"non-finite measurement at t = {times[k]:.6g} s (step {k})"
@@ -337,6 +343,8 @@ def simulate(
                     else:
                         next_state = plant_step(states[k], controls[k])
                 except Exception as error:  # CasADi's evaluation errors: a fault, not a lost run
+                    # ... except Ctrl-C, which CasADi reports from inside a call as a RuntimeError
+                    reraise_interrupt(error)
                     fault = (
                         f"plant exception at t = {times[k]:.6g} s (step {k}): {type(error).__name__}: {error}"
                     )
@@ -354,6 +362,7 @@ def simulate(
                 bar.update(1, postfix=f"fail={int(fallback[: k + 1].sum())}")
         except KeyboardInterrupt:
             interrupted = True
+            interrupt_handled()
     n = completed
     run = ClosedLoopResult(
         t=times[: n + 1],

@@ -40,6 +40,7 @@ from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
+from uuv_ocp.interrupts import check_interrupt, remember_interrupts
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.reference.path import Reference
 from uuv_ocp.specs import reference_from_spec, vehicle_from_spec
@@ -457,7 +458,9 @@ def run_campaigns(
     ]
     total = sum(config.trials for config in configs)
     label = f"campaign {configs[0].name}" if len(configs) == 1 else f"{len(configs)} campaigns"
-    with ProgressBar(total, label, progress, initial=sum(resumed)) as bar:
+    # remember_interrupts: a Ctrl-C that CasADi swallows while a trial's problem is built is
+    # raised by that trial's first closed-loop step, or after the record being written
+    with ProgressBar(total, label, progress, initial=sum(resumed)) as bar, remember_interrupts():
         if pending:
             with TaskRunner(executor, workers, scheduler) as runner:
                 for (c, index), run in runner.run(trial_task, pending):
@@ -465,6 +468,7 @@ def run_campaigns(
                     metrics[c][index] = _record(config, index, out / config.name, run)
                     faults[c][index] = run.fault
                     bar.update(1)
+                    check_interrupt()
     results = []
     for c, config in enumerate(configs):
         trials = tuple(metrics[c][i] for i in range(config.trials))

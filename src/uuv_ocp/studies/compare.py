@@ -23,6 +23,7 @@ import numpy as np
 from uuv_ocp.build import Transcribed
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import SimulationInterrupted, simulate
+from uuv_ocp.interrupts import check_interrupt, remember_interrupts
 from uuv_ocp.judge import score_terms
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
@@ -137,46 +138,52 @@ def track_references(
     runs_dir = out_dir / "runs"
     runs_dir.mkdir(parents=True, exist_ok=True)
     rows = []
-    for item in names:
-        reference = item if isinstance(item, Reference) else Reference.paper(item)
-        name = reference.name
-        problem = TrackingProblem(vehicle, reference, horizon=horizon, dt=dt)
-        t0 = reference.t_start
-        run_duration = min(duration, problem.latest_start() - t0)
-        settings = run_settings(problem, solver, solver_options, t0, run_duration)
-        label = re.sub(r"[^A-Za-z0-9_.-]+", "-", f"{name}_{solver}")  # a file name whatever the path's name
-        path = runs_dir / f"{label}_{config_key(settings)[:12]}.npz"
-        saved = None if fresh else read_record(path, settings, steps=int(np.floor(run_duration / dt + 1e-9)))
-        if saved is not None:
-            run = saved[0]
-        else:
-            controller = NMPC(problem, solver, options=solver_options)
-            with warnings.catch_warnings():  # the row's note says it (reference_speed_note)
-                warnings.simplefilter("ignore", ReferenceSpeedWarning)
-                try:
-                    run = simulate(
-                        controller,
-                        reference.initial_state(t0),
-                        run_duration,
-                        progress=progress,
-                        label=f"{name} {solver}",
-                    )
-                except SimulationInterrupted as stop:  # the unfinished run is not saved
-                    raise KeyboardInterrupt(
-                        f"interrupted during {name}; finished runs are in {runs_dir}"
-                    ) from stop
-            write_record(path, run, settings)
-        speed_max, note = reference_speed_note(reference, vehicle, t0, run_duration)
-        if figures:
-            save_tracking_figures(
-                run,
-                out_dir,
-                prefix=f"{name}_",
-                labels=[f"{name} {solver}"],
-                vehicle=vehicle,
-                unreachable_from=unreachable_from(reference, vehicle, t0, run_duration),
+    with remember_interrupts():  # a Ctrl-C CasADi swallows while a problem is built (uuv_ocp.interrupts)
+        for item in names:
+            check_interrupt()
+            reference = item if isinstance(item, Reference) else Reference.paper(item)
+            name = reference.name
+            problem = TrackingProblem(vehicle, reference, horizon=horizon, dt=dt)
+            t0 = reference.t_start
+            run_duration = min(duration, problem.latest_start() - t0)
+            settings = run_settings(problem, solver, solver_options, t0, run_duration)
+            label = re.sub(
+                r"[^A-Za-z0-9_.-]+", "-", f"{name}_{solver}"
+            )  # a file name whatever the path's name
+            path = runs_dir / f"{label}_{config_key(settings)[:12]}.npz"
+            saved = (
+                None if fresh else read_record(path, settings, steps=int(np.floor(run_duration / dt + 1e-9)))
             )
-        rows.append(TrackingRow(name, solver, run.metrics(), run_duration, speed_max, note))
+            if saved is not None:
+                run = saved[0]
+            else:
+                controller = NMPC(problem, solver, options=solver_options)
+                with warnings.catch_warnings():  # the row's note says it (reference_speed_note)
+                    warnings.simplefilter("ignore", ReferenceSpeedWarning)
+                    try:
+                        run = simulate(
+                            controller,
+                            reference.initial_state(t0),
+                            run_duration,
+                            progress=progress,
+                            label=f"{name} {solver}",
+                        )
+                    except SimulationInterrupted as stop:  # the unfinished run is not saved
+                        raise KeyboardInterrupt(
+                            f"interrupted during {name}; finished runs are in {runs_dir}"
+                        ) from stop
+                write_record(path, run, settings)
+            speed_max, note = reference_speed_note(reference, vehicle, t0, run_duration)
+            if figures:
+                save_tracking_figures(
+                    run,
+                    out_dir,
+                    prefix=f"{name}_",
+                    labels=[f"{name} {solver}"],
+                    vehicle=vehicle,
+                    unreachable_from=unreachable_from(reference, vehicle, t0, run_duration),
+                )
+            rows.append(TrackingRow(name, solver, run.metrics(), run_duration, speed_max, note))
     return rows
 
 

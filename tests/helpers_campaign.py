@@ -1,6 +1,7 @@
 """Shared by the campaign tests: a small campaign and a comparison of its records."""
 
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -45,8 +46,25 @@ def start_campaign(out, workers, trials, executor="local"):
     command = [sys.executable, "-m", "uuv_ocp.cli", "campaign", *CLI_FLAGS, "--trials", str(trials)]
     command += ["--executor", executor, "--workers", str(workers), "--out", str(out)]
     return subprocess.Popen(
-        command, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+        command,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        start_new_session=True,
+        preexec_fn=_terminal_sigint,
     )
+
+
+def _terminal_sigint():
+    """Give the child the SIGINT of a terminal's foreground job (default action, not ignored).
+
+    A suite started as a background job of a non-interactive shell (``nohup make test &``)
+    inherits SIGINT ignored, and a Python started so installs no KeyboardInterrupt handler: the
+    Ctrl-C tests would then see a campaign that cannot be interrupted (measured: exit 0 in CI
+    started that way) instead of the one a user runs from a terminal.
+    """
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 def wait_for_records(directory, count, process, timeout=120.0):

@@ -17,6 +17,18 @@ from uuv_ocp.interrupts import check_interrupt, remember_interrupts
 from uuv_ocp.studies.campaign import run_campaign
 
 
+@pytest.fixture(autouse=True)
+def python_sigint_handler():
+    """Python's own SIGINT handler, as in any interactive run.
+
+    A suite started as a background job (``nohup make test &``) inherits SIGINT ignored, and
+    then neither Python nor :func:`remember_interrupts` handles it (an ignored SIGINT stays so).
+    """
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 def _swallowed_sigint():
     """Deliver SIGINT to this process and swallow the KeyboardInterrupt, as SWIG does."""
     try:

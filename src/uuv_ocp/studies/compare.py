@@ -55,19 +55,7 @@ def unreachable_from(reference: Reference, vehicle: AnyVehicle, t0: float, durat
     limit of position tracking; the surge-only figure (``max_speed()[0]``) is lower.  ``None``
     when the path stays within reach, or for a vehicle without that bound (6-DOF).
     """
-    if not isinstance(vehicle, Vehicle):
-        return None
-    times = np.linspace(t0, t0 + duration, 3001)
-    speed = _path_speed(reference, times)
-    over = times[speed > vehicle.max_horizontal_speed()[0]]
-    return float(over[0]) if over.size else None
-
-
-def _path_speed(reference: Reference, times: np.ndarray) -> np.ndarray:
-    states = reference.evaluate(times)
-    if reference.spatial:  # body-frame horizontal velocity (u_R, v_R) in columns 6, 7
-        return np.hypot(states[:, 6], states[:, 7])
-    return np.hypot(states[:, 3], states[:, 4])
+    return _reach(reference, vehicle, t0, duration)[1]
 
 
 def reference_speed_note(
@@ -77,16 +65,29 @@ def reference_speed_note(
 
     See :func:`unreachable_from` for the top speed.
     """
-    speed = float(_path_speed(reference, np.linspace(t0, t0 + duration, 3001)).max())
-    start = unreachable_from(reference, vehicle, t0, duration)
-    if start is None:
-        return speed, ""
-    assert isinstance(vehicle, Vehicle)
+    speed, _, note = _reach(reference, vehicle, t0, duration)
+    return speed, note
+
+
+def _reach(
+    reference: Reference, vehicle: AnyVehicle, t0: float, duration: float
+) -> tuple[float, float | None, str]:
+    """Largest path speed (m/s), :func:`unreachable_from` and the note, from one sampling of the path."""
+    times = np.linspace(t0, t0 + duration, 3001)
+    states = reference.evaluate(times)
+    columns = (6, 7) if reference.spatial else (3, 4)  # body-frame horizontal velocity (u_R, v_R)
+    speed = np.hypot(states[:, columns[0]], states[:, columns[1]])
+    if not isinstance(vehicle, Vehicle):
+        return float(speed.max()), None, ""
     top, crab = vehicle.max_horizontal_speed()
-    return (
-        speed,
-        f"path speed > {top:.2f} m/s (top speed, crabbing at {np.degrees(crab):.0f}°) from t = {start:.1f} s",
+    over = times[speed > top]
+    if not over.size:
+        return float(speed.max()), None, ""
+    start = float(over[0])
+    note = (
+        f"path speed > {top:.2f} m/s (top speed, crabbing at {np.degrees(crab):.0f}°) from t = {start:.1f} s"
     )
+    return float(speed.max()), start, note
 
 
 def run_settings(
@@ -173,7 +174,7 @@ def track_references(
                             f"interrupted during {name}; finished runs are in {runs_dir}"
                         ) from stop
                 write_record(path, run, settings)
-            speed_max, note = reference_speed_note(reference, vehicle, t0, run_duration)
+            speed_max, unreachable, note = _reach(reference, vehicle, t0, run_duration)
             if figures:
                 save_tracking_figures(
                     run,
@@ -181,7 +182,7 @@ def track_references(
                     prefix=f"{name}_",
                     labels=[f"{name} {solver}"],
                     vehicle=vehicle,
-                    unreachable_from=unreachable_from(reference, vehicle, t0, run_duration),
+                    unreachable_from=unreachable,
                 )
             rows.append(TrackingRow(name, solver, run.metrics(), run_duration, speed_max, note))
     return rows

@@ -51,6 +51,45 @@ def test_plant_trajectory_is_reproduced_by_an_independent_integrator(s2_run, s2_
     np.testing.assert_allclose(state, s2_run.states[20], atol=1e-7)
 
 
+def test_recorded_plant_substeps_match_an_independent_integrator(s2_problem, tmp_path):
+    """Every plant sub-step of a run against scipy's DOP853 from the node before it."""
+    from scipy.integrate import solve_ivp
+
+    reference = s2_problem.reference
+    run = uo.simulate(
+        uo.NMPC(s2_problem, "ipopt"),
+        reference.initial_state(0.0),
+        1.0,
+        plant_substeps=5,
+        record_substeps=True,
+        current=uo.Current(speed=0.3, direction=0.5),
+    )
+    assert run.substep_states.shape == (5 * run.controls.shape[0] + 1, 6)
+    np.testing.assert_array_equal(run.substep_states[::5], run.states)
+    np.testing.assert_allclose(
+        run.substep_t, np.linspace(run.t[0], run.t[-1], run.substep_t.size), atol=1e-12
+    )
+    f = s2_problem.vehicle.dynamics_function()
+    for k in range(run.controls.shape[0]):
+        current = run.currents[k]
+        solution = solve_ivp(
+            lambda _t, x, u=run.controls[k], c=current: np.array(f(x, u, c)).ravel(),
+            (0.0, 0.1),
+            run.states[k],
+            method="DOP853",
+            t_eval=0.02 * np.arange(1, 6),
+            rtol=1e-12,
+            atol=1e-12,
+        )
+        np.testing.assert_allclose(run.substep_states[5 * k + 1 : 5 * k + 6], solution.y.T, atol=1e-8)
+    # a saved run keeps them; not recorded by default
+    run.save(tmp_path / "run.npz")
+    np.testing.assert_array_equal(
+        uo.ClosedLoopResult.load(tmp_path / "run.npz").substep_states, run.substep_states
+    )
+    assert uo.simulate(uo.NMPC(s2_problem, "ipopt"), reference.initial_state(0.0), 0.2).substep_t.size == 0
+
+
 class _FailingEveryThird(IpoptSolver):
     """IPOPT that reports failure on every third call (to exercise the fallback)."""
 
@@ -223,7 +262,11 @@ def test_gauss_markov_clamps_to_its_bounds():
 
 @pytest.mark.parametrize(
     ("kwargs", "name"),
-    [({"duration": 0.0}, "duration"), ({"duration": 1.0, "plant_substeps": 0}, "plant_substeps")],
+    [
+        ({"duration": 0.0}, "duration"),
+        ({"duration": 1.0, "plant_substeps": 0}, "plant_substeps"),
+        ({"duration": 1.0, "record_substeps": "yes"}, "record_substeps"),
+    ],
 )
 def test_bad_simulation_arguments_raise(s2_problem, kwargs, name):
     with pytest.raises(ValueError, match=name):

@@ -5,6 +5,7 @@ import pytest
 from scipy.integrate import solve_ivp
 
 import uuv_ocp as uo
+from uuv_ocp.integrators import rk4_path
 
 STATE = np.array([0.3, -0.2, 0.5, 0.8, 0.2, 0.15])
 CONTROL = np.array([1500.0, -600.0, 300.0])
@@ -50,6 +51,22 @@ def test_substeps_equal_repeated_steps():
     double = uo.rk4_step(f, 0.1, 2)
     twice = single(single(STATE, CONTROL, CURRENT), CONTROL, CURRENT)
     np.testing.assert_allclose(np.array(double(STATE, CONTROL, CURRENT)), np.array(twice), rtol=1e-14)
+
+
+def test_rk4_path_columns_are_the_states_after_each_substep():
+    """Column j is the state after j + 1 sub-steps (repeated one-step maps); the last is rk4_step's."""
+    f = uo.Vehicle.rexrov().dynamics_function()
+    path = np.array(rk4_path(f, 0.1, 4)(STATE, CONTROL, CURRENT))
+    assert path.shape == (6, 4)
+    single = uo.rk4_step(f, 0.025, 1)
+    state = STATE
+    for column in range(4):
+        state = np.array(single(state, CONTROL, CURRENT)).ravel()
+        np.testing.assert_allclose(path[:, column], state, rtol=1e-13, atol=1e-15)
+    # bit-identical to the step the controller's problems and the old plant used
+    np.testing.assert_array_equal(
+        path[:, -1], np.array(uo.rk4_step(f, 0.1, 4)(STATE, CONTROL, CURRENT)).ravel()
+    )
 
 
 @pytest.mark.parametrize(("dt", "substeps"), [(0.0, 1), (-0.1, 1), (0.1, 0), (0.1, 1.5)])

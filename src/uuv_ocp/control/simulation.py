@@ -28,7 +28,7 @@ from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.metrics import tracking_metrics
 from uuv_ocp.control.mpc import NMPC
-from uuv_ocp.integrators import rk4_step
+from uuv_ocp.integrators import rk4_path
 from uuv_ocp.interrupts import check_interrupt, interrupt_handled, remember_interrupts
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.progress import ProgressBar
@@ -87,6 +87,12 @@ class ClosedLoopResult:
         Why the run stopped early (non-finite measurement, plant blow-up, plant exception), with
         the time; ``None`` for a run that reached its end.  The arrays end at the last finite
         state.
+    substep_t : numpy.ndarray, shape (n·s+1,), optional
+        Times (s) of every plant integration step (``s = plant_substeps``), recorded with
+        ``simulate(..., record_substeps=True)``; empty otherwise.
+    substep_states : numpy.ndarray, shape (n·s+1, nx), optional
+        Plant states at ``substep_t``: what the vehicle did between control instants (collision
+        checks, :func:`uuv_ocp.obstacles.collisions`); ``substep_states[::s]`` equals ``states``.
     """
 
     t: np.ndarray
@@ -103,6 +109,8 @@ class ClosedLoopResult:
     interrupted: bool = False
     deadline_steps: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=bool))
     fault: str | None = None
+    substep_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    substep_states: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     def __post_init__(self) -> None:
         """Fill ``deadline_steps`` (all False) when omitted."""
@@ -129,8 +137,13 @@ class ClosedLoopResult:
         return tracking_metrics(self, settle_time=settle_time)
 
     def arrays(self) -> dict[str, np.ndarray]:
-        """Every field as a numpy array, by field name: what :meth:`save` writes."""
+        """Every field as a numpy array, by field name: what :meth:`save` writes.
+
+        The plant sub-steps only when recorded, so that runs without them keep their files.
+        """
+        recorded = {"substep_t": self.substep_t, "substep_states": self.substep_states}
         return dict(
+            **(recorded if self.substep_t.size else {}),
             t=self.t,
             states=self.states,
             controls=self.controls,
@@ -177,6 +190,8 @@ class ClosedLoopResult:
             # files written before deadlines existed have no deadline_steps
             deadline_steps=(data["deadline_steps"] if "deadline_steps" in data else np.zeros(0, dtype=bool)),
             fault=(str(data["fault"]) or None) if "fault" in data else None,
+            substep_t=data["substep_t"] if "substep_t" in data else np.zeros(0),
+            substep_states=data["substep_states"] if "substep_states" in data else np.zeros((0, 0)),
         )
 
 
@@ -195,6 +210,7 @@ def simulate(
     progress: bool = False,
     label: str = "",
     parameters: dict[str, Any] | None = None,
+    record_substeps: bool = False,
 ) -> ClosedLoopResult:
     """Run ``controller`` in closed loop for ``duration`` seconds.
 
@@ -229,6 +245,10 @@ def simulate(
         Progress-bar label.
     parameters : dict, optional
         An Ocp's parameter values, held for the whole run.
+    record_substeps : bool
+        Also record the plant state after every one of its ``plant_substeps`` integration
+        steps (``substep_t``, ``substep_states``): what happens between control instants, e.g.
+        an obstacle's corner cut between two nodes.
 
     Returns
     -------
@@ -252,6 +272,7 @@ def simulate(
     plant_substeps = check.positive_int("plant_substeps", plant_substeps)
     check.boolean("current_known", current_known)
     check.boolean("progress", progress)
+    check.boolean("record_substeps", record_substeps)
     if seed is not None:
         seed = check.positive_int("seed", seed, minimum=0)
     if current is not None and not isinstance(current, Current):
@@ -299,6 +320,9 @@ def simulate(
     controls = np.zeros((steps, nu))
     solve_times = np.zeros(steps)
     iterations = np.zeros(steps, dtype=int)
+    substeps = np.empty((steps * plant_substeps + 1, nx) if record_substeps else (0, nx))
+    if record_substeps:
+        substeps[0] = x0
     fallback = np.zeros(steps, dtype=bool)
     relaxed = np.zeros(steps, dtype=bool)
     deadline_steps = np.zeros(steps, dtype=bool)
@@ -339,9 +363,9 @@ def simulate(
                     statuses.append(output.message or "exception")
                 try:
                     if tracking:
-                        next_state = plant_step(states[k], controls[k], currents[k])
+                        path = plant_step(states[k], controls[k], currents[k])
                     else:
-                        next_state = plant_step(states[k], controls[k])
+                        path = plant_step(states[k], controls[k])
                 except Exception as error:  # CasADi's evaluation errors: a fault, not a lost run
                     # ... except Ctrl-C, which CasADi reports from inside a call as a RuntimeError
                     reraise_interrupt(error)
@@ -349,7 +373,8 @@ def simulate(
                         f"plant exception at t = {times[k]:.6g} s (step {k}): {type(error).__name__}: {error}"
                     )
                     break
-                next_state = np.array(next_state, dtype=float).ravel()
+                path = np.array(path, dtype=float).T  # (plant_substeps, nx)
+                next_state = path[-1]
                 if not np.all(np.isfinite(next_state)) or np.max(np.abs(next_state)) > BLOW_UP:
                     fault = (
                         f"plant blew up at t = {times[k + 1]:.6g} s (step {k}): state not finite or "
@@ -357,6 +382,8 @@ def simulate(
                     )
                     break
                 states[k + 1] = next_state
+                if record_substeps:
+                    substeps[k * plant_substeps + 1 : (k + 1) * plant_substeps + 1] = path
                 u_prev = controls[k]
                 completed = k + 1
                 bar.update(1, postfix=f"fail={int(fallback[: k + 1].sum())}")
@@ -383,6 +410,14 @@ def simulate(
         interrupted=interrupted,
         deadline_steps=deadline_steps[:n],
         fault=fault,
+        **(
+            {
+                "substep_t": t0 + dt / plant_substeps * np.arange(n * plant_substeps + 1),
+                "substep_states": substeps[: n * plant_substeps + 1],
+            }
+            if record_substeps
+            else {}
+        ),
     )
     if interrupted:
         raise SimulationInterrupted(run)
@@ -390,7 +425,7 @@ def simulate(
 
 
 def _vehicle_plant(problem: TrackingProblem, plant: Any, dt: float, substeps: int) -> tuple[ca.Function, int]:
-    """RK4 plant step ``(x, u, current) -> x_next`` of a vehicle with the problem's state."""
+    """RK4 plant path ``(x, u, current) -> (nx, substeps)`` of a vehicle with the problem's state."""
     vehicle = problem.vehicle if plant is None else plant
     if not (isinstance(vehicle, Vehicle) or hasattr(vehicle, "rhs")):
         raise ValueError(f"plant must be a uuv_ocp.Vehicle, Vehicle6DOF or None, got {type(plant).__name__}")
@@ -406,11 +441,11 @@ def _vehicle_plant(problem: TrackingProblem, plant: Any, dt: float, substeps: in
             vehicle.thruster_dynamics if getattr(vehicle, "thrusters", None) is not None else vehicle.dynamics
         )
     )
-    return rk4_step(dynamics, dt, substeps, name="plant_step"), vehicle_dimensions(vehicle)[2]
+    return rk4_path(dynamics, dt, substeps, name="plant_step"), vehicle_dimensions(vehicle)[2]
 
 
 def _ocp_plant(problem: Any, plant: Any, parameters: Any, dt: float, substeps: int) -> ca.Function:
-    """RK4 plant step ``(x, u) -> x_next``: ``plant`` or the Ocp's dynamics at ``parameters``."""
+    """RK4 plant path ``(x, u) -> (nx, substeps)``: ``plant`` or the Ocp's dynamics at ``parameters``."""
     spec = problem.spec()
     if plant is None:
         p = problem.parameters(np.zeros(spec.state_dim), parameters, None)
@@ -419,4 +454,4 @@ def _ocp_plant(problem: Any, plant: Any, parameters: Any, dt: float, substeps: i
         plant = ca.Function("plant", [x, u], [spec.dynamics(x, u, nodes[0], pg)], ["x", "u"], ["xdot"])
     if not isinstance(plant, ca.Function) or plant.n_in() != 2:
         raise ValueError(f"plant must be a casadi.Function f(x, u) -> xdot for an Ocp, got {plant!r}")
-    return rk4_step(plant, dt, substeps, name="plant_step")
+    return rk4_path(plant, dt, substeps, name="plant_step")

@@ -25,8 +25,12 @@ Methods: fatrop, ipopt, sqp from the straight-line guess (states on the line, ze
 acceleration); multistart-ipopt (8 starts: the straight line first, see
 :mod:`uuv_ocp.solvers.multistart`); multistart-fatrop with as many starts as the candidate
 hybrid solves (about equal time); igwo and pso (the paper's budgets, compiled where a C
-compiler exists); igwo+fatrop and pso+fatrop (one candidate); and both with ``candidates=4``
-(the exact solver from the swarm's 4 best distinct plans, default state-trajectory distance).
+compiler exists); igwo+fatrop and pso+fatrop (one candidate); pso+fatrop with
+``candidates=2`` (the exact solver from the swarm's best plan and from the straight line, the
+hybrid's ``keep_warm_start`` default); both swarms with ``candidates=4`` (the swarm's best
+plan, the straight line, then the swarm's next 2 distinct plans, default state-trajectory
+distance); and pso+fatrop with ``candidates=4, keep_warm_start=False`` (the swarm's 4 plans
+only: what the hybrid did before the warm start was kept).
 Every method gets the same straight-line warm start and, for the random parts, the generator
 ``default_rng([seed, i])`` on instance ``i``.  The best-known cost of an instance is the best
 feasible cost found by any of them or by a 32-start multistart-fatrop (its starts capped at
@@ -158,8 +162,13 @@ def methods(candidates: int = 4) -> dict[str, tuple[str, dict | None]]:
         "pso": ("pso", None),
         "igwo+fatrop": ("igwo+fatrop", None),
         "pso+fatrop": ("pso+fatrop", None),
+        "pso+fatrop k=2": ("pso+fatrop", {"candidates": 2}),
         f"igwo+fatrop k={candidates}": ("igwo+fatrop", {"candidates": candidates}),
         f"pso+fatrop k={candidates}": ("pso+fatrop", {"candidates": candidates}),
+        f"pso+fatrop k={candidates}, swarm only": (
+            "pso+fatrop",
+            {"candidates": candidates, "keep_warm_start": False},
+        ),
     }
 
 

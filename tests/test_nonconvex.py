@@ -157,10 +157,14 @@ def test_candidates_start_the_exact_solver_from_distinct_swarm_plans(two_homotop
         for j in range(i):
             assert np.sqrt(np.mean((coordinates[i] - coordinates[j]) ** 2)) > 0.3
     hybrid = uo.solve(
-        ocp, "pso+fatrop", x0=X0, parameters=data(), options={"candidates": 3, "swarm": {"seed": 4}}
+        ocp,
+        "pso+fatrop",
+        x0=X0,
+        parameters=data(),
+        options={"candidates": 3, "swarm": {"seed": 4}, "keep_warm_start": False},
     )
     rows = hybrid.details["candidates"]
-    assert len(rows) == 3
+    assert len(rows) == 3 and [row["start"] for row in rows] == ["swarm 0", "swarm 1", "swarm 2"]
     # each row is fatrop started from that plan with the states of its rollout, solved here again
     for row, plan in zip(rows, plans, strict=True):
         guess = Iterate(scaled_controls=plan, states=ocp.rollout(ocp.controls_from_scaled(plan), p))
@@ -178,6 +182,40 @@ def test_candidates_start_the_exact_solver_from_distinct_swarm_plans(two_homotop
         uo.get_solver(ocp, "igwo+fatrop", {"candidates": 0})
     with pytest.raises(ValueError, match="candidate_metric"):
         uo.get_solver(ocp, "igwo", {"candidates": 2, "candidate_metric": "paths"})
+
+
+def test_the_kept_warm_start_is_the_second_start_so_the_hybrid_never_loses_to_the_plain_solver(two_homotopy):
+    """Three starts with keep_warm_start (default): the swarm's best, the caller's guess, its second."""
+    ocp = two_homotopy
+    p = ocp.parameters(X0, data())
+    # a guess bent below the disc: plain fatrop stays on that (worse) side, the swarm's best goes above
+    guess = line_guess(-1.8)
+    plain = uo.solve(ocp, "fatrop", x0=X0, parameters=data(), warm_start=guess)
+    swarm = uo.solve(
+        ocp, "pso", x0=X0, parameters=data(), warm_start=guess, options={"candidates": 3, "seed": 4}
+    )
+    hybrid = uo.solve(
+        ocp,
+        "pso+fatrop",
+        x0=X0,
+        parameters=data(),
+        warm_start=guess,
+        options={"candidates": 3, "swarm": {"seed": 4}},
+    )
+    rows = hybrid.details["candidates"]
+    assert [row["start"] for row in rows] == ["swarm 0", "warm start", "swarm 1"]
+    assert rows[1]["swarm_fitness"] is None
+    assert rows[1]["cost"] == pytest.approx(plain.cost, rel=1e-9) and rows[1]["success"] == plain.success
+    for row, plan in zip([rows[0], rows[2]], swarm.details["candidates"][:2], strict=True):
+        start = Iterate(scaled_controls=plan, states=ocp.rollout(ocp.controls_from_scaled(plan), p))
+        alone = uo.solve(ocp, "fatrop", x0=X0, parameters=data(), warm_start=start)
+        assert row["cost"] == pytest.approx(alone.cost, rel=1e-9)
+    assert plain.success and hybrid.success
+    assert plain.states[nearest_node(plain.states), 1] < 0 < rows[0]["cost"] < plain.cost
+    assert hybrid.cost <= plain.cost * (1 + 1e-9)
+    assert hybrid.cost == pytest.approx(min(row["cost"] for row in rows if row["success"]), rel=1e-12)
+    with pytest.raises(ValueError, match="keep_warm_start"):
+        uo.get_solver(ocp, "pso+fatrop", {"candidates": 2, "keep_warm_start": "yes"})
 
 
 # ------------------------------------------------------------------ terminal strategy

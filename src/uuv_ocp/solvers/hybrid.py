@@ -16,9 +16,16 @@ the best plan, then the best plans evaluated during the run whose predicted stat
 are farther than ``candidate_distance`` — an RMS distance, each state over its spread in the
 initial population, default 0.5 — from every plan already taken) and the best result is
 returned: feasible first, then the cost (:func:`~uuv_ocp.solvers.multistart.rank_key`).
-``details["candidates"]`` lists each start's swarm fitness, cost, success and status,
-``details["chosen"]`` the index of the one returned.  With k > 1 the swarm half must accept the
-``candidates`` and ``candidate_distance`` options (the built-in swarms do).
+With ``keep_warm_start=True`` (default) the second of the k starts is the caller's warm start
+itself — the shifted plan in a closed loop, the straight-line guess on an obstacle field, or
+the exact solver's own cold guess when there is none — in place of the swarm's k-th plan: the
+hybrid then never returns a worse plan than the plain exact solver would from the same guess
+(measured on the obstacle fields of ``benchmarks/bench_nonconvex.py``, the straight line is the
+best homotopy class in about half the instances and the swarms' plans often miss it).
+``details["candidates"]`` lists each start's origin (``"swarm 0"``, ``"warm start"``,
+``"swarm 1"``, ...), swarm fitness, cost, success and status, ``details["chosen"]`` the index
+of the one returned.  With k > 1 the swarm half must accept the ``candidates`` and
+``candidate_distance`` options (the built-in swarms do).
 
 Option ``deadline`` (seconds, finite > 0): the wall-time budget of the whole hybrid solve.  The
 swarm gets :data:`SWARM_SHARE` (50 %) of it (it returns its best plan so far when that share is
@@ -63,6 +70,12 @@ HYBRID_OPTIONS: tuple[Option, ...] = (
         "the exact half starts from the swarm's best k distinct plans; the best result is returned",
     ),
     Option(
+        "keep_warm_start",
+        True,
+        "bool",
+        "candidates >= 2: the caller's warm start is the second start, in place of the swarm's k-th plan",
+    ),
+    Option(
         "candidate_distance",
         None,
         "float > 0 or `None`",
@@ -85,8 +98,8 @@ class HybridSolver:
     """Run ``first`` (a swarm), then ``second`` (an exact solver) from the swarm's best plan.
 
     Options: ``{"swarm": {...}, "exact": {...}}`` passed to the two backends, ``candidates``
-    (int >= 1, default 1), ``candidate_distance`` (float > 0, passed to the swarm) and
-    ``deadline`` (seconds, see the module doc).
+    (int >= 1, default 1), ``keep_warm_start`` (bool, default True), ``candidate_distance``
+    (float > 0, passed to the swarm) and ``deadline`` (seconds, see the module doc).
     """
 
     def __init__(
@@ -97,12 +110,14 @@ class HybridSolver:
         candidates: int = 1,
         problem: Transcribed | None = None,
         deadline: float | None = None,
+        keep_warm_start: bool = True,
     ) -> None:
         self.name = name
         self.first = first
         self.second = second
         self.candidates = candidates
         self.deadline = deadline
+        self.keep_warm_start = keep_warm_start
         self.problem = problem if problem is not None else getattr(first, "problem", None)
         self._decode: BufferedFunction | None = None
 
@@ -120,7 +135,7 @@ class HybridSolver:
         else:
             swarm = self.first.solve(p, warm_start, rng, time_limit=SWARM_SHARE * deadline)
 
-        def exact_solve(guess: Iterate) -> SolveResult | None:
+        def exact_solve(guess: Iterate | None) -> SolveResult | None:
             """Run the exact stage from ``guess`` in what is left of the deadline (None: nothing left)."""
             if deadline is None:
                 return self.second.solve(p, guess)
@@ -161,10 +176,17 @@ class HybridSolver:
                 raise ValueError(f"{self.name}: candidates > 1 needs the problem (pass problem=)")
             if self._decode is None:
                 self._decode = BufferedFunction(problem.build().decode)
-            guesses = [guess] + [
-                plan_guess(problem, plan, p, warm_start, self._decode) for plan in plans[1 : self.candidates]
+            swarm_plans = plans[1 : self.candidates - int(self.keep_warm_start)]
+            guesses: list[Iterate | None] = [
+                plan_guess(problem, plan, p, warm_start, self._decode) for plan in swarm_plans
             ]
-            for g in guesses[1:]:  # no start begins after the deadline
+            fitness = list(swarm.details.get("candidate_fitness", []))[: 1 + len(swarm_plans)]
+            origins = [f"swarm {i}" for i in range(1 + len(swarm_plans))]
+            if self.keep_warm_start:  # None: the exact solver's own cold guess
+                guesses.insert(0, warm_start)
+                fitness.insert(1, None)
+                origins.insert(1, "warm start")
+            for g in guesses:  # no start begins after the deadline
                 result = exact_solve(g)
                 if result is None:
                     break
@@ -172,9 +194,10 @@ class HybridSolver:
             chosen = best_result(results)
             exact = results[chosen]
             details = dict(exact.details)
-            fitness = list(swarm.details.get("candidate_fitness", [])) + [None] * len(results)
+            fitness += [None] * len(results)
             details["candidates"] = [
                 {
+                    "start": origins[i],
                     "swarm_fitness": fitness[i],
                     "cost": r.cost,
                     "max_violation": r.max_violation,
@@ -214,12 +237,15 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
         candidates = check.positive_int(
             "options['candidates']", options.pop("candidates", default["candidates"])
         )
+        keep = check.boolean(
+            "options['keep_warm_start']", options.pop("keep_warm_start", default["keep_warm_start"])
+        )
         distance = options.pop("candidate_distance", default["candidate_distance"])
         deadline = options.pop("deadline", default["deadline"])
         if options:
             raise ValueError(
                 f"options of {name!r} take only 'swarm' and 'exact' dicts, 'candidates', "
-                f"'candidate_distance' and 'deadline', got {sorted(options)}"
+                f"'keep_warm_start', 'candidate_distance' and 'deadline', got {sorted(options)}"
             )
         if deadline is not None:
             deadline = check.positive_float(f"options['deadline'] of {name!r}", deadline)
@@ -237,7 +263,13 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
                     "options['candidate_distance']", distance
                 )
         hybrid = HybridSolver(
-            name, first(problem, swarm_options), second(problem, exact_options), candidates, problem, deadline
+            name,
+            first(problem, swarm_options),
+            second(problem, exact_options),
+            candidates,
+            problem,
+            deadline,
+            keep,
         )
         if deadline is not None:
             for half in (hybrid.first, hybrid.second):

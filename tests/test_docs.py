@@ -176,10 +176,13 @@ def test_obstacles(tmp_path):
     module = load("obstacles")
     out = module.main(duration=14.0, horizon=15, dt=0.2, out=tmp_path / "obstacles.svg")
     with_zones, blind = out.runs.values()
-    # recomputed here: the distance of every plant state to each enlarged zone at its time
+    # recomputed here: the distance of the plant at every integration step to each enlarged zone
+    assert with_zones.substep_states.shape[0] == 10 * with_zones.controls.shape[0] + 1
     for obstacle in module.OBSTACLES:
-        gap = np.linalg.norm(with_zones.states[:, :2] - obstacle.centre_at(with_zones.t), axis=1)
+        centres = obstacle.centre_at(with_zones.substep_t)
+        gap = np.linalg.norm(with_zones.substep_states[:, :2] - centres, axis=1)
         assert np.all(gap >= obstacle.radius + obstacle.margin - 1e-3), obstacle.name
+        assert np.all(gap >= obstacle.radius), obstacle.name  # no collision with the zone itself
     assert out.clearance[next(iter(out.runs))] >= -1e-3
     assert out.clearance[list(out.runs)[1]] < -0.5  # without them the line runs through the rock
     assert with_zones.failures == 0 and blind.failures == 0

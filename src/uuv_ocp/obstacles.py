@@ -17,7 +17,7 @@ enters as a stagewise parameter sampled at the nodes ``t0 + k dt``.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -138,26 +138,46 @@ class Obstacle:
         eta = -sin_a * offset[0] + cos_a * offset[1]
         return (xi / (self.axes[0] + self.margin)) ** 2 + (eta / (self.axes[1] + self.margin)) ** 2 - 1.0
 
-    def signed_distance(self, positions: object, times: object = 0.0) -> np.ndarray:
+    def signed_distance(self, positions: object, times: object = 0.0, *, margin: bool = True) -> np.ndarray:
         """Euclidean distance (m) from each position to the enlarged boundary; < 0 inside.
 
         Exact for circles; for ellipses the distance along the ray from the centre (a bound
-        that has the same sign as the true distance and is exact on the axes).
+        that has the same sign as the true distance and is exact on the axes).  With
+        ``margin=False`` the distance to the obstacle itself (its axes without the safety
+        margin): < 0 is a collision of the vehicle's reference point.
         """
+        extra = self.margin if margin else 0.0
         points = np.atleast_2d(np.asarray(positions, dtype=float))[:, :2]
         centres = self.centre_at(np.broadcast_to(np.asarray(times, dtype=float), (points.shape[0],)))
         offset = points - centres
         if self.kind == "circle":
-            return np.linalg.norm(offset, axis=1) - (self.axes[0] + self.margin)
+            return np.linalg.norm(offset, axis=1) - (self.axes[0] + extra)
         cos_a, sin_a = math.cos(self.angle), math.sin(self.angle)
         xi = cos_a * offset[:, 0] + sin_a * offset[:, 1]
         eta = -sin_a * offset[:, 0] + cos_a * offset[:, 1]
-        a, b = self.axes[0] + self.margin, self.axes[1] + self.margin
+        a, b = self.axes[0] + extra, self.axes[1] + extra
         norm = np.hypot(xi, eta)
         scaled = np.sqrt((xi / a) ** 2 + (eta / b) ** 2)
         with np.errstate(divide="ignore", invalid="ignore"):
             boundary = np.where(scaled > 0, norm / scaled, min(a, b))
         return norm - boundary
+
+
+def closest_approach(obstacles: Sequence[Obstacle], run: Any, *, margin: bool = True) -> float:
+    """Smallest signed distance (m) of a closed-loop run to any of ``obstacles``.
+
+    Over every plant integration step when the run recorded them
+    (``simulate(..., record_substeps=True)``: between control instants the path may cut an
+    obstacle's edge that the controller only constrains at its nodes), else over the control
+    instants.  ``margin=True``: to the enlarged obstacles (< 0: the safety margin was
+    entered); ``margin=False``: to the obstacles themselves (< 0: a collision).
+    """
+    if not obstacles:
+        raise ValueError("obstacles must contain at least one uuv_ocp.Obstacle")
+    sampled = run.substep_t.size > 0
+    times = run.substep_t if sampled else run.t
+    states = run.substep_states if sampled else run.states
+    return min(float(np.min(o.signed_distance(states, times, margin=margin))) for o in obstacles)
 
 
 def _centre_function(path: CentrePath) -> ca.Function:

@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -68,9 +69,17 @@ from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import AUTO, Option, one_of, option_defaults, option_names, revise
 from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.rti_ocp import (
+    STOP_CONVERGED,
+    STOP_DEADLINE,
+    STOP_EVALUATION,
+    STOP_INFEASIBLE,
+    OcpQpStep,
+    ocp_qp_options,
+)
 from uuv_ocp.transcription.multiple_shooting import NlpData
 
-QP_SOLVERS = ("hpipm", "qrqp", "osqp")
+QP_SOLVERS = ("hpipm", "hpipm-ocp", "qrqp", "osqp")
 MODES = ("rti", "converged")
 #: HPIPM's residual tolerances in ``mode="converged"`` (its defaults, kept in ``mode="rti"``, are
 #: 1e-6 / 1e-8): with weights ~1e4 a 1e-6 stationarity residual moved the converged Gauss–Newton
@@ -96,12 +105,19 @@ RTI_OPTIONS: tuple[Option, ...] = (
     Option("iterations", 1, "int >= 1", "SQP steps per call in `rti` mode"),
     Option("tol", 1e-8, "float > 0", "step-size tolerance of the converged mode (scaled variables)"),
     Option("cold_start", "ipopt", one_of(COLD_STARTS), "how a call without a warm start is solved"),
-    Option("qpsol", "hpipm", one_of(QP_SOLVERS), "CasADi `conic` plugin of the QP"),
+    Option(
+        "qpsol",
+        "hpipm",
+        one_of(QP_SOLVERS),
+        "QP solver: a CasADi `conic` plugin on the full-space QP, or `hpipm-ocp`: the whole step "
+        "in C on HPIPM's OCP-QP API (no compiler: `hpipm`, one warning)",
+    ),
     Option(
         "qpsol_options",
         AUTO,
         "dict",
-        "options of the QP solver",
+        "options of the QP solver (`hpipm-ocp`: `mode`, `iter_max`, `tol_stat`, `tol_eq`, "
+        "`tol_ineq`, `tol_comp`, `warm_start`)",
         meaning="`HPIPM_DEFAULTS` (residuals 1e-10) for hpipm in converged mode, else `{}`",
     ),
     Option(
@@ -254,11 +270,17 @@ class RtiSolver(NlpSolver):
         self.qpsol = check.choice("options['qpsol']", options.pop("qpsol", default["qpsol"]), QP_SOLVERS)
         tight = self.qpsol == "hpipm" and self.mode == "converged"
         qpsol_options = options.pop("qpsol_options", default["qpsol_options"])
+        given_qp_options = qpsol_options
         if qpsol_options is AUTO:
             qpsol_options = HPIPM_DEFAULTS if tight else {}
         if not isinstance(qpsol_options, dict):
             raise ValueError(f"options['qpsol_options'] must be a dict, got {check.shown(qpsol_options)}")
         self.qpsol_options = dict(qpsol_options)
+        self.ocp_qp_options: dict[str, Any] = {}
+        if self.qpsol == "hpipm-ocp":
+            self.ocp_qp_options = ocp_qp_options(
+                {} if given_qp_options is AUTO else self.qpsol_options, self.mode == "converged"
+            )
         self.qp_tolerance = check.positive_float(
             "options['qp_tolerance']", options.pop("qp_tolerance", default["qp_tolerance"])
         )
@@ -274,6 +296,7 @@ class RtiSolver(NlpSolver):
         self._initial_rows: dict[str, np.ndarray] = {}
         self._prepared: Preparation | None = None
         self._x0 = problem.spec().layout.x0
+        self._ocp_steps: dict[tuple[str, bool], OcpQpStep | None] = {}
 
     # ---------------------------------------------------------------- functions
     def _sparsities(self, variant: str) -> tuple[ca.Function, ca.Sparsity, ca.Sparsity]:
@@ -309,6 +332,46 @@ class RtiSolver(NlpSolver):
                 qp_step_function(hessian, jacobian, self.qpsol, self.qpsol_options, f"rti_qp_{variant}")
             )
         return self._steps[variant]
+
+    def ocp_step(self, variant: str, still_water: bool = False) -> OcpQpStep | None:
+        """Return the C step of ``variant`` on HPIPM's OCP-QP (``qpsol="hpipm-ocp"``), built once.
+
+        ``None`` when this backend does not use it, or when it cannot be built (no compiler, a
+        failed build, an NLP without the stage structure): the backend then warns once and
+        keeps CasADi's ``hpipm`` path for the rest of its life.
+        """
+        if self.qpsol != "hpipm-ocp":
+            return None
+        key = (variant, still_water)
+        if key not in self._ocp_steps:
+            from uuv_ocp.codegen import default_cache_directory
+            from uuv_ocp.native.compile import CodegenError
+            from uuv_ocp.solvers.rti_ocp import UnsupportedStructure, build_step
+
+            spec = self.problem.spec()
+            try:
+                self._ocp_steps[key] = build_step(
+                    self.variants[variant],
+                    spec.state_dim,
+                    np.arange(spec.layout.size)[self._x0],
+                    self.objective_scale,
+                    self._still_water_slice if still_water else None,
+                    self.ocp_qp_options,
+                    default_cache_directory(),
+                    f"uuv_ocp_rti_{variant.replace('.', '_')}{'_still_water' if still_water else ''}",
+                )
+            except (CodegenError, OSError, UnsupportedStructure) as error:
+                warnings.warn(
+                    f"sqp-rti: qpsol='hpipm-ocp' unavailable ({type(error).__name__}: {error}); "
+                    "using CasADi's hpipm interface",
+                    RuntimeWarning,
+                    stacklevel=3,
+                )
+                self.qpsol = "hpipm"
+                self.qpsol_options = HPIPM_DEFAULTS if self.mode == "converged" else {}
+                self._ocp_steps.clear()
+                return None
+        return self._ocp_steps[key]
 
     def _compiled(self, function: ca.Function) -> ca.Function:
         """Compile ``function`` to C in the solvers' cache (CasADi's VM if unavailable)."""
@@ -357,7 +420,12 @@ class RtiSolver(NlpSolver):
         variant = self.first_variant(warm_start)
         primal, _, _ = self._initial_point(variant, p, warm_start)
         still_water = self._uses_still_water(p)
-        qp = tuple(self.linearisation(variant, still_water)(primal, p))
+        ocp = self.ocp_step(variant, still_water)
+        if ocp is not None:
+            ocp.prepare(primal, p)  # the QP stays in the C step's memory
+            qp: tuple[np.ndarray, ...] = ()
+        else:
+            qp = tuple(self.linearisation(variant, still_water)(primal, p))
         self._prepared = Preparation(
             variant, np.array(p, dtype=float), primal, qp, still_water, time.perf_counter() - start
         )
@@ -371,7 +439,10 @@ class RtiSolver(NlpSolver):
         """
         return self.solve(p, warm_start)
 
-    def _take_prepared(self, variant: str, p: np.ndarray, primal: np.ndarray, still_water: bool):
+    def _matching_preparation(
+        self, variant: str, p: np.ndarray, primal: np.ndarray, still_water: bool
+    ) -> Preparation | None:
+        """Return the kept preparation if it linearised this instance but its state (then forget it)."""
         prepared, self._prepared = self._prepared, None
         if prepared is None or prepared.variant != variant or prepared.still_water != still_water:
             return None
@@ -380,6 +451,12 @@ class RtiSolver(NlpSolver):
         other = np.ones(p.size, dtype=bool)
         other[self._x0] = False
         if not np.array_equal(prepared.p[other], p[other]):
+            return None
+        return prepared
+
+    def _take_prepared(self, variant: str, p: np.ndarray, primal: np.ndarray, still_water: bool):
+        prepared = self._matching_preparation(variant, p, primal, still_water)
+        if prepared is None or not prepared.qp:
             return None
         h, grad, a, g = prepared.qp
         g = g.copy()
@@ -422,6 +499,9 @@ class RtiSolver(NlpSolver):
         still_water = self._uses_still_water(p)
         converge = self.mode == "converged" or (warm_start is None and self.cold_start == "converged")
         limit = (self.max_iter or self.default_max_iter) if converge else self.iterations
+        ocp = self.ocp_step(variant, still_water)
+        if ocp is not None:
+            return self._attempt_in_c(ocp, variant, p, primal, lam_x, lam_g, still_water, converge, limit)
         linearise, step = self.linearisation(variant, still_water), self.qp_step(variant)
         prepared = self._take_prepared(variant, p, primal, still_water)
         start = time.perf_counter()
@@ -471,6 +551,58 @@ class RtiSolver(NlpSolver):
             "iterations": iterations,
             "evaluations": iterations,
             "plugin_time": time.perf_counter() - start,
+        }
+
+    def _attempt_in_c(
+        self,
+        ocp: OcpQpStep,
+        variant: str,
+        p: np.ndarray,
+        primal: np.ndarray,
+        lam_x: np.ndarray,
+        lam_g: np.ndarray,
+        still_water: bool,
+        converge: bool,
+        limit: int,
+    ) -> dict[str, Any]:
+        """Run the iterations of :meth:`_attempt` in one call of the C step (same stops, statuses)."""
+        prepared = self._matching_preparation(variant, p, primal, still_water) is not None
+        scale = self.objective_scale
+        start = time.perf_counter()
+        budget = self._clock.at - start if math.isfinite(self._clock.at) else math.inf
+        primal, lam_x, lam_g, info = ocp.iterate(
+            primal, p, lam_x * scale, lam_g * scale, prepared, limit, self.tol, self.qp_tolerance, budget
+        )
+        plugin_time = time.perf_counter() - start
+        iterations, violation, step_norm, stop = int(info[0]), float(info[1]), float(info[2]), int(info[3])
+        converged = stop == STOP_CONVERGED
+        feasible = stop not in (STOP_INFEASIBLE, STOP_EVALUATION)
+        if stop == STOP_INFEASIBLE:
+            status = f"QP solution infeasible (linearised violation {violation:.3g} > {self.qp_tolerance:g})"
+        elif stop == STOP_EVALUATION:
+            status = "QP failed: the linearisation could not be evaluated"
+        elif stop == STOP_DEADLINE:
+            status = "stopped by the deadline"
+        elif converged:
+            status = "converged"
+        else:
+            status = "max_iter" if converge else f"rti ({iterations} iteration(s), last step {step_norm:.3g})"
+        if feasible and not converge and not converged:
+            status = f"rti ({iterations} iteration(s), last step {step_norm:.3g})"
+        return {
+            "variant": variant,
+            "robust": False,
+            "still_water": still_water,
+            "primal": primal,
+            "lam_g": lam_g / scale,
+            "lam_x": lam_x / scale,
+            "success": feasible and (converged or not converge),
+            "status": status,
+            "iterations": iterations,
+            "evaluations": iterations,
+            "plugin_time": plugin_time,
+            "qp_iterations": int(info[4]),
+            "c_time": (float(info[6]), float(info[7])),
         }
 
 

@@ -11,11 +11,17 @@ Quality: closed loops of 30 s on s1..s10 (RexROV) and on the BlueROV2 Heavy 6-DO
 ``metrics()["max_abs_e*_settled"]``) and over the whole run (the transient from rest), RTI
 against fatrop (converged to 1e-8), and the failures.
 
-Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table only).
+``sqp-rti hpipm-ocp`` rows: the step in C on HPIPM's OCP-QP API (``qpsol="hpipm-ocp"``; ``abs``:
+HPIPM's ``speed_abs`` mode, ``pc4``: partial condensing to 4 stages); their "in C" column is the
+median time the C step measured itself (linearisations and QPs of the feedback call, and for
+RTI the preparation's linearisation too), the rest of a row is the Python around it.
+
+Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 quality row only).
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 
@@ -24,10 +30,16 @@ import numpy as np
 import uuv_ocp as uo
 from uuv_ocp.codegen import default_cache_directory
 
+#: the RTI step in C on HPIPM's OCP-QP API (``qpsol="hpipm-ocp"``)
+OCP = {"qpsol": "hpipm-ocp"}
 SPEED_VARIANTS: tuple[tuple[str, str, dict | None], ...] = (
     ("sqp-rti", "sqp-rti", None),
     ("sqp-rti compiled", "sqp-rti", {"compiled": True}),
+    ("sqp-rti hpipm-ocp", "sqp-rti", OCP),
+    ("sqp-rti hpipm-ocp abs", "sqp-rti", {**OCP, "qpsol_options": {"mode": "speed_abs"}}),
+    ("sqp-rti hpipm-ocp pc4", "sqp-rti", {**OCP, "qpsol_options": {"cond_horizon": 4}}),
     ("sqp-rti converged", "sqp-rti", {"mode": "converged", "compiled": True}),
+    ("sqp-rti ocp converged", "sqp-rti", {**OCP, "mode": "converged"}),
     ("fatrop", "fatrop", None),
     ("fatrop compiled", "fatrop", {"compiled": True}),
     ("sqp compiled", "sqp", {"compiled": True}),
@@ -53,6 +65,7 @@ def speed(duration: float = 30.0) -> list[dict]:
         controller.reset()
         state, control = reference.initial_state(0.0), np.zeros(3)
         step_times, prepare_times, feedback_times, failures = [], [], [], 0
+        c_times: list[float] = []
         for k in range(steps):
             start = time.perf_counter()
             controller.prepare(k * problem.dt, control, np.zeros(2))
@@ -63,6 +76,9 @@ def speed(duration: float = 30.0) -> list[dict]:
             prepare_times.append(middle - start)
             feedback_times.append(end - middle)
             failures += int(output.fallback)
+            c_time = output.result.details.get("c_time") if output.result is not None else None
+            if c_time is not None:
+                c_times.append(c_time)
             control = output.control
             state = np.array(plant(state, control, np.zeros(2))).ravel()
         # the first step (cold start: IPOPT for sqp-rti) is excluded from the medians of none
@@ -74,6 +90,8 @@ def speed(duration: float = 30.0) -> list[dict]:
                 "prepare_ms": 1e3 * float(np.median(prepare_times)),
                 "feedback_ms": 1e3 * float(np.median(feedback_times)),
                 "failures": failures,
+                # time inside the C step (its own clock: linearisations and QPs of the step)
+                "c_ms": 1e3 * float(np.median(c_times)) if c_times else float("nan"),
             }
         )
     rows.append(generated_c_speed(problem, duration))
@@ -110,13 +128,23 @@ def generated_c_speed(problem: uo.TrackingProblem, duration: float) -> dict:
         "prepare_ms": float("nan"),
         "feedback_ms": float("nan"),
         "failures": failures,
+        "c_ms": float("nan"),
     }
 
 
+QUALITY_SOLVERS: tuple[tuple[str, str, dict | None], ...] = (
+    ("sqp-rti", "sqp-rti", None),
+    ("hpipm-ocp", "sqp-rti", OCP),
+    ("fatrop", "fatrop", None),
+)
+
+
 def quality(
-    duration: float = 30.0, references: tuple[str, ...] = tuple(f"s{i}" for i in range(1, 11))
+    duration: float = 30.0,
+    references: tuple[str, ...] = tuple(f"s{i}" for i in range(1, 11)),
+    bluerov: bool = True,
 ) -> list:
-    """Errors after the transient and over the whole run, RTI vs fatrop, per reference."""
+    """Errors after the transient and over the whole run, RTI (both QP paths) vs fatrop."""
     rows = []
     for name in references:
         problem = _problem(name)
@@ -126,26 +154,28 @@ def quality(
         length = min(duration, reference.t_end - t0 - problem.horizon * problem.dt)
         x0 = reference.initial_state(t0)
         row: dict = {"reference": name}
-        for solver in ("sqp-rti", "fatrop"):
-            run = uo.simulate(uo.NMPC(problem, solver), x0=x0, duration=length, t0=t0)
+        for label, solver, options in QUALITY_SOLVERS:
+            run = uo.simulate(uo.NMPC(problem, solver, options=options), x0=x0, duration=length, t0=t0)
             metrics = run.metrics()
-            row[solver] = {
+            row[label] = {
                 "settled": max(metrics["max_abs_ex_settled"], metrics["max_abs_ey_settled"]),
                 "whole": max(metrics["max_abs_ex"], metrics["max_abs_ey"]),
                 "failures": run.failures,
             }
         rows.append(row)
+    if not bluerov:
+        return rows
     sys.path.insert(0, "examples")
     try:
         import bluerov2_depth
     finally:
         sys.path.pop(0)
     row = {"reference": "bluerov2"}
-    for solver in ("sqp-rti", "fatrop"):
-        outcome = bluerov2_depth.main(duration=duration, solver=solver)
+    for label, solver, options in QUALITY_SOLVERS:
+        outcome = bluerov2_depth.main(duration=duration, solver=solver, options=options)
         settled = outcome.run.t >= 5.0
         error = np.linalg.norm((outcome.run.states - outcome.run.reference)[:, :3], axis=1)
-        row[solver] = {
+        row[label] = {
             "settled": float(np.max(error[settled])),
             "whole": float(np.max(error)),
             "failures": outcome.run.failures,
@@ -155,29 +185,33 @@ def quality(
 
 
 def main(quick: bool = False) -> None:
-    """Print the speed table (ratios to fatrop) and, unless ``quick``, the quality table."""
+    """Print the speed table (ratios to fatrop) and the quality table (``quick``: s2 only)."""
+    print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     rows = speed()
     base = next(row["median_ms"] for row in rows if row["label"] == "fatrop")
     print("\nsqp-rti vs converged exact backends, s2 closed loop (30 s from rest), ms per step")
-    print(f"{'variant':<24}{'median':>8}{'p90':>8}{'prepare':>9}{'feedback':>9}{'fail':>6}{'/fatrop':>9}")
+    print(
+        f"{'variant':<24}{'median':>8}{'p90':>8}{'prepare':>9}{'feedback':>9}{'in C':>7}{'fail':>6}"
+        f"{'/fatrop':>9}"
+    )
     for row in rows:
         print(
             f"{row['label']:<24}{row['median_ms']:>8.3f}{row['p90_ms']:>8.3f}{row['prepare_ms']:>9.3f}"
-            f"{row['feedback_ms']:>9.3f}{row['failures']:>6d}{row['median_ms'] / base:>9.2f}"
+            f"{row['feedback_ms']:>9.3f}{row['c_ms']:>7.3f}{row['failures']:>6d}"
+            f"{row['median_ms'] / base:>9.2f}"
         )
-    if quick:
-        return
     print("\nlargest position error (m): after the transient (t >= 5 s) and over the run, 30 s")
-    print(
-        f"{'case':<10}{'rti settled':>12}{'fatrop':>10}{'ratio':>8}{'rti whole':>11}{'fatrop':>10}{'fail':>7}"
-    )
-    for row in quality():
-        rti, full = row["sqp-rti"], row["fatrop"]
+    labels = [label for label, _, _ in QUALITY_SOLVERS]
+    print(f"{'case':<10}" + "".join(f"{label + ' settled':>20}{'whole':>8}{'fail':>5}" for label in labels))
+    for row in quality(references=("s2",), bluerov=False) if quick else quality():
         print(
-            f"{row['reference']:<10}{rti['settled']:>12.2e}{full['settled']:>10.2e}"
-            f"{rti['settled'] / full['settled']:>8.2f}{rti['whole']:>11.3f}{full['whole']:>10.3f}"
-            f"{rti['failures']:>4d}/{full['failures']:<3d}"
+            f"{row['reference']:<10}"
+            + "".join(
+                f"{row[label]['settled']:>20.2e}{row[label]['whole']:>8.3f}{row[label]['failures']:>5d}"
+                for label in labels
+            )
         )
+    print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
 
 
 if __name__ == "__main__":

@@ -50,6 +50,7 @@ typedef struct {
   casadi_int iw[RTI_SZ_IW];
   casadi_real w[RTI_SZ_W];
   int prepared;
+  double prepare_time;    /* seconds the last preparation took (its own clock) */
   int solved;             /* a previous solution exists (HPIPM warm start) */
 } rti_memory;
 
@@ -206,7 +207,9 @@ static void rti_load(rti_memory* m) {
 /* Linearise at (w, p) and load the QP; the measured state of p is remembered. */
 int uuv_rti_prepare(void* memory, const double* w, const double* p) {
   rti_memory* m = (rti_memory*)memory;
+  double start = rti_now();
   int i;
+  m->prepared = 0;
   if (rti_evaluate(m, w, p)) return 1;
   rti_load(m);
   if (m->cond_n) {
@@ -216,6 +219,7 @@ int uuv_rti_prepare(void* memory, const double* w, const double* p) {
   }
   for (i = 0; i < RTI_NX0; ++i) m->x0[i] = p[rti_x0_param[i]];
   m->prepared = 1;
+  m->prepare_time = rti_now() - start;
   return 0;
 }
 
@@ -338,12 +342,14 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
  * the linearised constraints by more than qp_tol (not taken), or when budget seconds passed
  * (checked before each further iteration).  info: [iterations, violation, last |d|_inf,
  * stop (0 max_iter, 1 converged, 2 infeasible QP, 3 deadline, 4 evaluation failed), QP
- * iterations of the last QP, HPIPM status, seconds linearising, seconds in QPs]. */
+ * iterations of the last QP, HPIPM status, seconds linearising, seconds in QPs, seconds of
+ * the preparation used (0: none)]. */
 int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int max_iter, double tol,
                     double qp_tol, double budget, double* lam_x, double* lam_g, double* info) {
   rti_memory* m = (rti_memory*)memory;
   double start = rti_now(), violation = INFINITY, norm = INFINITY, mark, t_lin = 0.0, t_qp = 0.0;
   int iterations = 0, stop = 0, qp_iter = 0, i, status = 0;
+  double used_preparation = prepared && m->prepared ? m->prepare_time : 0.0;
   if (!(prepared && m->prepared)) {
     if (rti_evaluate(m, w, p)) { stop = 4; goto done; }
     rti_load(m);
@@ -384,5 +390,6 @@ done:
   info[5] = status;
   info[6] = t_lin;
   info[7] = t_qp;
+  info[8] = used_preparation;
   return 0;
 }

@@ -297,6 +297,7 @@ class RtiSolver(NlpSolver):
         self._prepared: Preparation | None = None
         self._x0 = problem.spec().layout.x0
         self._ocp_steps: dict[tuple[str, bool], OcpQpStep | None] = {}
+        self._c_time = 0.0
 
     # ---------------------------------------------------------------- functions
     def _sparsities(self, variant: str) -> tuple[ca.Function, ca.Sparsity, ca.Sparsity]:
@@ -473,11 +474,19 @@ class RtiSolver(NlpSolver):
         *,
         time_limit: float | None = None,
     ) -> SolveResult:
-        """Solve the instance ``p`` by real-time iteration (see the module doc)."""
+        """Solve the instance ``p`` by real-time iteration (see the module doc).
+
+        With ``qpsol="hpipm-ocp"`` the result's ``details["c_time"]`` is the time (s) the C
+        step measured itself: the preparation used and this call's linearisations and QPs.
+        """
+        self._c_time = 0.0
         try:
-            return super().solve(p, warm_start, rng, time_limit=time_limit)
+            result = super().solve(p, warm_start, rng, time_limit=time_limit)
         finally:
             self._prepared = None
+        if self.qpsol == "hpipm-ocp":
+            result.details["c_time"] = self._c_time
+        return result
 
     def robust_options(self) -> dict[str, Any]:
         """IPOPT on the same NLP variant: the cold start and the last resort (see module doc)."""
@@ -574,6 +583,8 @@ class RtiSolver(NlpSolver):
             primal, p, lam_x * scale, lam_g * scale, prepared, limit, self.tol, self.qp_tolerance, budget
         )
         plugin_time = time.perf_counter() - start
+        # seconds inside C: the preparation used, then this call's linearisations and QPs
+        self._c_time += float(info[8] + info[6] + info[7])
         iterations, violation, step_norm, stop = int(info[0]), float(info[1]), float(info[2]), int(info[3])
         converged = stop == STOP_CONVERGED
         feasible = stop not in (STOP_INFEASIBLE, STOP_EVALUATION)
@@ -602,12 +613,13 @@ class RtiSolver(NlpSolver):
             "evaluations": iterations,
             "plugin_time": plugin_time,
             "qp_iterations": int(info[4]),
-            "c_time": (float(info[6]), float(info[7])),
         }
 
 
-def nmpc_step_function(problem: Transcribed, name: str = "nmpc_step") -> tuple[ca.Function, RtiSolver]:
-    """One real-time iteration as a single CasADi Function (what the generated C exports).
+def nmpc_step_function(
+    problem: Transcribed, name: str = "nmpc_step", qpsol: str = "hpipm-ocp"
+) -> tuple[ca.Function, RtiSolver]:
+    """One real-time iteration as a single CasADi Function, and the backend that computes it.
 
     ``nmpc_step(x0, u_prev, p, w) -> (u, w_next, violation)``: the instance ``p`` with its
     state and last-control blocks replaced by ``x0`` and ``u_prev``, one Gauss–Newton QP step
@@ -615,14 +627,19 @@ def nmpc_step_function(problem: Transcribed, name: str = "nmpc_step") -> tuple[c
     equality: the soft QP is always feasible, so a C loop needs no fallback chain), ``u`` the
     first control (physical units), ``w_next`` the new primal shifted by one stage (the next
     call's ``w``) and ``violation`` the QP's linearised constraint violation (``inf``: not
-    finite).  The same computation as :class:`RtiSolver` with ``terminal_strategy="soft"``,
-    ``cold_start="rti"`` and ``still_water=False``, which is returned with it.
+    finite).  The returned backend is :class:`RtiSolver` with ``terminal_strategy="soft"``,
+    ``cold_start="rti"``, ``still_water=False`` and ``qpsol``: the generated C
+    (:func:`uuv_ocp.solvers.rti_ocp.nmpc_step_source`) runs the same C step as that backend
+    with ``qpsol="hpipm-ocp"``; the Function here is its symbolic twin on CasADi's ``conic``
+    HPIPM interface (the same QP, so equal to the QP solvers' tolerance).
     """
-    backend = RtiSolver(problem, {"terminal_strategy": "soft", "cold_start": "rti", "still_water": False})
+    backend = RtiSolver(
+        problem, {"terminal_strategy": "soft", "cold_start": "rti", "still_water": False, "qpsol": qpsol}
+    )
     variant = "soft" if "soft" in backend.variants else "hard"
     data = backend.variants[variant]
     linearise, hessian, jacobian = backend._sparsities(variant)
-    step = qp_step_function(hessian, jacobian, backend.qpsol, backend.qpsol_options, f"{name}_qp")
+    step = qp_step_function(hessian, jacobian, "hpipm", {}, f"{name}_qp")
     layout = problem.spec().layout
     spec = problem.spec()
     x0 = ca.MX.sym("x0", spec.state_dim)

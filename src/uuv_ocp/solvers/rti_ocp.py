@@ -399,7 +399,7 @@ def c_source(
         f"#define RTI_NLAM {max(2 * (sum(nbx) + sum(nbu) + sum(ngs)), 1)}\n",
         f"#define RTI_NPI {sum(nx[1:])}\n",
         f"#define RTI_PI_SIGN ({pi_sign!r})\n",
-        f"#define RTI_DATA {function.name()}\n",
+        f"#define RTI_DATA {prefix}{function.name()}\n",
         f"#define RTI_SZ_ARG {max(int(function.sz_arg()), 2)}\n",
         f"#define RTI_SZ_RES {max(int(function.sz_res()), 1)}\n",
         f"#define RTI_SZ_IW {max(int(function.sz_iw()), 1)}\n",
@@ -506,19 +506,7 @@ class OcpQpStep:
             ctypes.c_double,
             *[ctypes.c_void_p] * 3,
         ]
-        settings = np.array(
-            [
-                HPIPM_MODES.index(options["mode"]),
-                options["iter_max"],
-                options["tol_stat"],
-                options["tol_eq"],
-                options["tol_ineq"],
-                options["tol_comp"],
-                float(options["warm_start"]),
-                options["cond_horizon"],
-            ],
-            dtype=float,
-        )
+        settings = np.array(_options_array(options), dtype=float)
         memory = create(settings.ctypes.data)
         if not memory:
             raise MemoryError("uuv_rti_create: out of memory")
@@ -526,7 +514,7 @@ class OcpQpStep:
         weakref.finalize(self, free, self.memory)
         # preallocated buffers: a call copies its inputs in and hands C their addresses
         self.w, self.p = np.zeros(nw), np.zeros(np_)
-        self.lam_x, self.lam_g, self.info = np.zeros(nw), np.zeros(ng), np.zeros(8)
+        self.lam_x, self.lam_g, self.info = np.zeros(nw), np.zeros(ng), np.zeros(9)
         self._pointers = [a.ctypes.data for a in (self.w, self.p, self.lam_x, self.lam_g, self.info)]
 
     def __reduce__(self) -> tuple[type[OcpQpStep], tuple[Any, ...]]:
@@ -555,7 +543,8 @@ class OcpQpStep:
         """Gauss–Newton steps from ``w`` (see ``uuv_rti_iterate``); copies of w, λx, λg, info.
 
         ``info``: iterations, linearised violation, last ``‖d‖∞``, stop code (``STOP_*``), QP
-        iterations of the last QP, HPIPM's status, seconds linearising and in QPs (C clock).
+        iterations of the last QP, HPIPM's status, seconds linearising and in QPs, seconds of the
+        preparation used (0: none), all on the C step's own clock.
         ``budget`` in seconds (``inf``: none).
         """
         self.w[:] = w
@@ -605,3 +594,164 @@ def build_step(
     )
     assert library.path is not None
     return OcpQpStep(library.path, (data.lbx.size, data.lbg.size, int(data.nlp["p"].numel())), options)
+
+
+def _options_array(options: dict[str, Any]) -> list[float]:
+    """HPIPM options in the order ``uuv_rti_create`` reads them."""
+    return [
+        float(HPIPM_MODES.index(options["mode"])),
+        float(options["iter_max"]),
+        float(options["tol_stat"]),
+        float(options["tol_eq"]),
+        float(options["tol_ineq"]),
+        float(options["tol_comp"]),
+        float(options["warm_start"]),
+        float(options["cond_horizon"]),
+    ]
+
+
+def _sparsity(name: str, rows: int) -> str:
+    """CasADi's compressed-column sparsity of a dense column of ``rows`` entries."""
+    entries = [rows, 1, 0, rows, *range(rows)]
+    return f"static const casadi_int {name}[{len(entries)}] = {{{', '.join(map(str, entries))}}};\n"
+
+
+#: declarations of the generated ``nmpc_step`` (CasADi's external-function ABI), for the header
+NMPC_HEADER = """
+int nmpc_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int nmpc_step_work(casadi_int* sz_arg, casadi_int* sz_res, casadi_int* sz_iw, casadi_int* sz_w);
+casadi_int nmpc_step_n_in(void);
+casadi_int nmpc_step_n_out(void);
+const casadi_int* nmpc_step_sparsity_in(casadi_int i);
+const casadi_int* nmpc_step_sparsity_out(casadi_int i);
+const char* nmpc_step_name_in(casadi_int i);
+const char* nmpc_step_name_out(casadi_int i);
+"""
+
+
+def nmpc_step_source(
+    data: NlpData,
+    state_dim: int,
+    x0_param: np.ndarray,
+    u_prev_param: np.ndarray,
+    control_scale: np.ndarray,
+    control_centre: np.ndarray,
+    objective_scale: float,
+    options: dict[str, Any],
+    prefix: str = "",
+) -> tuple[str, ca.Function, str]:
+    """C of ``nmpc_step(x0, u_prev, p, w) -> (u, w_next, violation)`` on HPIPM's OCP-QP.
+
+    One real-time iteration of ``data`` (the step always taken, its linearised violation
+    returned, ``inf`` if not finite), ``u`` the first control in physical units
+    (``z · control_scale + control_centre``), ``w_next`` the new primal shifted one stage.
+    The function follows CasADi's external-function ABI (loadable with ``casadi.external``,
+    callable like CasADi-generated code); its HPIPM memory is allocated at the first call and
+    kept (one instance per process: not reentrant).
+
+    Returns
+    -------
+    source : str
+        The C to append to the generated code of the stage-data function.
+    function : casadi.Function
+        The stage-data function (``nmpc_step_data``) the source calls, to be generated.
+    header : str
+        Declarations of the exported functions.
+    """
+    layout = ocp_qp_layout(data, state_dim)
+    function, offsets = stage_data_function(data, layout, objective_scale, None, "nmpc_step_data")
+    nw, ng, np_ = data.lbx.size, data.lbg.size, int(data.nlp["p"].numel())
+    nu = len(u_prev_param)
+    step = c_source(layout, function, offsets, x0_param, nw, ng, prefix=prefix)
+    control = np.asarray(data.control_index[0], dtype=int)
+    wrapper = (
+        "/* ---- nmpc_step(x0, u_prev, p, w) -> (u, w_next, violation): CasADi's external ABI ---- */\n"
+        f"#define NMPC_NX {state_dim}\n#define NMPC_NU {nu}\n#define NMPC_NP {np_}\n"
+        + _c_array("int", "nmpc_x0", x0_param)
+        + _c_array("int", "nmpc_u_prev", u_prev_param)
+        + _c_array("int", "nmpc_control", control)
+        + _c_array("int", "nmpc_shift", data.primal_shift)
+        + _c_array("double", "nmpc_scale", control_scale)
+        + _c_array("double", "nmpc_centre", control_centre)
+        + _c_array("double", "nmpc_options", _options_array(options))
+        + _sparsity("nmpc_s_x0", state_dim)
+        + _sparsity("nmpc_s_u", nu)
+        + _sparsity("nmpc_s_p", np_)
+        + _sparsity("nmpc_s_w", nw)
+        + _sparsity("nmpc_s_1", 1)
+        + _NMPC_WRAPPER
+    )
+    header = C_HEADER + NMPC_HEADER
+    if prefix:
+        wrapper = wrapper.replace("uuv_rti_", f"{prefix}uuv_rti_").replace("nmpc_step", f"{prefix}nmpc_step")
+        header = header.replace("uuv_rti_", f"{prefix}uuv_rti_").replace("nmpc_step", f"{prefix}nmpc_step")
+    return step + wrapper, function, header
+
+
+_NMPC_WRAPPER = r"""
+static void* nmpc_memory = 0;
+static double nmpc_p[NMPC_NP > 0 ? NMPC_NP : 1], nmpc_w[RTI_NW], nmpc_lam_x[RTI_NW];
+static double nmpc_lam_g[RTI_NG > 0 ? RTI_NG : 1], nmpc_info[9];
+
+int nmpc_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int i;
+  (void)iw; (void)w; (void)mem;
+  if (!nmpc_memory) {
+    nmpc_memory = uuv_rti_create(nmpc_options); /* HPIPM's memory: once per process */
+    if (!nmpc_memory) return 1;
+  }
+  for (i = 0; i < NMPC_NP; ++i) nmpc_p[i] = arg[2] ? arg[2][i] : 0.0;
+  for (i = 0; i < NMPC_NX; ++i) nmpc_p[nmpc_x0[i]] = arg[0] ? arg[0][i] : 0.0;
+  for (i = 0; i < NMPC_NU; ++i) nmpc_p[nmpc_u_prev[i]] = arg[1] ? arg[1][i] : 0.0;
+  for (i = 0; i < RTI_NW; ++i) nmpc_w[i] = arg[3] ? arg[3][i] : 0.0;
+  /* one step, always taken (qp_tol = inf): the caller judges it by the violation */
+  uuv_rti_iterate(nmpc_memory, nmpc_w, nmpc_p, 0, 1, 0.0, INFINITY, INFINITY, nmpc_lam_x, nmpc_lam_g,
+                  nmpc_info);
+  if (res[0])
+    for (i = 0; i < NMPC_NU; ++i) res[0][i] = nmpc_w[nmpc_control[i]] * nmpc_scale[i] + nmpc_centre[i];
+  if (res[1])
+    for (i = 0; i < RTI_NW; ++i) res[1][i] = nmpc_w[nmpc_shift[i]];
+  if (res[2]) res[2][0] = isfinite(nmpc_info[1]) ? nmpc_info[1] : INFINITY;
+  return 0;
+}
+
+int nmpc_step_work(casadi_int* sz_arg, casadi_int* sz_res, casadi_int* sz_iw, casadi_int* sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 3;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+casadi_int nmpc_step_n_in(void) { return 4; }
+casadi_int nmpc_step_n_out(void) { return 3; }
+
+const casadi_int* nmpc_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return nmpc_s_x0;
+    case 1: return nmpc_s_u;
+    case 2: return nmpc_s_p;
+    case 3: return nmpc_s_w;
+    default: return 0;
+  }
+}
+
+const casadi_int* nmpc_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return nmpc_s_u;
+    case 1: return nmpc_s_w;
+    case 2: return nmpc_s_1;
+    default: return 0;
+  }
+}
+
+const char* nmpc_step_name_in(casadi_int i) {
+  static const char* names[4] = {"x0", "u_prev", "p", "w"};
+  return i >= 0 && i < 4 ? names[i] : 0;
+}
+
+const char* nmpc_step_name_out(casadi_int i) {
+  static const char* names[3] = {"u", "w_next", "violation"};
+  return i >= 0 && i < 3 ? names[i] : 0;
+}
+"""

@@ -11,10 +11,12 @@ Quality: closed loops of 30 s on s1..s10 (RexROV) and on the BlueROV2 Heavy 6-DO
 ``metrics()["max_abs_e*_settled"]``) and over the whole run (the transient from rest), RTI
 against fatrop (converged to 1e-8), and the failures.
 
-``sqp-rti hpipm-ocp`` rows: the step in C on HPIPM's OCP-QP API (``qpsol="hpipm-ocp"``; ``abs``:
-HPIPM's ``speed_abs`` mode, ``pc4``: partial condensing to 4 stages); their "in C" column is the
-median time the C step measured itself (linearisations and QPs of the feedback call, and for
-RTI the preparation's linearisation too), the rest of a row is the Python around it.
+``hpipm-ocp`` rows: the step in C on HPIPM's OCP-QP API (``qpsol="hpipm-ocp"``, the default
+where a compiler exists; ``abs``: HPIPM's ``speed_abs`` mode, ``pc4``: partial condensing to 4
+stages); their "in C" column is the median time the C step measured itself (the preparation's
+linearisation, then the feedback's QP, or every iteration in converged mode), the rest of a
+row is the Python around it.  ``conic`` rows: CasADi's ``conic`` HPIPM interface on the
+full-space QP (``qpsol="hpipm"``).
 
 Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 quality row only).
 """
@@ -32,14 +34,16 @@ from uuv_ocp.codegen import default_cache_directory
 
 #: the RTI step in C on HPIPM's OCP-QP API (``qpsol="hpipm-ocp"``)
 OCP = {"qpsol": "hpipm-ocp"}
+#: CasADi's conic interface on the full-space QP (the ``sqp-rti`` default before ``hpipm-ocp``)
+CONIC = {"qpsol": "hpipm"}
 SPEED_VARIANTS: tuple[tuple[str, str, dict | None], ...] = (
-    ("sqp-rti", "sqp-rti", None),
-    ("sqp-rti compiled", "sqp-rti", {"compiled": True}),
     ("sqp-rti hpipm-ocp", "sqp-rti", OCP),
     ("sqp-rti hpipm-ocp abs", "sqp-rti", {**OCP, "qpsol_options": {"mode": "speed_abs"}}),
     ("sqp-rti hpipm-ocp pc4", "sqp-rti", {**OCP, "qpsol_options": {"cond_horizon": 4}}),
-    ("sqp-rti converged", "sqp-rti", {"mode": "converged", "compiled": True}),
+    ("sqp-rti conic", "sqp-rti", CONIC),
+    ("sqp-rti conic compiled", "sqp-rti", {**CONIC, "compiled": True}),
     ("sqp-rti ocp converged", "sqp-rti", {**OCP, "mode": "converged"}),
+    ("sqp-rti conic converged", "sqp-rti", {**CONIC, "mode": "converged", "compiled": True}),
     ("fatrop", "fatrop", None),
     ("fatrop compiled", "fatrop", {"compiled": True}),
     ("sqp compiled", "sqp", {"compiled": True}),
@@ -99,13 +103,18 @@ def speed(duration: float = 30.0) -> list[dict]:
 
 
 def generated_c_speed(problem: uo.TrackingProblem, duration: float) -> dict:
-    """Median wall time of the generated ``nmpc_step`` in its own closed loop (via casadi.external)."""
+    """Median wall time of the generated ``nmpc_step`` in its own closed loop.
+
+    Called through ``casadi.external`` with zero-copy buffers (``BufferedFunction``), so the
+    time is the C step plus one buffered call (no numpy ↔ DM conversions).
+    """
+    from uuv_ocp.native.buffered import BufferedFunction
     from uuv_ocp.solvers.rti import nmpc_step_function
 
     build = uo.generate_c(
         problem, default_cache_directory() / "bench_rti", functions=("model_step", "nmpc_step"), verify=False
     )
-    step, model = build["nmpc_step"], build["model_step"]
+    step, model = BufferedFunction(build["nmpc_step"]), build["model_step"]
     _, backend = nmpc_step_function(problem)
     reference = problem.reference
     x, u = reference.initial_state(0.0), np.zeros(3)
@@ -119,7 +128,7 @@ def generated_c_speed(problem: uo.TrackingProblem, duration: float) -> dict:
         start = time.perf_counter()
         control, w_next, violation = step(x, u, p, w)
         times.append(time.perf_counter() - start)
-        failures += int(not float(violation) <= 1e-6)
+        failures += int(not float(violation[0]) <= 1e-6)
         u, w = np.array(control).ravel(), np.array(w_next).ravel()
     return {
         "label": "generated C nmpc_step",
@@ -133,10 +142,52 @@ def generated_c_speed(problem: uo.TrackingProblem, duration: float) -> dict:
 
 
 QUALITY_SOLVERS: tuple[tuple[str, str, dict | None], ...] = (
-    ("sqp-rti", "sqp-rti", None),
-    ("hpipm-ocp", "sqp-rti", OCP),
+    ("rti conic", "sqp-rti", CONIC),
+    ("rti hpipm-ocp", "sqp-rti", OCP),
     ("fatrop", "fatrop", None),
 )
+
+
+def c_driver_speed(problem: uo.TrackingProblem, duration: float = 30.0) -> str:
+    """Median wall and thread-CPU time of ``nmpc_step`` in ``examples/c/nmpc_loop.c`` (all C).
+
+    The closed loop runs on the generated ``model_step`` from the reference's start; the
+    reference window of each step is taken along the reference (``nmpc_step`` replaces its
+    state and last-control blocks).  Returns the program's timing line.
+    """
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    from uuv_ocp.codegen import find_c_compiler
+    from uuv_ocp.solvers.rti import nmpc_step_function
+
+    build = uo.generate_c(
+        problem, default_cache_directory() / "bench_rti", functions=("model_step", "nmpc_step"), verify=False
+    )
+    _, backend = nmpc_step_function(problem)
+    variant = "soft" if "soft" in backend.variants else "hard"
+    reference = problem.reference
+    x, u = reference.initial_state(0.0), np.zeros(3)
+    p = problem.parameters(x, 0.0, u)
+    states, scaled = problem.initial_guess(p)
+    w = backend.compose_primal(variant, states, scaled, problem.previous_scaled(p))
+    steps = int(round(duration / problem.dt))
+    windows = [
+        problem.parameters(reference.evaluate([k * problem.dt])[0], k * problem.dt) for k in range(steps)
+    ]
+    with tempfile.TemporaryDirectory() as folder:
+        data = Path(folder) / "loop.txt"
+        lines = [f"{x.size} {u.size} {p.size} {w.size} {steps}"]
+        lines += [" ".join(repr(float(v)) for v in block) for block in (x, u, w, *windows)]
+        data.write_text("\n".join(lines) + "\n")
+        program = build.directory / "nmpc_loop_bench"
+        source = Path(__file__).resolve().parents[1] / "examples" / "c" / "nmpc_loop.c"
+        libraries = [str(build.nmpc_library), str(build.library)]
+        command = [find_c_compiler(), "-O2", str(source), f"-I{build.directory}", *libraries]
+        subprocess.run([*command, "-Wl,-rpath,$ORIGIN", "-lm", "-o", str(program)], check=True)
+        run = subprocess.run([str(program), str(data)], check=True, capture_output=True, text=True)
+    return run.stderr.strip()
 
 
 def quality(
@@ -200,6 +251,7 @@ def main(quick: bool = False) -> None:
             f"{row['feedback_ms']:>9.3f}{row['c_ms']:>7.3f}{row['failures']:>6d}"
             f"{row['median_ms'] / base:>9.2f}"
         )
+    print(f"\ngenerated C loop (examples/c/nmpc_loop.c): {c_driver_speed(_problem())}")
     print("\nlargest position error (m): after the transient (t >= 5 s) and over the run, 30 s")
     labels = [label for label, _, _ in QUALITY_SOLVERS]
     print(f"{'case':<10}" + "".join(f"{label + ' settled':>20}{'whole':>8}{'fail':>5}" for label in labels))

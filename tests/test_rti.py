@@ -311,3 +311,16 @@ def test_soft_terminal_qp_in_c_equals_casadis(problem, instance):
     slacks = problem.build().soft_variant(problem.spec().terminal_penalty).terminal_slack_index
     assert np.max(a.iterate.primal[slacks]) > 1e-3  # the relaxation is active: the L1 term matters
     np.testing.assert_allclose(b.iterate.primal, a.iterate.primal, rtol=0, atol=1e-8)
+
+
+def test_automatic_qp_path(problem, monkeypatch):
+    """``qpsol="auto"``: the C step with a compiler, CasADi's path under UUV_OCP_COMPILED=0."""
+    monkeypatch.setenv("UUV_OCP_COMPILED", "0")
+    assert RtiSolver(problem).qpsol == "hpipm"
+    monkeypatch.setenv("UUV_OCP_COMPILED", "1")
+    monkeypatch.setenv("CC", "/nonexistent/cc")
+    with pytest.warns(RuntimeWarning, match="no C compiler"):
+        assert RtiSolver(problem).qpsol == "hpipm"
+    monkeypatch.delenv("CC")
+    needs_compiler("hpipm-ocp")
+    assert RtiSolver(problem).qpsol == "hpipm-ocp"

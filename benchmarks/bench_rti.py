@@ -18,7 +18,8 @@ linearisation, then the feedback's QP, or every iteration in converged mode), th
 row is the Python around it.  ``conic`` rows: CasADi's ``conic`` HPIPM interface on the
 full-space QP (``qpsol="hpipm"``).
 
-Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 quality row only).
+Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 quality row only;
+``--hpipm-options``: only the ``hpipm-ocp`` path under each HPIPM setting of ``HPIPM_SETTINGS``).
 """
 
 from __future__ import annotations
@@ -99,6 +100,58 @@ def speed(duration: float = 30.0) -> list[dict]:
             }
         )
     rows.append(generated_c_speed(problem, duration))
+    return rows
+
+
+#: HPIPM settings of the ``hpipm-ocp`` path compared by ``--hpipm-options``
+HPIPM_SETTINGS: tuple[dict, ...] = (
+    {},
+    {"mode": "speed_abs"},
+    {"warm_start": True},
+    {"mode": "speed_abs", "warm_start": True},
+    {"cond_horizon": 5},
+    {"mode": "speed_abs", "cond_horizon": 5},
+)
+
+
+def hpipm_settings(steps: int = 300) -> list[dict]:
+    """Per HPIPM setting: median step, time in C, QP time and iterations, settled error (s2)."""
+    problem = _problem()
+    reference = problem.reference
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    rows = []
+    for settings in HPIPM_SETTINGS:
+        controller = uo.NMPC(problem, "sqp-rti", options={**OCP, "qpsol_options": settings})
+        controller.step(reference.initial_state(0.0), 0.0)  # builds outside the timing
+        controller.reset()
+        state, control = reference.initial_state(0.0), np.zeros(3)
+        step_times, c_times, qp_times, qp_iterations, errors = [], [], [], [], []
+        for k in range(steps):
+            start = time.perf_counter()
+            output = controller.step(state, k * problem.dt, control)
+            step_times.append(time.perf_counter() - start)
+            result = output.result
+            if k and result is not None:
+                c_times.append(result.details["c_time"])
+                c_step = controller.backend.ocp_step(result.iterate.variant, result.details["still_water"])
+                if c_step is not None:
+                    qp_times.append(c_step.info[7])
+                    qp_iterations.append(c_step.info[4])
+            control = output.control
+            state = np.array(plant(state, control, np.zeros(2))).ravel()
+            if k * problem.dt >= 5.0:
+                target = reference.evaluate([(k + 1) * problem.dt])[0]
+                errors.append(float(np.max(np.abs(state[:2] - target[:2]))))
+        rows.append(
+            {
+                "settings": settings,
+                "step_ms": 1e3 * float(np.median(step_times)),
+                "c_ms": 1e3 * float(np.median(c_times)),
+                "qp_ms": 1e3 * float(np.median(qp_times)),
+                "qp_iterations": float(np.median(qp_iterations)),
+                "settled": max(errors),
+            }
+        )
     return rows
 
 
@@ -235,9 +288,21 @@ def quality(
     return rows
 
 
-def main(quick: bool = False) -> None:
-    """Print the speed table (ratios to fatrop) and the quality table (``quick``: s2 only)."""
+def main(quick: bool = False, settings: bool = False) -> None:
+    """Print the speed table (ratios to fatrop) and the quality table (``quick``: s2 only).
+
+    ``settings``: only the table of HPIPM settings of the ``hpipm-ocp`` path.
+    """
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    if settings:
+        print(f"{'qpsol_options':<44}{'step':>8}{'in C':>8}{'QP':>8}{'QP it':>7}{'settled':>10}")
+        for row in hpipm_settings():
+            print(
+                f"{str(row['settings']):<44}{row['step_ms']:>8.3f}{row['c_ms']:>8.3f}{row['qp_ms']:>8.3f}"
+                f"{row['qp_iterations']:>7.0f}{row['settled']:>10.2e}"
+            )
+        print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+        return
     rows = speed()
     base = next(row["median_ms"] for row in rows if row["label"] == "fatrop")
     print("\nsqp-rti vs converged exact backends, s2 closed loop (30 s from rest), ms per step")
@@ -267,4 +332,4 @@ def main(quick: bool = False) -> None:
 
 
 if __name__ == "__main__":
-    main(quick="--quick" in sys.argv)
+    main(quick="--quick" in sys.argv, settings="--hpipm-options" in sys.argv)

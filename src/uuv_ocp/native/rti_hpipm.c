@@ -51,7 +51,6 @@ typedef struct {
   casadi_real w[RTI_SZ_W];
   int prepared;
   double prepare_time;    /* seconds the last preparation took (its own clock) */
-  int solved;             /* a previous solution exists (HPIPM warm start) */
 } rti_memory;
 
 static double rti_now(void) {
@@ -234,7 +233,7 @@ static void rti_patch_state(rti_memory* m, const double* p) {
  * linearised constraints (inf if the solution is not finite). */
 static double rti_solve_qp(rti_memory* m, int* qp_iter) {
   double *lam_x = m->lam_x, *lam_g = m->lam_g;
-  int k, i, j, nx, nu, nb, ng, status;
+  int k, i, j, nx, nu, nb, ng;
   double violation = 0.0, v, *data = m->data;
   rti_set_bounds0(m);
   if (m->cond_n) {
@@ -250,9 +249,9 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
   } else {
     d_ocp_qp_ipm_solve(&m->qp, &m->sol, &m->arg, &m->ws);
   }
-  d_ocp_qp_ipm_get_status(&m->ws, &status);
+  /* HPIPM's status (max_iter, min_step) is no verdict on the step: like the Python path, the
+   * solution is judged by the violation of the linearised constraints computed below */
   d_ocp_qp_ipm_get_iter(&m->ws, qp_iter);
-  m->solved = 1;
   for (k = 0; k <= RTI_N; ++k) {
     double* u = m->ux + rti_oux[k];
     double* x = u + rti_nu[k];
@@ -328,7 +327,6 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
       for (i = 0; i < ng; ++i) lam_g[rti_genrow[rti_og[k] + i]] = lam[2 * nbk + ng + i] - lam[2 * nbk + i];
     }
   }
-  (void)status;
   if (!isfinite(violation)) return INFINITY;
   for (i = 0; i < RTI_NW; ++i)
     if (!isfinite(m->d[i])) return INFINITY;

@@ -11,11 +11,20 @@ Quality: closed loops of 30 s on s1..s10 (RexROV) and on the BlueROV2 Heavy 6-DO
 ``metrics()["max_abs_e*_settled"]``) and over the whole run (the transient from rest), RTI
 against fatrop (converged to 1e-8), and the failures.
 
-Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table only).
+``hpipm-ocp`` rows: the step in C on HPIPM's OCP-QP API (``qpsol="hpipm-ocp"``, the default
+where a compiler exists; ``abs``: HPIPM's ``speed_abs`` mode, ``pc4``: partial condensing to 4
+stages); their "in C" column is the median time the C step measured itself (the preparation's
+linearisation, then the feedback's QP, or every iteration in converged mode), the rest of a
+row is the Python around it.  ``conic`` rows: CasADi's ``conic`` HPIPM interface on the
+full-space QP (``qpsol="hpipm"``).
+
+Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 quality row only;
+``--hpipm-options``: only the ``hpipm-ocp`` path under each HPIPM setting of ``HPIPM_SETTINGS``).
 """
 
 from __future__ import annotations
 
+import os
 import sys
 import time
 
@@ -24,10 +33,18 @@ import numpy as np
 import uuv_ocp as uo
 from uuv_ocp.codegen import default_cache_directory
 
+#: the RTI step in C on HPIPM's OCP-QP API (``qpsol="hpipm-ocp"``)
+OCP = {"qpsol": "hpipm-ocp"}
+#: CasADi's conic interface on the full-space QP (the ``sqp-rti`` default before ``hpipm-ocp``)
+CONIC = {"qpsol": "hpipm"}
 SPEED_VARIANTS: tuple[tuple[str, str, dict | None], ...] = (
-    ("sqp-rti", "sqp-rti", None),
-    ("sqp-rti compiled", "sqp-rti", {"compiled": True}),
-    ("sqp-rti converged", "sqp-rti", {"mode": "converged", "compiled": True}),
+    ("sqp-rti hpipm-ocp", "sqp-rti", OCP),
+    ("sqp-rti hpipm-ocp abs", "sqp-rti", {**OCP, "qpsol_options": {"mode": "speed_abs"}}),
+    ("sqp-rti hpipm-ocp pc4", "sqp-rti", {**OCP, "qpsol_options": {"cond_horizon": 4}}),
+    ("sqp-rti conic", "sqp-rti", CONIC),
+    ("sqp-rti conic compiled", "sqp-rti", {**CONIC, "compiled": True}),
+    ("sqp-rti ocp converged", "sqp-rti", {**OCP, "mode": "converged"}),
+    ("sqp-rti conic converged", "sqp-rti", {**CONIC, "mode": "converged", "compiled": True}),
     ("fatrop", "fatrop", None),
     ("fatrop compiled", "fatrop", {"compiled": True}),
     ("sqp compiled", "sqp", {"compiled": True}),
@@ -53,6 +70,7 @@ def speed(duration: float = 30.0) -> list[dict]:
         controller.reset()
         state, control = reference.initial_state(0.0), np.zeros(3)
         step_times, prepare_times, feedback_times, failures = [], [], [], 0
+        c_times: list[float] = []
         for k in range(steps):
             start = time.perf_counter()
             controller.prepare(k * problem.dt, control, np.zeros(2))
@@ -63,6 +81,9 @@ def speed(duration: float = 30.0) -> list[dict]:
             prepare_times.append(middle - start)
             feedback_times.append(end - middle)
             failures += int(output.fallback)
+            c_time = output.result.details.get("c_time") if output.result is not None else None
+            if c_time is not None:
+                c_times.append(c_time)
             control = output.control
             state = np.array(plant(state, control, np.zeros(2))).ravel()
         # the first step (cold start: IPOPT for sqp-rti) is excluded from the medians of none
@@ -74,20 +95,79 @@ def speed(duration: float = 30.0) -> list[dict]:
                 "prepare_ms": 1e3 * float(np.median(prepare_times)),
                 "feedback_ms": 1e3 * float(np.median(feedback_times)),
                 "failures": failures,
+                # time inside the C step (its own clock: linearisations and QPs of the step)
+                "c_ms": 1e3 * float(np.median(c_times)) if c_times else float("nan"),
             }
         )
     rows.append(generated_c_speed(problem, duration))
     return rows
 
 
+#: HPIPM settings of the ``hpipm-ocp`` path compared by ``--hpipm-options``
+HPIPM_SETTINGS: tuple[dict, ...] = (
+    {},
+    {"mode": "speed_abs"},
+    {"warm_start": True},
+    {"mode": "speed_abs", "warm_start": True},
+    {"cond_horizon": 5},
+    {"mode": "speed_abs", "cond_horizon": 5},
+)
+
+
+def hpipm_settings(steps: int = 300) -> list[dict]:
+    """Per HPIPM setting: median step, time in C, QP time and iterations, settled error (s2)."""
+    problem = _problem()
+    reference = problem.reference
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    rows = []
+    for settings in HPIPM_SETTINGS:
+        controller = uo.NMPC(problem, "sqp-rti", options={**OCP, "qpsol_options": settings})
+        controller.step(reference.initial_state(0.0), 0.0)  # builds outside the timing
+        controller.reset()
+        state, control = reference.initial_state(0.0), np.zeros(3)
+        step_times, c_times, qp_times, qp_iterations, errors = [], [], [], [], []
+        for k in range(steps):
+            start = time.perf_counter()
+            output = controller.step(state, k * problem.dt, control)
+            step_times.append(time.perf_counter() - start)
+            result = output.result
+            if k and result is not None:
+                c_times.append(result.details["c_time"])
+                c_step = controller.backend.ocp_step(result.iterate.variant, result.details["still_water"])
+                if c_step is not None:
+                    qp_times.append(c_step.info[7])
+                    qp_iterations.append(c_step.info[4])
+            control = output.control
+            state = np.array(plant(state, control, np.zeros(2))).ravel()
+            if k * problem.dt >= 5.0:
+                target = reference.evaluate([(k + 1) * problem.dt])[0]
+                errors.append(float(np.max(np.abs(state[:2] - target[:2]))))
+        rows.append(
+            {
+                "settings": settings,
+                "step_ms": 1e3 * float(np.median(step_times)),
+                "c_ms": 1e3 * float(np.median(c_times)),
+                "qp_ms": 1e3 * float(np.median(qp_times)),
+                "qp_iterations": float(np.median(qp_iterations)),
+                "settled": max(errors),
+            }
+        )
+    return rows
+
+
 def generated_c_speed(problem: uo.TrackingProblem, duration: float) -> dict:
-    """Median wall time of the generated ``nmpc_step`` in its own closed loop (via casadi.external)."""
+    """Median wall time of the generated ``nmpc_step`` in its own closed loop.
+
+    Called through ``casadi.external`` with zero-copy buffers (``BufferedFunction``), so the
+    time is the C step plus one buffered call (no numpy ↔ DM conversions).
+    """
+    from uuv_ocp.native.buffered import BufferedFunction
     from uuv_ocp.solvers.rti import nmpc_step_function
 
     build = uo.generate_c(
         problem, default_cache_directory() / "bench_rti", functions=("model_step", "nmpc_step"), verify=False
     )
-    step, model = build["nmpc_step"], build["model_step"]
+    step, model = BufferedFunction(build["nmpc_step"]), build["model_step"]
     _, backend = nmpc_step_function(problem)
     reference = problem.reference
     x, u = reference.initial_state(0.0), np.zeros(3)
@@ -101,7 +181,7 @@ def generated_c_speed(problem: uo.TrackingProblem, duration: float) -> dict:
         start = time.perf_counter()
         control, w_next, violation = step(x, u, p, w)
         times.append(time.perf_counter() - start)
-        failures += int(not float(violation) <= 1e-6)
+        failures += int(not float(violation[0]) <= 1e-6)
         u, w = np.array(control).ravel(), np.array(w_next).ravel()
     return {
         "label": "generated C nmpc_step",
@@ -110,13 +190,65 @@ def generated_c_speed(problem: uo.TrackingProblem, duration: float) -> dict:
         "prepare_ms": float("nan"),
         "feedback_ms": float("nan"),
         "failures": failures,
+        "c_ms": float("nan"),
     }
 
 
+QUALITY_SOLVERS: tuple[tuple[str, str, dict | None], ...] = (
+    ("rti conic", "sqp-rti", CONIC),
+    ("rti hpipm-ocp", "sqp-rti", OCP),
+    ("fatrop", "fatrop", None),
+)
+
+
+def c_driver_speed(problem: uo.TrackingProblem, duration: float = 30.0) -> str:
+    """Median wall and thread-CPU time of ``nmpc_step`` in ``examples/c/nmpc_loop.c`` (all C).
+
+    The closed loop runs on the generated ``model_step`` from the reference's start; the
+    reference window of each step is taken along the reference (``nmpc_step`` replaces its
+    state and last-control blocks).  Returns the program's timing line.
+    """
+    import subprocess
+    import tempfile
+    from pathlib import Path
+
+    from uuv_ocp.codegen import find_c_compiler
+    from uuv_ocp.solvers.rti import nmpc_step_function
+
+    build = uo.generate_c(
+        problem, default_cache_directory() / "bench_rti", functions=("model_step", "nmpc_step"), verify=False
+    )
+    _, backend = nmpc_step_function(problem)
+    variant = "soft" if "soft" in backend.variants else "hard"
+    reference = problem.reference
+    x, u = reference.initial_state(0.0), np.zeros(3)
+    p = problem.parameters(x, 0.0, u)
+    states, scaled = problem.initial_guess(p)
+    w = backend.compose_primal(variant, states, scaled, problem.previous_scaled(p))
+    steps = int(round(duration / problem.dt))
+    windows = [
+        problem.parameters(reference.evaluate([k * problem.dt])[0], k * problem.dt) for k in range(steps)
+    ]
+    with tempfile.TemporaryDirectory() as folder:
+        data = Path(folder) / "loop.txt"
+        lines = [f"{x.size} {u.size} {p.size} {w.size} {steps}"]
+        lines += [" ".join(repr(float(v)) for v in block) for block in (x, u, w, *windows)]
+        data.write_text("\n".join(lines) + "\n")
+        program = build.directory / "nmpc_loop_bench"
+        source = Path(__file__).resolve().parents[1] / "examples" / "c" / "nmpc_loop.c"
+        libraries = [str(build.nmpc_library), str(build.library)]
+        command = [find_c_compiler(), "-O2", str(source), f"-I{build.directory}", *libraries]
+        subprocess.run([*command, "-Wl,-rpath,$ORIGIN", "-lm", "-o", str(program)], check=True)
+        run = subprocess.run([str(program), str(data)], check=True, capture_output=True, text=True)
+    return run.stderr.strip()
+
+
 def quality(
-    duration: float = 30.0, references: tuple[str, ...] = tuple(f"s{i}" for i in range(1, 11))
+    duration: float = 30.0,
+    references: tuple[str, ...] = tuple(f"s{i}" for i in range(1, 11)),
+    bluerov: bool = True,
 ) -> list:
-    """Errors after the transient and over the whole run, RTI vs fatrop, per reference."""
+    """Errors after the transient and over the whole run, RTI (both QP paths) vs fatrop."""
     rows = []
     for name in references:
         problem = _problem(name)
@@ -126,26 +258,28 @@ def quality(
         length = min(duration, reference.t_end - t0 - problem.horizon * problem.dt)
         x0 = reference.initial_state(t0)
         row: dict = {"reference": name}
-        for solver in ("sqp-rti", "fatrop"):
-            run = uo.simulate(uo.NMPC(problem, solver), x0=x0, duration=length, t0=t0)
+        for label, solver, options in QUALITY_SOLVERS:
+            run = uo.simulate(uo.NMPC(problem, solver, options=options), x0=x0, duration=length, t0=t0)
             metrics = run.metrics()
-            row[solver] = {
+            row[label] = {
                 "settled": max(metrics["max_abs_ex_settled"], metrics["max_abs_ey_settled"]),
                 "whole": max(metrics["max_abs_ex"], metrics["max_abs_ey"]),
                 "failures": run.failures,
             }
         rows.append(row)
+    if not bluerov:
+        return rows
     sys.path.insert(0, "examples")
     try:
         import bluerov2_depth
     finally:
         sys.path.pop(0)
     row = {"reference": "bluerov2"}
-    for solver in ("sqp-rti", "fatrop"):
-        outcome = bluerov2_depth.main(duration=duration, solver=solver)
+    for label, solver, options in QUALITY_SOLVERS:
+        outcome = bluerov2_depth.main(duration=duration, solver=solver, options=options)
         settled = outcome.run.t >= 5.0
         error = np.linalg.norm((outcome.run.states - outcome.run.reference)[:, :3], axis=1)
-        row[solver] = {
+        row[label] = {
             "settled": float(np.max(error[settled])),
             "whole": float(np.max(error)),
             "failures": outcome.run.failures,
@@ -154,31 +288,48 @@ def quality(
     return rows
 
 
-def main(quick: bool = False) -> None:
-    """Print the speed table (ratios to fatrop) and, unless ``quick``, the quality table."""
+def main(quick: bool = False, settings: bool = False) -> None:
+    """Print the speed table (ratios to fatrop) and the quality table (``quick``: s2 only).
+
+    ``settings``: only the table of HPIPM settings of the ``hpipm-ocp`` path.
+    """
+    print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    if settings:
+        print(f"{'qpsol_options':<44}{'step':>8}{'in C':>8}{'QP':>8}{'QP it':>7}{'settled':>10}")
+        for row in hpipm_settings():
+            print(
+                f"{str(row['settings']):<44}{row['step_ms']:>8.3f}{row['c_ms']:>8.3f}{row['qp_ms']:>8.3f}"
+                f"{row['qp_iterations']:>7.0f}{row['settled']:>10.2e}"
+            )
+        print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+        return
     rows = speed()
     base = next(row["median_ms"] for row in rows if row["label"] == "fatrop")
     print("\nsqp-rti vs converged exact backends, s2 closed loop (30 s from rest), ms per step")
-    print(f"{'variant':<24}{'median':>8}{'p90':>8}{'prepare':>9}{'feedback':>9}{'fail':>6}{'/fatrop':>9}")
+    print(
+        f"{'variant':<24}{'median':>8}{'p90':>8}{'prepare':>9}{'feedback':>9}{'in C':>7}{'fail':>6}"
+        f"{'/fatrop':>9}"
+    )
     for row in rows:
         print(
             f"{row['label']:<24}{row['median_ms']:>8.3f}{row['p90_ms']:>8.3f}{row['prepare_ms']:>9.3f}"
-            f"{row['feedback_ms']:>9.3f}{row['failures']:>6d}{row['median_ms'] / base:>9.2f}"
+            f"{row['feedback_ms']:>9.3f}{row['c_ms']:>7.3f}{row['failures']:>6d}"
+            f"{row['median_ms'] / base:>9.2f}"
         )
-    if quick:
-        return
+    print(f"\ngenerated C loop (examples/c/nmpc_loop.c): {c_driver_speed(_problem())}")
     print("\nlargest position error (m): after the transient (t >= 5 s) and over the run, 30 s")
-    print(
-        f"{'case':<10}{'rti settled':>12}{'fatrop':>10}{'ratio':>8}{'rti whole':>11}{'fatrop':>10}{'fail':>7}"
-    )
-    for row in quality():
-        rti, full = row["sqp-rti"], row["fatrop"]
+    labels = [label for label, _, _ in QUALITY_SOLVERS]
+    print(f"{'case':<10}" + "".join(f"{label + ' settled':>20}{'whole':>8}{'fail':>5}" for label in labels))
+    for row in quality(references=("s2",), bluerov=False) if quick else quality():
         print(
-            f"{row['reference']:<10}{rti['settled']:>12.2e}{full['settled']:>10.2e}"
-            f"{rti['settled'] / full['settled']:>8.2f}{rti['whole']:>11.3f}{full['whole']:>10.3f}"
-            f"{rti['failures']:>4d}/{full['failures']:<3d}"
+            f"{row['reference']:<10}"
+            + "".join(
+                f"{row[label]['settled']:>20.2e}{row[label]['whole']:>8.3f}{row[label]['failures']:>5d}"
+                for label in labels
+            )
         )
+    print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
 
 
 if __name__ == "__main__":
-    main(quick="--quick" in sys.argv)
+    main(quick="--quick" in sys.argv, settings="--hpipm-options" in sys.argv)

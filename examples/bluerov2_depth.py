@@ -47,8 +47,12 @@ def main(
     lanes: int = 3,
     dive: float = 0.5,
     settle: float = 5.0,
+    options: dict | None = None,
 ) -> Outcome:
-    """Closed-loop survey of ``duration`` seconds; errors counted from ``settle`` seconds on."""
+    """Closed-loop survey of ``duration`` seconds; errors counted from ``settle`` seconds on.
+
+    ``options`` go to the solver (e.g. ``{"qpsol": "hpipm-ocp"}`` for ``sqp-rti``).
+    """
     boat = Vehicle6DOF.bluerov2_heavy()  # generalised force τ (6); thrusters=True: 8 T200 forces
     survey = uo.Reference.lawnmower(
         (0.0, 0.0), width=WIDTH, spacing=SPACING, lanes=lanes, speed=SPEED, depth=DEPTH
@@ -56,7 +60,7 @@ def main(
     problem = uo.TrackingProblem(boat, survey, horizon=horizon, dt=0.1)
     x0 = survey.initial_state(0.0)  # on the path, at rest: [x, y, z, φ, θ, ψ, u, v, w, p, q, r]
     x0[2] -= dive  # start above the survey depth
-    run = uo.simulate(uo.NMPC(problem, solver), x0, duration)
+    run = uo.simulate(uo.NMPC(problem, solver, options=options), x0, duration)
     settled = run.t >= settle
     error = run.states - run.reference
     depth_error = float(np.max(np.abs(error[settled, 2])))

@@ -2,15 +2,43 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import threading
+
 import casadi as ca
 import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
 from uuv_ocp.solvers import REGISTRY, get_solver
 from uuv_ocp.solvers.result import Iterate
+from uuv_ocp.solvers.rti import RtiSolver
 
 TIGHT_HPIPM = {"hpipm": {f"res_{k}_max": 1e-12 for k in "gbdm"}}
+#: HPIPM's OCP-QP API tight enough for 1e-8 comparisons (1e-12 is out of its reach on this QP)
+TIGHT_OCP = {"mode": "robust", **{f"tol_{k}": 1e-11 for k in ("stat", "eq", "ineq", "comp")}}
+TIGHT = {"hpipm": TIGHT_HPIPM, "hpipm-ocp": TIGHT_OCP}
+QP_PATHS = pytest.mark.parametrize("qpsol", ["hpipm", "hpipm-ocp"])
+#: the C step with HPIPM's partial condensing (5 stages): condensed in prepare, rhs in feedback
+CONDENSED = {"cond_horizon": 5}
+WITH_CONDENSING = pytest.mark.parametrize("qpsol", ["hpipm", "hpipm-ocp", "hpipm-ocp-condensed"])
+
+
+def qp_options(path: str, tight: bool = False) -> dict:
+    """``qpsol`` and ``qpsol_options`` of a test's QP path (``hpipm-ocp-condensed``: CONDENSED)."""
+    if path == "hpipm-ocp-condensed":
+        return {"qpsol": "hpipm-ocp", "qpsol_options": {**(TIGHT_OCP if tight else {}), **CONDENSED}}
+    return {"qpsol": path, **({"qpsol_options": TIGHT[path]} if tight else {})}
+
+
+def needs_compiler(qpsol: str) -> None:
+    if qpsol.startswith("hpipm-ocp"):
+        try:
+            find_c_compiler()
+        except CompilerNotFoundError:
+            pytest.skip("no C compiler: qpsol='hpipm-ocp' falls back to 'hpipm'")
 
 
 @pytest.fixture(scope="module")
@@ -38,10 +66,18 @@ def test_registered_as_exact_backend():
     assert "igwo+sqp-rti" in uo.available_solvers()  # a hybrid's exact half like the others
 
 
-def test_iterated_rti_reaches_the_full_solvers_optimum(problem, instance):
+@QP_PATHS
+def test_iterated_rti_reaches_the_full_solvers_optimum(problem, instance, qpsol):
     """Gauss–Newton iterated to convergence from the cold guess = IPOPT's KKT point (1e-8)."""
+    needs_compiler(qpsol)
     x0, reference = instance
-    options = {"mode": "converged", "tol": 1e-12, "cold_start": "converged", "qpsol_options": TIGHT_HPIPM}
+    options = {
+        "mode": "converged",
+        "tol": 1e-12,
+        "cold_start": "converged",
+        "qpsol": qpsol,
+        "qpsol_options": TIGHT[qpsol],
+    }
     result = uo.solve(problem, "sqp-rti", x0=x0, t0=3.0, options=options)
     assert result.success and result.status.endswith("converged")
     assert result.iterations > 2  # it really iterated from the held-state guess
@@ -51,10 +87,12 @@ def test_iterated_rti_reaches_the_full_solvers_optimum(problem, instance):
     assert result.cost == pytest.approx(reference.cost, rel=1e-8)
 
 
-def test_one_iteration_is_one_gauss_newton_step(problem, instance):
+@WITH_CONDENSING
+def test_one_iteration_is_one_gauss_newton_step(problem, instance, qpsol):
     """One RTI call = the Gauss–Newton QP step, solved here by a dense KKT system in numpy."""
+    needs_compiler(qpsol)
     x0, reference = instance
-    backend = get_solver(problem, "sqp-rti", {"qpsol_options": TIGHT_HPIPM})
+    backend = get_solver(problem, "sqp-rti", qp_options(qpsol, tight=True))
     data = problem.build().hard
     rng = np.random.default_rng(3)
     w = reference.iterate.primal.copy()
@@ -104,34 +142,50 @@ def test_one_iteration_is_one_gauss_newton_step(problem, instance):
     assert np.all((w + step)[free_x] < data.ubx[free_x]) and np.all((w + step)[free_x] > data.lbx[free_x])
     assert active_g.any()  # the instance has an active rate bound: a real inequality QP
     np.testing.assert_allclose(result.iterate.primal, w + step, rtol=0, atol=1e-8)
+    # the QP's multipliers (NLP order, CasADi's signs) make its Lagrangian stationary
+    stationarity = hessian @ step + gradient + a.T @ result.iterate.lam_g + result.iterate.lam_x
+    assert np.max(np.abs(stationarity)) <= 1e-6 * max(1.0, np.max(np.abs(gradient)))
+    lam_g = result.iterate.lam_g
+    assert np.all(lam_g[~equality & (linear < data.ubg - 1e-7)] <= 1e-6)  # > 0 only at an upper side
+    assert np.all(lam_g[~equality & (linear > data.lbg + 1e-7)] >= -1e-6)
 
 
-def test_prepare_then_feedback_equals_step(problem, monkeypatch):
+@WITH_CONDENSING
+def test_prepare_then_feedback_equals_step(problem, monkeypatch, qpsol):
     """The prepared linearisation with the measured state patched in = linearising there."""
+    needs_compiler(qpsol)
     reference = problem.reference
-    split = uo.NMPC(problem, "sqp-rti")
+    split = uo.NMPC(problem, "sqp-rti", options=qp_options(qpsol))
     # another backend instance (other options key, same values) that never prepares
-    whole = uo.NMPC(problem, "sqp-rti", options={"slack_tolerance": 1e-7})
+    whole = uo.NMPC(problem, "sqp-rti", options={"slack_tolerance": 1e-7, **qp_options(qpsol)})
     assert whole.backend is not split.backend
     monkeypatch.setattr(whole.backend, "prepare", None)
     plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
     state, control = reference.initial_state(0.0), np.zeros(3)
     rng = np.random.default_rng(0)
+    # condensed: feedback condenses the right-hand side alone, the fresh step all of it; the
+    # same numbers in another order (measured 6.5e-9 N of an 800 N control)
+    atol = 1e-7 if qpsol == "hpipm-ocp-condensed" else 1e-9
+    prepared_feedbacks = 0
     for k in range(6):
         split.prepare(k * problem.dt, control)
+        prepared_feedbacks += split.backend._prepared is not None
         measured = state + 1e-3 * rng.standard_normal(6)  # not the predicted state
         a = split.feedback(measured)
         b = whole.step(measured, k * problem.dt, control)
         assert not a.fallback and not b.fallback
-        np.testing.assert_allclose(a.control, b.control, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(a.control, b.control, rtol=0, atol=atol)
         control = a.control
         state = np.array(plant(state, control, np.zeros(2))).ravel()
+    assert prepared_feedbacks == 5  # every step but the cold first one used its preparation
     with pytest.raises(ValueError, match="prepare"):
         split.feedback(state)
 
 
-def test_closed_loop_holds_box_and_rate_bounds(problem):
-    controller = uo.NMPC(problem, "sqp-rti")
+@QP_PATHS
+def test_closed_loop_holds_box_and_rate_bounds(problem, qpsol):
+    needs_compiler(qpsol)
+    controller = uo.NMPC(problem, "sqp-rti", options={"qpsol": qpsol})
     run = uo.simulate(controller, x0=problem.reference.initial_state(0.0), duration=3.0)
     assert run.failures == 0
     limit = problem.max_thrust
@@ -152,6 +206,21 @@ def test_closed_loop_holds_box_and_rate_bounds(problem):
         ({"qp_tolerance": 0.0}, "options['qp_tolerance']"),
         ({"plugin_options": {"a": 1}}, "options['plugin_options']"),
         ({"banana": 1}, "banana"),
+        (
+            {"qpsol": "hpipm-ocp", "qpsol_options": {"res_g_max": 1e-8}},
+            "options['qpsol_options']['res_g_max']",
+        ),
+        ({"qpsol": "hpipm-ocp", "qpsol_options": {"mode": "fast"}}, "options['qpsol_options']['mode']"),
+        ({"qpsol": "hpipm-ocp", "qpsol_options": {"iter_max": 0}}, "options['qpsol_options']['iter_max']"),
+        ({"qpsol": "hpipm-ocp", "qpsol_options": {"tol_eq": -1.0}}, "options['qpsol_options']['tol_eq']"),
+        (
+            {"qpsol": "hpipm-ocp", "qpsol_options": {"cond_horizon": -1}},
+            "options['qpsol_options']['cond_horizon']",
+        ),
+        (
+            {"qpsol": "hpipm-ocp", "qpsol_options": {"warm_start": 1}},
+            "options['qpsol_options']['warm_start']",
+        ),
     ],
 )
 def test_bad_options_are_named(problem, options, name):
@@ -159,9 +228,11 @@ def test_bad_options_are_named(problem, options, name):
         get_solver(problem, "sqp-rti", options)
 
 
-def test_failed_qp_takes_the_nmpc_fallback(problem, monkeypatch):
+@QP_PATHS
+def test_failed_qp_takes_the_nmpc_fallback(problem, monkeypatch, qpsol):
     """A QP that never succeeds (and no IPOPT rescue) fails softly: the loop goes on."""
-    options = {"cold_start": "rti"}
+    needs_compiler(qpsol)
+    options = {"cold_start": "rti", "qpsol": qpsol}
     controller = uo.NMPC(problem, "sqp-rti", options=options)
     backend = controller.backend
     monkeypatch.setattr(backend, "robust_options", lambda: {})
@@ -182,3 +253,87 @@ def test_interrupt_inside_the_qp_propagates(problem, monkeypatch):
     monkeypatch.setattr(backend, "qp_step", lambda variant: Interrupting())
     with pytest.raises(KeyboardInterrupt):
         controller.step(problem.reference.initial_state(0.0), 0.0)
+
+
+def test_interrupt_inside_the_c_step_propagates(problem, monkeypatch):
+    needs_compiler("hpipm-ocp")
+    controller = uo.NMPC(problem, "sqp-rti", options={"cold_start": "rti", "qpsol": "hpipm-ocp"})
+    backend = controller.backend
+    step = backend.ocp_step("hard", True)
+    assert step is not None
+
+    def interrupted(*args, **kw):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(step, "iterate", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        controller.step(problem.reference.initial_state(0.0), 0.0)
+
+
+def test_sigint_during_c_steps_reaches_the_caller(problem):
+    """A real Ctrl-C while the loop runs in the C step: raised at the next bytecode, not lost."""
+    needs_compiler("hpipm-ocp")
+    controller = uo.NMPC(problem, "sqp-rti", options={"cold_start": "rti", "qpsol": "hpipm-ocp"})
+    x = problem.reference.initial_state(0.0)
+    controller.step(x, 0.0)  # built outside the interrupted loop
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
+    steps = 0
+    try:
+        timer.start()
+        with pytest.raises(KeyboardInterrupt):
+            for _ in range(100_000):
+                controller.step(x, 0.0)
+                steps += 1
+    finally:
+        timer.cancel()
+        signal.signal(signal.SIGINT, previous)
+    assert 0 < steps < 100_000
+
+
+def test_hpipm_ocp_without_compiler_warns_and_keeps_casadis_path(problem, monkeypatch, instance):
+    x0, reference = instance
+    monkeypatch.setenv("CC", "/nonexistent/cc")
+    backend = RtiSolver(problem, {"qpsol": "hpipm-ocp"})  # a new instance: nothing built yet
+    with pytest.warns(RuntimeWarning, match="hpipm-ocp' unavailable"):
+        result = backend.solve(problem.parameters(x0, 3.0), reference.iterate)
+    assert result.success and backend.qpsol == "hpipm" and result.iterations == 1
+
+
+def test_soft_terminal_qp_in_c_equals_casadis(problem, instance):
+    """The exact-penalty NLP (terminal slacks as stage N−1 inputs, one-sided boxes masked)."""
+    needs_compiler("hpipm-ocp")
+    x0, _ = instance
+    # 4 m off the path: the terminal equality cannot be met within the horizon's 2 s
+    p = problem.parameters(x0 + np.array([4.0, -4.0, 0.0, 0.0, 0.0, 0.0]), 3.0)
+    results = []
+    for qpsol in ("hpipm", "hpipm-ocp"):
+        backend = get_solver(
+            problem,
+            "sqp-rti",
+            {
+                "terminal_strategy": "soft",
+                "cold_start": "rti",
+                "qpsol": qpsol,
+                "qpsol_options": TIGHT[qpsol],
+            },
+        )
+        results.append(backend.solve(p, None))
+    a, b = results
+    assert a.success and b.success and a.iterate.variant == b.iterate.variant == "soft"
+    slacks = problem.build().soft_variant(problem.spec().terminal_penalty).terminal_slack_index
+    assert np.max(a.iterate.primal[slacks]) > 1e-3  # the relaxation is active: the L1 term matters
+    np.testing.assert_allclose(b.iterate.primal, a.iterate.primal, rtol=0, atol=1e-8)
+
+
+def test_automatic_qp_path(problem, monkeypatch):
+    """``qpsol="auto"``: the C step with a compiler, CasADi's path under UUV_OCP_COMPILED=0."""
+    monkeypatch.setenv("UUV_OCP_COMPILED", "0")
+    assert RtiSolver(problem).qpsol == "hpipm"
+    monkeypatch.setenv("UUV_OCP_COMPILED", "1")
+    monkeypatch.setenv("CC", "/nonexistent/cc")
+    with pytest.warns(RuntimeWarning, match="no C compiler"):
+        assert RtiSolver(problem).qpsol == "hpipm"
+    monkeypatch.delenv("CC")
+    needs_compiler("hpipm-ocp")
+    assert RtiSolver(problem).qpsol == "hpipm-ocp"

@@ -1,0 +1,393 @@
+/* Real-time iteration on HPIPM's OCP-QP API (hand-written part; constants generated above).
+ *
+ * One Gauss-Newton SQP step of the multiple-shooting NLP: the stage data (A, B, b, Q, S, R, q,
+ * r, C, D, bounds) come from the CasADi-generated RTI_DATA(w, p); HPIPM solves the OCP-QP in
+ * the step d; the NLP point moves to w + d.  All memory is allocated once by uuv_rti_create.
+ * Sizes and index maps (RTI_*, rti_*) are emitted by uuv_ocp.solvers.rti_ocp for one NLP.
+ */
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "hpipm_d_ocp_qp.h"
+#include "hpipm_d_ocp_qp_dim.h"
+#include "hpipm_d_ocp_qp_ipm.h"
+#include "hpipm_d_ocp_qp_sol.h"
+#include "hpipm_d_part_cond.h"
+
+/* offsets of one stage's blocks in the data vector (rti_off[k][...]) */
+enum { O_A, O_B, O_BV, O_Q, O_S, O_R, O_QV, O_RV, O_C, O_D, O_LG, O_UG, O_LBX, O_UBX, O_LBU, O_UBU };
+
+typedef struct {
+  struct d_ocp_qp_dim dim;
+  struct d_ocp_qp qp;
+  struct d_ocp_qp_sol sol;
+  struct d_ocp_qp_ipm_arg arg;
+  struct d_ocp_qp_ipm_ws ws;
+  void *dim_mem, *qp_mem, *sol_mem, *arg_mem, *ws_mem; /* HPIPM's memory, allocated once */
+  /* partial condensing to cond_n stages (0: none): the IPM runs on pqp */
+  int cond_n;
+  int cond_lhs;           /* pqp's matrices are those of the loaded QP (only bounds moved) */
+  struct d_ocp_qp_dim pdim;
+  struct d_ocp_qp pqp;
+  struct d_ocp_qp_sol psol;
+  struct d_part_cond_qp_arg cond_arg;
+  struct d_part_cond_qp_ws cond_ws;
+  void *pdim_mem, *pqp_mem, *psol_mem, *cond_arg_mem, *cond_ws_mem;
+  int block_size[RTI_N + 1];
+  double data[RTI_NDATA]; /* RTI_DATA's output: the prepared QP */
+  double lbx0[RTI_NBX0];  /* stage-0 box as prepared (x0 rows moved by feedback) */
+  double x0[RTI_NX0 > 0 ? RTI_NX0 : 1]; /* measured-state guess the QP was prepared with */
+  double d[RTI_NW];
+  double ux[RTI_NUX];     /* HPIPM's [u_k; x_k] of every stage, stacked */
+  double lam[RTI_NLAM];   /* lam_lb, lam_ub, lam_lg, lam_ug per stage, stacked */
+  double pi[RTI_NPI > 0 ? RTI_NPI : 1];
+  double lam_x[RTI_NW];   /* multipliers of the last QP, NLP order (copied out if accepted) */
+  double lam_g[RTI_NG > 0 ? RTI_NG : 1];
+  const casadi_real* arg_ptr[RTI_SZ_ARG];
+  casadi_real* res_ptr[RTI_SZ_RES];
+  casadi_int iw[RTI_SZ_IW];
+  casadi_real w[RTI_SZ_W];
+  int prepared;
+  double prepare_time;    /* seconds the last preparation took (its own clock) */
+} rti_memory;
+
+static double rti_now(void) {
+  struct timespec t;
+  clock_gettime(CLOCK_MONOTONIC, &t);
+  return (double)t.tv_sec + 1e-9 * (double)t.tv_nsec;
+}
+
+void uuv_rti_free(void* memory) {
+  rti_memory* m = (rti_memory*)memory;
+  if (!m) return;
+  free(m->ws_mem);
+  free(m->arg_mem);
+  free(m->sol_mem);
+  free(m->qp_mem);
+  free(m->dim_mem);
+  free(m->pdim_mem);
+  free(m->pqp_mem);
+  free(m->psol_mem);
+  free(m->cond_arg_mem);
+  free(m->cond_ws_mem);
+  free(m);
+}
+
+/* options: mode (0 speed_abs, 1 speed, 2 balance, 3 robust), iter_max, tol_stat, tol_eq,
+ * tol_ineq, tol_comp, warm_start (0/1), partial condensing horizon (0 or >= N: none).
+ * Returns NULL when out of memory. */
+void* uuv_rti_create(const double* options) {
+  rti_memory* m = (rti_memory*)calloc(1, sizeof(rti_memory));
+  int k, iter_max, warm;
+  double tol;
+  enum hpipm_mode modes[4] = {SPEED_ABS, SPEED, BALANCE, ROBUST};
+  if (!m) return NULL;
+  m->dim_mem = malloc(d_ocp_qp_dim_memsize(RTI_N));
+  if (!m->dim_mem) goto fail;
+  d_ocp_qp_dim_create(RTI_N, &m->dim, m->dim_mem);
+  for (k = 0; k <= RTI_N; ++k) {
+    d_ocp_qp_dim_set_nx(k, rti_nx[k], &m->dim);
+    d_ocp_qp_dim_set_nu(k, rti_nu[k], &m->dim);
+    d_ocp_qp_dim_set_nbx(k, rti_nbx[k], &m->dim);
+    d_ocp_qp_dim_set_nbu(k, rti_nbu[k], &m->dim);
+    d_ocp_qp_dim_set_ng(k, rti_ng[k], &m->dim);
+    d_ocp_qp_dim_set_ns(k, 0, &m->dim);
+  }
+  m->qp_mem = malloc(d_ocp_qp_memsize(&m->dim));
+  m->sol_mem = malloc(d_ocp_qp_sol_memsize(&m->dim));
+  if (!m->qp_mem || !m->sol_mem) goto fail;
+  d_ocp_qp_create(&m->dim, &m->qp, m->qp_mem);
+  d_ocp_qp_sol_create(&m->dim, &m->sol, m->sol_mem);
+  m->cond_n = (int)options[7];
+  if (m->cond_n <= 0 || m->cond_n >= RTI_N) m->cond_n = 0;
+  if (m->cond_n) {
+    /* fewer, larger stages: HPIPM's per-stage overhead dominates on 9-state stages */
+    d_part_cond_qp_compute_block_size(RTI_N, m->cond_n, m->block_size);
+    m->pdim_mem = malloc(d_ocp_qp_dim_memsize(m->cond_n));
+    if (!m->pdim_mem) goto fail;
+    d_ocp_qp_dim_create(m->cond_n, &m->pdim, m->pdim_mem);
+    d_part_cond_qp_compute_dim(&m->dim, m->block_size, &m->pdim);
+    m->cond_arg_mem = malloc(d_part_cond_qp_arg_memsize(m->cond_n));
+    if (!m->cond_arg_mem) goto fail;
+    d_part_cond_qp_arg_create(m->cond_n, &m->cond_arg, m->cond_arg_mem);
+    d_part_cond_qp_arg_set_default(&m->cond_arg);
+    m->cond_ws_mem = malloc(d_part_cond_qp_ws_memsize(&m->dim, m->block_size, &m->pdim, &m->cond_arg));
+    m->pqp_mem = malloc(d_ocp_qp_memsize(&m->pdim));
+    m->psol_mem = malloc(d_ocp_qp_sol_memsize(&m->pdim));
+    if (!m->cond_ws_mem || !m->pqp_mem || !m->psol_mem) goto fail;
+    d_part_cond_qp_ws_create(&m->dim, m->block_size, &m->pdim, &m->cond_arg, &m->cond_ws, m->cond_ws_mem);
+    d_ocp_qp_create(&m->pdim, &m->pqp, m->pqp_mem);
+    d_ocp_qp_sol_create(&m->pdim, &m->psol, m->psol_mem);
+  }
+  m->arg_mem = malloc(d_ocp_qp_ipm_arg_memsize(m->cond_n ? &m->pdim : &m->dim));
+  if (!m->arg_mem) goto fail;
+  d_ocp_qp_ipm_arg_create(m->cond_n ? &m->pdim : &m->dim, &m->arg, m->arg_mem);
+  d_ocp_qp_ipm_arg_set_default(modes[(int)options[0] & 3], &m->arg);
+  iter_max = (int)options[1];
+  d_ocp_qp_ipm_arg_set_iter_max(&iter_max, &m->arg);
+  tol = options[2]; d_ocp_qp_ipm_arg_set_tol_stat(&tol, &m->arg);
+  tol = options[3]; d_ocp_qp_ipm_arg_set_tol_eq(&tol, &m->arg);
+  tol = options[4]; d_ocp_qp_ipm_arg_set_tol_ineq(&tol, &m->arg);
+  tol = options[5]; d_ocp_qp_ipm_arg_set_tol_comp(&tol, &m->arg);
+  warm = (int)options[6];
+  d_ocp_qp_ipm_arg_set_warm_start(&warm, &m->arg);
+  /* the workspace's size depends on the argument: allocated after it, once */
+  m->ws_mem = malloc(d_ocp_qp_ipm_ws_memsize(m->cond_n ? &m->pdim : &m->dim, &m->arg));
+  if (!m->ws_mem) goto fail;
+  d_ocp_qp_ipm_ws_create(m->cond_n ? &m->pdim : &m->dim, &m->arg, &m->ws, m->ws_mem);
+  for (k = 0; k <= RTI_N; ++k) {
+    if (rti_nbx[k]) d_ocp_qp_set_idxbx(k, (int*)(rti_idxbx + rti_obx[k]), &m->qp);
+    if (rti_nbu[k]) d_ocp_qp_set_idxbu(k, (int*)(rti_idxbu + rti_obu[k]), &m->qp);
+  }
+  return m;
+fail:
+  uuv_rti_free(m);
+  return NULL;
+}
+
+static int rti_evaluate(rti_memory* m, const double* w, const double* p) {
+  m->arg_ptr[0] = w;
+  m->arg_ptr[1] = p;
+  m->res_ptr[0] = m->data;
+  return RTI_DATA(m->arg_ptr, m->res_ptr, m->iw, m->w, 0);
+}
+
+static void rti_set_bounds0(rti_memory* m) {
+  if (rti_nbx[0]) {
+    d_ocp_qp_set_lbx(0, m->lbx0, &m->qp);
+    d_ocp_qp_set_ubx(0, m->lbx0, &m->qp); /* the measured-state rows are equalities */
+    d_ocp_qp_set_lbx_mask(0, (double*)rti_lbx_mask, &m->qp);
+    d_ocp_qp_set_ubx_mask(0, (double*)rti_ubx_mask, &m->qp);
+  }
+}
+
+static void rti_load(rti_memory* m) {
+  int k;
+  double* data = m->data;
+  for (k = 0; k <= RTI_N; ++k) {
+    const int* o = rti_off[k];
+    if (k < RTI_N) {
+      d_ocp_qp_set_A(k, data + o[O_A], &m->qp);
+      d_ocp_qp_set_B(k, data + o[O_B], &m->qp);
+      d_ocp_qp_set_b(k, data + o[O_BV], &m->qp);
+    }
+    d_ocp_qp_set_Q(k, data + o[O_Q], &m->qp);
+    d_ocp_qp_set_S(k, data + o[O_S], &m->qp);
+    d_ocp_qp_set_R(k, data + o[O_R], &m->qp);
+    d_ocp_qp_set_q(k, data + o[O_QV], &m->qp);
+    d_ocp_qp_set_r(k, data + o[O_RV], &m->qp);
+    if (rti_ng[k]) {
+      d_ocp_qp_set_C(k, data + o[O_C], &m->qp);
+      d_ocp_qp_set_D(k, data + o[O_D], &m->qp);
+      d_ocp_qp_set_lg(k, data + o[O_LG], &m->qp);
+      d_ocp_qp_set_ug(k, data + o[O_UG], &m->qp);
+      d_ocp_qp_set_lg_mask(k, (double*)(rti_lg_mask + rti_og[k]), &m->qp);
+      d_ocp_qp_set_ug_mask(k, (double*)(rti_ug_mask + rti_og[k]), &m->qp);
+    }
+    if (rti_nbu[k]) {
+      d_ocp_qp_set_lbu(k, data + o[O_LBU], &m->qp);
+      d_ocp_qp_set_ubu(k, data + o[O_UBU], &m->qp);
+      d_ocp_qp_set_lbu_mask(k, (double*)(rti_lbu_mask + rti_obu[k]), &m->qp);
+      d_ocp_qp_set_ubu_mask(k, (double*)(rti_ubu_mask + rti_obu[k]), &m->qp);
+    }
+    if (rti_nbx[k] && k > 0) {
+      d_ocp_qp_set_lbx(k, data + o[O_LBX], &m->qp);
+      d_ocp_qp_set_ubx(k, data + o[O_UBX], &m->qp);
+      d_ocp_qp_set_lbx_mask(k, (double*)(rti_lbx_mask + rti_obx[k]), &m->qp);
+      d_ocp_qp_set_ubx_mask(k, (double*)(rti_ubx_mask + rti_obx[k]), &m->qp);
+    }
+  }
+  if (rti_nbx[0]) memcpy(m->lbx0, data + rti_off[0][O_LBX], sizeof(double) * RTI_NBX0);
+  m->cond_lhs = 0;
+}
+
+/* Linearise at (w, p) and load the QP; the measured state of p is remembered. */
+int uuv_rti_prepare(void* memory, const double* w, const double* p) {
+  rti_memory* m = (rti_memory*)memory;
+  double start = rti_now();
+  int i;
+  m->prepared = 0;
+  if (rti_evaluate(m, w, p)) return 1;
+  rti_load(m);
+  if (m->cond_n) {
+    rti_set_bounds0(m);
+    d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
+    m->cond_lhs = 1;
+  }
+  for (i = 0; i < RTI_NX0; ++i) m->x0[i] = p[rti_x0_param[i]];
+  m->prepared = 1;
+  m->prepare_time = rti_now() - start;
+  return 0;
+}
+
+/* Move the prepared initial-state rows to the state in p: X_0 - x0 enters linearly. */
+static void rti_patch_state(rti_memory* m, const double* p) {
+  int i;
+  for (i = 0; i < RTI_NX0; ++i) m->lbx0[rti_x0_box[i]] += p[rti_x0_param[i]] - m->x0[i];
+  for (i = 0; i < RTI_NX0; ++i) m->x0[i] = p[rti_x0_param[i]];
+}
+
+/* Solve the loaded QP; write d (NLP order) and the multipliers; return the violation of the
+ * linearised constraints (inf if the solution is not finite). */
+static double rti_solve_qp(rti_memory* m, int* qp_iter) {
+  double *lam_x = m->lam_x, *lam_g = m->lam_g;
+  int k, i, j, nx, nu, nb, ng;
+  double violation = 0.0, v, *data = m->data;
+  rti_set_bounds0(m);
+  if (m->cond_n) {
+    /* the preparation condenses the matrices; a new state changes only the right-hand side */
+    if (m->cond_lhs) {
+      d_part_cond_qp_cond_rhs(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
+    } else {
+      d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
+      m->cond_lhs = 1;
+    }
+    d_ocp_qp_ipm_solve(&m->pqp, &m->psol, &m->arg, &m->ws);
+    d_part_cond_qp_expand_sol(&m->qp, &m->psol, &m->sol, &m->cond_arg, &m->cond_ws);
+  } else {
+    d_ocp_qp_ipm_solve(&m->qp, &m->sol, &m->arg, &m->ws);
+  }
+  /* HPIPM's status (max_iter, min_step) is no verdict on the step: like the Python path, the
+   * solution is judged by the violation of the linearised constraints computed below */
+  d_ocp_qp_ipm_get_iter(&m->ws, qp_iter);
+  for (k = 0; k <= RTI_N; ++k) {
+    double* u = m->ux + rti_oux[k];
+    double* x = u + rti_nu[k];
+    d_ocp_qp_sol_get_u(k, &m->sol, u);
+    d_ocp_qp_sol_get_x(k, &m->sol, x);
+    for (i = 0; i < rti_nu[k]; ++i) m->d[rti_uvar[rti_ou[k] + i]] = u[i];
+    for (i = 0; i < rti_nx[k]; ++i) m->d[rti_xvar[rti_ox[k] + i]] = x[i];
+    if (k < RTI_N) d_ocp_qp_sol_get_pi(k, &m->sol, m->pi + rti_ox[k + 1] - rti_nx[0]);
+  }
+  /* violation of the linearised constraints: dynamics, general rows, boxes */
+  for (k = 0; k <= RTI_N; ++k) {
+    const int* o = rti_off[k];
+    const double* u = m->ux + rti_oux[k];
+    const double* x = u + rti_nu[k];
+    nx = rti_nx[k];
+    nu = rti_nu[k];
+    if (k < RTI_N) {
+      const double* next = m->ux + rti_oux[k + 1] + rti_nu[k + 1];
+      for (i = 0; i < rti_nx[k + 1]; ++i) {
+        v = data[o[O_BV] + i] - next[i];
+        for (j = 0; j < nx; ++j) v += data[o[O_A] + i + j * rti_nx[k + 1]] * x[j];
+        for (j = 0; j < nu; ++j) v += data[o[O_B] + i + j * rti_nx[k + 1]] * u[j];
+        v = fabs(v);
+        if (!(v <= violation)) violation = v; /* NaN propagates */
+      }
+    }
+    ng = rti_ng[k];
+    for (i = 0; i < ng; ++i) {
+      v = 0.0;
+      for (j = 0; j < nx; ++j) v += data[o[O_C] + i + j * ng] * x[j];
+      for (j = 0; j < nu; ++j) v += data[o[O_D] + i + j * ng] * u[j];
+      if (rti_lg_mask[rti_og[k] + i] != 0.0 && !(data[o[O_LG] + i] - v <= violation))
+        violation = data[o[O_LG] + i] - v;
+      if (rti_ug_mask[rti_og[k] + i] != 0.0 && !(v - data[o[O_UG] + i] <= violation))
+        violation = v - data[o[O_UG] + i];
+    }
+    nb = rti_nbu[k];
+    for (i = 0; i < nb; ++i) {
+      v = u[rti_idxbu[rti_obu[k] + i]];
+      if (rti_lbu_mask[rti_obu[k] + i] != 0.0 && !(data[o[O_LBU] + i] - v <= violation))
+        violation = data[o[O_LBU] + i] - v;
+      if (rti_ubu_mask[rti_obu[k] + i] != 0.0 && !(v - data[o[O_UBU] + i] <= violation))
+        violation = v - data[o[O_UBU] + i];
+    }
+    nb = rti_nbx[k];
+    for (i = 0; i < nb; ++i) {
+      double lo = k == 0 ? m->lbx0[i] : data[o[O_LBX] + i];
+      double hi = k == 0 ? m->lbx0[i] : data[o[O_UBX] + i];
+      v = x[rti_idxbx[rti_obx[k] + i]];
+      if (rti_lbx_mask[rti_obx[k] + i] != 0.0 && !(lo - v <= violation)) violation = lo - v;
+      if (rti_ubx_mask[rti_obx[k] + i] != 0.0 && !(v - hi <= violation)) violation = v - hi;
+    }
+  }
+  /* multipliers in CasADi's convention (lam > 0 at an upper bound), NLP order */
+  {
+    memset(lam_x, 0, sizeof(double) * RTI_NW);
+    memset(lam_g, 0, sizeof(double) * RTI_NG);
+    for (i = 0; i < RTI_NPI; ++i) lam_g[rti_dynrow[i]] = RTI_PI_SIGN * m->pi[i];
+    for (k = 0; k <= RTI_N; ++k) {
+      double* lam = m->lam + rti_olam[k];
+      int nbk = rti_nbu[k] + rti_nbx[k];
+      ng = rti_ng[k];
+      d_ocp_qp_sol_get_lam_lb(k, &m->sol, lam);
+      d_ocp_qp_sol_get_lam_ub(k, &m->sol, lam + nbk);
+      d_ocp_qp_sol_get_lam_lg(k, &m->sol, lam + 2 * nbk);
+      d_ocp_qp_sol_get_lam_ug(k, &m->sol, lam + 2 * nbk + ng);
+      for (i = 0; i < nbk; ++i) {
+        int target = rti_blam[rti_ob[k] + i];
+        double value = lam[nbk + i] - lam[i];
+        if (target >= 0) lam_x[target] = value;
+        else lam_g[-1 - target] = value;
+      }
+      for (i = 0; i < ng; ++i) lam_g[rti_genrow[rti_og[k] + i]] = lam[2 * nbk + ng + i] - lam[2 * nbk + i];
+    }
+  }
+  if (!isfinite(violation)) return INFINITY;
+  for (i = 0; i < RTI_NW; ++i)
+    if (!isfinite(m->d[i])) return INFINITY;
+  return violation;
+}
+
+/* Gauss-Newton iterations from w (updated in place).
+ *
+ * prepared: use the QP of uuv_rti_prepare (its state moved to p's), else linearise at w first.
+ * Stops after max_iter steps, at a step with |d|_inf <= tol, at a QP solution that violates
+ * the linearised constraints by more than qp_tol (not taken), or when budget seconds passed
+ * (checked before each further iteration).  info: [iterations, violation, last |d|_inf,
+ * stop (0 max_iter, 1 converged, 2 infeasible QP, 3 deadline, 4 evaluation failed), QP
+ * iterations of the last QP, HPIPM status, seconds linearising, seconds in QPs, seconds of
+ * the preparation used (0: none)]. */
+int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int max_iter, double tol,
+                    double qp_tol, double budget, double* lam_x, double* lam_g, double* info) {
+  rti_memory* m = (rti_memory*)memory;
+  double start = rti_now(), violation = INFINITY, norm = INFINITY, mark, t_lin = 0.0, t_qp = 0.0;
+  int iterations = 0, stop = 0, qp_iter = 0, i, status = 0;
+  double used_preparation = prepared && m->prepared ? m->prepare_time : 0.0;
+  if (!(prepared && m->prepared)) {
+    if (rti_evaluate(m, w, p)) { stop = 4; goto done; }
+    rti_load(m);
+    t_lin += rti_now() - start;
+    for (i = 0; i < RTI_NX0; ++i) m->x0[i] = p[rti_x0_param[i]];
+  } else {
+    rti_patch_state(m, p);
+  }
+  m->prepared = 0;
+  for (;;) {
+    mark = rti_now();
+    violation = rti_solve_qp(m, &qp_iter);
+    t_qp += rti_now() - mark;
+    d_ocp_qp_ipm_get_status(&m->ws, &status);
+    if (!(violation <= qp_tol)) { stop = 2; break; }
+    iterations++;
+    memcpy(lam_x, m->lam_x, sizeof(double) * RTI_NW);
+    memcpy(lam_g, m->lam_g, sizeof(double) * RTI_NG);
+    norm = 0.0;
+    for (i = 0; i < RTI_NW; ++i) {
+      w[i] += m->d[i];
+      if (fabs(m->d[i]) > norm) norm = fabs(m->d[i]);
+    }
+    if (norm <= tol) { stop = 1; break; }
+    if (iterations >= max_iter) { stop = 0; break; }
+    if (rti_now() - start >= budget) { stop = 3; break; }
+    mark = rti_now();
+    if (rti_evaluate(m, w, p)) { stop = 4; break; }
+    rti_load(m);
+    t_lin += rti_now() - mark;
+  }
+done:
+  info[0] = iterations;
+  info[1] = violation;
+  info[2] = norm;
+  info[3] = stop;
+  info[4] = qp_iter;
+  info[5] = status;
+  info[6] = t_lin;
+  info[7] = t_qp;
+  info[8] = used_preparation;
+  return 0;
+}

@@ -1,0 +1,757 @@
+"""The real-time iteration in C on HPIPM's OCP-QP API (``sqp-rti`` with ``qpsol="hpipm-ocp"``).
+
+The multiple-shooting NLP (:mod:`uuv_ocp.transcription.multiple_shooting`) is mapped onto
+HPIPM's stage-wise QP in the step ``d``: stage ``k`` has the state ``x_k = ΔX_k`` (the lifted
+state) and the input ``u_k`` = every other variable between ``X_k`` and ``X_{k+1}`` (the scaled
+control ``z_k`` and the slacks written at that stage, e.g. the soft NLP's terminal slacks at
+stage N−1, so the exact-penalty NLP is the same QP, L1 weight included).
+
+* dynamics: the gap ``X_{k+1} − F(X_k, u_k)`` linearised, ``x_{k+1} = A_k x_k + B_k u_k + b_k``
+  with ``A, B = −∂g/∂(X_k, u_k)`` and ``b = −g`` (checked: ``∂g/∂X_{k+1} = I``);
+* cost: ``Q, S, R`` the stage blocks of the Gauss–Newton Hessian ``2 s JᵣᵀJᵣ`` (+ the exact
+  Hessian of the non-least-squares terms), ``q, r`` the gradient (checked block diagonal);
+* boxes (``idxbx``/``idxbu``) only on variables with a finite bound, one-sided bounds masked
+  (no ±1e8 boxes); the initial-state rows ``X_0 − [x0; z_prev] = 0`` are the stage-0 box
+  ``lbx = ubx``, the only place the measured state enters, so feedback moves that box only;
+* every other constraint row (rate bounds, path, terminal) is a general constraint ``C, D`` of
+  the one stage whose variables it reads.
+
+The stage data are one CasADi Function ``data(w, p)`` generated as C, compiled with the
+hand-written step (``native/rti_hpipm.c``) into one library by
+:func:`uuv_ocp.native.compile.compile_functions` (content-addressed cache, checksums) and
+called through ``ctypes`` on preallocated numpy buffers.  A structure this mapping does not
+cover raises :class:`UnsupportedStructure` (the backend then keeps CasADi's ``conic`` path).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+import weakref
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from uuv_ocp.transcription.multiple_shooting import NlpData
+
+_TEMPLATE = Path(__file__).resolve().parents[1] / "native" / "rti_hpipm.c"
+#: HPIPM modes, in the order the C code maps them (``hpipm_mode``)
+HPIPM_MODES = ("speed_abs", "speed", "balance", "robust")
+#: options of the OCP-QP solver (``qpsol_options`` with ``qpsol="hpipm-ocp"``) and defaults;
+#: the tolerances are those CasADi's HPIPM interface uses (the ``"hpipm"`` path's)
+OCP_QP_DEFAULTS: dict[str, Any] = {
+    "mode": "speed",
+    "iter_max": 50,
+    "tol_stat": 1e-6,
+    "tol_eq": 1e-8,
+    "tol_ineq": 1e-8,
+    "tol_comp": 1e-8,
+    "warm_start": False,
+    "cond_horizon": 0,
+}
+#: converged mode: residuals 1e-10, as ``HPIPM_DEFAULTS`` of the ``"hpipm"`` path (with 1e-6 the
+#: converged point moved by ~1e-6 from IPOPT's optimum; see solvers/rti.py), in ``balance`` mode:
+#: ``speed`` stopped at its 50 iterations short of 1e-10 on the s2 QP (4e-5 off), balance took 12
+OCP_QP_CONVERGED: dict[str, Any] = {
+    "mode": "balance",
+    "tol_stat": 1e-10,
+    "tol_eq": 1e-10,
+    "tol_ineq": 1e-10,
+    "tol_comp": 1e-10,
+}
+#: stop codes of ``uuv_rti_iterate``
+STOP_MAX_ITER, STOP_CONVERGED, STOP_INFEASIBLE, STOP_DEADLINE, STOP_EVALUATION = range(5)
+
+
+class UnsupportedStructure(ValueError):
+    """The NLP does not have the stage structure HPIPM's OCP-QP needs (the message says where)."""
+
+
+def ocp_qp_options(options: dict[str, Any], converged: bool) -> dict[str, Any]:
+    """Check the HPIPM options: the defaults, the converged mode's tolerances, then ``options``.
+
+    Raises
+    ------
+    ValueError
+        An unknown key or a bad value; the message names ``options['qpsol_options'][key]``.
+    """
+    merged = {**OCP_QP_DEFAULTS, **(OCP_QP_CONVERGED if converged else {})}
+    for key, value in options.items():
+        name = f"options['qpsol_options'][{key!r}]"
+        if key not in OCP_QP_DEFAULTS:
+            raise ValueError(
+                f"{name} is not an option of qpsol='hpipm-ocp'; valid: {sorted(OCP_QP_DEFAULTS)}"
+            )
+        if key == "mode" and value not in HPIPM_MODES:
+            raise ValueError(f"{name} must be one of {HPIPM_MODES}, got {value!r}")
+        if key == "iter_max" and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+            raise ValueError(f"{name} must be an int >= 1, got {value!r}")
+        if key == "cond_horizon" and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+            raise ValueError(f"{name} must be an int >= 0 (0: no partial condensing), got {value!r}")
+        if key == "warm_start" and not isinstance(value, bool):
+            raise ValueError(f"{name} must be True or False, got {value!r}")
+        if key.startswith("tol_") and (
+            isinstance(value, bool) or not isinstance(value, int | float) or not value > 0
+        ):
+            raise ValueError(f"{name} must be a float > 0, got {value!r}")
+        merged[key] = value
+    return merged
+
+
+@dataclass(frozen=True)
+class OcpQpLayout:
+    """Where each NLP variable and constraint row sits in HPIPM's stage-wise QP.
+
+    Attributes hold per stage ``k = 0..N`` (dynamics: ``k < N``) the NLP indices in HPIPM's
+    order: ``xvar[k]`` (the lifted state), ``uvar[k]`` (control and slacks), ``dynrow[k]``,
+    ``genrow[k]``; the box positions within the stage (``idxbx``, ``idxbu``) with their NLP
+    variable (``bx_var``/``bu_var``; ``-1 − row`` for a stage-0 initial-state row) and which
+    sides are finite (masks); ``x0_box`` the box position of each measured-state entry.
+    """
+
+    xvar: tuple[np.ndarray, ...]
+    uvar: tuple[np.ndarray, ...]
+    dynrow: tuple[np.ndarray, ...]
+    genrow: tuple[np.ndarray, ...]
+    idxbx: tuple[np.ndarray, ...]
+    idxbu: tuple[np.ndarray, ...]
+    bx_target: tuple[np.ndarray, ...]
+    bu_target: tuple[np.ndarray, ...]
+    lbx_mask: tuple[np.ndarray, ...]
+    ubx_mask: tuple[np.ndarray, ...]
+    lbu_mask: tuple[np.ndarray, ...]
+    ubu_mask: tuple[np.ndarray, ...]
+    lg_mask: tuple[np.ndarray, ...]
+    ug_mask: tuple[np.ndarray, ...]
+    x0_box: np.ndarray
+
+    @property
+    def horizon(self) -> int:
+        """Number of stages N (HPIPM's stages are 0..N)."""
+        return len(self.xvar) - 1
+
+
+def ocp_qp_layout(data: NlpData, state_dim: int) -> OcpQpLayout:
+    """Map ``data`` onto HPIPM's OCP-QP (see the module doc) and check that it fits.
+
+    Raises
+    ------
+    UnsupportedStructure
+        Variables before ``X_0``, a dynamics row that is not ``X_{k+1} − F(X_k, u_k)``, a row
+        or a Hessian entry coupling two stages, or bounds on ``X_0`` besides the initial rows.
+    """
+    keys = data.variable_keys
+    if not keys or keys[0][0] != "X":
+        raise UnsupportedStructure("the NLP does not start with the lifted state X_0")
+    stage_of = np.empty(len(keys), dtype=int)
+    xvar: list[list[int]] = []
+    uvar: list[list[int]] = []
+    for i, (kind, stage, _) in enumerate(keys):
+        if kind == "X":
+            if stage == len(xvar):
+                xvar.append([])
+                uvar.append([])
+            elif stage != len(xvar) - 1:
+                raise UnsupportedStructure(f"lifted states out of order at variable {i}")
+            xvar[-1].append(i)
+        else:
+            uvar[-1].append(i)
+        stage_of[i] = len(xvar) - 1
+    n = len(xvar) - 1
+    w, g = data.nlp["x"], data.nlp["g"]
+    jacobian = ca.jacobian(g, w)
+    sparsity = jacobian.sparsity()
+    rows_of_column = sparsity.row()
+    colind = sparsity.colind()
+    columns_of_row: list[list[int]] = [[] for _ in range(g.numel())]
+    for column in range(w.numel()):
+        for entry in range(colind[column], colind[column + 1]):
+            columns_of_row[rows_of_column[entry]].append(column)
+    residual_jacobian = ca.jacobian(data.residual, w)
+    product = ca.mtimes(residual_jacobian.T, residual_jacobian).sparsity()
+    other_hessian, _ = ca.hessian(data.other_objective, w)
+    for structure in (product, other_hessian.sparsity()):
+        rows, columns = structure.get_triplet()
+        if np.any(stage_of[np.asarray(rows, dtype=int)] != stage_of[np.asarray(columns, dtype=int)]):
+            raise UnsupportedStructure("the cost Hessian couples two stages")
+    dynrow: list[list[int]] = [[] for _ in range(n)]
+    genrow: list[list[int]] = [[] for _ in range(n + 1)]
+    initial: dict[int, int] = {}  # position in X_0 -> row
+    initial_key: dict[int, int] = {}  # key index -> row
+    for row, (kind, stage, index) in enumerate(data.constraint_keys):
+        columns = columns_of_row[row]
+        if kind == "dynamics":
+            assert stage is not None
+            dynrow[stage].append(row)
+            allowed = set(xvar[stage]) | set(uvar[stage]) | set(xvar[stage + 1])
+            if not set(columns) <= allowed:
+                raise UnsupportedStructure(f"dynamics row {row} reads variables of other stages")
+            continue
+        if kind == "initial":
+            single = len(columns) == 1 and stage_of[columns[0]] == 0
+            if single and _constant(jacobian[row, columns[0]]) == 1.0:
+                if data.lbg[row] == data.ubg[row] == 0.0:
+                    initial[xvar[0].index(columns[0])] = row
+                    initial_key[index] = row
+                    continue
+            raise UnsupportedStructure(f"initial-state row {row} is not X_0[i] − x0_i = 0")
+        stages = {int(stage_of[c]) for c in columns}
+        if len(stages) > 1:
+            raise UnsupportedStructure(f"constraint row {row} ({kind}) couples stages {sorted(stages)}")
+        genrow[stages.pop() if stages else 0].append(row)
+    for k in range(n):
+        if len(dynrow[k]) != len(xvar[k + 1]):
+            raise UnsupportedStructure(
+                f"stage {k}: {len(dynrow[k])} dynamics rows for {len(xvar[k + 1])} states"
+            )
+        block = jacobian[dynrow[k], xvar[k + 1]]
+        if not block.is_constant() or not np.array_equal(np.array(ca.DM(block)), np.eye(len(dynrow[k]))):
+            raise UnsupportedStructure(f"stage {k}: the gap is not X_(k+1) − F(X_k, u_k)")
+    if any(i not in initial_key for i in range(state_dim)):
+        raise UnsupportedStructure("the initial-state rows do not fix the measured state")
+
+    def finite(values: np.ndarray) -> np.ndarray:
+        return np.isfinite(values).astype(float)
+
+    idxbx, idxbu, bx_target, bu_target = [], [], [], []
+    lbx_mask, ubx_mask, lbu_mask, ubu_mask, lg_mask, ug_mask = [], [], [], [], [], []
+    for k in range(n + 1):
+        x_bounded = [j for j, v in enumerate(xvar[k]) if np.isfinite(data.lbx[v]) or np.isfinite(data.ubx[v])]
+        if k == 0:
+            if x_bounded:
+                raise UnsupportedStructure("X_0 has bounds besides the initial-state rows")
+            positions = sorted(initial)
+            idxbx.append(np.array(positions, dtype=np.int32))
+            bx_target.append(np.array([-1 - initial[j] for j in positions], dtype=np.int32))
+            lbx_mask.append(np.ones(len(positions)))
+            ubx_mask.append(np.ones(len(positions)))
+        else:
+            idxbx.append(np.array(x_bounded, dtype=np.int32))
+            variables = np.array([xvar[k][j] for j in x_bounded], dtype=int)
+            bx_target.append(variables.astype(np.int32))
+            lbx_mask.append(finite(data.lbx[variables]))
+            ubx_mask.append(finite(data.ubx[variables]))
+        u_bounded = [j for j, v in enumerate(uvar[k]) if np.isfinite(data.lbx[v]) or np.isfinite(data.ubx[v])]
+        variables = np.array([uvar[k][j] for j in u_bounded], dtype=int)
+        idxbu.append(np.array(u_bounded, dtype=np.int32))
+        bu_target.append(variables.astype(np.int32))
+        lbu_mask.append(finite(data.lbx[variables]))
+        ubu_mask.append(finite(data.ubx[variables]))
+        general = np.array(genrow[k], dtype=int)
+        lg_mask.append(finite(data.lbg[general]))
+        ug_mask.append(finite(data.ubg[general]))
+    positions = sorted(initial)
+    x0_box = np.array(
+        [positions.index(xvar[0].index(columns_of_row[initial_key[i]][0])) for i in range(state_dim)]
+    )
+
+    def as_int(group: list[list[int]]) -> tuple[np.ndarray, ...]:
+        return tuple(np.array(v, dtype=np.int32) for v in group)
+
+    return OcpQpLayout(
+        xvar=as_int(xvar),
+        uvar=as_int(uvar),
+        dynrow=as_int(dynrow),
+        genrow=as_int(genrow),
+        idxbx=tuple(idxbx),
+        idxbu=tuple(idxbu),
+        bx_target=tuple(bx_target),
+        bu_target=tuple(bu_target),
+        lbx_mask=tuple(lbx_mask),
+        ubx_mask=tuple(ubx_mask),
+        lbu_mask=tuple(lbu_mask),
+        ubu_mask=tuple(ubu_mask),
+        lg_mask=tuple(lg_mask),
+        ug_mask=tuple(ug_mask),
+        x0_box=x0_box.astype(np.int32),
+    )
+
+
+def _constant(value: ca.SX) -> float:
+    return float(ca.DM(value)) if value.is_constant() else math.nan
+
+
+BLOCKS = ("A", "B", "b", "Q", "S", "R", "q", "r", "C", "D", "lg", "ug", "lbx", "ubx", "lbu", "ubu")
+
+
+def stage_data_function(
+    data: NlpData,
+    layout: OcpQpLayout,
+    objective_scale: float,
+    still_water_slice: slice | None,
+    name: str,
+) -> tuple[ca.Function, np.ndarray]:
+    """``name(w, p) -> data``: HPIPM's stage data at ``w`` stacked, and their offsets.
+
+    The offsets array has one row per stage and one column per entry of :data:`BLOCKS`
+    (column-major matrices, as HPIPM's setters read them).  Infinite bound sides are written
+    as 0 (masked in HPIPM).  With ``still_water_slice`` the current parameters are zero *after*
+    differentiation (the same layout, CasADi simplifies the vanished terms).
+    """
+    w, p = data.nlp["x"], data.nlp["p"]
+    g = data.nlp["g"]
+    jacobian = ca.jacobian(g, w)
+    residual_jacobian = ca.jacobian(data.residual, w)
+    hessian = (2.0 * objective_scale) * ca.mtimes(residual_jacobian.T, residual_jacobian)
+    other_hessian, _ = ca.hessian(data.other_objective, w)
+    if other_hessian.nnz():  # expression costs keep their exact curvature (as NlpSolver)
+        hessian += objective_scale * other_hessian
+    gradient = objective_scale * ca.gradient(data.nlp["f"], w)
+    n = layout.horizon
+    pieces: list[ca.SX] = []
+    offsets = np.zeros((n + 1, len(BLOCKS)), dtype=np.int64)
+    position = 0
+
+    def add(block: str, k: int, value: ca.SX) -> None:
+        nonlocal position
+        offsets[k, BLOCKS.index(block)] = position
+        flat = ca.vec(ca.densify(value))
+        pieces.append(flat)
+        position += flat.numel()
+
+    def bounds(values: np.ndarray, shift: ca.SX) -> ca.SX:
+        finite = np.isfinite(values)
+        return (
+            ca.vertcat(*[(float(v) - shift[i]) if finite[i] else ca.SX(0.0) for i, v in enumerate(values)])
+            if values.size
+            else ca.SX(0, 1)
+        )
+
+    for k in range(n + 1):
+        x, u = [int(i) for i in layout.xvar[k]], [int(i) for i in layout.uvar[k]]
+        if k < n:
+            rows = [int(i) for i in layout.dynrow[k]]
+            add("A", k, -jacobian[rows, x])
+            add("B", k, -jacobian[rows, u] if u else ca.SX(len(rows), 0))
+            add("b", k, -g[rows])
+        add("Q", k, hessian[x, x])
+        add("S", k, hessian[u, x] if u else ca.SX(0, len(x)))
+        add("R", k, hessian[u, u] if u else ca.SX(0, 0))
+        add("q", k, gradient[x])
+        add("r", k, gradient[u] if u else ca.SX(0, 1))
+        rows = [int(i) for i in layout.genrow[k]]
+        if rows:
+            add("C", k, jacobian[rows, x])
+            add("D", k, jacobian[rows, u] if u else ca.SX(len(rows), 0))
+            add("lg", k, bounds(data.lbg[rows], g[rows]))
+            add("ug", k, bounds(data.ubg[rows], g[rows]))
+        bx = [int(i) for i in layout.bx_target[k]]
+        if k == 0 and bx:
+            # the initial-state rows X_0 − x0 = 0: the box lbx = ubx = −g (feedback moves it)
+            add("lbx", k, -g[[-1 - i for i in bx]])
+            add("ubx", k, -g[[-1 - i for i in bx]])
+        elif bx:
+            add("lbx", k, bounds(data.lbx[bx], w[bx]))
+            add("ubx", k, bounds(data.ubx[bx], w[bx]))
+        bu = [int(i) for i in layout.bu_target[k]]
+        if bu:
+            add("lbu", k, bounds(data.lbx[bu], w[bu]))
+            add("ubu", k, bounds(data.ubx[bu], w[bu]))
+    output = ca.vertcat(*pieces)
+    if still_water_slice is not None:
+        current = p[still_water_slice]
+        output = ca.substitute(output, current, ca.DM.zeros(current.numel()))
+    return ca.Function(name, [w, p], [output], ["w", "p"], ["data"]), offsets
+
+
+def _c_array(ctype: str, name: str, values: Any) -> str:
+    values = list(values)
+    body = ", ".join(repr(float(v)) if ctype == "double" else str(int(v)) for v in values) or "0"
+    return f"static const {ctype} {name}[{max(len(values), 1)}] = {{{body}}};\n"
+
+
+def c_source(
+    layout: OcpQpLayout,
+    function: ca.Function,
+    offsets: np.ndarray,
+    x0_param: np.ndarray,
+    nw: int,
+    ng: int,
+    pi_sign: float = -1.0,
+    prefix: str = "",
+) -> str:
+    """Return the hand-written step with this NLP's sizes and index maps (appended to generated C).
+
+    ``pi_sign``: HPIPM's dynamics multiplier ``π_k`` is minus CasADi's ``λ`` of the gap row
+    ``X_{k+1} − F`` (checked by stationarity of the QP's Lagrangian in tests/test_rti.py).
+    """
+    n = layout.horizon
+    nx = [len(v) for v in layout.xvar]
+    nu = [len(v) for v in layout.uvar]
+    nbx = [len(v) for v in layout.idxbx]
+    nbu = [len(v) for v in layout.idxbu]
+    ngs = [len(v) for v in layout.genrow]
+
+    def starts(sizes: list[int]) -> list[int]:
+        return list(np.concatenate([[0], np.cumsum(sizes)])[:-1]) if sizes else [0]
+
+    lines = [
+        f"#define RTI_N {n}\n",
+        f"#define RTI_NW {nw}\n",
+        f"#define RTI_NG {ng}\n",
+        f"#define RTI_NDATA {max(int(function.nnz_out(0)), 1)}\n",
+        f"#define RTI_NX0 {len(x0_param)}\n",
+        f"#define RTI_NBX0 {max(nbx[0], 1)}\n",
+        f"#define RTI_NUX {sum(nx) + sum(nu)}\n",
+        f"#define RTI_NLAM {max(2 * (sum(nbx) + sum(nbu) + sum(ngs)), 1)}\n",
+        f"#define RTI_NPI {sum(nx[1:])}\n",
+        f"#define RTI_PI_SIGN ({pi_sign!r})\n",
+        f"#define RTI_DATA {prefix}{function.name()}\n",
+        f"#define RTI_SZ_ARG {max(int(function.sz_arg()), 2)}\n",
+        f"#define RTI_SZ_RES {max(int(function.sz_res()), 1)}\n",
+        f"#define RTI_SZ_IW {max(int(function.sz_iw()), 1)}\n",
+        f"#define RTI_SZ_W {max(int(function.sz_w()), 1)}\n",
+        _c_array("int", "rti_nx", nx),
+        _c_array("int", "rti_nu", nu),
+        _c_array("int", "rti_nbx", nbx),
+        _c_array("int", "rti_nbu", nbu),
+        _c_array("int", "rti_ng", ngs),
+        _c_array("int", "rti_ox", starts(nx)),
+        _c_array("int", "rti_ou", starts(nu)),
+        _c_array("int", "rti_oux", starts([a + b for a, b in zip(nx, nu, strict=True)])),
+        _c_array("int", "rti_obx", starts(nbx)),
+        _c_array("int", "rti_obu", starts(nbu)),
+        _c_array("int", "rti_ob", starts([a + b for a, b in zip(nbx, nbu, strict=True)])),
+        _c_array("int", "rti_og", starts(ngs)),
+        _c_array("int", "rti_olam", starts([2 * (a + b + c) for a, b, c in zip(nbx, nbu, ngs, strict=True)])),
+        _c_array("int", "rti_xvar", np.concatenate(layout.xvar)),
+        _c_array("int", "rti_uvar", np.concatenate(layout.uvar)),
+        _c_array("int", "rti_dynrow", np.concatenate(layout.dynrow) if n else []),
+        _c_array("int", "rti_genrow", np.concatenate(layout.genrow)),
+        _c_array("int", "rti_idxbx", np.concatenate(layout.idxbx)),
+        _c_array("int", "rti_idxbu", np.concatenate(layout.idxbu)),
+        # HPIPM's box order: the nbu input boxes, then the nbx state boxes
+        _c_array(
+            "int",
+            "rti_blam",
+            np.concatenate(
+                [np.concatenate([u, x]) for u, x in zip(layout.bu_target, layout.bx_target, strict=True)]
+            ),
+        ),
+        _c_array("double", "rti_lbx_mask", np.concatenate(layout.lbx_mask)),
+        _c_array("double", "rti_ubx_mask", np.concatenate(layout.ubx_mask)),
+        _c_array("double", "rti_lbu_mask", np.concatenate(layout.lbu_mask)),
+        _c_array("double", "rti_ubu_mask", np.concatenate(layout.ubu_mask)),
+        _c_array("double", "rti_lg_mask", np.concatenate(layout.lg_mask)),
+        _c_array("double", "rti_ug_mask", np.concatenate(layout.ug_mask)),
+        _c_array("int", "rti_x0_param", x0_param),
+        _c_array("int", "rti_x0_box", layout.x0_box),
+        f"static const int rti_off[{n + 1}][{len(BLOCKS)}] = {{"
+        + ", ".join("{" + ", ".join(str(int(v)) for v in row) + "}" for row in offsets)
+        + "};\n",
+    ]
+    source = _TEMPLATE.read_text()
+    if prefix:
+        source = source.replace("uuv_rti_", f"{prefix}uuv_rti_")
+    return (
+        "/* ---- real-time iteration on HPIPM's OCP-QP (uuv_ocp.solvers.rti_ocp) ---- */\n"
+        + "".join(lines)
+        + source
+    )
+
+
+#: declarations of the exported C entry points (``{prefix}`` substituted), for the header
+C_HEADER = """
+void* uuv_rti_create(const double* options);
+void uuv_rti_free(void* memory);
+int uuv_rti_prepare(void* memory, const double* w, const double* p);
+int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int max_iter, double tol,
+                    double qp_tol, double budget, double* lam_x, double* lam_g, double* info);
+"""
+
+
+class OcpQpStep:
+    """One compiled RTI step of one NLP variant, with its HPIPM memory (allocated once).
+
+    Parameters
+    ----------
+    library : pathlib.Path
+        The checked library holding ``uuv_rti_*`` (see :func:`build_step`).
+    sizes : tuple of int
+        ``(nw, ng, np)``: NLP variables, constraint rows, parameters.
+    options : dict
+        Checked HPIPM options (:func:`ocp_qp_options`).
+    prefix : str
+        Prefix of the C symbols.
+    """
+
+    def __init__(
+        self, library: Path, sizes: tuple[int, int, int], options: dict[str, Any], prefix: str = ""
+    ) -> None:
+        from uuv_ocp.native.compile import verify_library
+
+        self._args = (library, sizes, dict(options), prefix)
+        self.library = ctypes.CDLL(str(verify_library(library)))
+        nw, ng, np_ = sizes
+        create = getattr(self.library, f"{prefix}uuv_rti_create")
+        create.restype = ctypes.c_void_p
+        create.argtypes = [ctypes.c_void_p]
+        free = getattr(self.library, f"{prefix}uuv_rti_free")
+        free.restype = None
+        free.argtypes = [ctypes.c_void_p]
+        self._prepare = getattr(self.library, f"{prefix}uuv_rti_prepare")
+        self._prepare.restype = ctypes.c_int
+        self._prepare.argtypes = [ctypes.c_void_p] * 3
+        self._iterate = getattr(self.library, f"{prefix}uuv_rti_iterate")
+        self._iterate.restype = ctypes.c_int
+        self._iterate.argtypes = [
+            *[ctypes.c_void_p] * 3,
+            ctypes.c_int,
+            ctypes.c_int,
+            ctypes.c_double,
+            ctypes.c_double,
+            ctypes.c_double,
+            *[ctypes.c_void_p] * 3,
+        ]
+        settings = np.array(_options_array(options), dtype=float)
+        memory = create(settings.ctypes.data)
+        if not memory:
+            raise MemoryError("uuv_rti_create: out of memory")
+        self.memory = ctypes.c_void_p(memory)
+        weakref.finalize(self, free, self.memory)
+        # preallocated buffers: a call copies its inputs in and hands C their addresses
+        self.w, self.p = np.zeros(nw), np.zeros(np_)
+        self.lam_x, self.lam_g, self.info = np.zeros(nw), np.zeros(ng), np.zeros(9)
+        self._pointers = [a.ctypes.data for a in (self.w, self.p, self.lam_x, self.lam_g, self.info)]
+
+    def __reduce__(self) -> tuple[type[OcpQpStep], tuple[Any, ...]]:
+        """Rebuild from the library (a copy gets HPIPM memory of its own)."""
+        return (OcpQpStep, self._args)
+
+    def prepare(self, w: np.ndarray, p: np.ndarray) -> None:
+        """Linearise at ``w`` for the instance ``p`` and keep the QP (the state of ``p`` a guess)."""
+        self.w[:] = w
+        self.p[:] = p
+        if self._prepare(self.memory, self._pointers[0], self._pointers[1]):
+            raise RuntimeError("uuv_rti_prepare: the linearisation failed")
+
+    def iterate(
+        self,
+        w: np.ndarray,
+        p: np.ndarray,
+        lam_x: np.ndarray,
+        lam_g: np.ndarray,
+        prepared: bool,
+        max_iter: int,
+        tol: float,
+        qp_tolerance: float,
+        budget: float,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Gauss–Newton steps from ``w`` (see ``uuv_rti_iterate``); copies of w, λx, λg, info.
+
+        ``info``: iterations, linearised violation, last ``‖d‖∞``, stop code (``STOP_*``), QP
+        iterations of the last QP, HPIPM's status, seconds linearising and in QPs, seconds of the
+        preparation used (0: none), all on the C step's own clock.
+        ``budget`` in seconds (``inf``: none).
+        """
+        self.w[:] = w
+        self.p[:] = p
+        self.lam_x[:] = lam_x
+        self.lam_g[:] = lam_g
+        a = self._pointers
+        self._iterate(
+            self.memory, a[0], a[1], int(prepared), max_iter, tol, qp_tolerance, budget, a[2], a[3], a[4]
+        )
+        return self.w.copy(), self.lam_x.copy(), self.lam_g.copy(), self.info.copy()
+
+
+def build_step(
+    data: NlpData,
+    state_dim: int,
+    x0_param: np.ndarray,
+    objective_scale: float,
+    still_water_slice: slice | None,
+    options: dict[str, Any],
+    directory: Path,
+    name: str,
+) -> OcpQpStep:
+    """Generate, compile (cached) and load the C step of one NLP variant.
+
+    Raises
+    ------
+    UnsupportedStructure
+        The NLP does not fit HPIPM's OCP-QP (see :func:`ocp_qp_layout`).
+    uuv_ocp.native.compile.CodegenError
+        No compiler, a failed build, or a library that does not match its checksum.
+    """
+    from uuv_ocp.codegen import hpipm_link_flags
+    from uuv_ocp.native.compile import compile_functions
+
+    layout = ocp_qp_layout(data, state_dim)
+    function, offsets = stage_data_function(data, layout, objective_scale, still_water_slice, f"{name}_data")
+    source = c_source(layout, function, offsets, x0_param, data.lbx.size, data.lbg.size)
+    library = compile_functions(
+        [function],
+        directory,
+        name=name,
+        extra_source=source,
+        extra_header=C_HEADER,
+        link=hpipm_link_flags(),
+        flags=("-O1", "-fPIC", "-shared"),
+    )
+    assert library.path is not None
+    return OcpQpStep(library.path, (data.lbx.size, data.lbg.size, int(data.nlp["p"].numel())), options)
+
+
+def _options_array(options: dict[str, Any]) -> list[float]:
+    """HPIPM options in the order ``uuv_rti_create`` reads them."""
+    return [
+        float(HPIPM_MODES.index(options["mode"])),
+        float(options["iter_max"]),
+        float(options["tol_stat"]),
+        float(options["tol_eq"]),
+        float(options["tol_ineq"]),
+        float(options["tol_comp"]),
+        float(options["warm_start"]),
+        float(options["cond_horizon"]),
+    ]
+
+
+def _sparsity(name: str, rows: int) -> str:
+    """CasADi's compressed-column sparsity of a dense column of ``rows`` entries."""
+    entries = [rows, 1, 0, rows, *range(rows)]
+    return f"static const casadi_int {name}[{len(entries)}] = {{{', '.join(map(str, entries))}}};\n"
+
+
+#: declarations of the generated ``nmpc_step`` (CasADi's external-function ABI), for the header
+NMPC_HEADER = """
+int nmpc_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem);
+int nmpc_step_work(casadi_int* sz_arg, casadi_int* sz_res, casadi_int* sz_iw, casadi_int* sz_w);
+casadi_int nmpc_step_n_in(void);
+casadi_int nmpc_step_n_out(void);
+const casadi_int* nmpc_step_sparsity_in(casadi_int i);
+const casadi_int* nmpc_step_sparsity_out(casadi_int i);
+const char* nmpc_step_name_in(casadi_int i);
+const char* nmpc_step_name_out(casadi_int i);
+"""
+
+
+def nmpc_step_source(
+    data: NlpData,
+    state_dim: int,
+    x0_param: np.ndarray,
+    u_prev_param: np.ndarray,
+    control_scale: np.ndarray,
+    control_centre: np.ndarray,
+    objective_scale: float,
+    options: dict[str, Any],
+    prefix: str = "",
+) -> tuple[str, ca.Function, str]:
+    """C of ``nmpc_step(x0, u_prev, p, w) -> (u, w_next, violation)`` on HPIPM's OCP-QP.
+
+    One real-time iteration of ``data`` (the step always taken, its linearised violation
+    returned, ``inf`` if not finite), ``u`` the first control in physical units
+    (``z · control_scale + control_centre``), ``w_next`` the new primal shifted one stage.
+    The function follows CasADi's external-function ABI (loadable with ``casadi.external``,
+    callable like CasADi-generated code); its HPIPM memory is allocated at the first call and
+    kept (one instance per process: not reentrant).
+
+    Returns
+    -------
+    source : str
+        The C to append to the generated code of the stage-data function.
+    function : casadi.Function
+        The stage-data function (``nmpc_step_data``) the source calls, to be generated.
+    header : str
+        Declarations of the exported functions.
+    """
+    layout = ocp_qp_layout(data, state_dim)
+    function, offsets = stage_data_function(data, layout, objective_scale, None, "nmpc_step_data")
+    nw, ng, np_ = data.lbx.size, data.lbg.size, int(data.nlp["p"].numel())
+    nu = len(u_prev_param)
+    step = c_source(layout, function, offsets, x0_param, nw, ng, prefix=prefix)
+    control = np.asarray(data.control_index[0], dtype=int)
+    wrapper = (
+        "/* ---- nmpc_step(x0, u_prev, p, w) -> (u, w_next, violation): CasADi's external ABI ---- */\n"
+        f"#define NMPC_NX {state_dim}\n#define NMPC_NU {nu}\n#define NMPC_NP {np_}\n"
+        + _c_array("int", "nmpc_x0", x0_param)
+        + _c_array("int", "nmpc_u_prev", u_prev_param)
+        + _c_array("int", "nmpc_control", control)
+        + _c_array("int", "nmpc_shift", data.primal_shift)
+        + _c_array("double", "nmpc_scale", control_scale)
+        + _c_array("double", "nmpc_centre", control_centre)
+        + _c_array("double", "nmpc_options", _options_array(options))
+        + _sparsity("nmpc_s_x0", state_dim)
+        + _sparsity("nmpc_s_u", nu)
+        + _sparsity("nmpc_s_p", np_)
+        + _sparsity("nmpc_s_w", nw)
+        + _sparsity("nmpc_s_1", 1)
+        + _NMPC_WRAPPER
+    )
+    header = C_HEADER + NMPC_HEADER
+    if prefix:
+        wrapper = wrapper.replace("uuv_rti_", f"{prefix}uuv_rti_").replace("nmpc_step", f"{prefix}nmpc_step")
+        header = header.replace("uuv_rti_", f"{prefix}uuv_rti_").replace("nmpc_step", f"{prefix}nmpc_step")
+    return step + wrapper, function, header
+
+
+_NMPC_WRAPPER = r"""
+static void* nmpc_memory = 0;
+static double nmpc_p[NMPC_NP > 0 ? NMPC_NP : 1], nmpc_w[RTI_NW], nmpc_lam_x[RTI_NW];
+static double nmpc_lam_g[RTI_NG > 0 ? RTI_NG : 1], nmpc_info[9];
+
+int nmpc_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
+  int i;
+  (void)iw; (void)w; (void)mem;
+  if (!nmpc_memory) {
+    nmpc_memory = uuv_rti_create(nmpc_options); /* HPIPM's memory: once per process */
+    if (!nmpc_memory) return 1;
+  }
+  for (i = 0; i < NMPC_NP; ++i) nmpc_p[i] = arg[2] ? arg[2][i] : 0.0;
+  for (i = 0; i < NMPC_NX; ++i) nmpc_p[nmpc_x0[i]] = arg[0] ? arg[0][i] : 0.0;
+  for (i = 0; i < NMPC_NU; ++i) nmpc_p[nmpc_u_prev[i]] = arg[1] ? arg[1][i] : 0.0;
+  for (i = 0; i < RTI_NW; ++i) nmpc_w[i] = arg[3] ? arg[3][i] : 0.0;
+  /* one step, always taken (qp_tol = inf): the caller judges it by the violation */
+  uuv_rti_iterate(nmpc_memory, nmpc_w, nmpc_p, 0, 1, 0.0, INFINITY, INFINITY, nmpc_lam_x, nmpc_lam_g,
+                  nmpc_info);
+  if (res[0])
+    for (i = 0; i < NMPC_NU; ++i) res[0][i] = nmpc_w[nmpc_control[i]] * nmpc_scale[i] + nmpc_centre[i];
+  if (res[1])
+    for (i = 0; i < RTI_NW; ++i) res[1][i] = nmpc_w[nmpc_shift[i]];
+  if (res[2]) res[2][0] = isfinite(nmpc_info[1]) ? nmpc_info[1] : INFINITY;
+  return 0;
+}
+
+int nmpc_step_work(casadi_int* sz_arg, casadi_int* sz_res, casadi_int* sz_iw, casadi_int* sz_w) {
+  if (sz_arg) *sz_arg = 4;
+  if (sz_res) *sz_res = 3;
+  if (sz_iw) *sz_iw = 0;
+  if (sz_w) *sz_w = 0;
+  return 0;
+}
+
+casadi_int nmpc_step_n_in(void) { return 4; }
+casadi_int nmpc_step_n_out(void) { return 3; }
+
+const casadi_int* nmpc_step_sparsity_in(casadi_int i) {
+  switch (i) {
+    case 0: return nmpc_s_x0;
+    case 1: return nmpc_s_u;
+    case 2: return nmpc_s_p;
+    case 3: return nmpc_s_w;
+    default: return 0;
+  }
+}
+
+const casadi_int* nmpc_step_sparsity_out(casadi_int i) {
+  switch (i) {
+    case 0: return nmpc_s_u;
+    case 1: return nmpc_s_w;
+    case 2: return nmpc_s_1;
+    default: return 0;
+  }
+}
+
+const char* nmpc_step_name_in(casadi_int i) {
+  static const char* names[4] = {"x0", "u_prev", "p", "w"};
+  return i >= 0 && i < 4 ? names[i] : 0;
+}
+
+const char* nmpc_step_name_out(casadi_int i) {
+  static const char* names[3] = {"u", "w_next", "violation"};
+  return i >= 0 && i < 3 ? names[i] : 0;
+}
+"""

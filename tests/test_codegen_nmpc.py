@@ -28,6 +28,8 @@ def test_generated_nmpc_closed_loop_equals_python(tmp_path):
     generated = codegen.generate_c(problem, tmp_path / "build", functions=("model_step", "nmpc_step"))
     # the build's own check: 100 random states against the Python backend
     assert generated.max_error["nmpc_step"] <= 1e-9
+    # and against the same step on CasADi's conic HPIPM interface (a second QP solver)
+    assert generated.max_error["nmpc_step_conic"] <= 1e-4
     _, backend = nmpc_step_function(problem)
     variant = "soft" if "soft" in backend.variants else "hard"
     spec = problem.spec()

@@ -17,6 +17,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
+from uuv_ocp.obstacles import closest_approach
+
 ROOT = Path(__file__).resolve().parents[1]
 TUTORIALS = ROOT / "docs" / "tutorials"
 TESTED = {
@@ -178,11 +180,16 @@ def test_obstacles(tmp_path):
     with_zones, blind = out.runs.values()
     # recomputed here: the distance of the plant at every integration step to each enlarged zone
     assert with_zones.substep_states.shape[0] == 10 * with_zones.controls.shape[0] + 1
+    surfaces = []
     for obstacle in module.OBSTACLES:
         centres = obstacle.centre_at(with_zones.substep_t)
         gap = np.linalg.norm(with_zones.substep_states[:, :2] - centres, axis=1)
         assert np.all(gap >= obstacle.radius + obstacle.margin - 1e-3), obstacle.name
-        assert np.all(gap >= obstacle.radius), obstacle.name  # no collision with the zone itself
+        surfaces.append(np.min(gap) - obstacle.radius)
+    # the library's distance to the zones themselves (no margin) is the one computed here
+    assert closest_approach(module.OBSTACLES, with_zones, margin=False) == pytest.approx(
+        min(surfaces), abs=1e-12
+    )
     assert out.clearance[next(iter(out.runs))] >= -1e-3
     assert out.clearance[list(out.runs)[1]] < -0.5  # without them the line runs through the rock
     assert with_zones.failures == 0 and blind.failures == 0

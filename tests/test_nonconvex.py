@@ -218,6 +218,38 @@ def test_the_kept_warm_start_is_the_second_start_so_the_hybrid_never_loses_to_th
         uo.get_solver(ocp, "pso+fatrop", {"candidates": 2, "keep_warm_start": "yes"})
 
 
+def test_without_the_kept_warm_start_the_hybrid_loses_where_the_guess_is_in_the_better_class(two_homotopy):
+    """A guess above the disc (the better side) whose controls push down; a tiny swarm goes below.
+
+    Plain fatrop from the guess reaches the better side; the swarm's only plan (candidates
+    farther than 1e9 apart: one) leads fatrop below.  Keeping the warm start recovers the
+    plain solver's optimum, the swarm's plans alone do not.
+    """
+    ocp = two_homotopy
+    controls = np.zeros((HORIZON, 2))
+    controls[:, 1] = -1.0
+    guess = Iterate(scaled_controls=controls, states=line_guess(2.5).states)
+    plain = uo.solve(ocp, "fatrop", x0=X0, parameters=data(), warm_start=guess)
+    assert plain.success and plain.states[nearest_node(plain.states), 1] > 0  # above: the better side
+    options = {
+        "candidates": 2,
+        "candidate_distance": 1e9,
+        "swarm": {"population": 4, "iterations": 1, "seed": 0},
+    }
+    alone = uo.solve(
+        ocp,
+        "igwo+fatrop",
+        x0=X0,
+        parameters=data(),
+        warm_start=guess,
+        options={**options, "keep_warm_start": False},
+    )
+    kept = uo.solve(ocp, "igwo+fatrop", x0=X0, parameters=data(), warm_start=guess, options=options)
+    assert alone.states[nearest_node(alone.states), 1] < 0 and alone.cost > 1.05 * plain.cost
+    assert [row["start"] for row in kept.details["candidates"]] == ["swarm 0", "warm start"]
+    assert kept.cost == pytest.approx(plain.cost, rel=1e-9)
+
+
 # ------------------------------------------------------------------ terminal strategy
 def test_hybrid_keeps_the_sticky_terminal_strategy_across_steps():
     """A goal out of reach: the hybrid's exact stage is relaxed, the next steps start soft."""

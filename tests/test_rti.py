@@ -337,3 +337,9 @@ def test_automatic_qp_path(problem, monkeypatch):
     monkeypatch.delenv("CC")
     needs_compiler("hpipm-ocp")
     assert RtiSolver(problem).qpsol == "hpipm-ocp"
+    # options written for CasADi's conic interface keep that path instead of failing
+    conic = RtiSolver(problem, {"qpsol_options": {"hpipm": {"res_g_max": 1e-9}}})
+    assert conic.qpsol == "hpipm" and conic.qpsol_options == {"hpipm": {"res_g_max": 1e-9}}
+    assert RtiSolver(problem, {"qpsol_options": {"mode": "speed_abs"}}).qpsol == "hpipm-ocp"
+    with pytest.raises(ValueError, match="qpsol_options"):
+        RtiSolver(problem, {"qpsol": "hpipm-ocp", "qpsol_options": {"hpipm": {}}})

@@ -172,8 +172,10 @@ def closest_approach(obstacles: Sequence[Obstacle], run: Any, *, margin: bool = 
     instants.  ``margin=True``: to the enlarged obstacles (< 0: the safety margin was
     entered); ``margin=False``: to the obstacles themselves (< 0: a collision).
     """
-    if not obstacles:
-        raise ValueError("obstacles must contain at least one uuv_ocp.Obstacle")
+    if not obstacles or not all(isinstance(o, Obstacle) for o in obstacles):
+        raise ValueError(f"obstacles must be a non-empty list of uuv_ocp.Obstacle, got {obstacles!r}")
+    if not all(hasattr(run, name) for name in ("t", "states", "substep_t", "substep_states")):
+        raise ValueError(f"run must be a uuv_ocp.ClosedLoopResult, got {type(run).__name__}")
     sampled = run.substep_t.size > 0
     times = run.substep_t if sampled else run.t
     states = run.substep_states if sampled else run.states

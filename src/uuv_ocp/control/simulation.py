@@ -92,7 +92,7 @@ class ClosedLoopResult:
         ``simulate(..., record_substeps=True)``; empty otherwise.
     substep_states : numpy.ndarray, shape (n·s+1, nx), optional
         Plant states at ``substep_t``: what the vehicle did between control instants (collision
-        checks, :func:`uuv_ocp.obstacles.collisions`); ``substep_states[::s]`` equals ``states``.
+        checks, :func:`uuv_ocp.obstacles.closest_approach`); ``substep_states[::s]`` equals ``states``.
     """
 
     t: np.ndarray
@@ -412,7 +412,10 @@ def simulate(
         fault=fault,
         **(
             {
-                "substep_t": t0 + dt / plant_substeps * np.arange(n * plant_substeps + 1),
+                # built from the control instants, so that substep_t[::s] is t exactly
+                "substep_t": np.append(
+                    (times[:n, None] + dt / plant_substeps * np.arange(plant_substeps)).ravel(), times[n]
+                ),
                 "substep_states": substeps[: n * plant_substeps + 1],
             }
             if record_substeps

@@ -20,6 +20,8 @@ With ``keep_warm_start=True`` (default) the second of the k starts is the caller
 itself — the shifted plan in a closed loop, the straight-line guess on an obstacle field, or
 the exact solver's own cold guess when there is none — in place of the swarm's k-th plan: the
 hybrid then never returns a worse plan than the plain exact solver would from the same guess
+(without a ``deadline``, which may stop the second start; and for exact solvers that keep no
+state between calls)
 (measured on the obstacle fields of ``benchmarks/bench_nonconvex.py``, the straight line is the
 best homotopy class in about half the instances and the swarms' plans often miss it).
 ``details["candidates"]`` lists each start's origin (``"swarm 0"``, ``"warm start"``,

@@ -73,6 +73,7 @@ from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import AUTO, Option, one_of, option_defaults, option_names, revise
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.solvers.rti_ocp import (
+    OCP_QP_DEFAULTS,
     STOP_CONVERGED,
     STOP_DEADLINE,
     STOP_EVALUATION,
@@ -121,8 +122,10 @@ RTI_OPTIONS: tuple[Option, ...] = (
         AUTO,
         "dict",
         "options of the QP solver (`hpipm-ocp`: `mode`, `iter_max`, `tol_stat`, `tol_eq`, "
-        "`tol_ineq`, `tol_comp`, `warm_start`)",
-        meaning="`HPIPM_DEFAULTS` (residuals 1e-10) for hpipm in converged mode, else `{}`",
+        "`tol_ineq`, `tol_comp`, `warm_start`, `cond_horizon`; with `qpsol='auto'`, options "
+        "with other keys, e.g. CasADi's `{'hpipm': {...}}`, select `hpipm`)",
+        meaning="`HPIPM_DEFAULTS` (residuals 1e-10) for hpipm in converged mode, `OCP_QP_CONVERGED` "
+        "(balance mode, 1e-10) for hpipm-ocp in converged mode, else `{}`",
     ),
     Option(
         "qp_tolerance",
@@ -274,10 +277,14 @@ class RtiSolver(NlpSolver):
         qpsol = check.choice(
             "options['qpsol']", options.pop("qpsol", default["qpsol"]), ("auto", *QP_SOLVERS)
         )
-        self.qpsol = _automatic_qpsol() if qpsol == "auto" else qpsol
-        tight = self.qpsol == "hpipm" and self.mode == "converged"
         qpsol_options = options.pop("qpsol_options", default["qpsol_options"])
         given_qp_options = qpsol_options
+        # options written for CasADi's conic interface (e.g. {"hpipm": {...}}) keep that path
+        conic_options = isinstance(given_qp_options, dict) and not set(given_qp_options) <= set(
+            OCP_QP_DEFAULTS
+        )
+        self.qpsol = ("hpipm" if conic_options else _automatic_qpsol()) if qpsol == "auto" else qpsol
+        tight = self.qpsol == "hpipm" and self.mode == "converged"
         if qpsol_options is AUTO:
             qpsol_options = HPIPM_DEFAULTS if tight else {}
         if not isinstance(qpsol_options, dict):
@@ -347,7 +354,11 @@ class RtiSolver(NlpSolver):
 
         ``None`` when this backend does not use it, or when it cannot be built (no compiler, a
         failed build, an NLP without the stage structure): the backend then warns once and
-        keeps CasADi's ``hpipm`` path for the rest of its life.
+        keeps CasADi's ``hpipm`` path for the rest of its life.  The first build of the hard or
+        the soft NLP builds both (tens of seconds the first time, then from the disk cache), so
+        that the switch to the soft NLP after an unreachable terminal equality never stalls a
+        running loop; the escalated penalties and a change of the still-water flag build on
+        first use.
         """
         if self.qpsol != "hpipm-ocp":
             return None
@@ -358,17 +369,23 @@ class RtiSolver(NlpSolver):
             from uuv_ocp.solvers.rti_ocp import UnsupportedStructure, build_step
 
             spec = self.problem.spec()
+            together = [variant] + [
+                v
+                for v in ("hard", "soft")
+                if v != variant and v in self.variants and variant in ("hard", "soft")
+            ]
             try:
-                self._ocp_steps[key] = build_step(
-                    self.variants[variant],
-                    spec.state_dim,
-                    np.arange(spec.layout.size)[self._x0],
-                    self.objective_scale,
-                    self._still_water_slice if still_water else None,
-                    self.ocp_qp_options,
-                    default_cache_directory(),
-                    f"uuv_ocp_rti_{variant.replace('.', '_')}{'_still_water' if still_water else ''}",
-                )
+                for name in together:
+                    self._ocp_steps[(name, still_water)] = build_step(
+                        self.variants[name],
+                        spec.state_dim,
+                        np.arange(spec.layout.size)[self._x0],
+                        self.objective_scale,
+                        self._still_water_slice if still_water else None,
+                        self.ocp_qp_options,
+                        default_cache_directory(),
+                        f"uuv_ocp_rti_{name.replace('.', '_')}{'_still_water' if still_water else ''}",
+                    )
             except (CodegenError, OSError, UnsupportedStructure) as error:
                 warnings.warn(
                     f"sqp-rti: qpsol='hpipm-ocp' unavailable ({type(error).__name__}: {error}); "

@@ -160,3 +160,14 @@ def test_plausible_array_accepts_exactly_finite_values_within_the_bound():
         check.plausible_array("w", np.zeros(6), (2, 3))
     with pytest.raises(ValueError, match="real array"):
         check.plausible_array("w", ["a", None], (2,))
+
+
+def test_check_previous_still_checks_the_default_zero_against_the_box():
+    ocp = uo.Ocp(horizon=3, dt=0.1)
+    x = ocp.state("x")
+    u = ocp.control("u", lower=1.0, upper=2.0)  # zero, the default u_prev, lies outside
+    ocp.set_der(x, u)
+    ocp.add_stage_cost(ca.sumsqr(x))
+    with pytest.raises(ValueError, match="u_prev must lie inside the control bounds"):
+        ocp.check_previous(None)
+    assert np.array_equal(ocp.check_previous([1.5]), [1.5])

@@ -479,8 +479,7 @@ class Ocp(Transcribed):
     def check_previous(self, u_prev: object | None) -> np.ndarray:
         """Validate the last applied control (zero if ``None``): finite, inside the box."""
         spec = self.spec()
-        if u_prev is None:
-            return np.zeros(spec.control_size)
+        u_prev = np.zeros(spec.control_size) if u_prev is None else u_prev
         # the closed loop's hot path: one comparison with the slack box (its infinite ends made
         # the largest float, so that NaN and ±inf fail it) accepts a good value; anything else
         # takes the checks below for the error

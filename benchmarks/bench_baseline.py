@@ -4,11 +4,17 @@ The redesign rebuilt ``TrackingProblem`` on the general ``Ocp``.  This benchmark
 not cost speed or change answers: it checks the baseline commit out into a temporary git
 worktree and runs the same closed loop (s2, RexROV, N = 20, 300 steps from rest, warm-started)
 on the baseline and on this tree in turn (old, new, old, new: the VM's drift hits both), in
-separate processes, and prints the median ms per step and the new/old ratio.  With
-``--optima`` it also solves s1..s10 from perturbed states with ipopt, fatrop and sqp on both
-trees and prints the largest relative cost difference.
+separate processes, and prints the median ms per step and the new/old ratio, in wall time
+(the criterion) and in the process's CPU time (``time.process_time``: what the step itself
+costs, without the time the process waits for a core on a loaded machine), and the ratio of
+each round.  With ``--optima`` it also solves s1..s10 from perturbed states with ipopt, fatrop
+and sqp on both trees and prints the largest relative cost difference.
 
-Run: ``python -m benchmarks.bench_baseline [--rev d6ebbd6] [--optima]`` (part of ``make bench``).
+``--instructions`` also counts the instructions of each step under valgrind's callgrind (the
+same loop; needs ``valgrind``): a measure the machine's load does not move, for a loaded VM.
+
+Run: ``python -m benchmarks.bench_baseline [--rev d6ebbd6] [--rounds 3] [--instructions]
+[--optima]`` (part of ``make bench``).
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import subprocess
 import sys
 import tempfile
@@ -37,15 +44,31 @@ controller = uo.NMPC(problem, solver)
 plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
 controller.step(ref.initial_state(0.0), 0.0); controller.step(ref.evaluate([3.0])[0], 3.0)
 controller.reset()
-state, control, times = ref.initial_state(0.0), np.zeros(3), []
+state, control, times, cpu = ref.initial_state(0.0), np.zeros(3), [], []
 for k in range(300):
-    start = time.perf_counter()
+    start, start_cpu = time.perf_counter(), time.process_time()
     out = controller.step(state, k * 0.1, control, np.zeros(2))
     times.append(time.perf_counter() - start)
+    cpu.append(time.process_time() - start_cpu)
     control = out.control
     state = np.array(plant(state, control, np.zeros(2))).ravel()
-print(json.dumps({"median_ms": 1e3 * float(np.median(times)), "final": state.tolist()}))
+print(json.dumps({"median_ms": 1e3 * float(np.median(times)), "cpu_ms": 1e3 * float(np.median(cpu)),
+                  "final": state.tolist()}))
 """
+
+# The same loop for --instructions, run under valgrind's callgrind: instrumentation starts after
+# the build and the warm-up, and each step runs inside itertools.starmap so that callgrind can
+# count the instructions of that call alone (--toggle-collect) and dump them per call.
+_COUNTED = _LOOP.replace(
+    "state, control, times, cpu =",
+    "import itertools, os, subprocess\n"
+    "subprocess.run(['callgrind_control', '-i', 'on', str(os.getpid())], capture_output=True)\n"
+    "time.sleep(1.0)\n"
+    "state, control, times, cpu =",
+).replace(
+    "out = controller.step(state, k * 0.1, control, np.zeros(2))",
+    "(out,) = itertools.starmap(controller.step, [(state, k * 0.1, control, np.zeros(2))])",
+)
 
 # ipopt to 1e-10 with bound_relax_factor = 0 (ipopt otherwise relaxes every bound by 1e-8
 # relative, so a saturated control may leave the box by ~2e-5 N): the reference optimum.
@@ -137,6 +160,45 @@ def _optima(trees: dict[str, Path]) -> None:
     )
 
 
+def _instructions(source: Path, solver: str) -> np.ndarray:
+    """Instructions of each closed-loop step (callgrind), independent of the machine's load."""
+    with tempfile.TemporaryDirectory() as folder:
+        out = Path(folder) / "steps.out"
+        command = [
+            "valgrind",
+            "--tool=callgrind",
+            f"--callgrind-out-file={out}",
+            "--instr-atstart=no",
+            "--collect-atstart=no",
+            "--toggle-collect=starmap_next",
+            "--dump-after=starmap_next",
+            sys.executable,
+            "-c",
+            _COUNTED,
+            solver,
+        ]
+        env = dict(os.environ, PYTHONPATH=str(source))
+        subprocess.run(command, env=env, capture_output=True, text=True, check=True, cwd=folder)
+        counts = {}
+        for dump in Path(folder).glob("steps.out.*"):
+            total = re.search(r"^(?:summary|totals):\s*(\d+)", dump.read_text(), re.MULTILINE)
+            counts[int(dump.suffix[1:])] = int(total.group(1)) if total else 0
+    ordered = [counts[k] for k in sorted(counts)]
+    # starmap_next runs twice per step (the step, then the end of the iterator): add the pairs
+    return np.array([ordered[i] + ordered[i + 1] for i in range(0, len(ordered) - 1, 2)], dtype=float)
+
+
+def _instruction_table(trees: dict[str, Path]) -> None:
+    print("\nInstructions per step (callgrind, median over the 300 steps; load-independent)")
+    print(f"{'solver':8s} {'old M':>8s} {'new M':>8s} {'new/old':>8s}   {'sum new/old':>11s}")
+    for solver in ("fatrop", "sqp", "ipopt"):
+        old, new = (_instructions(source, solver) for source in trees.values())
+        print(
+            f"{solver:8s} {np.median(old) / 1e6:8.2f} {np.median(new) / 1e6:8.2f} "
+            f"{np.median(new) / np.median(old):8.3f}   {new.sum() / old.sum():11.3f}"
+        )
+
+
 def _run(source: Path, script: str, *args: str) -> dict:
     env = dict(os.environ, PYTHONPATH=str(source))
     out = subprocess.run(
@@ -151,6 +213,11 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--rev", default=BASELINE, help="baseline git revision")
     parser.add_argument("--optima", action="store_true", help="also compare optima on s1..s10")
     parser.add_argument("--rounds", type=int, default=2)
+    parser.add_argument(
+        "--instructions",
+        action="store_true",
+        help="also count instructions per step under valgrind's callgrind (slow: ~10 min per solver)",
+    )
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory() as folder:
         tree = Path(folder) / "baseline"
@@ -166,14 +233,27 @@ def main(argv: list[str] | None = None) -> None:
         try:
             trees = {"old": tree / "src", "new": ROOT / "src"}
             print(f"\nTracking problem, this tree vs {args.rev} (s2, N = 20, 300 steps, median ms per step)")
-            print(f"{'solver':8s} {'old ms':>8s} {'new ms':>8s} {'new/old':>8s}")
+            print(
+                f"{'solver':8s} {'old ms':>8s} {'new ms':>8s} {'new/old':>8s}   "
+                f"{'old cpu':>8s} {'new cpu':>8s} {'new/old':>8s}   per-round new/old (wall)"
+            )
             for solver in ("fatrop", "sqp", "ipopt"):
                 medians: dict[str, list[float]] = {"old": [], "new": []}
+                cpu: dict[str, list[float]] = {"old": [], "new": []}
                 for _ in range(args.rounds):
                     for label, source in trees.items():
-                        medians[label].append(_run(source, _LOOP, solver)["median_ms"])
+                        row = _run(source, _LOOP, solver)
+                        medians[label].append(row["median_ms"])
+                        cpu[label].append(row["cpu_ms"])
                 old, new = float(np.median(medians["old"])), float(np.median(medians["new"]))
-                print(f"{solver:8s} {old:8.2f} {new:8.2f} {new / old:8.3f}")
+                old_cpu, new_cpu = float(np.median(cpu["old"])), float(np.median(cpu["new"]))
+                rounds = " ".join(f"{b / a:.3f}" for a, b in zip(medians["old"], medians["new"], strict=True))
+                print(
+                    f"{solver:8s} {old:8.2f} {new:8.2f} {new / old:8.3f}   "
+                    f"{old_cpu:8.2f} {new_cpu:8.2f} {new_cpu / old_cpu:8.3f}   {rounds}"
+                )
+            if args.instructions:
+                _instruction_table(trees)
             if args.optima:
                 _optima(trees)
         finally:

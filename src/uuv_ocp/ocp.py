@@ -480,6 +480,25 @@ class Ocp(Transcribed):
         """Validate the last applied control (zero if ``None``): finite, inside the box."""
         spec = self.spec()
         u_prev = np.zeros(spec.control_size) if u_prev is None else u_prev
+        # the closed loop's hot path: one comparison with the slack box (its infinite ends made
+        # the largest float, so that NaN and ±inf fail it) accepts a good value; anything else
+        # takes the checks below for the error
+        bounds = self._store.get("previous_bounds")
+        if bounds is None:
+            slack = 1e-6 * np.maximum(1.0, np.abs(spec.lower)), 1e-6 * np.maximum(1.0, np.abs(spec.upper))
+            largest = np.finfo(float).max
+            bounds = (
+                np.maximum(spec.lower - slack[0], -largest),
+                np.minimum(spec.upper + slack[1], largest),
+            )
+            self._store["previous_bounds"] = bounds
+        try:
+            value = np.array(u_prev, dtype=float)
+        except (TypeError, ValueError):
+            pass
+        else:
+            if value.shape == (spec.control_size,) and ((value >= bounds[0]) & (value <= bounds[1])).all():
+                return value
         u_prev = check.finite_array("u_prev", u_prev, (spec.control_size,))
         # solvers hold the box to their tolerance (IPOPT: ~1e-8 relative); more is an error
         slack = 1e-6 * np.maximum(1.0, np.abs(spec.lower)), 1e-6 * np.maximum(1.0, np.abs(spec.upper))

@@ -449,29 +449,44 @@ class TrackingProblem(Transcribed):
         """
         x0 = self.check_state(x0)
         t0 = self.check_time(t0)
-        _, _, nc = vehicle_dimensions(self.vehicle)
+        layout, nc, heading_index = self._parameter_layout()
         n = self.horizon
-        if current is None:
-            current = np.zeros((n + 1, nc))
-        try:
-            current = np.array(current, dtype=float)
-        except (TypeError, ValueError) as error:
-            raise ValueError(
-                f"current must be numbers of shape ({nc},) or ({n}, {nc}), got {current!r}"
-            ) from error
-        if current.shape == (nc,):
-            current = np.tile(current, (n + 1, 1))
-        elif current.shape == (n, nc):
-            current = np.vstack([current, current[-1:]])
-        current = check.plausible_array("current", current, (n + 1, nc))
-        window = self.reference_window(t0, heading=x0[self._heading_index])
-        values = {"reference": window, "current": current}
-        times = t0 + self.dt * np.arange(n + 1)
-        for i, obstacle in enumerate(self.obstacles):
-            if obstacle.is_moving:
-                values[f"obstacle{i}"] = obstacle.centre_at(times)
-        # every part is checked here (the window is finite by construction): pack directly
-        return self.ocp.pack(x0, self.ocp.check_previous(u_prev), values)
+        if current is not None:
+            try:
+                current = np.array(current, dtype=float)
+            except (TypeError, ValueError) as error:
+                raise ValueError(
+                    f"current must be numbers of shape ({nc},) or ({n}, {nc}), got {current!r}"
+                ) from error
+            if current.shape == (nc,):
+                current = np.tile(current, (n + 1, 1))
+            elif current.shape == (n, nc):
+                current = np.vstack([current, current[-1:]])
+            current = check.plausible_array("current", current, (n + 1, nc))
+        window = self.reference_window(t0, heading=x0[heading_index])
+        u_prev = self.ocp.check_previous(u_prev)
+        # every part is checked above (the window is finite by construction): written straight
+        # into p at the places of Ocp.pack (tests/test_tracking.py checks p against
+        # Ocp.parameters, the general validated path, on random instances)
+        p = np.empty(layout.size)
+        p[layout.x0] = x0
+        p[layout.u_prev] = u_prev
+        p[layout.entries["reference"][0]] = window.ravel()
+        p[layout.entries["current"][0]] = 0.0 if current is None else current.ravel()
+        if self.obstacles:
+            times = t0 + self.dt * np.arange(n + 1)
+            for i, obstacle in enumerate(self.obstacles):
+                if obstacle.is_moving:
+                    p[layout.entries[f"obstacle{i}"][0]] = np.ravel(obstacle.centre_at(times))
+        return p
+
+    def _parameter_layout(self) -> tuple[Any, int, int]:
+        """Return the layout of ``p``, the current's size and the heading's column (cached)."""
+        cached = self._store.get("parameter_layout")
+        if cached is None:
+            cached = (self.spec().layout, vehicle_dimensions(self.vehicle)[2], self._heading_index)
+            self._store["parameter_layout"] = cached
+        return cached
 
     def parameter_parts(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Numeric ``p`` -> (x0 (nx,), reference (N+1, nx), u_prev (nu,), current (N, nc))."""

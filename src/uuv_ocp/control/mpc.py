@@ -203,7 +203,7 @@ class NMPC:
         applied control hold them exactly, so the plant never sees a bound violated.
         """
         spec = self.problem.spec()
-        lower, upper = spec.lower.copy(), spec.upper.copy()
+        lower, upper = spec.lower, spec.upper  # not written to: np.maximum/minimum/clip make new arrays
         if u_prev is not None:
             step = spec.max_rate * spec.dt
             previous = np.asarray(u_prev, dtype=float)

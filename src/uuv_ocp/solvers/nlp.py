@@ -323,6 +323,7 @@ class NlpSolver:
                     self.variants[name] = _with_slack_curvature(self.variants[name], self.slack_curvature)
         self._solvers: dict[tuple[str, bool | str, bool], BufferedFunction] = {}
         self._maps: dict[tuple[str, str, str], tuple[np.ndarray, np.ndarray]] = {}
+        self._control_box: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._clock = _DeadlineClock()
         self._deadline_callbacks: list[_DeadlineCallback] = []  # kept alive for their nlpsols
         self._still_water_slice = problem.still_water_slice
@@ -495,10 +496,9 @@ class NlpSolver:
 
     def _initial_point(self, variant: str, p: np.ndarray, warm_start: Iterate | None) -> tuple:
         problem = self.problem
-        scaled_prev = problem.previous_scaled(p)
         if warm_start is None:
             states, scaled = problem.initial_guess(p)
-            return self.compose_primal(variant, states, scaled, scaled_prev), None, None
+            return self.compose_primal(variant, states, scaled, problem.previous_scaled(p)), None, None
         if warm_start.primal is not None and warm_start.variant in self.variants:
             if warm_start.variant == variant:
                 return warm_start.primal, warm_start.lam_g, warm_start.lam_x
@@ -508,6 +508,7 @@ class NlpSolver:
                 _transfer(warm_start.lam_g, g_map),
                 _transfer(warm_start.lam_x, x_map),
             )
+        scaled_prev = problem.previous_scaled(p)
         primal = self.compose_primal(variant, warm_start.states, warm_start.scaled_controls, scaled_prev)
         return primal, None, None
 
@@ -626,7 +627,8 @@ class NlpSolver:
         elapsed = time.perf_counter() - start
         result = self._result(p, final, attempts, relaxed, elapsed)
         if limit is None or elapsed <= limit:
-            return dataclasses.replace(result, details={**result.details, "deadline_hit": False})
+            result.details["deadline_hit"] = False  # the result's own fresh dict: no copy per step
+            return result
         # not ready in time: a failure, whatever the last attempt reached (see module doc)
         reason = f"{skipped} further attempt(s) not started" if skipped else "no attempt skipped"
         iterate = result.iterate
@@ -658,9 +660,13 @@ class NlpSolver:
         primal = final["primal"]
         # interior-point plugins relax bounds by ~1e-8 (IPOPT's bound_relax_factor): the plan
         # returned holds the box exactly, so the applied control never leaves it
-        scaled = np.clip(
-            primal[data.control_index], data.lbx[data.control_index], data.ubx[data.control_index]
-        )
+        box = self._control_box.get(final["variant"])
+        if box is None:  # the variant's control bounds, gathered once
+            box = self._control_box[final["variant"]] = (
+                data.lbx[data.control_index],
+                data.ubx[data.control_index],
+            )
+        scaled = np.clip(primal[data.control_index], *box)
         states = primal[data.state_index]
         cost, violation = score_parameters(problem, scaled.ravel(), p)
         status = final["status"]

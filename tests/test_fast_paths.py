@@ -1,0 +1,173 @@
+"""The closed loop's fast paths give the numbers of the general paths they stand in for.
+
+Each fast path of ``NMPC.step`` (the parameter vector written straight into ``p``, one-comparison
+input checks) is checked here against an independent, general path: ``Ocp.parameters`` (every
+part validated and packed by name) and the checks' own definitions written out in numpy.
+"""
+
+import math
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import uuv_ocp as uo
+from uuv_ocp import _validation as check
+from uuv_ocp.model import Vehicle6DOF
+
+
+def _planar():
+    return uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1)
+
+
+def _spatial():
+    reference = uo.Reference.from_xyz(
+        lambda t: 0.3 * t, lambda t: ca.sin(0.2 * t), lambda t: 1.0 + 0.5 * ca.sin(0.1 * t), name="dive"
+    )
+    return uo.TrackingProblem(Vehicle6DOF.bluerov2_heavy(), reference, horizon=12, dt=0.1)
+
+
+def _with_moving_obstacle():
+    reference = uo.Reference.from_xy(lambda t: 0.5 * t, lambda t: 0 * t, name="line", t_end=30.0)
+    crossing = uo.Obstacle.moving(lambda t: (3.0 + 0 * t, -2.1 + 0.3 * t), 0.3, margin=0.1)
+    fixed = uo.Obstacle.circle((2.8, 1.0), 0.4, margin=0.1)
+    return uo.TrackingProblem(
+        uo.Vehicle.rexrov(), reference, terminal="cost", obstacles=[fixed, crossing], horizon=10
+    )
+
+
+def _general_path(problem, x0, t0, u_prev, current):
+    """``p`` through ``Ocp.parameters``: every part by name, validated and packed by the Ocp."""
+    spec = problem.spec()
+    n, heading = problem.horizon, 2 if spec.state_dim == 6 else 5
+    nc = spec.layout.entries["current"][1]
+    if current is None:
+        full = np.zeros((n + 1, nc))
+    else:
+        current = np.asarray(current, dtype=float)
+        full = {
+            (nc,): lambda: np.tile(current, (n + 1, 1)),
+            (n, nc): lambda: np.vstack([current, current[-1:]]),
+            (n + 1, nc): lambda: current,
+        }[current.shape]()
+    values = {"reference": problem.reference_window(t0, heading=x0[heading]), "current": full}
+    times = t0 + problem.dt * np.arange(n + 1)
+    for i, obstacle in enumerate(problem.obstacles):
+        if obstacle.is_moving:
+            values[f"obstacle{i}"] = obstacle.centre_at(times)
+    return problem.ocp.parameters(x0, values, u_prev)
+
+
+@pytest.mark.parametrize("make", [_planar, _spatial, _with_moving_obstacle])
+def test_tracking_parameters_equal_the_general_ocp_path_on_random_instances(make):
+    problem = make()
+    spec = problem.spec()
+    nx, n = spec.state_dim, problem.horizon
+    nc = spec.layout.entries["current"][1]
+    heading = 2 if nx == 6 else 5
+    reference = problem.reference
+    rng = np.random.default_rng(7)
+    for trial in range(40):
+        on_grid = trial % 2 == 0
+        latest = min(problem.latest_start(), 60.0)
+        grid = problem.dt * int(rng.integers(0, int(latest / problem.dt)))
+        t0 = grid if on_grid else rng.uniform(0.0, latest)
+        x0 = reference.evaluate([t0])[0] + rng.normal(scale=0.3, size=nx)
+        x0[heading] += 2 * math.pi * int(rng.integers(-3, 4))  # the window follows the vehicle's branch
+        u_prev = None if trial % 5 == 0 else rng.uniform(spec.lower, spec.upper)
+        current = [
+            None,
+            rng.normal(scale=0.2, size=nc),
+            rng.normal(scale=0.2, size=(n, nc)),
+            rng.normal(scale=0.2, size=(n + 1, nc)),
+        ][trial % 4]
+        p = problem.parameters(x0, t0, u_prev, current)
+        expected = _general_path(problem, x0, t0, u_prev, current)
+        assert p.shape == expected.shape
+        assert np.array_equal(p, expected), (trial, np.flatnonzero(p != expected))
+        assert not np.shares_memory(p, problem.parameters(x0, t0, u_prev, current))  # a fresh p each call
+
+
+def test_tracking_parameters_still_reject_bad_parts_by_name():
+    problem = _planar()
+    x0, t0 = problem.reference.evaluate([2.0])[0], 2.0
+    bad = {
+        "x0": dict(x0=np.r_[x0[:5], np.nan]),
+        "u_prev": dict(u_prev=[np.inf, 0.0, 0.0]),
+        "current": dict(current=[0.1, 2e9]),
+    }
+    for name, change in bad.items():
+        arguments = {"x0": x0, "t0": t0, **change}
+        with pytest.raises(ValueError, match=name):
+            problem.parameters(**arguments)
+
+
+def _previous_accepted(lower, upper, value):
+    """``check_previous``'s definition: finite, inside the box widened by 1e-6 relative (>= 1e-6)."""
+    slack_low, slack_high = 1e-6 * np.maximum(1.0, np.abs(lower)), 1e-6 * np.maximum(1.0, np.abs(upper))
+    with np.errstate(invalid="ignore"):
+        inside = np.all(value >= lower - slack_low) and np.all(value <= upper + slack_high)
+    return bool(np.all(np.isfinite(value)) and inside)
+
+
+def test_check_previous_accepts_exactly_what_its_definition_accepts():
+    ocp = uo.Ocp(horizon=3, dt=0.1)
+    x = ocp.state("x", 3)
+    u = ocp.control("u", 3, lower=[-2.0, -math.inf, -0.5], upper=[2.0, 1.0, math.inf])
+    ocp.set_der(x, u)
+    ocp.add_stage_cost(ca.sumsqr(x))
+    spec = ocp.spec()
+    edges = [
+        -2.0 - 2e-6,
+        -2.0 - 2.1e-6,
+        2.0 + 2e-6,
+        2.0 + 2.1e-6,
+        1.0 + 1e-6,
+        1.0 + 1.1e-6,
+        -0.5 - 1e-6,
+        -0.5 - 1.1e-6,
+        -1e300,
+        1e300,
+        0.0,
+        np.nan,
+        np.inf,
+        -np.inf,
+    ]
+    rng = np.random.default_rng(3)
+    for _ in range(400):
+        value = rng.choice(edges, size=3)
+        accepted = _previous_accepted(spec.lower, spec.upper, value)
+        if accepted:
+            assert np.array_equal(ocp.check_previous(value), value)
+        else:
+            with pytest.raises(ValueError, match="u_prev"):
+                ocp.check_previous(value)
+
+
+def test_plausible_array_accepts_exactly_finite_values_within_the_bound():
+    bound = check.PLAUSIBLE_MAGNITUDE
+    values = [0.0, -bound, bound, np.nextafter(bound, np.inf), -np.nextafter(bound, np.inf), np.nan, np.inf]
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        value = rng.choice(values, size=(2, 3))
+        if np.all(np.isfinite(value)) and np.all(np.abs(value) <= bound):
+            result = check.plausible_array("w", value.tolist(), (2, 3))
+            assert np.array_equal(result, value) and result.dtype == float
+        else:
+            with pytest.raises(ValueError, match="w must"):
+                check.plausible_array("w", value, (2, 3))
+    with pytest.raises(ValueError, match="shape"):
+        check.plausible_array("w", np.zeros(6), (2, 3))
+    with pytest.raises(ValueError, match="real array"):
+        check.plausible_array("w", ["a", None], (2,))
+
+
+def test_check_previous_still_checks_the_default_zero_against_the_box():
+    ocp = uo.Ocp(horizon=3, dt=0.1)
+    x = ocp.state("x")
+    u = ocp.control("u", lower=1.0, upper=2.0)  # zero, the default u_prev, lies outside
+    ocp.set_der(x, u)
+    ocp.add_stage_cost(ca.sumsqr(x))
+    with pytest.raises(ValueError, match="u_prev must lie inside the control bounds"):
+        ocp.check_previous(None)
+    assert np.array_equal(ocp.check_previous([1.5]), [1.5])

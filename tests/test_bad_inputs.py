@@ -11,6 +11,7 @@ one, and that a reference evaluates to finite states on its window.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import re
 import warnings
@@ -620,6 +621,16 @@ def test_vehicle_rejects_every_invalid_field_and_names_it(case):
     name, fields = case
     with pytest.raises(ValueError, match=rf"^{name} must"):
         uo.Vehicle(**fields)
+
+
+@pytest.mark.parametrize("text", ["1", b"1", "2.5"])
+def test_a_vector_field_with_text_in_it_is_rejected(text):
+    """Numpy reads the text "1" as 1.0; a vehicle field must not (found by the property above)."""
+    vehicle = uo.Vehicle.rexrov()
+    with pytest.raises(ValueError, match=r"^max_thrust_rate must be 3 real numbers"):
+        dataclasses.replace(vehicle, max_thrust_rate=(text, 1.0, 1.0))
+    with pytest.raises(ValueError, match=r"^added_mass must be 3 real numbers"):
+        dataclasses.replace(vehicle, added_mass=text)
 
 
 weight_vectors = st.lists(valid_nonnegative, min_size=1, max_size=12).map(tuple)

@@ -87,6 +87,11 @@ def vector(
     nonnegative: bool = False,
 ) -> tuple[float, ...]:
     """Return ``value`` as a tuple of ``length`` finite floats, checking the sign if asked."""
+    # numpy would read the text "1" as the number 1.0: text is no number here
+    if isinstance(value, str | bytes) or (
+        isinstance(value, list | tuple) and any(isinstance(v, str | bytes) for v in value)
+    ):
+        raise ValueError(f"{name} must be {length} real numbers, got {shown(value)}")
     try:
         array = np.asarray(value, dtype=float)
     except (TypeError, ValueError) as error:

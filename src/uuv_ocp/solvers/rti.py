@@ -572,22 +572,19 @@ class RtiSolver(NlpSolver):
                 break
         else:
             status = "max_iter" if converge else f"rti ({iterations} iteration(s))"
-        success = feasible and (converged or not converge)
-        if feasible and not converge and not converged:
-            status = f"rti ({iterations} iteration(s), last step {step_norm:.3g})"
-        return {
-            "variant": variant,
-            "robust": robust,
-            "still_water": still_water,
-            "primal": primal,
-            "lam_g": lam_g,
-            "lam_x": lam_x,
-            "success": success,
-            "status": status,
-            "iterations": iterations,
-            "evaluations": iterations,
-            "plugin_time": time.perf_counter() - start,
-        }
+        return _attempt_record(
+            variant,
+            robust,
+            still_water,
+            primal,
+            lam_g,
+            lam_x,
+            (feasible, converged, converge),
+            status,
+            iterations,
+            step_norm,
+            time.perf_counter() - start,
+        )
 
     def _attempt_in_c(
         self,
@@ -625,22 +622,56 @@ class RtiSolver(NlpSolver):
             status = "converged"
         else:
             status = "max_iter" if converge else f"rti ({iterations} iteration(s), last step {step_norm:.3g})"
-        if feasible and not converge and not converged:
-            status = f"rti ({iterations} iteration(s), last step {step_norm:.3g})"
-        return {
-            "variant": variant,
-            "robust": False,
-            "still_water": still_water,
-            "primal": primal,
-            "lam_g": lam_g / scale,
-            "lam_x": lam_x / scale,
-            "success": feasible and (converged or not converge),
-            "status": status,
-            "iterations": iterations,
-            "evaluations": iterations,
-            "plugin_time": plugin_time,
-            "qp_iterations": int(info[4]),
-        }
+        record = _attempt_record(
+            variant,
+            False,
+            still_water,
+            primal,
+            lam_g / scale,
+            lam_x / scale,
+            (feasible, converged, converge),
+            status,
+            iterations,
+            step_norm,
+            plugin_time,
+        )
+        return {**record, "qp_iterations": int(info[4])}
+
+
+def _attempt_record(
+    variant: str,
+    robust: bool | str,
+    still_water: bool,
+    primal: np.ndarray,
+    lam_g: np.ndarray,
+    lam_x: np.ndarray,
+    outcome: tuple[bool, bool, bool],
+    status: str,
+    iterations: int,
+    step_norm: float,
+    plugin_time: float,
+) -> dict[str, Any]:
+    """One attempt in :class:`NlpSolver`'s record format, for both QP paths.
+
+    ``outcome = (feasible, converged, converge)``: success is a feasible QP step that converged
+    when asked to; a feasible, unconverged RTI step's status names its last step size.
+    """
+    feasible, converged, converge = outcome
+    if feasible and not converge and not converged:
+        status = f"rti ({iterations} iteration(s), last step {step_norm:.3g})"
+    return {
+        "variant": variant,
+        "robust": robust,
+        "still_water": still_water,
+        "primal": primal,
+        "lam_g": lam_g,
+        "lam_x": lam_x,
+        "success": feasible and (converged or not converge),
+        "status": status,
+        "iterations": iterations,
+        "evaluations": iterations,
+        "plugin_time": plugin_time,
+    }
 
 
 def _automatic_qpsol() -> str:

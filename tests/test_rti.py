@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 import signal
 import threading
@@ -15,6 +16,7 @@ from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
 from uuv_ocp.solvers import REGISTRY, get_solver
 from uuv_ocp.solvers.result import Iterate
 from uuv_ocp.solvers.rti import RtiSolver
+from uuv_ocp.solvers.rti_ocp import ocp_qp_options
 
 TIGHT_HPIPM = {"hpipm": {f"res_{k}_max": 1e-12 for k in "gbdm"}}
 #: HPIPM's OCP-QP API tight enough for 1e-8 comparisons (1e-12 is out of its reach on this QP)
@@ -213,6 +215,7 @@ def test_closed_loop_holds_box_and_rate_bounds(problem, qpsol):
         ({"qpsol": "hpipm-ocp", "qpsol_options": {"mode": "fast"}}, "options['qpsol_options']['mode']"),
         ({"qpsol": "hpipm-ocp", "qpsol_options": {"iter_max": 0}}, "options['qpsol_options']['iter_max']"),
         ({"qpsol": "hpipm-ocp", "qpsol_options": {"tol_eq": -1.0}}, "options['qpsol_options']['tol_eq']"),
+        ({"qpsol": "hpipm-ocp", "qpsol_options": {"tol_eq": math.inf}}, "options['qpsol_options']['tol_eq']"),
         (
             {"qpsol": "hpipm-ocp", "qpsol_options": {"cond_horizon": -1}},
             "options['qpsol_options']['cond_horizon']",
@@ -343,3 +346,12 @@ def test_automatic_qp_path(problem, monkeypatch):
     assert RtiSolver(problem, {"qpsol_options": {"mode": "speed_abs"}}).qpsol == "hpipm-ocp"
     with pytest.raises(ValueError, match="qpsol_options"):
         RtiSolver(problem, {"qpsol": "hpipm-ocp", "qpsol_options": {"hpipm": {}}})
+
+
+def test_numpy_integers_are_accepted_where_ints_are():
+    """``iter_max`` and ``cond_horizon`` from numpy arrays (np.int64) are ints, stored as Python ints."""
+    merged = ocp_qp_options(
+        {"iter_max": np.int64(30), "cond_horizon": np.int32(4), "tol_stat": np.float64(1e-7)}, False
+    )
+    assert merged["iter_max"] == 30 and type(merged["iter_max"]) is int
+    assert merged["cond_horizon"] == 4 and type(merged["cond_horizon"]) is int

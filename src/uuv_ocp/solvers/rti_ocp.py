@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import numbers
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
@@ -87,17 +88,17 @@ def ocp_qp_options(options: dict[str, Any], converged: bool) -> dict[str, Any]:
             )
         if key == "mode" and value not in HPIPM_MODES:
             raise ValueError(f"{name} must be one of {HPIPM_MODES}, got {value!r}")
-        if key == "iter_max" and (isinstance(value, bool) or not isinstance(value, int) or value < 1):
+        integral = isinstance(value, numbers.Integral) and not isinstance(value, bool)
+        if key == "iter_max" and not (integral and int(value) >= 1):
             raise ValueError(f"{name} must be an int >= 1, got {value!r}")
-        if key == "cond_horizon" and (isinstance(value, bool) or not isinstance(value, int) or value < 0):
+        if key == "cond_horizon" and not (integral and int(value) >= 0):
             raise ValueError(f"{name} must be an int >= 0 (0: no partial condensing), got {value!r}")
         if key == "warm_start" and not isinstance(value, bool):
             raise ValueError(f"{name} must be True or False, got {value!r}")
-        if key.startswith("tol_") and (
-            isinstance(value, bool) or not isinstance(value, int | float) or not value > 0
-        ):
-            raise ValueError(f"{name} must be a float > 0, got {value!r}")
-        merged[key] = value
+        real = isinstance(value, numbers.Real) and not isinstance(value, bool)
+        if key.startswith("tol_") and not (real and 0.0 < float(value) < math.inf):
+            raise ValueError(f"{name} must be a finite float > 0, got {value!r}")
+        merged[key] = int(value) if key in ("iter_max", "cond_horizon") else value
     return merged
 
 

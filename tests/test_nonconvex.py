@@ -357,6 +357,18 @@ def test_moving_obstacle_centres_follow_their_path_and_the_plan_keeps_clear():
         assert np.min(moving) < 0.4 + 1e-3  # the constraint is active: the plan dodges it
 
 
+def test_closest_approach_rejects_what_is_not_obstacles_and_a_run():
+    from uuv_ocp.obstacles import closest_approach
+
+    rock = uo.Obstacle.circle((1.0, 0.0), 0.5)
+    with pytest.raises(ValueError, match="obstacles must be a non-empty list"):
+        closest_approach([], object())
+    with pytest.raises(ValueError, match="obstacles must be a non-empty list"):
+        closest_approach([rock, "rock"], object())
+    with pytest.raises(ValueError, match="run must be a uuv_ocp.ClosedLoopResult"):
+        closest_approach([rock], np.zeros((3, 4)))
+
+
 def test_bad_obstacles_raise_naming_the_argument():
     with pytest.raises(ValueError, match="radius"):
         uo.Obstacle.circle((0.0, 0.0), -1.0)

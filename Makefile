@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench lint docs clean
+.PHONY: demo test bench lint docs clean hpipm
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,6 +32,11 @@ $(BENCH_STAMP): pyproject.toml
 
 bench: $(BENCH_STAMP)
 	$(BENCH_VENV)/bin/python -m benchmarks.run
+
+# HPIPM and BLASFEO built for this CPU (about a minute; sources: a pinned PyPI sdist, checked by
+# SHA-256).  Optional: the C real-time iteration links them when present (docs/solvers.md).
+hpipm: $(STAMP)
+	$(PY) -m uuv_ocp.cli hpipm build
 
 # The paper's experiment (docs/paper.md): report, figures and verdicts in docs/reproduction/.
 # Resumable: rerun after Ctrl-C.  `make reproduce QUICK=1` (or `make reproduce-quick`) is the

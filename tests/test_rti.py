@@ -22,6 +22,8 @@ TIGHT_HPIPM = {"hpipm": {f"res_{k}_max": 1e-12 for k in "gbdm"}}
 #: HPIPM's OCP-QP API tight enough for 1e-8 comparisons (1e-12 is out of its reach on this QP)
 TIGHT_OCP = {"mode": "robust", **{f"tol_{k}": 1e-11 for k in ("stat", "eq", "ineq", "comp")}}
 TIGHT = {"hpipm": TIGHT_HPIPM, "hpipm-ocp": TIGHT_OCP}
+#: the C step without partial condensing (the default condenses N = 20 to 5 stages, "auto")
+PLAIN = {"cond_horizon": 0}
 QP_PATHS = pytest.mark.parametrize("qpsol", ["hpipm", "hpipm-ocp"])
 #: the C step with HPIPM's partial condensing (5 stages): condensed in prepare, rhs in feedback
 CONDENSED = {"cond_horizon": 5}
@@ -32,6 +34,8 @@ def qp_options(path: str, tight: bool = False) -> dict:
     """``qpsol`` and ``qpsol_options`` of a test's QP path (``hpipm-ocp-condensed``: CONDENSED)."""
     if path == "hpipm-ocp-condensed":
         return {"qpsol": "hpipm-ocp", "qpsol_options": {**(TIGHT_OCP if tight else {}), **CONDENSED}}
+    if path == "hpipm-ocp":
+        return {"qpsol": path, "qpsol_options": {**(TIGHT_OCP if tight else {}), **PLAIN}}
     return {"qpsol": path, **({"qpsol_options": TIGHT[path]} if tight else {})}
 
 
@@ -355,3 +359,12 @@ def test_numpy_integers_are_accepted_where_ints_are():
     )
     assert merged["iter_max"] == 30 and type(merged["iter_max"]) is int
     assert merged["cond_horizon"] == 4 and type(merged["cond_horizon"]) is int
+
+
+def test_partial_condensing_auto_is_a_quarter_of_the_horizon_from_eight_stages():
+    assert ocp_qp_options({}, False, 20)["cond_horizon"] == 5
+    assert ocp_qp_options({}, True, 9)["cond_horizon"] == 2
+    assert ocp_qp_options({}, False, 7)["cond_horizon"] == 0  # short horizons: not condensed
+    assert ocp_qp_options({"cond_horizon": 0}, False, 20)["cond_horizon"] == 0
+    with pytest.raises(ValueError, match="must be 'auto' or an int >= 0"):
+        ocp_qp_options({"cond_horizon": "half"}, False, 20)

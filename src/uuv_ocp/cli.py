@@ -1,4 +1,4 @@
-"""Command line: ``uuv-ocp demo | track | solvers | compare | campaign | reproduce | codegen``.
+"""Command line: ``uuv-ocp demo | track | solvers | compare | campaign | reproduce | codegen | hpipm``.
 
 Also ``python -m uuv_ocp.cli``.  Exit status: 0 on success; 2 for a bad flag or value, with one
 line ``error: ...`` on standard error naming the flag (nothing runs); 2 without a subcommand,
@@ -116,7 +116,35 @@ def _parser() -> argparse.ArgumentParser:
     codegen.add_argument("--out", default="build", help="output folder")
     codegen.add_argument("--horizon", type=int, default=20)
     codegen.add_argument("--population", type=int, default=20)
+
+    hpipm = commands.add_parser("hpipm", help="build HPIPM and BLASFEO for this CPU (faster sqp-rti QPs)")
+    hpipm.add_argument(
+        "action", choices=("build", "status"), help="build and install, or show the build in use"
+    )
+    hpipm.add_argument("--source", default=None, help="folder with blasfeo/ and hpipm/ (default: the sdist)")
+    hpipm.add_argument("--target", default="auto", help="BLASFEO target (default: auto, from the CPU)")
+    hpipm.add_argument("--jobs", type=int, default=2, help="parallel make jobs")
     return parser
+
+
+def _run_hpipm(args: argparse.Namespace) -> int:
+    from uuv_ocp.native import hpipm
+
+    if args.action == "status":
+        native = hpipm.installed()
+        if native is None:
+            print("native HPIPM: none (the C step links the CasADi wheel's, TARGET_GENERIC)")
+        else:
+            print(f"native HPIPM: {native.directory} (BLASFEO TARGET={native.target})")
+        return 0
+    try:
+        hpipm.build(args.source, args.target, jobs=args.jobs)
+    except ValueError as error:
+        return _fail(str(error))
+    except hpipm.NativeHpipmError as error:
+        print(f"error: {error}", file=sys.stderr)
+        return 1
+    return 0
 
 
 def _fail(message: str) -> int:
@@ -377,6 +405,8 @@ def _dispatch(args: argparse.Namespace) -> int:
         return 0
     if command == "campaign":
         return _run_campaign(args)
+    if command == "hpipm":
+        return _run_hpipm(args)
     if command == "reproduce":
         try:
             return _run_reproduce(args)

@@ -396,21 +396,32 @@ def _prefix(problem: Transcribed, prefix: object) -> str:
 
 
 def hpipm_link_flags() -> tuple[str, ...]:
-    """Compiler and linker arguments for C that calls HPIPM: the CasADi wheel's own copy.
+    """Compiler and linker arguments for C that calls HPIPM.
 
-    The wheel ships ``libhpipm`` and ``libblasfeo`` next to CasADi's libraries and their headers
-    in ``casadi/include``; the library records that folder as its run-time search path (an
-    absolute path, so programs linked to it run from any working directory).
+    The native build for this CPU (:mod:`uuv_ocp.native.hpipm`, static and hidden inside the
+    library) when one is installed, intact and not refused by ``UUV_OCP_HPIPM=wheel``; else the
+    CasADi wheel's own copy: it ships ``libhpipm`` and ``libblasfeo`` next to CasADi's libraries
+    and their headers in ``casadi/include``, and the library records that folder as its
+    run-time search path (an absolute path, so programs linked to it run from any directory).
     """
-    folder = Path(ca.__file__).resolve().parent
-    return (
-        f"-I{folder / 'include'}",
-        f"-L{folder}",
-        "-Wl,--no-as-needed",
-        "-lhpipm",
-        "-lblasfeo",
-        f"-Wl,-rpath,{folder}",
-    )
+    from uuv_ocp.native.hpipm import old_partial_condensing, selected
+
+    native = selected()
+    if native is not None:
+        flags = native.link_flags()
+        include = native.directory / "include" / "hpipm"
+    else:
+        folder = Path(ca.__file__).resolve().parent
+        include = folder / "include"
+        flags = (
+            f"-I{include}",
+            f"-L{folder}",
+            "-Wl,--no-as-needed",
+            "-lhpipm",
+            "-lblasfeo",
+            f"-Wl,-rpath,{folder}",
+        )
+    return (*flags, "-DUUV_HPIPM_OLD_PART_COND") if old_partial_condensing(include) else flags
 
 
 def _nmpc_build(

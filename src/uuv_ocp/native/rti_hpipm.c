@@ -238,6 +238,11 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
   rti_set_bounds0(m);
   if (m->cond_n) {
     /* the preparation condenses the matrices; a new state changes only the right-hand side */
+#ifdef UUV_HPIPM_OLD_PART_COND
+    /* that version's right-hand-side condensing alone gave a feedback 17 N off a fresh step's
+     * (tests/test_rti.py::test_prepare_then_feedback_equals_step): condense all of it again */
+    m->cond_lhs = 0;
+#endif
     if (m->cond_lhs) {
       d_part_cond_qp_cond_rhs(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
     } else {
@@ -245,7 +250,11 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
       m->cond_lhs = 1;
     }
     d_ocp_qp_ipm_solve(&m->pqp, &m->psol, &m->arg, &m->ws);
+#ifdef UUV_HPIPM_OLD_PART_COND /* HPIPM <= 0.1.2 (acados' copy) also reads the condensed QP */
+    d_part_cond_qp_expand_sol(&m->qp, &m->pqp, &m->psol, &m->sol, &m->cond_arg, &m->cond_ws);
+#else
     d_part_cond_qp_expand_sol(&m->qp, &m->psol, &m->sol, &m->cond_arg, &m->cond_ws);
+#endif
   } else {
     d_ocp_qp_ipm_solve(&m->qp, &m->sol, &m->arg, &m->ws);
   }

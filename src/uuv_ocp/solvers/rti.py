@@ -293,7 +293,9 @@ class RtiSolver(NlpSolver):
         self.ocp_qp_options: dict[str, Any] = {}
         if self.qpsol == "hpipm-ocp":
             self.ocp_qp_options = ocp_qp_options(
-                {} if given_qp_options is AUTO else self.qpsol_options, self.mode == "converged"
+                {} if given_qp_options is AUTO else self.qpsol_options,
+                self.mode == "converged",
+                problem.spec().horizon,
             )
         self.qp_tolerance = check.positive_float(
             "options['qp_tolerance']", options.pop("qp_tolerance", default["qp_tolerance"])

@@ -12,8 +12,10 @@ Quality: closed loops of 30 s on s1..s10 (RexROV) and on the BlueROV2 Heavy 6-DO
 against fatrop (converged to 1e-8), and the failures.
 
 ``hpipm-ocp`` rows: the step in C on HPIPM's OCP-QP API (``qpsol="hpipm-ocp"``, the default
-where a compiler exists; ``abs``: HPIPM's ``speed_abs`` mode, ``pc4``: partial condensing to 4
-stages); their "in C" column is the median time the C step measured itself (the preparation's
+where a compiler exists), linked to the native HPIPM/BLASFEO (``uuv-ocp hpipm build``; rows
+skipped without it) or to the CasADi wheel's (``TARGET_GENERIC``); partial condensing
+``"auto"`` (N = 20: 5 stages) unless the row says otherwise; their "in C" column is the
+median time the C step measured itself (the preparation's
 linearisation, then the feedback's QP, or every iteration in converged mode), the rest of a
 row is the Python around it.  ``conic`` rows: CasADi's ``conic`` HPIPM interface on the
 full-space QP (``qpsol="hpipm"``).
@@ -37,13 +39,18 @@ from uuv_ocp.codegen import default_cache_directory
 OCP = {"qpsol": "hpipm-ocp"}
 #: CasADi's conic interface on the full-space QP (the ``sqp-rti`` default before ``hpipm-ocp``)
 CONIC = {"qpsol": "hpipm"}
+#: the C step's HPIPM per variant: the native build (``uuv-ocp hpipm build``), the wheel's
+#: (``TARGET_GENERIC``), or whichever ``UUV_OCP_HPIPM`` selects (None)
+NATIVE, WHEEL = "native", "wheel"
 SPEED_VARIANTS: tuple[tuple[str, str, dict | None], ...] = (
-    ("sqp-rti hpipm-ocp", "sqp-rti", OCP),
-    ("sqp-rti hpipm-ocp abs", "sqp-rti", {**OCP, "qpsol_options": {"mode": "speed_abs"}}),
-    ("sqp-rti hpipm-ocp pc4", "sqp-rti", {**OCP, "qpsol_options": {"cond_horizon": 4}}),
+    ("sqp-rti hpipm-ocp native", "sqp-rti", {**OCP, "hpipm": NATIVE}),
+    ("sqp-rti hpipm-ocp wheel", "sqp-rti", {**OCP, "hpipm": WHEEL}),
+    ("native, no condensing", "sqp-rti", {**OCP, "hpipm": NATIVE, "qpsol_options": {"cond_horizon": 0}}),
+    ("native, speed_abs", "sqp-rti", {**OCP, "hpipm": NATIVE, "qpsol_options": {"mode": "speed_abs"}}),
+    ("native, converged", "sqp-rti", {**OCP, "hpipm": NATIVE, "mode": "converged"}),
+    ("wheel, converged", "sqp-rti", {**OCP, "hpipm": WHEEL, "mode": "converged"}),
     ("sqp-rti conic", "sqp-rti", CONIC),
     ("sqp-rti conic compiled", "sqp-rti", {**CONIC, "compiled": True}),
-    ("sqp-rti ocp converged", "sqp-rti", {**OCP, "mode": "converged"}),
     ("sqp-rti conic converged", "sqp-rti", {**CONIC, "mode": "converged", "compiled": True}),
     ("fatrop", "fatrop", None),
     ("fatrop compiled", "fatrop", {"compiled": True}),
@@ -62,21 +69,40 @@ def speed(duration: float = 30.0) -> list[dict]:
     reference = problem.reference
     plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
     steps = int(round(duration / problem.dt))
+    from uuv_ocp.native.hpipm import HPIPM_ENV, installed
+
     rows = []
-    for label, solver, options in SPEED_VARIANTS:
-        controller = uo.NMPC(problem, solver, options=options)
-        controller.step(reference.initial_state(0.0), 0.0)  # builds (and compiles) outside the timing
-        controller.step(reference.evaluate([3.0])[0], 3.0)
+    native_available = installed() is not None
+    for label, solver, given in SPEED_VARIANTS:
+        options = dict(given or {})
+        libraries = options.pop("hpipm", None)
+        if libraries == NATIVE and not native_available:
+            print(f"{label}: skipped, no native HPIPM (make hpipm)")
+            continue
+        before = os.environ.get(HPIPM_ENV)
+        if libraries is not None:
+            os.environ[HPIPM_ENV] = libraries  # read when the C step is built, at its first solve
+        try:
+            controller = uo.NMPC(problem, solver, options=options or None)
+            controller.step(reference.initial_state(0.0), 0.0)  # builds (and compiles) outside the timing
+            controller.step(reference.evaluate([3.0])[0], 3.0)
+        finally:
+            if before is None:
+                os.environ.pop(HPIPM_ENV, None)
+            else:
+                os.environ[HPIPM_ENV] = before
         controller.reset()
         state, control = reference.initial_state(0.0), np.zeros(3)
         step_times, prepare_times, feedback_times, failures = [], [], [], 0
         c_times: list[float] = []
+        cpu_times: list[float] = []
         for k in range(steps):
-            start = time.perf_counter()
+            start, cpu = time.perf_counter(), time.thread_time()
             controller.prepare(k * problem.dt, control, np.zeros(2))
             middle = time.perf_counter()
             output = controller.feedback(state)
             end = time.perf_counter()
+            cpu_times.append(time.thread_time() - cpu)
             step_times.append(end - start)
             prepare_times.append(middle - start)
             feedback_times.append(end - middle)
@@ -91,6 +117,7 @@ def speed(duration: float = 30.0) -> list[dict]:
             {
                 "label": label,
                 "median_ms": 1e3 * float(np.median(step_times)),
+                "cpu_ms": 1e3 * float(np.median(cpu_times)),
                 "p90_ms": 1e3 * float(np.percentile(step_times, 90)),
                 "prepare_ms": 1e3 * float(np.median(prepare_times)),
                 "feedback_ms": 1e3 * float(np.median(feedback_times)),
@@ -186,6 +213,7 @@ def generated_c_speed(problem: uo.TrackingProblem, duration: float) -> dict:
     return {
         "label": "generated C nmpc_step",
         "median_ms": 1e3 * float(np.median(times)),
+        "cpu_ms": float("nan"),
         "p90_ms": 1e3 * float(np.percentile(times, 90)),
         "prepare_ms": float("nan"),
         "feedback_ms": float("nan"),
@@ -307,13 +335,13 @@ def main(quick: bool = False, settings: bool = False) -> None:
     base = next(row["median_ms"] for row in rows if row["label"] == "fatrop")
     print("\nsqp-rti vs converged exact backends, s2 closed loop (30 s from rest), ms per step")
     print(
-        f"{'variant':<24}{'median':>8}{'p90':>8}{'prepare':>9}{'feedback':>9}{'in C':>7}{'fail':>6}"
-        f"{'/fatrop':>9}"
+        f"{'variant':<26}{'median':>8}{'CPU':>7}{'p90':>8}{'prepare':>9}{'feedback':>9}{'in C':>7}"
+        f"{'fail':>6}{'/fatrop':>9}"
     )
     for row in rows:
         print(
-            f"{row['label']:<24}{row['median_ms']:>8.3f}{row['p90_ms']:>8.3f}{row['prepare_ms']:>9.3f}"
-            f"{row['feedback_ms']:>9.3f}{row['c_ms']:>7.3f}{row['failures']:>6d}"
+            f"{row['label']:<26}{row['median_ms']:>8.3f}{row['cpu_ms']:>7.3f}{row['p90_ms']:>8.3f}"
+            f"{row['prepare_ms']:>9.3f}{row['feedback_ms']:>9.3f}{row['c_ms']:>7.3f}{row['failures']:>6d}"
             f"{row['median_ms'] / base:>9.2f}"
         )
     print(f"\ngenerated C loop (examples/c/nmpc_loop.c): {c_driver_speed(_problem())}")

@@ -88,6 +88,48 @@ def test_tracking_parameters_equal_the_general_ocp_path_on_random_instances(make
         assert not np.shares_memory(p, problem.parameters(x0, t0, u_prev, current))  # a fresh p each call
 
 
+@pytest.mark.parametrize("make", [_planar, _spatial, _with_moving_obstacle])
+def test_with_state_equals_the_general_path_at_the_new_state(make):
+    """``NMPC.feedback``'s ``p``: the prepared instance with the measured state put in.
+
+    Checked against ``Ocp.parameters`` at the new state, across heading branches (the window
+    follows the vehicle's), with the guess and the measurement several turns apart.
+    """
+    problem = make()
+    spec = problem.spec()
+    nx = spec.state_dim
+    heading = 2 if nx == 6 else 5
+    rng = np.random.default_rng(11)
+    for trial in range(30):
+        t0 = problem.dt * int(rng.integers(0, int(min(problem.latest_start(), 40.0) / problem.dt)))
+        guess = problem.reference.evaluate([t0])[0] + rng.normal(scale=0.3, size=nx)
+        measured = guess + rng.normal(scale=0.05, size=nx)
+        measured[heading] += 2 * math.pi * int(rng.integers(-2, 3)) if trial % 3 == 0 else 0.0
+        u_prev = rng.uniform(spec.lower, spec.upper)
+        current = rng.normal(scale=0.2, size=spec.layout.entries["current"][1])
+        prepared = problem.parameters(guess, t0, u_prev, current)
+        p = problem.with_state(prepared, measured)
+        expected = _general_path(problem, measured, t0, u_prev, current)
+        assert np.array_equal(p, expected), (trial, np.flatnonzero(p != expected))
+        assert not np.shares_memory(p, prepared)
+    with pytest.raises(ValueError, match="x0"):
+        problem.with_state(prepared, np.r_[measured[:-1], np.nan])
+
+
+def test_ocp_with_state_equals_its_parameters():
+    ocp = uo.Ocp(horizon=4, dt=0.1)
+    x = ocp.state("x", 2)
+    u = ocp.control("u", 2, lower=-1.0, upper=1.0)
+    target = ocp.parameter("target", 2)
+    ocp.set_der(x, u)
+    ocp.add_stage_cost(ca.sumsqr(x - target))
+    prepared = ocp.parameters([0.1, 0.2], {"target": [1.0, -1.0]}, [0.5, 0.0])
+    p = ocp.with_state(prepared, [3.0, -4.0])
+    assert np.array_equal(p, ocp.parameters([3.0, -4.0], {"target": [1.0, -1.0]}, [0.5, 0.0]))
+    with pytest.raises(ValueError, match="x0"):
+        ocp.with_state(prepared, [1.0])
+
+
 def test_tracking_parameters_still_reject_bad_parts_by_name():
     problem = _planar()
     x0, t0 = problem.reference.evaluate([2.0])[0], 2.0

@@ -368,3 +368,54 @@ def test_partial_condensing_auto_is_a_quarter_of_the_horizon_from_eight_stages()
     assert ocp_qp_options({"cond_horizon": 0}, False, 20)["cond_horizon"] == 0
     with pytest.raises(ValueError, match="must be 'auto' or an int >= 0"):
         ocp_qp_options({"cond_horizon": "half"}, False, 20)
+
+
+def test_the_c_step_is_judged_by_a_compiled_twin_of_the_judge(problem, instance):
+    """With the C step the judge runs compiled; its cost and violation are the VM judge's."""
+    needs_compiler("hpipm-ocp")
+    x0, _ = instance
+    backend = RtiSolver(problem, {"qpsol": "hpipm-ocp", "cold_start": "rti"})
+    result = backend.solve(problem.parameters(x0, 3.0), None)
+    assert backend.judge_terms is not None and backend.judge_terms.function.class_name() == "External"
+    cost, violation = uo.score(problem, result.controls, x0, 3.0)  # CasADi's VM
+    assert result.cost == pytest.approx(cost, rel=1e-12)
+    assert result.max_violation == pytest.approx(violation, rel=1e-12, abs=1e-15)
+
+
+def test_the_fast_feedback_gives_what_solve_gives(problem, monkeypatch):
+    """``feedback`` straight from the C call = the same step through ``solve``'s bookkeeping.
+
+    Two controllers on the same closed loop (measured states off the prediction), one with the
+    fast path switched off: every control, cost, status and iterate equal, bit for bit.
+    """
+    needs_compiler("hpipm-ocp")
+    reference = problem.reference
+    fast = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp"})
+    slow = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp", "slack_tolerance": 1e-7})
+    calls = []
+    original = fast.backend._feedback_in_c
+
+    def counted(*args):
+        result = original(*args)
+        calls.append(result is not None)
+        return result
+
+    monkeypatch.setattr(fast.backend, "_feedback_in_c", counted)
+    monkeypatch.setattr(slow.backend, "_feedback_in_c", lambda *a: None)
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    state, control = reference.initial_state(0.0), np.zeros(3)
+    rng = np.random.default_rng(5)
+    for k in range(12):
+        measured = state + 1e-3 * rng.standard_normal(6)
+        a = fast.step(measured, k * problem.dt, control, np.zeros(2))
+        b = slow.step(measured, k * problem.dt, control, np.zeros(2))
+        assert np.array_equal(a.control, b.control) and a.fallback == b.fallback
+        ra, rb = a.result, b.result
+        for name in ("cost", "max_violation", "status", "success"):
+            assert getattr(ra, name) == getattr(rb, name), (k, name)
+        assert ra.details["attempts"] == rb.details["attempts"]
+        for name in ("primal", "lam_g", "lam_x"):
+            assert np.array_equal(getattr(ra.iterate, name), getattr(rb.iterate, name)), (k, name)
+        control = a.control
+        state = np.array(plant(state, control, np.zeros(2))).ravel()
+    assert calls == [False] + [True] * 11  # every step but the cold first took the fast path

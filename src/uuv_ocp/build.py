@@ -158,6 +158,18 @@ class Transcribed:
         """States ``(N+1, nx)`` from the prediction model under physical ``controls`` (N, nu)."""
         return self.rollout_scaled(self.scaled_from_controls(controls), p)
 
+    def with_state(self, p: np.ndarray, x0: object) -> np.ndarray:
+        """Return a copy of the instance ``p`` with its state set to ``x0`` (checked as ``x0``).
+
+        For an :class:`~uuv_ocp.ocp.Ocp` the state enters ``p`` only at its own place, so this
+        is ``parameters`` at ``x0`` with the other arguments of ``p``; a tracking problem also
+        moves its reference heading's branch (``TrackingProblem.with_state``).
+        """
+        spec = self.spec()
+        new = p.copy()
+        new[spec.layout.x0] = check.plausible_array("x0", x0, (spec.state_dim,))
+        return new
+
     def previous_scaled(self, p: np.ndarray) -> np.ndarray:
         """Return the last applied control in ``p``, scaled and clipped into the box."""
         spec = self.spec()

@@ -480,6 +480,21 @@ class TrackingProblem(Transcribed):
                     p[layout.entries[f"obstacle{i}"][0]] = np.ravel(obstacle.centre_at(times))
         return p
 
+    def with_state(self, p: np.ndarray, x0: object) -> np.ndarray:
+        """Return a copy of the instance ``p`` (from :meth:`parameters`) with its state set to ``x0``.
+
+        Equal to :meth:`parameters` with ``x0`` and the time, last control and current of ``p``:
+        besides its own place, the state chooses the heading branch of the reference window,
+        which is moved here the same way.  ``x0`` is checked as there.
+        """
+        x0 = self.check_state(x0)
+        layout, _, heading_index = self._parameter_layout()
+        new = p.copy()
+        new[layout.x0] = x0
+        window = new[layout.entries["reference"][0]].reshape(self.horizon + 1, -1)  # a view into new
+        _move_heading_branch(window, x0[heading_index], heading_index)
+        return new
+
     def _parameter_layout(self) -> tuple[Any, int, int]:
         """Return the layout of ``p``, the current's size and the heading's column (cached)."""
         cached = self._store.get("parameter_layout")

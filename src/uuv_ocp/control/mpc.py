@@ -106,12 +106,14 @@ class NMPC:
         self._iterate: Iterate | None = None
         self._plan: np.ndarray | None = None
         self._pending: tuple[Any, ...] | None = None
+        self._prepared_p: np.ndarray | None = None  # the instance prepare() linearised
 
     def reset(self) -> None:
         """Forget the warm start and the previous plan; restart the random generator."""
         self._iterate = None
         self._plan = None
         self._pending = None
+        self._prepared_p = None
         self._rng = np.random.default_rng(self.seed)
 
     @property
@@ -151,6 +153,7 @@ class NMPC:
         :meth:`feedback`.  Without a warm start nothing is prepared.
         """
         self._pending = (t, u_prev, current, parameters)
+        self._prepared_p = None
         prepare = getattr(self.backend, "prepare", None)
         warm = self._iterate if self.use_warm_start else None
         if prepare is None or warm is None:
@@ -158,6 +161,7 @@ class NMPC:
         guess = warm.states[0]
         p = instance_parameters(self.problem, guess, t, u_prev=u_prev, current=current, parameters=parameters)
         prepare(p, warm)
+        self._prepared_p = p
 
     def feedback(self, x: object) -> StepOutput:
         """Run the feedback phase: the measured state ``x`` in, the control to apply out.
@@ -168,7 +172,11 @@ class NMPC:
         if self._pending is None:
             raise ValueError("NMPC.feedback(x) needs NMPC.prepare(t, u_prev, ...) first (or call step)")
         (t, u_prev, current, parameters), self._pending = self._pending, None
-        p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
+        if self._prepared_p is not None:  # the instance of prepare(), its guessed state replaced
+            p = self.problem.with_state(self._prepared_p, x)
+            self._prepared_p = None
+        else:
+            p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
         warm = self._iterate if self.use_warm_start else None
         feedback = getattr(self.backend, "feedback", None)
         try:

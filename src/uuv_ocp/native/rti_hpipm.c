@@ -211,11 +211,13 @@ int uuv_rti_prepare(void* memory, const double* w, const double* p) {
   m->prepared = 0;
   if (rti_evaluate(m, w, p)) return 1;
   rti_load(m);
+#ifndef UUV_HPIPM_OLD_PART_COND /* there the feedback condenses all of it (see rti_solve_qp) */
   if (m->cond_n) {
     rti_set_bounds0(m);
     d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
     m->cond_lhs = 1;
   }
+#endif
   for (i = 0; i < RTI_NX0; ++i) m->x0[i] = p[rti_x0_param[i]];
   m->prepared = 1;
   m->prepare_time = rti_now() - start;

@@ -254,6 +254,8 @@ class NlpSolver:
     # subclass with options or defaults of its own declares its own tuple
     OPTIONS: tuple[Option, ...] = NLP_OPTIONS
     option_names: tuple[str, ...] = option_names(NLP_OPTIONS)
+    #: caller of the judge's ``score_terms`` (a compiled, verified twin); None: CasADi's VM
+    judge_terms: BufferedFunction | None = None
 
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
         options = dict(options or {})
@@ -668,7 +670,7 @@ class NlpSolver:
             )
         scaled = np.clip(primal[data.control_index], *box)
         states = primal[data.state_index]
-        cost, violation = score_parameters(problem, scaled.ravel(), p)
+        cost, violation = score_parameters(problem, scaled.ravel(), p, self.judge_terms)
         status = final["status"]
         if final["variant"].startswith("soft"):
             status = f"soft_terminal: {status}" if relaxed else f"soft_terminal_held: {status}"

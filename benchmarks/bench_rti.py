@@ -21,7 +21,8 @@ row is the Python around it.  ``conic`` rows: CasADi's ``conic`` HPIPM interface
 full-space QP (``qpsol="hpipm"``).
 
 Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 quality row only;
-``--hpipm-options``: only the ``hpipm-ocp`` path under each HPIPM setting of ``HPIPM_SETTINGS``).
+``--hpipm-options``: only the ``hpipm-ocp`` path under each HPIPM setting of ``HPIPM_SETTINGS``;
+``--interleaved``: only the C step's rows of ``INTERLEAVED``, three rounds interleaved).
 """
 
 from __future__ import annotations
@@ -82,6 +83,9 @@ def speed(duration: float = 30.0) -> list[dict]:
         before = os.environ.get(HPIPM_ENV)
         if libraries is not None:
             os.environ[HPIPM_ENV] = libraries  # read when the C step is built, at its first solve
+        # a problem of its own: backends are cached per problem and options, and the native and
+        # wheel rows differ only in the libraries their C step links
+        problem = _problem()
         try:
             controller = uo.NMPC(problem, solver, options=options or None)
             controller.step(reference.initial_state(0.0), 0.0)  # builds (and compiles) outside the timing
@@ -128,6 +132,82 @@ def speed(duration: float = 30.0) -> list[dict]:
         )
     rows.append(generated_c_speed(problem, duration))
     return rows
+
+
+#: the rows of ``--interleaved``: the C step on each HPIPM, in RTI and converged mode
+INTERLEAVED: tuple[tuple[str, str, dict], ...] = (
+    ("native (default)", NATIVE, {}),
+    ("native, speed_abs", NATIVE, {"qpsol_options": {"mode": "speed_abs"}}),
+    ("native, no condensing", NATIVE, {"qpsol_options": {"cond_horizon": 0}}),
+    ("wheel", WHEEL, {}),
+    ("native, converged", NATIVE, {"mode": "converged"}),
+    ("wheel, converged", WHEEL, {"mode": "converged"}),
+)
+
+
+def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
+    """``NMPC.prepare`` + ``feedback`` on s2 for the rows of :data:`INTERLEAVED`, in rounds.
+
+    Every row has its own problem and controller, built first; then each round runs every
+    row's closed loop from rest once, one after the other, so that the machine's drift falls on
+    all rows alike.  Per row: median over the rounds of the per-round median step (wall and
+    thread CPU, ms), the range of the per-round medians, and the C step's own clock.
+    """
+    from uuv_ocp.native.hpipm import HPIPM_ENV, installed
+
+    native_available = installed() is not None
+    controllers = {}
+    for label, libraries, options in INTERLEAVED:
+        if libraries == NATIVE and not native_available:
+            print(f"{label}: skipped, no native HPIPM (make hpipm)")
+            continue
+        before = os.environ.get(HPIPM_ENV)
+        os.environ[HPIPM_ENV] = libraries
+        try:
+            problem = _problem()
+            controller = uo.NMPC(problem, "sqp-rti", options={**OCP, **options})
+            # the cold first step is IPOPT's; the second, warm, builds the C step under this setting
+            controller.step(problem.reference.initial_state(0.0), 0.0, np.zeros(3), np.zeros(2))
+            controller.step(problem.reference.evaluate([3.0])[0], 3.0, np.zeros(3), np.zeros(2))
+        finally:
+            if before is None:
+                os.environ.pop(HPIPM_ENV, None)
+            else:
+                os.environ[HPIPM_ENV] = before
+        controllers[label] = controller
+    walls: dict[str, list[float]] = {label: [] for label in controllers}
+    cpus: dict[str, list[float]] = {label: [] for label in controllers}
+    c_times: dict[str, list[float]] = {label: [] for label in controllers}
+    for _ in range(rounds):
+        for label, controller in controllers.items():
+            problem = controller.problem
+            plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+            controller.reset()
+            state, control = problem.reference.initial_state(0.0), np.zeros(3)
+            wall, cpu, inside = [], [], []
+            for k in range(steps):
+                start, start_cpu = time.perf_counter(), time.thread_time()
+                controller.prepare(k * problem.dt, control, np.zeros(2))
+                output = controller.feedback(state)
+                wall.append(time.perf_counter() - start)
+                cpu.append(time.thread_time() - start_cpu)
+                if k and output.result is not None:
+                    inside.append(output.result.details["c_time"])
+                control = output.control
+                state = np.array(plant(state, control, np.zeros(2))).ravel()
+            walls[label].append(1e3 * float(np.median(wall)))
+            cpus[label].append(1e3 * float(np.median(cpu)))
+            c_times[label].append(1e3 * float(np.median(inside)))
+    return [
+        {
+            "label": label,
+            "wall_ms": float(np.median(walls[label])),
+            "wall_range": (min(walls[label]), max(walls[label])),
+            "cpu_ms": float(np.median(cpus[label])),
+            "c_ms": float(np.median(c_times[label])),
+        }
+        for label in controllers
+    ]
 
 
 #: HPIPM settings of the ``hpipm-ocp`` path compared by ``--hpipm-options``
@@ -316,12 +396,24 @@ def quality(
     return rows
 
 
-def main(quick: bool = False, settings: bool = False) -> None:
+def main(quick: bool = False, settings: bool = False, rounds: int = 0) -> None:
     """Print the speed table (ratios to fatrop) and the quality table (``quick``: s2 only).
 
-    ``settings``: only the table of HPIPM settings of the ``hpipm-ocp`` path.
+    ``settings``: only the table of HPIPM settings of the ``hpipm-ocp`` path; ``rounds``: only
+    the interleaved table (:func:`interleaved`) over that many rounds.
     """
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    if rounds:
+        print(f"\nsqp-rti, s2 closed loop (30 s from rest), {rounds} interleaved rounds, ms per step")
+        print(f"{'C step':<24}{'wall':>8}{'range':>16}{'CPU':>8}{'in C':>8}")
+        for row in interleaved(rounds):
+            low, high = row["wall_range"]
+            print(
+                f"{row['label']:<24}{row['wall_ms']:>8.3f}{f'{low:.3f}-{high:.3f}':>16}"
+                f"{row['cpu_ms']:>8.3f}{row['c_ms']:>8.3f}"
+            )
+        print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+        return
     if settings:
         print(f"{'qpsol_options':<44}{'step':>8}{'in C':>8}{'QP':>8}{'QP it':>7}{'settled':>10}")
         for row in hpipm_settings():
@@ -360,4 +452,8 @@ def main(quick: bool = False, settings: bool = False) -> None:
 
 
 if __name__ == "__main__":
-    main(quick="--quick" in sys.argv, settings="--hpipm-options" in sys.argv)
+    main(
+        quick="--quick" in sys.argv,
+        settings="--hpipm-options" in sys.argv,
+        rounds=3 if "--interleaved" in sys.argv else 0,
+    )

@@ -458,11 +458,12 @@ class TrackingProblem(Transcribed):
                 raise ValueError(
                     f"current must be numbers of shape ({nc},) or ({n}, {nc}), got {current!r}"
                 ) from error
-            if current.shape == (nc,):
-                current = np.tile(current, (n + 1, 1))
-            elif current.shape == (n, nc):
-                current = np.vstack([current, current[-1:]])
-            current = check.plausible_array("current", current, (n + 1, nc))
+            if current.shape == (nc,):  # held on every node: checked once, broadcast into p
+                current = check.plausible_array("current", current, (nc,))
+            else:
+                if current.shape == (n, nc):
+                    current = np.vstack([current, current[-1:]])
+                current = check.plausible_array("current", current, (n + 1, nc))
         window = self.reference_window(t0, heading=x0[heading_index])
         u_prev = self.ocp.check_previous(u_prev)
         # every part is checked above (the window is finite by construction): written straight
@@ -472,7 +473,10 @@ class TrackingProblem(Transcribed):
         p[layout.x0] = x0
         p[layout.u_prev] = u_prev
         p[layout.entries["reference"][0]] = window.ravel()
-        p[layout.entries["current"][0]] = 0.0 if current is None else current.ravel()
+        if current is None:
+            p[layout.entries["current"][0]] = 0.0
+        else:
+            p[layout.entries["current"][0]].reshape(n + 1, nc)[:] = current  # a view into p
         if self.obstacles:
             times = t0 + self.dt * np.arange(n + 1)
             for i, obstacle in enumerate(self.obstacles):

@@ -46,8 +46,8 @@ class Iterate:
         Plans and (when the index maps are known) NLP primal and dual vectors
         are all shifted by one stage.
         """
-        controls = np.vstack([self.scaled_controls[1:], self.scaled_controls[-1:]])
-        states = np.vstack([self.states[1:], self.states[-1:]])
+        controls = np.concatenate((self.scaled_controls[1:], self.scaled_controls[-1:]))
+        states = np.concatenate((self.states[1:], self.states[-1:]))
         return Iterate(
             scaled_controls=controls,
             states=states,

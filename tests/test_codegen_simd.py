@@ -173,3 +173,18 @@ def test_native_builds_are_keyed_by_the_processor():
     assert codegen_core._machine_key(("-O3",)) == ()
     (key,) = codegen_core._machine_key(("-O3", "-march=native"))
     assert key
+
+
+def test_a_per_function_tolerance_loosens_only_the_function_it_names():
+    """The SIMD kernel's looser check (codegen.SIMD_TOLERANCE) must not leak to the other functions."""
+    from uuv_ocp.native.compile import VerificationError, _verify
+
+    x = ca.SX.sym("x", 3)
+    exact = {name: ca.Function(name, [x], [x]) for name in ("cost_batch", "rollout")}
+    # "compiled" twins 5e-12 off, as the SIMD kernel's few-ulp sin/cos amplified by a rollout
+    off = {name: ca.Function(name, [x], [x * (1 + 5e-12) + 5e-12]) for name in exact}
+    loose = {"cost_batch": 1e-10}
+    errors = _verify([exact["cost_batch"]], off, np.random.default_rng(0), 1e-12, loose)
+    assert 1e-12 < errors["cost_batch"] <= 1e-10
+    with pytest.raises(VerificationError, match="'rollout'.*tolerance 1.0e-12"):
+        _verify(list(exact.values()), off, np.random.default_rng(0), 1e-12, loose)

@@ -479,6 +479,9 @@ int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int 
 class OcpQpStep:
     """One compiled RTI step of one NLP variant, with its HPIPM memory (allocated once).
 
+    Not thread-safe: the HPIPM memory and the call buffers serve one call at a time (a copy or
+    an unpickled step gets memory of its own).
+
     Parameters
     ----------
     library : pathlib.Path

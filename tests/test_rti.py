@@ -419,3 +419,31 @@ def test_the_fast_feedback_gives_what_solve_gives(problem, monkeypatch):
         control = a.control
         state = np.array(plant(state, control, np.zeros(2))).ravel()
     assert calls == [False] + [True] * 11  # every step but the cold first took the fast path
+
+
+def test_a_failing_preparation_costs_speed_not_the_step(problem, monkeypatch):
+    """A preparation that raises is dropped: the feedback solves afresh, as without one."""
+    reference = problem.reference
+    broken = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm", "cold_start": "rti"})
+    plain = uo.NMPC(
+        problem, "sqp-rti", options={"qpsol": "hpipm", "cold_start": "rti", "slack_tolerance": 1e-7}
+    )
+
+    def fails(*args):
+        raise RuntimeError("uuv_rti_prepare: the linearisation failed")
+
+    monkeypatch.setattr(broken.backend, "prepare", fails)
+    monkeypatch.setattr(plain.backend, "prepare", None)  # never prepares
+    state, control = reference.initial_state(0.0), np.zeros(3)
+    for k in range(3):
+        a = broken.step(state, k * problem.dt, control)
+        b = plain.step(state, k * problem.dt, control)
+        assert not a.fallback and np.array_equal(a.control, b.control)
+        control = a.control
+
+    def interrupted(*args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(broken.backend, "prepare", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        broken.step(state, 3 * problem.dt, control)

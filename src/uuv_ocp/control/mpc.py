@@ -150,7 +150,9 @@ class NMPC:
         preparation phase (``"sqp-rti"``: linearisation at the shifted previous iterate) runs
         it now, with the warm start's predicted first state standing in for the measurement;
         :meth:`feedback` then only solves the QP.  Other backends do all their work in
-        :meth:`feedback`.  Without a warm start nothing is prepared.
+        :meth:`feedback`.  Without a warm start nothing is prepared; a preparation that raises
+        is dropped (``KeyboardInterrupt`` excepted), and :meth:`feedback` then solves afresh,
+        reporting any failure as a step's failure.
         """
         self._pending = (t, u_prev, current, parameters)
         self._prepared_p = None
@@ -160,7 +162,11 @@ class NMPC:
             return
         guess = warm.states[0]
         p = instance_parameters(self.problem, guess, t, u_prev=u_prev, current=current, parameters=parameters)
-        prepare(p, warm)
+        try:
+            prepare(p, warm)
+        except Exception as error:  # a failed preparation only costs speed: feedback solves afresh
+            reraise_interrupt(error)
+            return
         self._prepared_p = p
 
     def feedback(self, x: object) -> StepOutput:

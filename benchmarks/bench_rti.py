@@ -137,6 +137,7 @@ def speed(duration: float = 30.0) -> list[dict]:
 #: the rows of ``--interleaved``: the C step on each HPIPM, in RTI and converged mode
 INTERLEAVED: tuple[tuple[str, str, dict], ...] = (
     ("native (default)", NATIVE, {}),
+    ("native, step_control", NATIVE, {"lean": True}),
     ("native, speed_abs", NATIVE, {"qpsol_options": {"mode": "speed_abs"}}),
     ("native, no condensing", NATIVE, {"qpsol_options": {"cond_horizon": 0}}),
     ("wheel", WHEEL, {}),
@@ -156,8 +157,11 @@ def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
     from uuv_ocp.native.hpipm import HPIPM_ENV, installed
 
     native_available = installed() is not None
-    controllers = {}
-    for label, libraries, options in INTERLEAVED:
+    controllers, lean = {}, set()
+    for label, libraries, given in INTERLEAVED:
+        options = dict(given)
+        if options.pop("lean", False):  # NMPC.feedback_control: the control alone
+            lean.add(label)
         if libraries == NATIVE and not native_available:
             print(f"{label}: skipped, no native HPIPM (make hpipm)")
             continue
@@ -188,16 +192,19 @@ def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
             for k in range(steps):
                 start, start_cpu = time.perf_counter(), time.thread_time()
                 controller.prepare(k * problem.dt, control, np.zeros(2))
-                output = controller.feedback(state)
+                if label in lean:
+                    control = controller.feedback_control(state)
+                else:
+                    output = controller.feedback(state)
+                    control = output.control
                 wall.append(time.perf_counter() - start)
                 cpu.append(time.thread_time() - start_cpu)
-                if k and output.result is not None:
+                if k and label not in lean and output.result is not None:
                     inside.append(output.result.details["c_time"])
-                control = output.control
                 state = np.array(plant(state, control, np.zeros(2))).ravel()
             walls[label].append(1e3 * float(np.median(wall)))
             cpus[label].append(1e3 * float(np.median(cpu)))
-            c_times[label].append(1e3 * float(np.median(inside)))
+            c_times[label].append(1e3 * float(np.median(inside)) if inside else float("nan"))
     return [
         {
             "label": label,

@@ -447,3 +447,39 @@ def test_a_failing_preparation_costs_speed_not_the_step(problem, monkeypatch):
     monkeypatch.setattr(broken.backend, "prepare", interrupted)
     with pytest.raises(KeyboardInterrupt):
         broken.step(state, 3 * problem.dt, control)
+
+
+def test_step_control_gives_step_s_controls_without_the_result(problem):
+    """``NMPC.step_control``: the controls, plans and warm starts of ``NMPC.step``, bit for bit.
+
+    The C step's fast path skips only the result object and its judge; the cold first step and
+    a failed step go through ``feedback`` and keep their ``StepOutput`` in ``last_output``.
+    """
+    needs_compiler("hpipm-ocp")
+    reference = problem.reference
+    lean = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp"})
+    full = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp", "slack_tolerance": 1e-7})
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    state, control = reference.initial_state(0.0), np.zeros(3)
+    rng = np.random.default_rng(9)
+    fast_steps = 0
+    for k in range(12):
+        measured = state + 1e-3 * rng.standard_normal(6)
+        a = lean.step_control(measured, k * problem.dt, control, np.zeros(2))
+        b = full.step(measured, k * problem.dt, control, np.zeros(2))
+        assert np.array_equal(a, b.control), k
+        assert np.array_equal(lean.plan, b.result.controls)
+        assert np.array_equal(lean.iterate.primal, full.iterate.primal)
+        assert np.array_equal(lean.iterate.lam_g, full.iterate.lam_g)
+        fast_steps += lean.last_output is None
+        control = a
+        state = np.array(plant(state, control, np.zeros(2))).ravel()
+    assert fast_steps == 11  # all but the cold first step
+    # a failed step: the general path's fallback, reported in last_output
+    lean.backend.qp_tolerance = full.backend.qp_tolerance = 1e-300
+    lean.backend.robust_options = full.backend.robust_options = lambda: {}
+    lean.backend.cold_start = full.backend.cold_start = "rti"  # no IPOPT for the cold retry either
+    a = lean.step_control(state, 12 * problem.dt, control, np.zeros(2))
+    b = full.step(state, 12 * problem.dt, control, np.zeros(2))
+    assert lean.last_output is not None and lean.last_output.fallback and b.fallback
+    assert np.array_equal(a, b.control) and lean.last_output.message == b.message

@@ -107,6 +107,8 @@ class NMPC:
         self._plan: np.ndarray | None = None
         self._pending: tuple[Any, ...] | None = None
         self._prepared_p: np.ndarray | None = None  # the instance prepare() linearised
+        #: the last :meth:`feedback_control` step's output (None after a step by the C step alone)
+        self.last_output: StepOutput | None = None
 
     def reset(self) -> None:
         """Forget the warm start and the previous plan; restart the random generator."""
@@ -209,6 +211,53 @@ class NMPC:
         elif self._iterate is not None:
             self._iterate = self._iterate.shift()
         return StepOutput(control, result, True, failure_reason, deadline_hit=late)
+
+    def feedback_control(self, x: object) -> np.ndarray:
+        """:meth:`feedback`'s control alone, by the shortest path the backend has.
+
+        With ``sqp-rti``'s C step, a prepared step that succeeds goes from the C call straight
+        to the control: the same control, warm start and plan as :meth:`feedback`, without the
+        :class:`~uuv_ocp.solvers.SolveResult` and its judge (``uuv_ocp.score`` on :attr:`plan`
+        gives the judge's numbers when wanted); :attr:`last_output` is then ``None``.  Every
+        other step (the cold first one, a failed step, other backends) is :meth:`feedback`, whose
+        :class:`StepOutput` (fallback, message, result) is kept in :attr:`last_output`.
+        """
+        fast = getattr(self.backend, "feedback_in_c", None)
+        if fast is not None and self._prepared_p is not None and self._pending is not None:
+            p = self.problem.with_state(self._prepared_p, x)
+            step = fast(p, self._iterate if self.use_warm_start else None)
+            if step is not None:  # finite by the C step's own test (else it returns None)
+                u_prev = self._pending[1]
+                self._pending, self._prepared_p = None, None
+                prepared, primal, lam_x, lam_g, _ = step
+                backend, scale = self.backend, self.backend.objective_scale
+                relaxed = backend.relaxed(prepared.variant, primal)
+                iterate = backend.plan_iterate(
+                    prepared.variant, primal, lam_g / scale, lam_x / scale, relaxed
+                )
+                self._plan = self.problem.controls_from_scaled(iterate.scaled_controls)
+                self._iterate = iterate.shift()
+                self.last_output = None
+                return self._admissible(self._plan[0], u_prev)
+        self.last_output = self.feedback(x)
+        return self.last_output.control
+
+    def step_control(
+        self,
+        x: object,
+        t: float = 0.0,
+        u_prev: object | None = None,
+        current: object | None = None,
+        parameters: dict[str, Any] | None = None,
+    ) -> np.ndarray:
+        """:meth:`prepare` then :meth:`feedback_control`: the control to apply, by the shortest path."""
+        self.prepare(t, u_prev, current, parameters)
+        return self.feedback_control(x)
+
+    @property
+    def plan(self) -> np.ndarray | None:
+        """The last fresh plan (physical controls, shape (N, nu)), shifted by each fallback step."""
+        return self._plan
 
     def _admissible(self, control: np.ndarray, u_prev: object | None) -> np.ndarray:
         """``control`` projected on the box and on the rate bound around ``u_prev``.

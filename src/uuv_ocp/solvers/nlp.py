@@ -391,6 +391,30 @@ class NlpSolver:
         maps: tuple[np.ndarray, np.ndarray] = self._maps[key]
         return maps
 
+    def plan_iterate(
+        self, variant: str, primal: np.ndarray, lam_g: np.ndarray, lam_x: np.ndarray, relaxed: bool
+    ) -> Iterate:
+        """Return the plan and warm start of a solution ``primal`` of ``variant`` (NLP multipliers).
+
+        Interior-point plugins relax bounds by ~1e-8 (IPOPT's ``bound_relax_factor``): the plan
+        holds the control box exactly, so the applied control never leaves it.
+        """
+        data = self.variants[variant]
+        box = self._control_box.get(variant)
+        if box is None:  # the variant's control bounds, gathered once
+            box = self._control_box[variant] = (data.lbx[data.control_index], data.ubx[data.control_index])
+        return Iterate(
+            scaled_controls=np.clip(primal[data.control_index], *box),
+            states=primal[data.state_index],
+            primal=primal,
+            lam_g=lam_g,
+            lam_x=lam_x,
+            variant=variant,
+            terminal_relaxed=relaxed,
+            primal_shift=data.primal_shift,
+            constraint_shift=data.constraint_shift,
+        )
+
     def _iterate_of(self, attempt: dict[str, Any]) -> Iterate:
         """Warm start carrying an attempt's primal and dual vectors, in its variant's layout."""
         data = self.variants[attempt["variant"]]
@@ -658,34 +682,14 @@ class NlpSolver:
         elapsed: float,
     ) -> SolveResult:
         problem = self.problem
-        data = self.variants[final["variant"]]
-        primal = final["primal"]
-        # interior-point plugins relax bounds by ~1e-8 (IPOPT's bound_relax_factor): the plan
-        # returned holds the box exactly, so the applied control never leaves it
-        box = self._control_box.get(final["variant"])
-        if box is None:  # the variant's control bounds, gathered once
-            box = self._control_box[final["variant"]] = (
-                data.lbx[data.control_index],
-                data.ubx[data.control_index],
-            )
-        scaled = np.clip(primal[data.control_index], *box)
-        states = primal[data.state_index]
+        iterate = self.plan_iterate(
+            final["variant"], final["primal"], final["lam_g"], final["lam_x"], relaxed
+        )
+        scaled, states = iterate.scaled_controls, iterate.states
         cost, violation = score_parameters(problem, scaled.ravel(), p, self.judge_terms)
         status = final["status"]
         if final["variant"].startswith("soft"):
             status = f"soft_terminal: {status}" if relaxed else f"soft_terminal_held: {status}"
-        shift_x, shift_g = data.primal_shift, data.constraint_shift
-        iterate = Iterate(
-            scaled_controls=scaled,
-            states=states,
-            primal=primal,
-            lam_g=final["lam_g"],
-            lam_x=final["lam_x"],
-            variant=final["variant"],
-            terminal_relaxed=relaxed,
-            primal_shift=shift_x,
-            constraint_shift=shift_g,
-        )
         return SolveResult(
             solver=self.name,
             controls=problem.controls_from_scaled(scaled),

@@ -506,13 +506,16 @@ class RtiSolver(NlpSolver):
         fast = self._feedback_in_c(p, warm_start)
         return fast if fast is not None else self.solve(p, warm_start)
 
-    def _feedback_in_c(self, p: np.ndarray, warm_start: Iterate | None) -> SolveResult | None:
-        """Run the first attempt of :meth:`solve` from the C step's preparation, if it succeeds.
+    def feedback_in_c(
+        self, p: np.ndarray, warm_start: Iterate | None
+    ) -> tuple[Preparation, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """Run the prepared C step on ``p`` if it applies; ``(preparation, w, λx, λg, info)`` if it succeeds.
 
-        ``None`` (nothing consumed but the preparation's QP) when this does not apply: no
-        preparation for this warm start, another mode, a deadline, or a failed step.
+        ``λx, λg`` are the C step's (scaled by the objective scale); ``info`` as
+        :meth:`OcpQpStep.iterate`.  ``None`` (nothing consumed but the preparation) when this
+        does not apply (no preparation for this warm start and instance, another mode, a
+        deadline) or when the step fails: :meth:`solve` then takes it with its fallbacks.
         """
-        start = time.perf_counter()
         prepared = self._prepared
         if (
             prepared is None
@@ -528,14 +531,32 @@ class RtiSolver(NlpSolver):
         ocp = self._ocp_steps[(prepared.variant, prepared.still_water)]
         assert ocp is not None  # a preparation with duals came from the C step
         lam_x, lam_g = prepared.duals
-        tolerance, limit = self.qp_tolerance, self.iterations
-        call = time.perf_counter()
         primal, lam_x, lam_g, info = ocp.iterate(
-            prepared.primal, p, lam_x, lam_g, True, limit, self.tol, tolerance, math.inf
+            prepared.primal, p, lam_x, lam_g, True, self.iterations, self.tol, self.qp_tolerance, math.inf
         )
-        plugin_time = time.perf_counter() - call
         if int(info[3]) in (STOP_INFEASIBLE, STOP_EVALUATION):
             return None  # solve() takes it again from a fresh linearisation, then its fallbacks
+        return prepared, primal, lam_x, lam_g, info
+
+    def relaxed(self, variant: str, primal: np.ndarray) -> bool:
+        """Whether ``primal`` of ``variant`` needed the exact-penalty relaxation (slack > tolerance)."""
+        index = self.variants[variant].terminal_slack_index
+        return (
+            variant.startswith("soft")
+            and bool(index.size)
+            and float(np.max(primal[index])) > self.slack_tolerance
+        )
+
+    def _feedback_in_c(self, p: np.ndarray, warm_start: Iterate | None) -> SolveResult | None:
+        """Run the first attempt of :meth:`solve` from the C step's preparation, if it succeeds.
+
+        The result of :meth:`feedback_in_c` in :meth:`solve`'s format (``None`` where it is).
+        """
+        start = time.perf_counter()
+        step = self.feedback_in_c(p, warm_start)
+        if step is None:
+            return None
+        prepared, primal, lam_x, lam_g, info = step
         scale = self.objective_scale
         iterations, step_norm = int(info[0]), float(info[2])
         converged = int(info[3]) == STOP_CONVERGED
@@ -550,10 +571,10 @@ class RtiSolver(NlpSolver):
             "converged" if converged else "",
             iterations,
             step_norm,
-            plugin_time,
+            time.perf_counter() - start,
         )
         final = {**record, "qp_iterations": int(info[4])}
-        relaxed = prepared.variant.startswith("soft") and self._slack(final) > self.slack_tolerance
+        relaxed = self.relaxed(prepared.variant, primal)
         result = self._result(p, final, [final], relaxed, time.perf_counter() - start)
         result.details["deadline_hit"] = False
         result.details["c_time"] = float(info[8] + info[6] + info[7])

@@ -64,13 +64,38 @@ def _problem(reference: str = "s2") -> uo.TrackingProblem:
     return uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper(reference), horizon=20, dt=0.1)
 
 
+def _built_controller(solver: str, options: dict | None, libraries: str | None) -> uo.NMPC:
+    """Build an s2 controller and its C step (if any) now, linking ``libraries`` (None: default).
+
+    A problem of its own: backends are cached per problem and options, and the native and wheel
+    rows differ only in the libraries their C step links, which ``UUV_OCP_HPIPM`` selects when
+    the step is built.  The cold first step is IPOPT's; the second, warm, builds the C step.
+    """
+    from uuv_ocp.native.hpipm import HPIPM_ENV
+
+    before = os.environ.get(HPIPM_ENV)
+    if libraries is not None:
+        os.environ[HPIPM_ENV] = libraries
+    try:
+        problem = _problem()
+        controller = uo.NMPC(problem, solver, options=options)
+        controller.step(problem.reference.initial_state(0.0), 0.0, np.zeros(3), np.zeros(2))
+        controller.step(problem.reference.evaluate([3.0])[0], 3.0, np.zeros(3), np.zeros(2))
+    finally:
+        if before is None:
+            os.environ.pop(HPIPM_ENV, None)
+        else:
+            os.environ[HPIPM_ENV] = before
+    return controller
+
+
 def speed(duration: float = 30.0) -> list[dict]:
     """Median per-step wall times (ms) of each variant on its own s2 closed loop."""
     problem = _problem()
     reference = problem.reference
     plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
     steps = int(round(duration / problem.dt))
-    from uuv_ocp.native.hpipm import HPIPM_ENV, installed
+    from uuv_ocp.native.hpipm import installed
 
     rows = []
     native_available = installed() is not None
@@ -80,21 +105,8 @@ def speed(duration: float = 30.0) -> list[dict]:
         if libraries == NATIVE and not native_available:
             print(f"{label}: skipped, no native HPIPM (make hpipm)")
             continue
-        before = os.environ.get(HPIPM_ENV)
-        if libraries is not None:
-            os.environ[HPIPM_ENV] = libraries  # read when the C step is built, at its first solve
-        # a problem of its own: backends are cached per problem and options, and the native and
-        # wheel rows differ only in the libraries their C step links
-        problem = _problem()
-        try:
-            controller = uo.NMPC(problem, solver, options=options or None)
-            controller.step(reference.initial_state(0.0), 0.0)  # builds (and compiles) outside the timing
-            controller.step(reference.evaluate([3.0])[0], 3.0)
-        finally:
-            if before is None:
-                os.environ.pop(HPIPM_ENV, None)
-            else:
-                os.environ[HPIPM_ENV] = before
+        controller = _built_controller(solver, options or None, libraries)
+        problem = controller.problem
         controller.reset()
         state, control = reference.initial_state(0.0), np.zeros(3)
         step_times, prepare_times, feedback_times, failures = [], [], [], 0
@@ -154,7 +166,7 @@ def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
     all rows alike.  Per row: median over the rounds of the per-round median step (wall and
     thread CPU, ms), the range of the per-round medians, and the C step's own clock.
     """
-    from uuv_ocp.native.hpipm import HPIPM_ENV, installed
+    from uuv_ocp.native.hpipm import installed
 
     native_available = installed() is not None
     controllers, lean = {}, set()
@@ -165,27 +177,14 @@ def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
         if libraries == NATIVE and not native_available:
             print(f"{label}: skipped, no native HPIPM (make hpipm)")
             continue
-        before = os.environ.get(HPIPM_ENV)
-        os.environ[HPIPM_ENV] = libraries
-        try:
-            problem = _problem()
-            controller = uo.NMPC(problem, "sqp-rti", options={**OCP, **options})
-            # the cold first step is IPOPT's; the second, warm, builds the C step under this setting
-            controller.step(problem.reference.initial_state(0.0), 0.0, np.zeros(3), np.zeros(2))
-            controller.step(problem.reference.evaluate([3.0])[0], 3.0, np.zeros(3), np.zeros(2))
-        finally:
-            if before is None:
-                os.environ.pop(HPIPM_ENV, None)
-            else:
-                os.environ[HPIPM_ENV] = before
-        controllers[label] = controller
+        controllers[label] = _built_controller("sqp-rti", {**OCP, **options}, libraries)
     walls: dict[str, list[float]] = {label: [] for label in controllers}
     cpus: dict[str, list[float]] = {label: [] for label in controllers}
     c_times: dict[str, list[float]] = {label: [] for label in controllers}
+    problem = _problem()  # every row's problem is this one's equal: one plant for all
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
     for _ in range(rounds):
         for label, controller in controllers.items():
-            problem = controller.problem
-            plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
             controller.reset()
             state, control = problem.reference.initial_state(0.0), np.zeros(3)
             wall, cpu, inside = [], [], []

@@ -177,6 +177,11 @@ class NMPC:
         Uses the time, last control, current and parameters given to :meth:`prepare` (which
         must come first; ``ValueError`` otherwise).
         """
+        u_prev, p = self._measured_instance(x)
+        return self._solve_step(p, u_prev)
+
+    def _measured_instance(self, x: object) -> tuple[object | None, np.ndarray]:
+        """Consume :meth:`prepare`'s arguments: the last control and the instance at state ``x``."""
         if self._pending is None:
             raise ValueError("NMPC.feedback(x) needs NMPC.prepare(t, u_prev, ...) first (or call step)")
         (t, u_prev, current, parameters), self._pending = self._pending, None
@@ -185,6 +190,10 @@ class NMPC:
             self._prepared_p = None
         else:
             p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
+        return u_prev, p
+
+    def _solve_step(self, p: np.ndarray, u_prev: object | None) -> StepOutput:
+        """Solve instance ``p`` and pick the control: the fresh plan's, or the fallback's."""
         warm = self._iterate if self.use_warm_start else None
         feedback = getattr(self.backend, "feedback", None)
         try:
@@ -200,9 +209,8 @@ class NMPC:
             failure_reason = "" if result.success and np.all(np.isfinite(result.controls)) else result.status
         late = result is not None and bool(result.details.get("deadline_hit", False))
         if not failure_reason:
-            self._plan = result.controls
-            self._iterate = result.iterate.shift()
-            return StepOutput(self._admissible(result.controls[0], u_prev), result, False, deadline_hit=late)
+            control = self._accept(result.controls, result.iterate, u_prev)
+            return StepOutput(control, result, False, deadline_hit=late)
         control = self._admissible(self._fallback_control(u_prev), u_prev)
         if late and result is not None and np.all(np.isfinite(result.iterate.scaled_controls)):
             # the stopped solve's progress warm-starts the next one (iterations carry on across
@@ -222,24 +230,22 @@ class NMPC:
         other step (the cold first one, a failed step, other backends) is :meth:`feedback`, whose
         :class:`StepOutput` (fallback, message, result) is kept in :attr:`last_output`.
         """
+        u_prev, p = self._measured_instance(x)
         fast = getattr(self.backend, "feedback_in_c", None)
-        if fast is not None and self._prepared_p is not None and self._pending is not None:
-            p = self.problem.with_state(self._prepared_p, x)
-            step = fast(p, self._iterate if self.use_warm_start else None)
-            if step is not None:  # finite by the C step's own test (else it returns None)
-                u_prev = self._pending[1]
-                self._pending, self._prepared_p = None, None
-                prepared, primal, lam_x, lam_g, _ = step
-                backend, scale = self.backend, self.backend.objective_scale
-                relaxed = backend.relaxed(prepared.variant, primal)
-                iterate = backend.plan_iterate(
-                    prepared.variant, primal, lam_g / scale, lam_x / scale, relaxed
-                )
-                self._plan = self.problem.controls_from_scaled(iterate.scaled_controls)
-                self._iterate = iterate.shift()
-                self.last_output = None
-                return self._admissible(self._plan[0], u_prev)
-        self.last_output = self.feedback(x)
+        step = None
+        if fast is not None:
+            try:
+                step = fast(p, self._iterate if self.use_warm_start else None)
+            except Exception as error:  # the general path below solves it again and reports it
+                reraise_interrupt(error)
+        if step is not None:  # finite by the C step's own test (else it returns None)
+            prepared, primal, lam_x, lam_g, _ = step
+            backend, scale = self.backend, self.backend.objective_scale
+            relaxed = backend.relaxed(prepared.variant, primal)
+            iterate = backend.plan_iterate(prepared.variant, primal, lam_g / scale, lam_x / scale, relaxed)
+            self.last_output = None
+            return self._accept(self.problem.controls_from_scaled(iterate.scaled_controls), iterate, u_prev)
+        self.last_output = self._solve_step(p, u_prev)
         return self.last_output.control
 
     def step_control(
@@ -258,6 +264,12 @@ class NMPC:
     def plan(self) -> np.ndarray | None:
         """The last fresh plan (physical controls, shape (N, nu)), shifted by each fallback step."""
         return self._plan
+
+    def _accept(self, plan: np.ndarray, iterate: Iterate, u_prev: object | None) -> np.ndarray:
+        """Keep a fresh ``plan`` (physical controls) and its shifted warm start; the control to apply."""
+        self._plan = plan
+        self._iterate = iterate.shift()
+        return self._admissible(plan[0], u_prev)
 
     def _admissible(self, control: np.ndarray, u_prev: object | None) -> np.ndarray:
         """``control`` projected on the box and on the rate bound around ``u_prev``.

@@ -579,9 +579,14 @@ class NlpSolver:
             "plugin_time": plugin_time,
         }
 
-    def _slack(self, attempt: dict[str, Any]) -> float:
-        index = self.variants[attempt["variant"]].terminal_slack_index
-        return float(np.max(attempt["primal"][index])) if index.size else 0.0
+    def relaxed(self, variant: str, primal: np.ndarray) -> bool:
+        """Whether ``primal`` of ``variant`` needed the exact-penalty relaxation (slack > tolerance)."""
+        index = self.variants[variant].terminal_slack_index
+        return (
+            variant.startswith("soft")
+            and bool(index.size)
+            and float(np.max(primal[index])) > self.slack_tolerance
+        )
 
     # ------------------------------------------------------------------ solve
     def solve(
@@ -649,7 +654,7 @@ class NlpSolver:
             attempt(attempts[-1]["variant"], self._iterate_of(attempts[-1]), robust="rescue")
         self._clock.at = math.inf
         final = attempts[-1]
-        relaxed = final["variant"].startswith("soft") and self._slack(final) > self.slack_tolerance
+        relaxed = self.relaxed(final["variant"], final["primal"])
         elapsed = time.perf_counter() - start
         result = self._result(p, final, attempts, relaxed, elapsed)
         if limit is None or elapsed <= limit:

@@ -538,15 +538,6 @@ class RtiSolver(NlpSolver):
             return None  # solve() takes it again from a fresh linearisation, then its fallbacks
         return prepared, primal, lam_x, lam_g, info
 
-    def relaxed(self, variant: str, primal: np.ndarray) -> bool:
-        """Whether ``primal`` of ``variant`` needed the exact-penalty relaxation (slack > tolerance)."""
-        index = self.variants[variant].terminal_slack_index
-        return (
-            variant.startswith("soft")
-            and bool(index.size)
-            and float(np.max(primal[index])) > self.slack_tolerance
-        )
-
     def _feedback_in_c(self, p: np.ndarray, warm_start: Iterate | None) -> SolveResult | None:
         """Run the first attempt of :meth:`solve` from the C step's preparation, if it succeeds.
 
@@ -557,23 +548,16 @@ class RtiSolver(NlpSolver):
         if step is None:
             return None
         prepared, primal, lam_x, lam_g, info = step
-        scale = self.objective_scale
-        iterations, step_norm = int(info[0]), float(info[2])
-        converged = int(info[3]) == STOP_CONVERGED
-        record = _attempt_record(
+        final = self._c_record(
             prepared.variant,
-            False,
             prepared.still_water,
             primal,
-            lam_g / scale,
-            lam_x / scale,
-            (True, converged, False),
-            "converged" if converged else "",
-            iterations,
-            step_norm,
+            lam_x,
+            lam_g,
+            info,
+            False,
             time.perf_counter() - start,
         )
-        final = {**record, "qp_iterations": int(info[4])}
         relaxed = self.relaxed(prepared.variant, primal)
         result = self._result(p, final, [final], relaxed, time.perf_counter() - start)
         result.details["deadline_hit"] = False
@@ -724,6 +708,20 @@ class RtiSolver(NlpSolver):
         plugin_time = time.perf_counter() - start
         # seconds inside C: the preparation used, then this call's linearisations and QPs
         self._c_time += float(info[8] + info[6] + info[7])
+        return self._c_record(variant, still_water, primal, lam_x, lam_g, info, converge, plugin_time)
+
+    def _c_record(
+        self,
+        variant: str,
+        still_water: bool,
+        primal: np.ndarray,
+        lam_x: np.ndarray,
+        lam_g: np.ndarray,
+        info: np.ndarray,
+        converge: bool,
+        plugin_time: float,
+    ) -> dict[str, Any]:
+        """Return the attempt record of one C step call (``info`` of ``OcpQpStep.iterate``)."""
         iterations, violation, step_norm, stop = int(info[0]), float(info[1]), float(info[2]), int(info[3])
         converged = stop == STOP_CONVERGED
         feasible = stop not in (STOP_INFEASIBLE, STOP_EVALUATION)
@@ -737,6 +735,7 @@ class RtiSolver(NlpSolver):
             status = "converged"
         else:
             status = "max_iter" if converge else f"rti ({iterations} iteration(s), last step {step_norm:.3g})"
+        scale = self.objective_scale
         record = _attempt_record(
             variant,
             False,

@@ -22,7 +22,8 @@ full-space QP (``qpsol="hpipm"``).
 
 Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 quality row only;
 ``--hpipm-options``: only the ``hpipm-ocp`` path under each HPIPM setting of ``HPIPM_SETTINGS``;
-``--interleaved``: only the C step's rows of ``INTERLEAVED``, three rounds interleaved).
+``--interleaved``: only the C step's rows of ``INTERLEAVED``, three rounds interleaved;
+``--speed-abs-quality``: only the closed-loop quality of HPIPM's ``speed_abs`` mode).
 """
 
 from __future__ import annotations
@@ -315,6 +316,14 @@ QUALITY_SOLVERS: tuple[tuple[str, str, dict | None], ...] = (
 )
 
 
+#: ``--speed-abs-quality``: HPIPM's ``speed_abs`` mode against the default, closed loop
+SPEED_ABS_QUALITY: tuple[tuple[str, str, dict | None], ...] = (
+    ("rti speed", "sqp-rti", OCP),
+    ("rti speed_abs", "sqp-rti", {**OCP, "qpsol_options": {"mode": "speed_abs"}}),
+    ("fatrop", "fatrop", None),
+)
+
+
 def c_driver_speed(problem: uo.TrackingProblem, duration: float = 30.0) -> str:
     """Median wall and thread-CPU time of ``nmpc_step`` in ``examples/c/nmpc_loop.c`` (all C).
 
@@ -361,8 +370,12 @@ def quality(
     duration: float = 30.0,
     references: tuple[str, ...] = tuple(f"s{i}" for i in range(1, 11)),
     bluerov: bool = True,
+    solvers: tuple[tuple[str, str, dict | None], ...] = QUALITY_SOLVERS,
 ) -> list:
-    """Errors after the transient and over the whole run, RTI (both QP paths) vs fatrop."""
+    """Errors after the transient and over the whole run of each of ``solvers``.
+
+    Default ``solvers``: RTI on both QP paths and fatrop.
+    """
     rows = []
     for name in references:
         problem = _problem(name)
@@ -372,7 +385,7 @@ def quality(
         length = min(duration, reference.t_end - t0 - problem.horizon * problem.dt)
         x0 = reference.initial_state(t0)
         row: dict = {"reference": name}
-        for label, solver, options in QUALITY_SOLVERS:
+        for label, solver, options in solvers:
             run = uo.simulate(uo.NMPC(problem, solver, options=options), x0=x0, duration=length, t0=t0)
             metrics = run.metrics()
             row[label] = {
@@ -389,7 +402,7 @@ def quality(
     finally:
         sys.path.pop(0)
     row = {"reference": "bluerov2"}
-    for label, solver, options in QUALITY_SOLVERS:
+    for label, solver, options in solvers:
         outcome = bluerov2_depth.main(duration=duration, solver=solver, options=options)
         settled = outcome.run.t >= 5.0
         error = np.linalg.norm((outcome.run.states - outcome.run.reference)[:, :3], axis=1)
@@ -402,13 +415,31 @@ def quality(
     return rows
 
 
-def main(quick: bool = False, settings: bool = False, rounds: int = 0) -> None:
+def print_quality(rows: list, labels: list[str]) -> None:
+    """Print :func:`quality`'s rows: settled and whole-run error, failures, per solver."""
+    print(f"{'case':<10}" + "".join(f"{label + ' settled':>20}{'whole':>8}{'fail':>5}" for label in labels))
+    for row in rows:
+        print(
+            f"{row['reference']:<10}"
+            + "".join(
+                f"{row[label]['settled']:>20.2e}{row[label]['whole']:>8.3f}{row[label]['failures']:>5d}"
+                for label in labels
+            )
+        )
+
+
+def main(quick: bool = False, settings: bool = False, rounds: int = 0, speed_abs: bool = False) -> None:
     """Print the speed table (ratios to fatrop) and the quality table (``quick``: s2 only).
 
     ``settings``: only the table of HPIPM settings of the ``hpipm-ocp`` path; ``rounds``: only
-    the interleaved table (:func:`interleaved`) over that many rounds.
+    the interleaved table (:func:`interleaved`) over that many rounds; ``speed_abs``: only the
+    quality table of :data:`SPEED_ABS_QUALITY`.
     """
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    if speed_abs:
+        print("\nlargest position error (m), RTI with HPIPM's speed and speed_abs modes vs fatrop, 30 s")
+        print_quality(quality(solvers=SPEED_ABS_QUALITY), [label for label, _, _ in SPEED_ABS_QUALITY])
+        return
     if rounds:
         print(f"\nsqp-rti, s2 closed loop (30 s from rest), {rounds} interleaved rounds, ms per step")
         print(f"{'C step':<24}{'wall':>8}{'range':>16}{'CPU':>8}{'in C':>8}")
@@ -444,16 +475,8 @@ def main(quick: bool = False, settings: bool = False, rounds: int = 0) -> None:
         )
     print(f"\ngenerated C loop (examples/c/nmpc_loop.c): {c_driver_speed(_problem())}")
     print("\nlargest position error (m): after the transient (t >= 5 s) and over the run, 30 s")
-    labels = [label for label, _, _ in QUALITY_SOLVERS]
-    print(f"{'case':<10}" + "".join(f"{label + ' settled':>20}{'whole':>8}{'fail':>5}" for label in labels))
-    for row in quality(references=("s2",), bluerov=False) if quick else quality():
-        print(
-            f"{row['reference']:<10}"
-            + "".join(
-                f"{row[label]['settled']:>20.2e}{row[label]['whole']:>8.3f}{row[label]['failures']:>5d}"
-                for label in labels
-            )
-        )
+    rows = quality(references=("s2",), bluerov=False) if quick else quality()
+    print_quality(rows, [label for label, _, _ in QUALITY_SOLVERS])
     print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
 
 
@@ -462,4 +485,5 @@ if __name__ == "__main__":
         quick="--quick" in sys.argv,
         settings="--hpipm-options" in sys.argv,
         rounds=3 if "--interleaved" in sys.argv else 0,
+        speed_abs="--speed-abs-quality" in sys.argv,
     )

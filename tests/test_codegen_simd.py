@@ -188,3 +188,9 @@ def test_a_per_function_tolerance_loosens_only_the_function_it_names():
     assert 1e-12 < errors["cost_batch"] <= 1e-10
     with pytest.raises(VerificationError, match="'rollout'.*tolerance 1.0e-12"):
         _verify(list(exact.values()), off, np.random.default_rng(0), 1e-12, loose)
+
+
+def test_a_bad_per_function_tolerance_is_named(tmp_path):
+    x = ca.SX.sym("x")
+    with pytest.raises(ValueError, match=r"tolerances\['f'\] must be a number >= 0, got -1"):
+        codegen_core.compile_functions([ca.Function("f", [x], [x])], tmp_path, tolerances={"f": -1})

@@ -532,5 +532,10 @@ def _move_heading_branch(states: np.ndarray, heading: float, column: int = 2) ->
 
     The multiple is the one that brings its first value closest to ``heading``.
     """
-    turns = np.round((heading - states[0, column]) / (2.0 * math.pi))
-    states[:, column] += 2.0 * math.pi * turns
+    # Python's round on a float (half to even, as np.round) instead of np.round on a numpy
+    # scalar: this runs on every closed-loop step (a third of TrackingProblem.with_state's time)
+    turns = (float(heading) - float(states[0, column])) / (2.0 * math.pi)
+    if not math.isfinite(turns):  # NaN and inf propagate as they did through np.round
+        states[:, column] += turns
+    elif turns := round(turns):  # no turn leaves the column as it is
+        states[:, column] += 2.0 * math.pi * turns

@@ -46,6 +46,7 @@ CONIC = {"qpsol": "hpipm"}
 NATIVE, WHEEL = "native", "wheel"
 SPEED_VARIANTS: tuple[tuple[str, str, dict | None], ...] = (
     ("sqp-rti hpipm-ocp native", "sqp-rti", {**OCP, "hpipm": NATIVE}),
+    ("native, step_control", "sqp-rti", {**OCP, "hpipm": NATIVE, "lean": True}),
     ("sqp-rti hpipm-ocp wheel", "sqp-rti", {**OCP, "hpipm": WHEEL}),
     ("native, no condensing", "sqp-rti", {**OCP, "hpipm": NATIVE, "qpsol_options": {"cond_horizon": 0}}),
     ("native, speed_abs", "sqp-rti", {**OCP, "hpipm": NATIVE, "qpsol_options": {"mode": "speed_abs"}}),
@@ -103,6 +104,7 @@ def speed(duration: float = 30.0) -> list[dict]:
     for label, solver, given in SPEED_VARIANTS:
         options = dict(given or {})
         libraries = options.pop("hpipm", None)
+        lean = options.pop("lean", False)  # NMPC.step_control (the resident C step): no phases
         if libraries == NATIVE and not native_available:
             print(f"{label}: skipped, no native HPIPM (make hpipm)")
             continue
@@ -115,19 +117,27 @@ def speed(duration: float = 30.0) -> list[dict]:
         cpu_times: list[float] = []
         for k in range(steps):
             start, cpu = time.perf_counter(), time.thread_time()
-            controller.prepare(k * problem.dt, control, np.zeros(2))
-            middle = time.perf_counter()
-            output = controller.feedback(state)
+            if lean:
+                control = controller.step_control(state, k * problem.dt, control, np.zeros(2))
+                output = controller.last_output  # None after a resident C step
+                middle = start
+            else:
+                controller.prepare(k * problem.dt, control, np.zeros(2))
+                middle = time.perf_counter()
+                output = controller.feedback(state)
             end = time.perf_counter()
             cpu_times.append(time.thread_time() - cpu)
             step_times.append(end - start)
             prepare_times.append(middle - start)
             feedback_times.append(end - middle)
-            failures += int(output.fallback)
-            c_time = output.result.details.get("c_time") if output.result is not None else None
-            if c_time is not None:
-                c_times.append(c_time)
-            control = output.control
+            if output is None:  # step_control's resident C step: its control is already there
+                c_times.append(_resident_c_time(controller))
+            else:
+                failures += int(output.fallback)
+                c_time = output.result.details.get("c_time") if output.result is not None else None
+                if c_time is not None:
+                    c_times.append(c_time)
+                control = output.control
             state = np.array(plant(state, control, np.zeros(2))).ravel()
         # the first step (cold start: IPOPT for sqp-rti) is excluded from the medians of none
         rows.append(
@@ -151,10 +161,12 @@ def speed(duration: float = 30.0) -> list[dict]:
 INTERLEAVED: tuple[tuple[str, str, dict], ...] = (
     ("native (default)", NATIVE, {}),
     ("native, step_control", NATIVE, {"lean": True}),
+    ("native, prepare + feedback_control", NATIVE, {"split": True}),
     ("native, speed_abs", NATIVE, {"qpsol_options": {"mode": "speed_abs"}}),
     ("native, no condensing", NATIVE, {"qpsol_options": {"cond_horizon": 0}}),
     ("wheel", WHEEL, {}),
     ("native, converged", NATIVE, {"mode": "converged"}),
+    ("native, converged, step_control", NATIVE, {"mode": "converged", "lean": True}),
     ("wheel, converged", WHEEL, {"mode": "converged"}),
 )
 
@@ -170,11 +182,13 @@ def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
     from uuv_ocp.native.hpipm import installed
 
     native_available = installed() is not None
-    controllers, lean = {}, set()
+    controllers, lean, split = {}, set(), set()
     for label, libraries, given in INTERLEAVED:
         options = dict(given)
-        if options.pop("lean", False):  # NMPC.feedback_control: the control alone
+        if options.pop("lean", False):  # NMPC.step_control: the resident C step
             lean.add(label)
+        if options.pop("split", False):  # NMPC.prepare, then feedback_control: the control alone
+            split.add(label)
         if libraries == NATIVE and not native_available:
             print(f"{label}: skipped, no native HPIPM (make hpipm)")
             continue
@@ -191,15 +205,20 @@ def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
             wall, cpu, inside = [], [], []
             for k in range(steps):
                 start, start_cpu = time.perf_counter(), time.thread_time()
-                controller.prepare(k * problem.dt, control, np.zeros(2))
                 if label in lean:
-                    control = controller.feedback_control(state)
+                    control = controller.step_control(state, k * problem.dt, control, np.zeros(2))
                 else:
-                    output = controller.feedback(state)
-                    control = output.control
+                    controller.prepare(k * problem.dt, control, np.zeros(2))
+                    if label in split:
+                        control = controller.feedback_control(state)
+                    else:
+                        output = controller.feedback(state)
+                        control = output.control
                 wall.append(time.perf_counter() - start)
                 cpu.append(time.thread_time() - start_cpu)
-                if k and label not in lean and output.result is not None:
+                if k and label in lean and controller.last_output is None:  # a resident C step
+                    inside.append(_resident_c_time(controller))
+                elif k and label not in lean | split and output.result is not None:
                     inside.append(output.result.details["c_time"])
                 state = np.array(plant(state, control, np.zeros(2))).ravel()
             walls[label].append(1e3 * float(np.median(wall)))
@@ -215,6 +234,13 @@ def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
         }
         for label in controllers
     ]
+
+
+def _resident_c_time(controller: uo.NMPC) -> float:
+    """Seconds the C step of ``controller``'s last resident step measured itself (linearisations, QPs)."""
+    plan = controller._resident  # noqa: SLF001 (the bench reads the C step's own clock)
+    step = controller.backend.ocp_step(plan.variant, plan.still_water)
+    return float(step.info[6] + step.info[7])
 
 
 #: HPIPM settings of the ``hpipm-ocp`` path compared by ``--hpipm-options``

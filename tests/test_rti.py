@@ -449,6 +449,55 @@ def test_a_failing_preparation_costs_speed_not_the_step(problem, monkeypatch):
         broken.step(state, 3 * problem.dt, control)
 
 
+@pytest.mark.parametrize("mode", ["rti", "converged"])
+def test_resident_steps_of_controllers_sharing_a_backend_equal_step(problem, mode):
+    """Two controllers on one cached backend (one C step, one resident warm start) alternate.
+
+    Each must give the controls and warm starts ``NMPC.step`` gives on its own measurements (a
+    third controller on a backend of its own): the resident warm start is re-seeded whenever
+    the other controller seeded it since.  A changed shift or a missing owner check fails it.
+    """
+    needs_compiler("hpipm-ocp")
+    options = {"qpsol": "hpipm-ocp", "mode": mode}
+    first, second = uo.NMPC(problem, "sqp-rti", options=options), uo.NMPC(problem, "sqp-rti", options=options)
+    assert first.backend is second.backend
+    separate = {**options, "slack_tolerance": 1e-7}  # another options dict: another backend
+    references = [uo.NMPC(problem, "sqp-rti", options=separate) for _ in range(2)]
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    rng = np.random.default_rng(17)
+    # near the reference, 5 cm apart: both stay on the hard NLP, so they share one C step
+    start = problem.reference.evaluate([1.0])[0]
+    states = [start, start + np.array([0.05, -0.05, 0.0, 0.0, 0.0, 0.0])]
+    controls = [np.zeros(3), np.zeros(3)]
+    resident = 0
+    for k in range(10):
+        t = 1.0 + k * problem.dt
+        for i, (lean, full) in enumerate(zip((first, second), references, strict=True)):
+            measured = states[i] + 1e-3 * rng.standard_normal(6)
+            control = lean.step_control(measured, t, controls[i], np.zeros(2))
+            expected = full.step(measured, t, controls[i], np.zeros(2))
+            assert lean._resident is None or lean._resident.variant == "hard"
+            assert np.array_equal(control, expected.control), (k, i)
+            assert np.array_equal(lean.plan, expected.result.controls), (k, i)
+            assert np.array_equal(lean.iterate.primal, full.iterate.primal), (k, i)
+            resident += lean.last_output is None
+            controls[i] = control
+            states[i] = np.array(plant(states[i], control, np.zeros(2))).ravel()
+    # rti: all but the two cold first steps; converged: a step from near rest that does not
+    # converge within max_iter goes through the general path (the same result, as checked)
+    assert resident == 18 if mode == "rti" else resident >= 8
+
+
+def test_resident_seed_checks_its_sizes(problem):
+    """``OcpQpStep.seed`` refuses vectors of the wrong size, naming the sizes expected."""
+    needs_compiler("hpipm-ocp")
+    backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp"})
+    step = backend.ocp_step("hard")
+    assert step is not None
+    with pytest.raises(ValueError, match="seed needs w and lam_x of size"):
+        step.seed(np.zeros(3), np.zeros(3), np.zeros(3), None)
+
+
 def test_step_control_gives_step_s_controls_without_the_result(problem):
     """``NMPC.step_control``: the controls, plans and warm starts of ``NMPC.step``, bit for bit.
 

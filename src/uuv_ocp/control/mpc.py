@@ -107,6 +107,11 @@ class NMPC:
         self._plan: np.ndarray | None = None
         self._pending: tuple[Any, ...] | None = None
         self._prepared_p: np.ndarray | None = None  # the instance prepare() linearised
+        # the last plan of a step_control step taken by sqp-rti's C step from its resident warm
+        # start (kept instead of _iterate/_plan until another path needs those: _materialize)
+        self._resident: Any = None
+        self._token = object()  # this controller, as the owner of a C step's resident warm start
+        self._bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # see _admissible
         #: the last :meth:`feedback_control` step's output (None after a step by the C step alone)
         self.last_output: StepOutput | None = None
 
@@ -114,6 +119,7 @@ class NMPC:
         """Forget the warm start and the previous plan; restart the random generator."""
         self._iterate = None
         self._plan = None
+        self._resident = None
         self._pending = None
         self._prepared_p = None
         self._rng = np.random.default_rng(self.seed)
@@ -121,7 +127,17 @@ class NMPC:
     @property
     def iterate(self) -> Iterate | None:
         """The warm start the next :meth:`step` will use (already shifted)."""
+        if self._resident is not None:
+            return self.backend.resident_iterate(self._resident).shift()
         return self._iterate
+
+    def _materialize(self) -> None:
+        """Turn the plan of the last resident C step into ``_iterate`` and ``_plan``."""
+        if self._resident is not None:
+            iterate = self.backend.resident_iterate(self._resident)
+            self._plan = self.problem.controls_from_scaled(iterate.scaled_controls)
+            self._iterate = iterate.shift()
+            self._resident = None
 
     def step(
         self,
@@ -156,6 +172,7 @@ class NMPC:
         is dropped (``KeyboardInterrupt`` excepted), and :meth:`feedback` then solves afresh,
         reporting any failure as a step's failure.
         """
+        self._materialize()
         self._pending = (t, u_prev, current, parameters)
         self._prepared_p = None
         prepare = getattr(self.backend, "prepare", None)
@@ -256,13 +273,57 @@ class NMPC:
         current: object | None = None,
         parameters: dict[str, Any] | None = None,
     ) -> np.ndarray:
-        """:meth:`prepare` then :meth:`feedback_control`: the control to apply, by the shortest path."""
+        """Return the control to apply at state ``x`` and time ``t``, by the shortest path there is.
+
+        The control, plan and warm start of :meth:`step`.  With ``sqp-rti``'s C step, a step
+        from a warm start is one C call from the C step's resident copy of the last plan,
+        shifted in C (:meth:`~uuv_ocp.solvers.rti.RtiSolver.resident_step`), with the
+        instance built at the measured state at once: the measured state enters the
+        linearisation directly instead of moving a prepared one (bit-equal to :meth:`step` on
+        the loops of ``tests/test_rti.py``, where the prepared guess is the warm start's own
+        first state).  :attr:`iterate` and :attr:`plan` are built from that plan when read;
+        :attr:`last_output` is ``None``.  Every other step
+        (the cold first one, a step the C step does not accept, other backends) is
+        :meth:`prepare` then :meth:`feedback_control`, with its :class:`StepOutput` in
+        :attr:`last_output`.
+        """
+        control = self._resident_control(x, t, u_prev, current, parameters)
+        if control is not None:
+            return control
         self.prepare(t, u_prev, current, parameters)
         return self.feedback_control(x)
+
+    def _resident_control(
+        self,
+        x: object,
+        t: float,
+        u_prev: object | None,
+        current: object | None,
+        parameters: dict[str, Any] | None,
+    ) -> np.ndarray | None:
+        """Return the control of a step from the C step's resident warm start, or ``None``."""
+        step = getattr(self.backend, "resident_step", None)
+        if step is None or not self.use_warm_start or (self._resident is None and self._iterate is None):
+            return None
+        self._pending = self._prepared_p = None
+        p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
+        try:
+            plan = step(p, self._iterate, self._resident, self._token)
+        except Exception as error:  # the general path solves it again and reports it
+            reraise_interrupt(error)
+            plan = None
+        if plan is None:
+            self._materialize()
+            return None
+        self._resident, self._iterate, self.last_output = plan, None, None
+        return self._admissible(plan.control, u_prev)
 
     @property
     def plan(self) -> np.ndarray | None:
         """The last fresh plan (physical controls, shape (N, nu)), shifted by each fallback step."""
+        if self._resident is not None:
+            iterate = self.backend.resident_iterate(self._resident)
+            return self.problem.controls_from_scaled(iterate.scaled_controls)
         return self._plan
 
     def _accept(self, plan: np.ndarray, iterate: Iterate, u_prev: object | None) -> np.ndarray:
@@ -277,14 +338,16 @@ class NMPC:
         Exact solvers hold both to their tolerance (~1e-8 relative); the projection makes the
         applied control hold them exactly, so the plant never sees a bound violated.
         """
-        spec = self.problem.spec()
-        lower, upper = spec.lower, spec.upper  # not written to: np.maximum/minimum/clip make new arrays
+        if self._bounds is None:  # the problem's box and rate step, gathered once
+            spec = self.problem.spec()
+            self._bounds = (spec.lower, spec.upper, spec.max_rate * spec.dt)
+        lower, upper, step = self._bounds  # not written to: np.maximum/minimum make new arrays
         if u_prev is not None:
-            step = spec.max_rate * spec.dt
             previous = np.asarray(u_prev, dtype=float)
             lower = np.maximum(lower, previous - step)
             upper = np.minimum(upper, previous + step)
-        return np.clip(control, lower, np.maximum(lower, upper))
+        # np.clip's values (NaN included) without its ~5 µs of dispatch
+        return np.minimum(np.maximum(control, lower), np.maximum(lower, upper))
 
     def _fallback_control(self, u_prev: object | None) -> np.ndarray:
         if self._plan is not None and self._plan.shape[0] > 1:

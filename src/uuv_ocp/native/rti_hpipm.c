@@ -51,6 +51,10 @@ typedef struct {
   casadi_real w[RTI_SZ_W];
   int prepared;
   double prepare_time;    /* seconds the last preparation took (its own clock) */
+  /* resident warm start of uuv_rti_resident_step (uuv_rti_seed), and its working copy */
+  int resident;
+  double r_w[RTI_NW], r_lam_x[RTI_NW], r_lam_g[RTI_NG > 0 ? RTI_NG : 1];
+  double k_w[RTI_NW], k_lam_x[RTI_NW], k_lam_g[RTI_NG > 0 ? RTI_NG : 1];
 } rti_memory;
 
 static double rti_now(void) {
@@ -231,6 +235,14 @@ static void rti_patch_state(rti_memory* m, const double* p) {
   for (i = 0; i < RTI_NX0; ++i) m->x0[i] = p[rti_x0_param[i]];
 }
 
+/* The larger of violation and how far v lies below lo / above hi (sides with a nonzero mask);
+ * a NaN v gives NaN (the comparison fails); rti_solve_qp also checks d for finiteness. */
+static double rti_outside(double v, double lo, double hi, double lo_mask, double hi_mask, double violation) {
+  if (lo_mask != 0.0 && !(lo - v <= violation)) violation = lo - v;
+  if (hi_mask != 0.0 && !(v - hi <= violation)) violation = v - hi;
+  return violation;
+}
+
 /* Solve the loaded QP; write d (NLP order) and the multipliers; return the violation of the
  * linearised constraints (inf if the solution is not finite). */
 static double rti_solve_qp(rti_memory* m, int* qp_iter) {
@@ -294,27 +306,18 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
       v = 0.0;
       for (j = 0; j < nx; ++j) v += data[o[O_C] + i + j * ng] * x[j];
       for (j = 0; j < nu; ++j) v += data[o[O_D] + i + j * ng] * u[j];
-      if (rti_lg_mask[rti_og[k] + i] != 0.0 && !(data[o[O_LG] + i] - v <= violation))
-        violation = data[o[O_LG] + i] - v;
-      if (rti_ug_mask[rti_og[k] + i] != 0.0 && !(v - data[o[O_UG] + i] <= violation))
-        violation = v - data[o[O_UG] + i];
+      violation = rti_outside(v, data[o[O_LG] + i], data[o[O_UG] + i], rti_lg_mask[rti_og[k] + i],
+                              rti_ug_mask[rti_og[k] + i], violation);
     }
     nb = rti_nbu[k];
-    for (i = 0; i < nb; ++i) {
-      v = u[rti_idxbu[rti_obu[k] + i]];
-      if (rti_lbu_mask[rti_obu[k] + i] != 0.0 && !(data[o[O_LBU] + i] - v <= violation))
-        violation = data[o[O_LBU] + i] - v;
-      if (rti_ubu_mask[rti_obu[k] + i] != 0.0 && !(v - data[o[O_UBU] + i] <= violation))
-        violation = v - data[o[O_UBU] + i];
-    }
+    for (i = 0; i < nb; ++i)
+      violation = rti_outside(u[rti_idxbu[rti_obu[k] + i]], data[o[O_LBU] + i], data[o[O_UBU] + i],
+                              rti_lbu_mask[rti_obu[k] + i], rti_ubu_mask[rti_obu[k] + i], violation);
     nb = rti_nbx[k];
-    for (i = 0; i < nb; ++i) {
-      double lo = k == 0 ? m->lbx0[i] : data[o[O_LBX] + i];
-      double hi = k == 0 ? m->lbx0[i] : data[o[O_UBX] + i];
-      v = x[rti_idxbx[rti_obx[k] + i]];
-      if (rti_lbx_mask[rti_obx[k] + i] != 0.0 && !(lo - v <= violation)) violation = lo - v;
-      if (rti_ubx_mask[rti_obx[k] + i] != 0.0 && !(v - hi <= violation)) violation = v - hi;
-    }
+    for (i = 0; i < nb; ++i)
+      violation = rti_outside(x[rti_idxbx[rti_obx[k] + i]], k == 0 ? m->lbx0[i] : data[o[O_LBX] + i],
+                              k == 0 ? m->lbx0[i] : data[o[O_UBX] + i], rti_lbx_mask[rti_obx[k] + i],
+                              rti_ubx_mask[rti_obx[k] + i], violation);
   }
   /* multipliers in CasADi's convention (lam > 0 at an upper bound), NLP order */
   {
@@ -400,5 +403,42 @@ done:
   info[6] = t_lin;
   info[7] = t_qp;
   info[8] = used_preparation;
+  return 0;
+}
+
+/* Keep (w, lam_x, lam_g) as the warm start of the next uuv_rti_resident_step (the multipliers
+ * in this step's convention: CasADi's times the objective scale). */
+void uuv_rti_seed(void* memory, const double* w, const double* lam_x, const double* lam_g) {
+  rti_memory* m = (rti_memory*)memory;
+  memcpy(m->r_w, w, sizeof(double) * RTI_NW);
+  memcpy(m->r_lam_x, lam_x, sizeof(double) * RTI_NW);
+  if (RTI_NG) memcpy(m->r_lam_g, lam_g, sizeof(double) * RTI_NG);
+  m->resident = 1;
+}
+
+/* One step from the resident warm start: uuv_rti_iterate on a copy of it with instance p (no
+ * preparation, no budget).  Accepted when every QP solution held the linearised constraints
+ * (stop 0 or 1) and, with converged_only, the iteration converged (stop 1): then w, lam_x,
+ * lam_g get the new point and the resident warm start becomes that point shifted by one stage
+ * (rti_primal_shift, rti_constraint_shift: Iterate.shift's maps), and 0 is returned.
+ * Otherwise 1 (-1: nothing resident), with the outputs and the resident point unchanged.
+ * info as uuv_rti_iterate, written in every case. */
+int uuv_rti_resident_step(void* memory, const double* p, int max_iter, double tol, double qp_tol,
+                          int converged_only, double* w, double* lam_x, double* lam_g, double* info) {
+  rti_memory* m = (rti_memory*)memory;
+  int i, stop;
+  if (!m->resident) return -1;
+  memcpy(m->k_w, m->r_w, sizeof(double) * RTI_NW);
+  memcpy(m->k_lam_x, m->r_lam_x, sizeof(double) * RTI_NW);
+  if (RTI_NG) memcpy(m->k_lam_g, m->r_lam_g, sizeof(double) * RTI_NG);
+  uuv_rti_iterate(memory, m->k_w, p, 0, max_iter, tol, qp_tol, INFINITY, m->k_lam_x, m->k_lam_g, info);
+  stop = (int)info[3];
+  if (stop == 2 || stop == 4 || (converged_only && stop != 1)) return 1;
+  memcpy(w, m->k_w, sizeof(double) * RTI_NW);
+  memcpy(lam_x, m->k_lam_x, sizeof(double) * RTI_NW);
+  if (RTI_NG) memcpy(lam_g, m->k_lam_g, sizeof(double) * RTI_NG);
+  for (i = 0; i < RTI_NW; ++i) m->r_w[i] = m->k_w[rti_primal_shift[i]];
+  for (i = 0; i < RTI_NW; ++i) m->r_lam_x[i] = m->k_lam_x[rti_primal_shift[i]];
+  for (i = 0; i < RTI_NG; ++i) m->r_lam_g[i] = m->k_lam_g[rti_constraint_shift[i]];
   return 0;
 }

@@ -60,7 +60,7 @@ import os
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -169,6 +169,38 @@ class Preparation:
     time: float
     warm_start: Iterate | None = None
     duals: tuple[np.ndarray, np.ndarray] | None = None
+
+
+class ResidentPlan(NamedTuple):
+    """The plan of a step the C step took from its resident warm start (:meth:`RtiSolver.resident_step`).
+
+    What :class:`~uuv_ocp.control.NMPC` keeps instead of an :class:`Iterate` while its steps
+    run from the resident warm start; :meth:`RtiSolver.resident_iterate` turns it into one.
+    A named tuple (immutable, built in ~0.5 µs, a frozen dataclass in ~4): one is built per step.
+
+    Parameters
+    ----------
+    variant : str
+        NLP variant of ``primal``.
+    still_water : bool
+        Whether the still-water NLP was solved.
+    primal : numpy.ndarray
+        The new NLP point (unshifted).
+    lam_x, lam_g : numpy.ndarray
+        Its multipliers in the C step's convention (CasADi's times the objective scale).
+    relaxed : bool
+        Whether the plan needed the exact-penalty relaxation.
+    control : numpy.ndarray
+        The plan's first control (physical units), clipped to the box as :meth:`plan_iterate` does.
+    """
+
+    variant: str
+    still_water: bool
+    primal: np.ndarray
+    lam_x: np.ndarray
+    lam_g: np.ndarray
+    relaxed: bool
+    control: np.ndarray
 
 
 def qp_functions(
@@ -322,6 +354,7 @@ class RtiSolver(NlpSolver):
         self._ocp_steps: dict[tuple[str, bool], OcpQpStep | None] = {}
         self._c_time = 0.0
         self._not_state: np.ndarray | None = None  # mask of p's entries other than the state
+        self._first_controls: dict[str, tuple[np.ndarray, ...]] = {}
 
     # ---------------------------------------------------------------- functions
     def _sparsities(self, variant: str) -> tuple[ca.Function, ca.Sparsity, ca.Sparsity]:
@@ -446,16 +479,100 @@ class RtiSolver(NlpSolver):
     # ------------------------------------------------------------------ phases
     def first_variant(self, warm_start: Iterate | None) -> str:
         """NLP variant the next :meth:`solve` tries first (the terminal strategy's choice)."""
+        if warm_start is None:
+            return self._first_variant(None, False)
+        return self._first_variant(warm_start.variant, warm_start.terminal_relaxed)
+
+    def _first_variant(self, variant: str | None, relaxed: bool) -> str:
+        """:meth:`first_variant` of a warm start of ``variant`` (None: none) and ``relaxed``."""
         if "soft" not in self.variants:
             return "hard"
         strategy = self.terminal_strategy
-        if strategy == "soft" or (
-            strategy == "sticky" and warm_start is not None and warm_start.terminal_relaxed
-        ):
-            if warm_start is not None and warm_start.variant in self._escalations:
-                return warm_start.variant
+        if strategy == "soft" or (strategy == "sticky" and variant is not None and relaxed):
+            if variant in self._escalations:
+                return str(variant)
             return "soft"
         return "hard"
+
+    # --------------------------------------------------------- resident steps
+    def resident_step(
+        self, p: np.ndarray, warm_start: Iterate | None, last: ResidentPlan | None, owner: object
+    ) -> ResidentPlan | None:
+        """One step of the C step from its resident warm start, for ``NMPC.step_control``.
+
+        The warm start is the C step's own copy of the last plan, shifted in C (``last``, the
+        caller's last :class:`ResidentPlan`), or ``warm_start`` seeded into it when ``last`` is
+        ``None``, belongs to another variant than the terminal strategy now picks, or another
+        ``owner`` (a controller sharing this backend) seeded it since.  The step is the first
+        attempt of :meth:`solve` (same variant, iterations, stops); ``None`` when it does not
+        apply (no C step, a deadline, no warm start) or is not accepted (an infeasible QP, and
+        in converged mode no convergence): the caller then solves by :meth:`solve`, from the
+        warm start ``resident_iterate(last).shift()``.
+        """
+        if self.qpsol != "hpipm-ocp" or self.deadline is not None:
+            return None
+        still_water = self._uses_still_water(p)
+        ocp = None
+        if last is not None:
+            variant = self._first_variant(last.variant, last.relaxed)
+            ocp = self._ocp_steps.get((variant, still_water))
+            fresh = variant == last.variant and still_water == last.still_water
+            if not fresh or ocp is None or ocp.owner is not owner:
+                warm_start, ocp = self.resident_iterate(last).shift(), None
+        if ocp is None:
+            if warm_start is None:
+                return None
+            variant = self.first_variant(warm_start)
+            ocp = self.ocp_step(variant, still_water)
+            if ocp is None:
+                return None
+            data, objective_scale = self.variants[variant], self.objective_scale
+            primal, lam_g, lam_x = self._initial_point(variant, p, warm_start)
+            ocp.seed(
+                primal,
+                np.zeros(data.lbx.size) if lam_x is None else lam_x * objective_scale,
+                np.zeros(data.lbg.size) if lam_g is None else lam_g * objective_scale,
+                owner,
+            )
+        converge = self.mode == "converged"
+        limit = (self.max_iter or self.default_max_iter) if converge else self.iterations
+        if not ocp.resident_step(p, limit, self.tol, self.qp_tolerance, converge):
+            ocp.owner = None  # the caller goes on from its own copy of the plan
+            return None
+        primal = ocp.w.copy()
+        index, lower, upper, scale, centre = self._first_control(variant)
+        # plan_iterate's clip to the box, then OcpSpec.physical, on the first control alone
+        control = centre + scale * np.minimum(np.maximum(primal[index], lower), upper)
+        return ResidentPlan(
+            variant,
+            still_water,
+            primal,
+            ocp.lam_x.copy(),
+            ocp.lam_g.copy(),
+            self.relaxed(variant, primal),
+            control,
+        )
+
+    def resident_iterate(self, plan: ResidentPlan) -> Iterate:
+        """Return the plan and warm start of ``plan`` as :meth:`solve` returns them (unshifted)."""
+        scale = self.objective_scale
+        lam_g, lam_x = plan.lam_g / scale, plan.lam_x / scale
+        return self.plan_iterate(plan.variant, plan.primal, lam_g, lam_x, plan.relaxed)
+
+    def _first_control(self, variant: str) -> tuple[np.ndarray, ...]:
+        """Positions of the first control in ``variant``'s primal, its box (scaled), scale, centre."""
+        if variant not in self._first_controls:
+            data = self.variants[variant]
+            spec = self.problem.spec()
+            index = np.reshape(data.control_index, (spec.horizon, spec.control_size))[0]
+            self._first_controls[variant] = (
+                index,
+                data.lbx[index],
+                data.ubx[index],
+                spec.control_scale,
+                spec.control_centre,
+            )
+        return self._first_controls[variant]
 
     def prepare(self, p: np.ndarray, warm_start: Iterate | None) -> Preparation | None:
         """Linearise at ``warm_start`` for instance ``p`` (its state part a guess); keep it.

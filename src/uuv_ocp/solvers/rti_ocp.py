@@ -381,12 +381,14 @@ def c_source(
     function: ca.Function,
     offsets: np.ndarray,
     x0_param: np.ndarray,
-    nw: int,
-    ng: int,
+    data: NlpData,
     pi_sign: float = -1.0,
     prefix: str = "",
 ) -> str:
     """Return the hand-written step with this NLP's sizes and index maps (appended to generated C).
+
+    ``data`` gives the sizes and the shift maps of the resident warm start
+    (``uuv_rti_resident_step``).
 
     ``pi_sign``: HPIPM's dynamics multiplier ``π_k`` is minus CasADi's ``λ`` of the gap row
     ``X_{k+1} − F`` (checked by stationarity of the QP's Lagrangian in tests/test_rti.py).
@@ -397,6 +399,7 @@ def c_source(
     nbx = [len(v) for v in layout.idxbx]
     nbu = [len(v) for v in layout.idxbu]
     ngs = [len(v) for v in layout.genrow]
+    nw, ng = data.lbx.size, data.lbg.size
 
     def starts(sizes: list[int]) -> list[int]:
         return list(np.concatenate([[0], np.cumsum(sizes)])[:-1]) if sizes else [0]
@@ -452,6 +455,8 @@ def c_source(
         _c_array("double", "rti_ug_mask", np.concatenate(layout.ug_mask)),
         _c_array("int", "rti_x0_param", x0_param),
         _c_array("int", "rti_x0_box", layout.x0_box),
+        _c_array("int", "rti_primal_shift", data.primal_shift),
+        _c_array("int", "rti_constraint_shift", data.constraint_shift),
         f"static const int rti_off[{n + 1}][{len(BLOCKS)}] = {{"
         + ", ".join("{" + ", ".join(str(int(v)) for v in row) + "}" for row in offsets)
         + "};\n",
@@ -473,6 +478,9 @@ void uuv_rti_free(void* memory);
 int uuv_rti_prepare(void* memory, const double* w, const double* p);
 int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int max_iter, double tol,
                     double qp_tol, double budget, double* lam_x, double* lam_g, double* info);
+void uuv_rti_seed(void* memory, const double* w, const double* lam_x, const double* lam_g);
+int uuv_rti_resident_step(void* memory, const double* p, int max_iter, double tol, double qp_tol,
+                          int converged_only, double* w, double* lam_x, double* lam_g, double* info);
 """
 
 
@@ -522,6 +530,21 @@ class OcpQpStep:
             ctypes.c_double,
             *[ctypes.c_void_p] * 3,
         ]
+        self._seed = getattr(self.library, f"{prefix}uuv_rti_seed")
+        self._seed.restype = None
+        self._seed.argtypes = [ctypes.c_void_p] * 4
+        self._resident_step = getattr(self.library, f"{prefix}uuv_rti_resident_step")
+        self._resident_step.restype = ctypes.c_int
+        self._resident_step.argtypes = [
+            *[ctypes.c_void_p] * 2,
+            ctypes.c_int,
+            ctypes.c_double,
+            ctypes.c_double,
+            ctypes.c_int,
+            *[ctypes.c_void_p] * 4,
+        ]
+        #: who seeded the resident warm start last (:meth:`seed`'s ``owner``)
+        self.owner: object | None = None
         settings = np.array(_options_array(options), dtype=float)
         memory = create(settings.ctypes.data)
         if not memory:
@@ -573,6 +596,37 @@ class OcpQpStep:
         )
         return self.w.copy(), self.lam_x.copy(), self.lam_g.copy(), self.info.copy()
 
+    def seed(self, w: np.ndarray, lam_x: np.ndarray, lam_g: np.ndarray, owner: object) -> None:
+        """Keep ``w`` and the multipliers (this step's convention) as the resident warm start.
+
+        ``owner`` marks whose warm start it is: a caller that finds another owner seeds again.
+        """
+        arrays = [np.ascontiguousarray(a, dtype=float) for a in (w, lam_x, lam_g)]
+        if [a.size for a in arrays] != [self.w.size, self.lam_x.size, self.lam_g.size]:
+            raise ValueError(
+                f"seed needs w and lam_x of size {self.w.size} and lam_g of size {self.lam_g.size}, "
+                f"got sizes {[a.size for a in arrays]}"
+            )
+        self._seed(self.memory, *(a.ctypes.data for a in arrays))
+        self.owner = owner
+
+    def resident_step(
+        self, p: np.ndarray, max_iter: int, tol: float, qp_tolerance: float, converged_only: bool
+    ) -> bool:
+        """Gauss–Newton steps from the resident warm start (see ``uuv_rti_resident_step``).
+
+        ``True`` when the step is accepted: :attr:`w`, :attr:`lam_x`, :attr:`lam_g` then hold the
+        new point (buffers overwritten by the next call: copy what you keep) and the resident
+        warm start is that point shifted.  ``False`` leaves both unchanged.  :attr:`info` as
+        :meth:`iterate`, in either case.
+        """
+        self.p[:] = p
+        a = self._pointers
+        code = self._resident_step(
+            self.memory, a[1], max_iter, tol, qp_tolerance, int(converged_only), a[0], a[2], a[3], a[4]
+        )
+        return code == 0
+
 
 def build_step(
     data: NlpData,
@@ -598,7 +652,7 @@ def build_step(
 
     layout = ocp_qp_layout(data, state_dim)
     function, offsets = stage_data_function(data, layout, objective_scale, still_water_slice, f"{name}_data")
-    source = c_source(layout, function, offsets, x0_param, data.lbx.size, data.lbg.size)
+    source = c_source(layout, function, offsets, x0_param, data)
     library = compile_functions(
         [function],
         directory,
@@ -676,9 +730,9 @@ def nmpc_step_source(
     """
     layout = ocp_qp_layout(data, state_dim)
     function, offsets = stage_data_function(data, layout, objective_scale, None, "nmpc_step_data")
-    nw, ng, np_ = data.lbx.size, data.lbg.size, int(data.nlp["p"].numel())
+    nw, np_ = data.lbx.size, int(data.nlp["p"].numel())
     nu = len(u_prev_param)
-    step = c_source(layout, function, offsets, x0_param, nw, ng, prefix=prefix)
+    step = c_source(layout, function, offsets, x0_param, data, prefix=prefix)
     control = np.asarray(data.control_index[0], dtype=int)
     wrapper = (
         "/* ---- nmpc_step(x0, u_prev, p, w) -> (u, w_next, violation): CasADi's external ABI ---- */\n"
@@ -686,7 +740,6 @@ def nmpc_step_source(
         + _c_array("int", "nmpc_x0", x0_param)
         + _c_array("int", "nmpc_u_prev", u_prev_param)
         + _c_array("int", "nmpc_control", control)
-        + _c_array("int", "nmpc_shift", data.primal_shift)
         + _c_array("double", "nmpc_scale", control_scale)
         + _c_array("double", "nmpc_centre", control_centre)
         + _c_array("double", "nmpc_options", _options_array(options))
@@ -726,7 +779,7 @@ int nmpc_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi
   if (res[0])
     for (i = 0; i < NMPC_NU; ++i) res[0][i] = nmpc_w[nmpc_control[i]] * nmpc_scale[i] + nmpc_centre[i];
   if (res[1])
-    for (i = 0; i < RTI_NW; ++i) res[1][i] = nmpc_w[nmpc_shift[i]];
+    for (i = 0; i < RTI_NW; ++i) res[1][i] = nmpc_w[rti_primal_shift[i]];
   if (res[2]) res[2][0] = isfinite(nmpc_info[1]) ? nmpc_info[1] : INFINITY;
   return 0;
 }

@@ -22,12 +22,15 @@ full-space QP (``qpsol="hpipm"``).
 
 Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 quality row only;
 ``--hpipm-options``: only the ``hpipm-ocp`` path under each HPIPM setting of ``HPIPM_SETTINGS``;
-``--interleaved``: only the C step's rows of ``INTERLEAVED``, three rounds interleaved;
-``--speed-abs-quality``: only the closed-loop quality of HPIPM's ``speed_abs`` mode).
+``--interleaved``: only the C step's rows of ``INTERLEAVED``, three rounds interleaved
+(``--rounds K``: K);
+``--speed-abs-quality``: only the closed-loop quality of HPIPM's ``speed_abs`` mode;
+``--quality``: only the closed-loop quality of the default C step against fatrop).
 """
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 import time
@@ -236,6 +239,11 @@ def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
     ]
 
 
+def _ms(value: float) -> str:
+    """``value`` (ms) to three decimals, or a dash where it was not measured (NaN)."""
+    return "–" if np.isnan(value) else f"{value:.3f}"
+
+
 def _resident_c_time(controller: uo.NMPC) -> float:
     """Seconds the C step of ``controller``'s last resident step measured itself (linearisations, QPs)."""
     plan = controller._resident  # noqa: SLF001 (the bench reads the C step's own clock)
@@ -413,12 +421,8 @@ def quality(
         row: dict = {"reference": name}
         for label, solver, options in solvers:
             run = uo.simulate(uo.NMPC(problem, solver, options=options), x0=x0, duration=length, t0=t0)
-            metrics = run.metrics()
-            row[label] = {
-                "settled": max(metrics["max_abs_ex_settled"], metrics["max_abs_ey_settled"]),
-                "whole": max(metrics["max_abs_ex"], metrics["max_abs_ey"]),
-                "failures": run.failures,
-            }
+            error = np.max(np.abs(run.errors[:, :2]), axis=1)
+            row[label] = _quality_entry(run.t - run.t[0], error, run.failures)
         rows.append(row)
     if not bluerov:
         return rows
@@ -430,50 +434,89 @@ def quality(
     row = {"reference": "bluerov2"}
     for label, solver, options in solvers:
         outcome = bluerov2_depth.main(duration=duration, solver=solver, options=options)
-        settled = outcome.run.t >= 5.0
         error = np.linalg.norm((outcome.run.states - outcome.run.reference)[:, :3], axis=1)
-        row[label] = {
-            "settled": float(np.max(error[settled])),
-            "whole": float(np.max(error)),
-            "failures": outcome.run.failures,
-        }
+        row[label] = _quality_entry(outcome.run.t - outcome.run.t[0], error, outcome.run.failures)
     rows.append(row)
     return rows
 
 
+#: start of the "settled" window (s from the run's start; ``metrics()``'s default) and of a
+#: second window one second later, which shows whether a maximum is the transient's tail
+SETTLED_FROM, LATER_FROM = 5.0, 6.0
+#: the bands (m) whose settling times the quality table reports
+SETTLING_BANDS = (1e-2, 1e-3)
+
+
+def _quality_entry(t: np.ndarray, error: np.ndarray, failures: int) -> dict:
+    """Largest position error (m) from 5 s, from 6 s and over the run; settling times (s)."""
+    return {
+        "settled": float(np.max(error[t >= SETTLED_FROM - 1e-9])),
+        "later": float(np.max(error[t >= LATER_FROM - 1e-9])),
+        "whole": float(np.max(error)),
+        "settling": [_settling_time(t, error, band) for band in SETTLING_BANDS],
+        "failures": failures,
+    }
+
+
+def _settling_time(t: np.ndarray, error: np.ndarray, band: float) -> float:
+    """Return the earliest time from which ``error`` stays within ``band`` (inf: never)."""
+    outside = np.flatnonzero(~(error <= band))  # NaN counts as outside
+    if outside.size == 0:
+        return float(t[0])
+    return float(t[outside[-1] + 1]) if outside[-1] + 1 < t.size else math.inf
+
+
 def print_quality(rows: list, labels: list[str]) -> None:
-    """Print :func:`quality`'s rows: settled and whole-run error, failures, per solver."""
-    print(f"{'case':<10}" + "".join(f"{label + ' settled':>20}{'whole':>8}{'fail':>5}" for label in labels))
+    """Print :func:`quality`'s rows per solver: errors from 5 s, 6 s, whole run; settling; failures."""
+    bands = "".join(f"{f'<{band:g} m':>9}" for band in SETTLING_BANDS)
+    print(
+        f"{'case':<10}"
+        + "".join(f"{label + ' from 5 s':>22}{'6 s':>10}{'whole':>8}{bands}{'fail':>5}" for label in labels)
+    )
     for row in rows:
         print(
             f"{row['reference']:<10}"
             + "".join(
-                f"{row[label]['settled']:>20.2e}{row[label]['whole']:>8.3f}{row[label]['failures']:>5d}"
+                f"{row[label]['settled']:>22.2e}{row[label]['later']:>10.2e}{row[label]['whole']:>8.3f}"
+                + "".join(f"{value:>9.1f}" for value in row[label]["settling"])
+                + f"{row[label]['failures']:>5d}"
                 for label in labels
             )
         )
 
 
-def main(quick: bool = False, settings: bool = False, rounds: int = 0, speed_abs: bool = False) -> None:
+def main(
+    quick: bool = False,
+    settings: bool = False,
+    rounds: int = 0,
+    speed_abs: bool = False,
+    quality_only: bool = False,
+) -> None:
     """Print the speed table (ratios to fatrop) and the quality table (``quick``: s2 only).
 
     ``settings``: only the table of HPIPM settings of the ``hpipm-ocp`` path; ``rounds``: only
     the interleaved table (:func:`interleaved`) over that many rounds; ``speed_abs``: only the
-    quality table of :data:`SPEED_ABS_QUALITY`.
+    quality table of :data:`SPEED_ABS_QUALITY`; ``quality_only``: only the quality table of the
+    default C step and fatrop.
     """
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    if quality_only:
+        solvers = QUALITY_SOLVERS[1:]  # the default C step against fatrop
+        print("\nlargest position error (m) and settling times (s), RTI (C step) vs fatrop, 30 s")
+        print_quality(quality(solvers=solvers), [label for label, _, _ in solvers])
+        return
     if speed_abs:
         print("\nlargest position error (m), RTI with HPIPM's speed and speed_abs modes vs fatrop, 30 s")
         print_quality(quality(solvers=SPEED_ABS_QUALITY), [label for label, _, _ in SPEED_ABS_QUALITY])
         return
     if rounds:
         print(f"\nsqp-rti, s2 closed loop (30 s from rest), {rounds} interleaved rounds, ms per step")
-        print(f"{'C step':<24}{'wall':>8}{'range':>16}{'CPU':>8}{'in C':>8}")
+        print(f"{'C step':<36}{'wall':>8}{'range':>16}{'CPU':>8}{'in C':>8}")
         for row in interleaved(rounds):
             low, high = row["wall_range"]
             print(
-                f"{row['label']:<24}{row['wall_ms']:>8.3f}{f'{low:.3f}-{high:.3f}':>16}"
-                f"{row['cpu_ms']:>8.3f}{row['c_ms']:>8.3f}"
+                f"{row['label']:<36}{row['wall_ms']:>8.3f}{f'{low:.3f}-{high:.3f}':>16}"
+                f"{row['cpu_ms']:>8.3f}{_ms(row['c_ms']):>8}"
             )
         print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
         return
@@ -510,6 +553,9 @@ if __name__ == "__main__":
     main(
         quick="--quick" in sys.argv,
         settings="--hpipm-options" in sys.argv,
-        rounds=3 if "--interleaved" in sys.argv else 0,
+        rounds=(int(sys.argv[sys.argv.index("--rounds") + 1]) if "--rounds" in sys.argv else 3)
+        if "--interleaved" in sys.argv
+        else 0,
         speed_abs="--speed-abs-quality" in sys.argv,
+        quality_only="--quality" in sys.argv,
     )

@@ -41,6 +41,7 @@ from uuv_ocp.judge import instance_parameters
 from uuv_ocp.solvers import REGISTRY, get_solver
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.rti import ResidentPlan
 
 
 @dataclass(frozen=True)
@@ -109,7 +110,7 @@ class NMPC:
         self._prepared_p: np.ndarray | None = None  # the instance prepare() linearised
         # the last plan of a step_control step taken by sqp-rti's C step from its resident warm
         # start (kept instead of _iterate/_plan until another path needs those: _materialize)
-        self._resident: Any = None
+        self._resident: ResidentPlan | None = None
         self._token = object()  # this controller, as the owner of a C step's resident warm start
         self._bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # see _admissible
         #: the last :meth:`feedback_control` step's output (None after a step by the C step alone)
@@ -302,13 +303,14 @@ class NMPC:
         parameters: dict[str, Any] | None,
     ) -> np.ndarray | None:
         """Return the control of a step from the C step's resident warm start, or ``None``."""
-        step = getattr(self.backend, "resident_step", None)
-        if step is None or not self.use_warm_start or (self._resident is None and self._iterate is None):
+        if not getattr(self.backend, "resident_available", False) or not self.use_warm_start:
+            return None
+        if self._resident is None and self._iterate is None:
             return None
         self._pending = self._prepared_p = None
         p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
         try:
-            plan = step(p, self._iterate, self._resident, self._token)
+            plan = self.backend.resident_step(p, self._iterate, self._resident, self._token)
         except Exception as error:  # the general path solves it again and reports it
             reraise_interrupt(error)
             plan = None

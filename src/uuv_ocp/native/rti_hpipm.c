@@ -237,7 +237,7 @@ static void rti_patch_state(rti_memory* m, const double* p) {
 
 /* The larger of violation and how far v lies below lo / above hi (sides with a nonzero mask);
  * a NaN v gives NaN (the comparison fails); rti_solve_qp also checks d for finiteness. */
-static double rti_outside(double v, double lo, double hi, double lo_mask, double hi_mask, double violation) {
+static inline double rti_outside(double v, double lo, double hi, double lo_mask, double hi_mask, double violation) {
   if (lo_mask != 0.0 && !(lo - v <= violation)) violation = lo - v;
   if (hi_mask != 0.0 && !(v - hi <= violation)) violation = v - hi;
   return violation;

@@ -18,7 +18,10 @@ near the solution).
 Phases (acados' split): :meth:`RtiSolver.prepare` linearises at the shifted previous iterate
 with every parameter of the next instance but the measured state; :meth:`RtiSolver.feedback`
 puts the measured state into the initial-state rows (the only place ``x0`` enters the NLP, and
-it enters linearly, so the prepared QP is exact) and solves the QP.
+it enters linearly, so the prepared QP is exact) and solves the QP.  With the C step,
+:meth:`RtiSolver.resident_step` runs a whole step in one C call from the C step's own copy of
+the last plan, shifted in C (``NMPC.step_control``'s path: no Python between the steps but the
+instance's parameters and the control's projection).
 
 Modes (options):
 
@@ -495,6 +498,11 @@ class RtiSolver(NlpSolver):
         return "hard"
 
     # --------------------------------------------------------- resident steps
+    @property
+    def resident_available(self) -> bool:
+        """Whether :meth:`resident_step` can run: the C step (``qpsol="hpipm-ocp"``), no deadline."""
+        return self.qpsol == "hpipm-ocp" and self.deadline is None
+
     def resident_step(
         self, p: np.ndarray, warm_start: Iterate | None, last: ResidentPlan | None, owner: object
     ) -> ResidentPlan | None:
@@ -509,7 +517,7 @@ class RtiSolver(NlpSolver):
         in converged mode no convergence): the caller then solves by :meth:`solve`, from the
         warm start ``resident_iterate(last).shift()``.
         """
-        if self.qpsol != "hpipm-ocp" or self.deadline is not None:
+        if not self.resident_available:
             return None
         still_water = self._uses_still_water(p)
         ocp = None

@@ -510,39 +510,23 @@ class OcpQpStep:
         self._args = (library, sizes, dict(options), prefix)
         self.library = ctypes.CDLL(str(verify_library(library)))
         nw, ng, np_ = sizes
-        create = getattr(self.library, f"{prefix}uuv_rti_create")
-        create.restype = ctypes.c_void_p
-        create.argtypes = [ctypes.c_void_p]
-        free = getattr(self.library, f"{prefix}uuv_rti_free")
-        free.restype = None
-        free.argtypes = [ctypes.c_void_p]
-        self._prepare = getattr(self.library, f"{prefix}uuv_rti_prepare")
-        self._prepare.restype = ctypes.c_int
-        self._prepare.argtypes = [ctypes.c_void_p] * 3
-        self._iterate = getattr(self.library, f"{prefix}uuv_rti_iterate")
-        self._iterate.restype = ctypes.c_int
-        self._iterate.argtypes = [
-            *[ctypes.c_void_p] * 3,
-            ctypes.c_int,
-            ctypes.c_int,
-            ctypes.c_double,
-            ctypes.c_double,
-            ctypes.c_double,
-            *[ctypes.c_void_p] * 3,
-        ]
-        self._seed = getattr(self.library, f"{prefix}uuv_rti_seed")
-        self._seed.restype = None
-        self._seed.argtypes = [ctypes.c_void_p] * 4
-        self._resident_step = getattr(self.library, f"{prefix}uuv_rti_resident_step")
-        self._resident_step.restype = ctypes.c_int
-        self._resident_step.argtypes = [
-            *[ctypes.c_void_p] * 2,
-            ctypes.c_int,
-            ctypes.c_double,
-            ctypes.c_double,
-            ctypes.c_int,
-            *[ctypes.c_void_p] * 4,
-        ]
+        pointer, integer, real = ctypes.c_void_p, ctypes.c_int, ctypes.c_double
+
+        def bind(name: str, restype: Any, *argtypes: Any) -> Any:
+            function = getattr(self.library, f"{prefix}{name}")
+            function.restype, function.argtypes = restype, list(argtypes)
+            return function
+
+        create = bind("uuv_rti_create", pointer, pointer)
+        free = bind("uuv_rti_free", None, pointer)
+        self._prepare = bind("uuv_rti_prepare", integer, pointer, pointer, pointer)
+        self._iterate = bind(
+            "uuv_rti_iterate", integer, *[pointer] * 3, integer, integer, real, real, real, *[pointer] * 3
+        )
+        self._seed = bind("uuv_rti_seed", None, *[pointer] * 4)
+        self._resident_step = bind(
+            "uuv_rti_resident_step", integer, pointer, pointer, integer, real, real, integer, *[pointer] * 4
+        )
         #: who seeded the resident warm start last (:meth:`seed`'s ``owner``)
         self.owner: object | None = None
         settings = np.array(_options_array(options), dtype=float)

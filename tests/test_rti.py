@@ -488,6 +488,40 @@ def test_resident_steps_of_controllers_sharing_a_backend_equal_step(problem, mod
     assert resident == 18 if mode == "rti" else resident >= 8
 
 
+def test_resident_steps_of_an_ocp_with_a_path_constraint_equal_step():
+    """``step_control`` on a user ``Ocp``: parameters, a non-convex path constraint, a soft bound.
+
+    The resident C step must give ``step``'s controls and plans bit for bit (``step`` on a
+    backend of its own), and must run: every warm step is resident.
+    """
+    needs_compiler("hpipm-ocp")
+    ocp = uo.Ocp(horizon=20, dt=0.2)
+    pos, vel = ocp.state("pos", 2), ocp.state("vel", 2)
+    acc = ocp.control("acc", 2, lower=-1.0, upper=1.0, max_rate=2.0)
+    goal, ref = ocp.parameter("goal", 2), ocp.parameter("ref", 2, stagewise=True)
+    ocp.set_der(pos, vel)
+    ocp.set_der(vel, acc)
+    ocp.add_stage_cost(ca.sumsqr(pos - ref) + 0.1 * ca.sumsqr(acc))
+    ocp.add_terminal_cost(10 * ca.sumsqr(pos - goal))
+    ocp.subject_to(ca.sumsqr(pos - ca.DM([2.0, 0.1])) >= 0.36)
+    ocp.subject_to(vel <= 1.5, soft=1e3)
+    line = np.linspace(0.0, 4.0, ocp.horizon + 1)
+    data = {"goal": [4.0, 0.0], "ref": np.column_stack([line, np.zeros_like(line)])}
+    lean = uo.NMPC(ocp, "sqp-rti", options={"qpsol": "hpipm-ocp"})
+    full = uo.NMPC(ocp, "sqp-rti", options={"qpsol": "hpipm-ocp", "slack_tolerance": 1e-7})
+    state, control, resident = np.zeros(4), np.zeros(2), 0
+    for k in range(12):
+        applied = lean.step_control(state, 0.0, control, parameters=data)
+        expected = full.step(state, 0.0, control, parameters=data)
+        assert np.array_equal(applied, expected.control), k
+        assert np.array_equal(lean.plan, expected.result.controls), k
+        resident += lean.last_output is None
+        control = applied
+        # the double integrator held at `control` for one interval, exactly
+        state = np.concatenate([state[:2] + 0.2 * state[2:] + 0.02 * control, state[2:] + 0.2 * control])
+    assert resident == 11  # all but the cold first step
+
+
 def test_resident_seed_checks_its_sizes(problem):
     """``OcpQpStep.seed`` refuses vectors of the wrong size, naming the sizes expected."""
     needs_compiler("hpipm-ocp")

@@ -165,6 +165,7 @@ INTERLEAVED: tuple[tuple[str, str, dict], ...] = (
     ("native (default)", NATIVE, {}),
     ("native, step_control", NATIVE, {"lean": True}),
     ("native, prepare + feedback_control", NATIVE, {"split": True}),
+    ("native, step (result and judge)", NATIVE, {"whole": True}),
     ("native, speed_abs", NATIVE, {"qpsol_options": {"mode": "speed_abs"}}),
     ("native, no condensing", NATIVE, {"qpsol_options": {"cond_horizon": 0}}),
     ("wheel", WHEEL, {}),
@@ -185,13 +186,15 @@ def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
     from uuv_ocp.native.hpipm import installed
 
     native_available = installed() is not None
-    controllers, lean, split = {}, set(), set()
+    controllers, lean, split, whole = {}, set(), set(), set()
     for label, libraries, given in INTERLEAVED:
         options = dict(given)
         if options.pop("lean", False):  # NMPC.step_control: the resident C step
             lean.add(label)
         if options.pop("split", False):  # NMPC.prepare, then feedback_control: the control alone
             split.add(label)
+        if options.pop("whole", False):  # NMPC.step: the resident C step with its StepOutput
+            whole.add(label)
         if libraries == NATIVE and not native_available:
             print(f"{label}: skipped, no native HPIPM (make hpipm)")
             continue
@@ -210,6 +213,9 @@ def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
                 start, start_cpu = time.perf_counter(), time.thread_time()
                 if label in lean:
                     control = controller.step_control(state, k * problem.dt, control, np.zeros(2))
+                elif label in whole:
+                    output = controller.step(state, k * problem.dt, control, np.zeros(2))
+                    control = output.control
                 else:
                     controller.prepare(k * problem.dt, control, np.zeros(2))
                     if label in split:

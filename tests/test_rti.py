@@ -407,8 +407,8 @@ def test_the_fast_feedback_gives_what_solve_gives(problem, monkeypatch):
     rng = np.random.default_rng(5)
     for k in range(12):
         measured = state + 1e-3 * rng.standard_normal(6)
-        a = fast.step(measured, k * problem.dt, control, np.zeros(2))
-        b = slow.step(measured, k * problem.dt, control, np.zeros(2))
+        a = general_step(fast, measured, k * problem.dt, control, np.zeros(2))
+        b = general_step(slow, measured, k * problem.dt, control, np.zeros(2))
         assert np.array_equal(a.control, b.control) and a.fallback == b.fallback
         ra, rb = a.result, b.result
         for name in ("cost", "max_violation", "status", "success"):
@@ -475,7 +475,7 @@ def test_resident_steps_of_controllers_sharing_a_backend_equal_step(problem, mod
         for i, (lean, full) in enumerate(zip((first, second), references, strict=True)):
             measured = states[i] + 1e-3 * rng.standard_normal(6)
             control = lean.step_control(measured, t, controls[i], np.zeros(2))
-            expected = full.step(measured, t, controls[i], np.zeros(2))
+            expected = general_step(full, measured, t, controls[i], np.zeros(2))
             assert lean._resident is None or lean._resident.variant == "hard"
             assert np.array_equal(control, expected.control), (k, i)
             assert np.array_equal(lean.plan, expected.result.controls), (k, i)
@@ -512,7 +512,7 @@ def test_resident_steps_of_an_ocp_with_a_path_constraint_equal_step():
     state, control, resident = np.zeros(4), np.zeros(2), 0
     for k in range(12):
         applied = lean.step_control(state, 0.0, control, parameters=data)
-        expected = full.step(state, 0.0, control, parameters=data)
+        expected = general_step(full, state, 0.0, control, parameters=data)
         assert np.array_equal(applied, expected.control), k
         assert np.array_equal(lean.plan, expected.result.controls), k
         resident += lean.last_output is None
@@ -532,16 +532,24 @@ def test_resident_seed_checks_its_sizes(problem):
         step.seed(np.zeros(3), np.zeros(3), np.zeros(3), None)
 
 
-def test_step_control_gives_step_s_controls_without_the_result(problem):
-    """``NMPC.step_control``: the controls, plans and warm starts of ``NMPC.step``, bit for bit.
+def general_step(controller: uo.NMPC, x, t, u_prev, current=None, parameters=None):
+    """``NMPC.prepare`` then ``NMPC.feedback``: the step by the general path (no resident step)."""
+    controller.prepare(t, u_prev, current, parameters)
+    return controller.feedback(x)
 
-    The C step's fast path skips only the result object and its judge; the cold first step and
-    a failed step go through ``feedback`` and keep their ``StepOutput`` in ``last_output``.
+
+def test_step_control_gives_step_s_controls_without_the_result(problem):
+    """``step_control`` and ``step``: the controls, plans and warm starts of the general path.
+
+    Both take warm steps from the C step's resident warm start; ``step`` also builds the
+    ``StepOutput`` (result, judge) of ``prepare`` + ``feedback``, bit for bit.  The cold first
+    step and a failed step go through ``feedback`` (``last_output`` for ``step_control``).
     """
     needs_compiler("hpipm-ocp")
     reference = problem.reference
     lean = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp"})
     full = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp", "slack_tolerance": 1e-7})
+    stepper = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp", "slack_tolerance": 2e-7})
     plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
     state, control = reference.initial_state(0.0), np.zeros(3)
     rng = np.random.default_rng(9)
@@ -549,11 +557,20 @@ def test_step_control_gives_step_s_controls_without_the_result(problem):
     for k in range(12):
         measured = state + 1e-3 * rng.standard_normal(6)
         a = lean.step_control(measured, k * problem.dt, control, np.zeros(2))
-        b = full.step(measured, k * problem.dt, control, np.zeros(2))
+        b = general_step(full, measured, k * problem.dt, control, np.zeros(2))
+        c = stepper.step(measured, k * problem.dt, control, np.zeros(2))
         assert np.array_equal(a, b.control), k
         assert np.array_equal(lean.plan, b.result.controls)
         assert np.array_equal(lean.iterate.primal, full.iterate.primal)
         assert np.array_equal(lean.iterate.lam_g, full.iterate.lam_g)
+        assert np.array_equal(c.control, b.control) and c.fallback == b.fallback, k
+        assert np.array_equal(c.result.controls, b.result.controls)
+        assert np.array_equal(c.result.states, b.result.states)
+        for field in ("cost", "max_violation", "success", "status", "iterations", "terminal_relaxed"):
+            assert getattr(c.result, field) == getattr(b.result, field), (k, field)
+        assert c.result.details["attempts"] == b.result.details["attempts"]
+        assert np.array_equal(stepper.iterate.primal, full.iterate.primal)
+        assert np.array_equal(stepper.iterate.lam_x, full.iterate.lam_x)
         fast_steps += lean.last_output is None
         control = a
         state = np.array(plant(state, control, np.zeros(2))).ravel()
@@ -563,6 +580,6 @@ def test_step_control_gives_step_s_controls_without_the_result(problem):
     lean.backend.robust_options = full.backend.robust_options = lambda: {}
     lean.backend.cold_start = full.backend.cold_start = "rti"  # no IPOPT for the cold retry either
     a = lean.step_control(state, 12 * problem.dt, control, np.zeros(2))
-    b = full.step(state, 12 * problem.dt, control, np.zeros(2))
+    b = general_step(full, state, 12 * problem.dt, control, np.zeros(2))
     assert lean.last_output is not None and lean.last_output.fallback and b.fallback
     assert np.array_equal(a, b.control) and lean.last_output.message == b.message

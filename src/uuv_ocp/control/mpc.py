@@ -30,6 +30,7 @@ backend's tolerance.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Any
 
@@ -151,8 +152,16 @@ class NMPC:
         """Solve at state ``x`` and time ``t`` and return the control to apply.
 
         ``current`` is a tracking problem's model current; ``parameters`` an Ocp's data.
-        The same as :meth:`prepare` followed by :meth:`feedback`.
+        The same as :meth:`prepare` followed by :meth:`feedback` (with ``sqp-rti``'s C step, a
+        warm step runs as one C call from the resident warm start, as :meth:`step_control`
+        does, and the same :class:`StepOutput` is built from it).
         """
+        start = time.perf_counter()
+        resident = self._resident_plan(x, t, u_prev, current, parameters)
+        if resident is not None:
+            plan, p = resident
+            result = self.backend.resident_result(p, plan, time.perf_counter() - start)
+            return StepOutput(self._admissible(plan.control, u_prev), result, False)
         self.prepare(t, u_prev, current, parameters)
         return self.feedback(x)
 
@@ -288,21 +297,26 @@ class NMPC:
         :meth:`prepare` then :meth:`feedback_control`, with its :class:`StepOutput` in
         :attr:`last_output`.
         """
-        control = self._resident_control(x, t, u_prev, current, parameters)
-        if control is not None:
-            return control
+        resident = self._resident_plan(x, t, u_prev, current, parameters)
+        if resident is not None:
+            self.last_output = None
+            return self._admissible(resident[0].control, u_prev)
         self.prepare(t, u_prev, current, parameters)
         return self.feedback_control(x)
 
-    def _resident_control(
+    def _resident_plan(
         self,
         x: object,
         t: float,
         u_prev: object | None,
         current: object | None,
         parameters: dict[str, Any] | None,
-    ) -> np.ndarray | None:
-        """Return the control of a step from the C step's resident warm start, or ``None``."""
+    ) -> tuple[ResidentPlan, np.ndarray] | None:
+        """Take a step from the C step's resident warm start: its plan and instance, or ``None``.
+
+        ``None`` (nothing taken, the warm start materialised) where the backend has no
+        resident step or does not accept this one: the caller then runs the general path.
+        """
         if not getattr(self.backend, "resident_available", False) or not self.use_warm_start:
             return None
         if self._resident is None and self._iterate is None:
@@ -317,8 +331,8 @@ class NMPC:
         if plan is None:
             self._materialize()
             return None
-        self._resident, self._iterate, self.last_output = plan, None, None
-        return self._admissible(plan.control, u_prev)
+        self._resident, self._iterate = plan, None
+        return plan, p
 
     @property
     def plan(self) -> np.ndarray | None:

@@ -561,6 +561,25 @@ class RtiSolver(NlpSolver):
             control,
         )
 
+    def resident_result(self, p: np.ndarray, plan: ResidentPlan, elapsed: float) -> SolveResult:
+        """Return the :class:`SolveResult` of the resident step that gave ``plan`` (instance ``p``).
+
+        What :meth:`solve` reports when its first attempt succeeds, built from the C step's
+        record of that step (its ``info``, read before any other call of the C step);
+        ``elapsed``: the step's wall time (s).  ``details["c_time"]``: the C step's own clock.
+        """
+        step = self._ocp_steps[(plan.variant, plan.still_water)]
+        assert step is not None  # a resident plan comes from the C step
+        info = step.info.copy()
+        converge = self.mode == "converged"
+        final = self._c_record(
+            plan.variant, plan.still_water, plan.primal, plan.lam_x, plan.lam_g, info, converge, elapsed
+        )
+        result = self._result(p, final, [final], plan.relaxed, elapsed)
+        result.details["deadline_hit"] = False
+        result.details["c_time"] = float(info[6] + info[7])
+        return result
+
     def resident_iterate(self, plan: ResidentPlan) -> Iterate:
         """Return the plan and warm start of ``plan`` as :meth:`solve` returns them (unshifted)."""
         scale = self.objective_scale

@@ -522,6 +522,34 @@ def test_resident_steps_of_an_ocp_with_a_path_constraint_equal_step():
     assert resident == 11  # all but the cold first step
 
 
+def test_resident_steps_refuse_bad_input_before_the_c_call(problem):
+    """A bad state, time or last control on a warm resident step: ``ValueError`` naming it.
+
+    Raised before the C step runs (its resident warm start is untouched): the next good step
+    equals a controller's that never saw the bad input.
+    """
+    needs_compiler("hpipm-ocp")
+    options = {"qpsol": "hpipm-ocp", "slack_tolerance": 3e-7}
+    probed, clean = uo.NMPC(problem, "sqp-rti", options=options), uo.NMPC(problem, "sqp-rti", options=options)
+    x = problem.reference.initial_state(0.0)
+    for controller in (probed, clean):
+        for k in range(3):  # cold, seeding, resident
+            controller.step_control(x, k * problem.dt, np.zeros(3), np.zeros(2))
+    assert probed._resident is not None
+    bad_state = x.copy()
+    bad_state[0] = np.nan
+    for call, name in (
+        (lambda c: c.step_control(bad_state, 0.3, np.zeros(3)), "x0"),
+        (lambda c: c.step(x, math.inf, np.zeros(3)), "t0"),
+        (lambda c: c.step_control(x, 0.3, np.full(3, 1e9)), "u_prev"),
+    ):
+        with pytest.raises(ValueError, match=name):
+            call(probed)
+    a = probed.step_control(x, 0.3, np.zeros(3), np.zeros(2))
+    b = clean.step_control(x, 0.3, np.zeros(3), np.zeros(2))
+    assert np.array_equal(a, b) and probed.last_output is None
+
+
 def test_resident_seed_checks_its_sizes(problem):
     """``OcpQpStep.seed`` refuses vectors of the wrong size, naming the sizes expected."""
     needs_compiler("hpipm-ocp")

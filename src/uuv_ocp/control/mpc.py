@@ -130,14 +130,19 @@ class NMPC:
     def iterate(self) -> Iterate | None:
         """The warm start the next :meth:`step` will use (already shifted)."""
         if self._resident is not None:
-            return self.backend.resident_iterate(self._resident).shift()
+            return self._from_resident()[1].shift()
         return self._iterate
+
+    def _from_resident(self) -> tuple[np.ndarray, Iterate]:
+        """Return the plan (physical controls) and unshifted iterate of the last resident C step."""
+        assert self._resident is not None
+        iterate = self.backend.resident_iterate(self._resident)
+        return self.problem.controls_from_scaled(iterate.scaled_controls), iterate
 
     def _materialize(self) -> None:
         """Turn the plan of the last resident C step into ``_iterate`` and ``_plan``."""
         if self._resident is not None:
-            iterate = self.backend.resident_iterate(self._resident)
-            self._plan = self.problem.controls_from_scaled(iterate.scaled_controls)
+            self._plan, iterate = self._from_resident()
             self._iterate = iterate.shift()
             self._resident = None
 
@@ -267,9 +272,8 @@ class NMPC:
                 reraise_interrupt(error)
         if step is not None:  # finite by the C step's own test (else it returns None)
             prepared, primal, lam_x, lam_g, _ = step
-            backend, scale = self.backend, self.backend.objective_scale
-            relaxed = backend.relaxed(prepared.variant, primal)
-            iterate = backend.plan_iterate(prepared.variant, primal, lam_g / scale, lam_x / scale, relaxed)
+            variant, backend = prepared.variant, self.backend
+            iterate = backend.c_iterate(variant, primal, lam_x, lam_g, backend.relaxed(variant, primal))
             self.last_output = None
             return self._accept(self.problem.controls_from_scaled(iterate.scaled_controls), iterate, u_prev)
         self.last_output = self._solve_step(p, u_prev)
@@ -338,8 +342,7 @@ class NMPC:
     def plan(self) -> np.ndarray | None:
         """The last fresh plan (physical controls, shape (N, nu)), shifted by each fallback step."""
         if self._resident is not None:
-            iterate = self.backend.resident_iterate(self._resident)
-            return self.problem.controls_from_scaled(iterate.scaled_controls)
+            return self._from_resident()[0]
         return self._plan
 
     def _accept(self, plan: np.ndarray, iterate: Iterate, u_prev: object | None) -> np.ndarray:

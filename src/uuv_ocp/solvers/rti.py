@@ -582,9 +582,14 @@ class RtiSolver(NlpSolver):
 
     def resident_iterate(self, plan: ResidentPlan) -> Iterate:
         """Return the plan and warm start of ``plan`` as :meth:`solve` returns them (unshifted)."""
+        return self.c_iterate(plan.variant, plan.primal, plan.lam_x, plan.lam_g, plan.relaxed)
+
+    def c_iterate(
+        self, variant: str, primal: np.ndarray, lam_x: np.ndarray, lam_g: np.ndarray, relaxed: bool
+    ) -> Iterate:
+        """:meth:`plan_iterate` of a C step's point (multipliers in its convention: times the scale)."""
         scale = self.objective_scale
-        lam_g, lam_x = plan.lam_g / scale, plan.lam_x / scale
-        return self.plan_iterate(plan.variant, plan.primal, lam_g, lam_x, plan.relaxed)
+        return self.plan_iterate(variant, primal, lam_g / scale, lam_x / scale, relaxed)
 
     def _first_control(self, variant: str) -> tuple[np.ndarray, ...]:
         """Positions of the first control in ``variant``'s primal, its box (scaled), scale, centre."""

@@ -16,7 +16,7 @@ from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
 from uuv_ocp.solvers import REGISTRY, get_solver
 from uuv_ocp.solvers.result import Iterate
 from uuv_ocp.solvers.rti import RtiSolver
-from uuv_ocp.solvers.rti_ocp import ocp_qp_options
+from uuv_ocp.solvers.rti_ocp import STOP_CONVERGED, STOP_MAX_ITER, ocp_qp_options
 
 TIGHT_HPIPM = {"hpipm": {f"res_{k}_max": 1e-12 for k in "gbdm"}}
 #: HPIPM's OCP-QP API tight enough for 1e-8 comparisons (1e-12 is out of its reach on this QP)
@@ -227,6 +227,10 @@ def test_closed_loop_holds_box_and_rate_bounds(problem, qpsol):
         (
             {"qpsol": "hpipm-ocp", "qpsol_options": {"warm_start": 1}},
             "options['qpsol_options']['warm_start']",
+        ),
+        (
+            {"qpsol": "hpipm-ocp", "mode": "converged", "qpsol_options": {"loose_first_qp": "yes"}},
+            "options['qpsol_options']['loose_first_qp']",
         ),
     ],
 )
@@ -558,6 +562,49 @@ def test_resident_seed_checks_its_sizes(problem):
     assert step is not None
     with pytest.raises(ValueError, match="seed needs w and lam_x of size"):
         step.seed(np.zeros(3), np.zeros(3), np.zeros(3), None)
+
+
+def test_converged_mode_solves_only_its_first_qp_loosely(problem, instance):
+    """``loose_first_qp``: a converged call's first QP has the rti mode's HPIPM settings.
+
+    The first step equals an rti-mode step bit for bit (the tight settings give another one);
+    a loose step never ends the iteration, however small; the converged point is the one of
+    tight QPs throughout, to the step tolerance.
+    """
+    needs_compiler("hpipm-ocp")
+    x0, reference = instance
+    p = problem.parameters(x0, 3.0)
+    data = problem.build().hard
+    w = reference.iterate.primal.copy()
+    free = data.state_index.ravel()
+    w[free] += 1e-4 * np.random.default_rng(5).standard_normal(free.size)
+    steps = {}
+    for name, options in {
+        "rti": {},
+        "loose": {"mode": "converged"},
+        "tight": {"mode": "converged", "qpsol_options": {"loose_first_qp": False}},
+    }.items():
+        backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp", **options})
+        steps[name] = backend.ocp_step("hard", backend._uses_still_water(p))
+    lam_x, lam_g = np.zeros(data.lbx.size), np.zeros(data.lbg.size)
+
+    def run(name, start, max_iter, tol=1e-10):
+        return steps[name].iterate(start, p, lam_x, lam_g, False, max_iter, tol, 1e-6, math.inf)
+
+    first = {name: run(name, w, 1) for name in steps}
+    assert first["loose"][3][3] == STOP_MAX_ITER
+    np.testing.assert_array_equal(first["loose"][0], first["rti"][0])
+    assert np.max(np.abs(first["tight"][0] - first["rti"][0])) > 1e-12
+    converged = {name: run(name, w, 50) for name in ("loose", "tight")}
+    for name, (_, _, _, info) in converged.items():
+        assert info[3] == STOP_CONVERGED, name
+    np.testing.assert_allclose(converged["loose"][0], converged["tight"][0], rtol=0, atol=1e-9)
+    # from the converged point the first step is tiny (QP noise: ~1e-8 in degenerate
+    # directions, hence tol=1e-6): a tight one ends the iteration, a loose one cannot
+    optimum = converged["tight"][0]
+    assert run("tight", optimum, 50, tol=1e-6)[3][0] == 1
+    again = run("loose", optimum, 50, tol=1e-6)[3]
+    assert again[3] == STOP_CONVERGED and again[0] == 2
 
 
 def general_step(controller: uo.NMPC, x, t, u_prev, current=None, parameters=None):

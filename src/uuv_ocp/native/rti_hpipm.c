@@ -26,6 +26,12 @@ typedef struct {
   struct d_ocp_qp_ipm_arg arg;
   struct d_ocp_qp_ipm_ws ws;
   void *dim_mem, *qp_mem, *sol_mem, *arg_mem, *ws_mem; /* HPIPM's memory, allocated once */
+  /* loose_first: the first QP of each uuv_rti_iterate call is solved with these settings */
+  struct d_ocp_qp_ipm_arg first_arg;
+  struct d_ocp_qp_ipm_ws first_ws;
+  void *first_arg_mem, *first_ws_mem;
+  int loose_first;
+  int loose;              /* the QP solved next is the loose first one */
   /* partial condensing to cond_n stages (0: none): the IPM runs on pqp */
   int cond_n;
   int cond_lhs;           /* pqp's matrices are those of the loaded QP (only bounds moved) */
@@ -68,6 +74,8 @@ void uuv_rti_free(void* memory) {
   if (!m) return;
   free(m->ws_mem);
   free(m->arg_mem);
+  free(m->first_ws_mem);
+  free(m->first_arg_mem);
   free(m->sol_mem);
   free(m->qp_mem);
   free(m->dim_mem);
@@ -79,14 +87,38 @@ void uuv_rti_free(void* memory) {
   free(m);
 }
 
-/* options: mode (0 speed_abs, 1 speed, 2 balance, 3 robust), iter_max, tol_stat, tol_eq,
- * tol_ineq, tol_comp, warm_start (0/1), partial condensing horizon (0 or >= N: none).
+/* An IPM argument and workspace for QPs of size dim from settings: mode (0 speed_abs, 1 speed,
+ * 2 balance, 3 robust), iter_max, tol_stat, tol_eq, tol_ineq, tol_comp, warm_start (0/1).
+ * Returns 1 when out of memory. */
+static int rti_ipm_create(const double* settings, struct d_ocp_qp_dim* dim, struct d_ocp_qp_ipm_arg* arg,
+                          struct d_ocp_qp_ipm_ws* ws, void** arg_mem, void** ws_mem) {
+  enum hpipm_mode modes[4] = {SPEED_ABS, SPEED, BALANCE, ROBUST};
+  int iter_max = (int)settings[1], warm = (int)settings[6];
+  double tol;
+  *arg_mem = malloc(d_ocp_qp_ipm_arg_memsize(dim));
+  if (!*arg_mem) return 1;
+  d_ocp_qp_ipm_arg_create(dim, arg, *arg_mem);
+  d_ocp_qp_ipm_arg_set_default(modes[(int)settings[0] & 3], arg);
+  d_ocp_qp_ipm_arg_set_iter_max(&iter_max, arg);
+  tol = settings[2]; d_ocp_qp_ipm_arg_set_tol_stat(&tol, arg);
+  tol = settings[3]; d_ocp_qp_ipm_arg_set_tol_eq(&tol, arg);
+  tol = settings[4]; d_ocp_qp_ipm_arg_set_tol_ineq(&tol, arg);
+  tol = settings[5]; d_ocp_qp_ipm_arg_set_tol_comp(&tol, arg);
+  d_ocp_qp_ipm_arg_set_warm_start(&warm, arg);
+  /* the workspace's size depends on the argument: allocated after it, once */
+  *ws_mem = malloc(d_ocp_qp_ipm_ws_memsize(dim, arg));
+  if (!*ws_mem) return 1;
+  d_ocp_qp_ipm_ws_create(dim, arg, ws, *ws_mem);
+  return 0;
+}
+
+/* options: the QP solver's settings (rti_ipm_create's seven), the partial condensing horizon
+ * (0 or >= N: none), loose_first (0/1), and the first QP's seven settings when loose_first.
  * Returns NULL when out of memory. */
 void* uuv_rti_create(const double* options) {
   rti_memory* m = (rti_memory*)calloc(1, sizeof(rti_memory));
-  int k, iter_max, warm;
-  double tol;
-  enum hpipm_mode modes[4] = {SPEED_ABS, SPEED, BALANCE, ROBUST};
+  int k;
+  struct d_ocp_qp_dim* ipm_dim;
   if (!m) return NULL;
   m->dim_mem = malloc(d_ocp_qp_dim_memsize(RTI_N));
   if (!m->dim_mem) goto fail;
@@ -125,22 +157,12 @@ void* uuv_rti_create(const double* options) {
     d_ocp_qp_create(&m->pdim, &m->pqp, m->pqp_mem);
     d_ocp_qp_sol_create(&m->pdim, &m->psol, m->psol_mem);
   }
-  m->arg_mem = malloc(d_ocp_qp_ipm_arg_memsize(m->cond_n ? &m->pdim : &m->dim));
-  if (!m->arg_mem) goto fail;
-  d_ocp_qp_ipm_arg_create(m->cond_n ? &m->pdim : &m->dim, &m->arg, m->arg_mem);
-  d_ocp_qp_ipm_arg_set_default(modes[(int)options[0] & 3], &m->arg);
-  iter_max = (int)options[1];
-  d_ocp_qp_ipm_arg_set_iter_max(&iter_max, &m->arg);
-  tol = options[2]; d_ocp_qp_ipm_arg_set_tol_stat(&tol, &m->arg);
-  tol = options[3]; d_ocp_qp_ipm_arg_set_tol_eq(&tol, &m->arg);
-  tol = options[4]; d_ocp_qp_ipm_arg_set_tol_ineq(&tol, &m->arg);
-  tol = options[5]; d_ocp_qp_ipm_arg_set_tol_comp(&tol, &m->arg);
-  warm = (int)options[6];
-  d_ocp_qp_ipm_arg_set_warm_start(&warm, &m->arg);
-  /* the workspace's size depends on the argument: allocated after it, once */
-  m->ws_mem = malloc(d_ocp_qp_ipm_ws_memsize(m->cond_n ? &m->pdim : &m->dim, &m->arg));
-  if (!m->ws_mem) goto fail;
-  d_ocp_qp_ipm_ws_create(m->cond_n ? &m->pdim : &m->dim, &m->arg, &m->ws, m->ws_mem);
+  ipm_dim = m->cond_n ? &m->pdim : &m->dim;
+  if (rti_ipm_create(options, ipm_dim, &m->arg, &m->ws, &m->arg_mem, &m->ws_mem)) goto fail;
+  m->loose_first = options[8] != 0.0;
+  if (m->loose_first &&
+      rti_ipm_create(options + 9, ipm_dim, &m->first_arg, &m->first_ws, &m->first_arg_mem, &m->first_ws_mem))
+    goto fail;
   for (k = 0; k <= RTI_N; ++k) {
     if (rti_nbx[k]) d_ocp_qp_set_idxbx(k, (int*)(rti_idxbx + rti_obx[k]), &m->qp);
     if (rti_nbu[k]) d_ocp_qp_set_idxbu(k, (int*)(rti_idxbu + rti_obu[k]), &m->qp);
@@ -247,6 +269,8 @@ static inline double rti_outside(double v, double lo, double hi, double lo_mask,
  * linearised constraints (inf if the solution is not finite). */
 static double rti_solve_qp(rti_memory* m, int* qp_iter) {
   double *lam_x = m->lam_x, *lam_g = m->lam_g;
+  struct d_ocp_qp_ipm_arg* arg = m->loose ? &m->first_arg : &m->arg;
+  struct d_ocp_qp_ipm_ws* ws = m->loose ? &m->first_ws : &m->ws;
   int k, i, j, nx, nu, nb, ng;
   double violation = 0.0, v, *data = m->data;
   rti_set_bounds0(m);
@@ -263,18 +287,18 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
       d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
       m->cond_lhs = 1;
     }
-    d_ocp_qp_ipm_solve(&m->pqp, &m->psol, &m->arg, &m->ws);
+    d_ocp_qp_ipm_solve(&m->pqp, &m->psol, arg, ws);
 #ifdef UUV_HPIPM_OLD_PART_COND /* HPIPM <= 0.1.2 (acados' copy) also reads the condensed QP */
     d_part_cond_qp_expand_sol(&m->qp, &m->pqp, &m->psol, &m->sol, &m->cond_arg, &m->cond_ws);
 #else
     d_part_cond_qp_expand_sol(&m->qp, &m->psol, &m->sol, &m->cond_arg, &m->cond_ws);
 #endif
   } else {
-    d_ocp_qp_ipm_solve(&m->qp, &m->sol, &m->arg, &m->ws);
+    d_ocp_qp_ipm_solve(&m->qp, &m->sol, arg, ws);
   }
   /* HPIPM's status (max_iter, min_step) is no verdict on the step: like the Python path, the
    * solution is judged by the violation of the linearised constraints computed below */
-  d_ocp_qp_ipm_get_iter(&m->ws, qp_iter);
+  d_ocp_qp_ipm_get_iter(ws, qp_iter);
   for (k = 0; k <= RTI_N; ++k) {
     double* u = m->ux + rti_oux[k];
     double* x = u + rti_nu[k];
@@ -350,6 +374,8 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
 /* Gauss-Newton iterations from w (updated in place).
  *
  * prepared: use the QP of uuv_rti_prepare (its state moved to p's), else linearise at w first.
+ * With loose_first, the first QP is solved with the first settings (its step is never taken as
+ * converged: only a step of the QP solver's own settings is).
  * Stops after max_iter steps, at a step with |d|_inf <= tol, at a QP solution that violates
  * the linearised constraints by more than qp_tol (not taken), or when budget seconds passed
  * (checked before each further iteration).  info: [iterations, violation, last |d|_inf,
@@ -371,11 +397,12 @@ int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int 
     rti_patch_state(m, p);
   }
   m->prepared = 0;
+  m->loose = m->loose_first;
   for (;;) {
     mark = rti_now();
     violation = rti_solve_qp(m, &qp_iter);
     t_qp += rti_now() - mark;
-    d_ocp_qp_ipm_get_status(&m->ws, &status);
+    d_ocp_qp_ipm_get_status(m->loose ? &m->first_ws : &m->ws, &status);
     if (!(violation <= qp_tol)) { stop = 2; break; }
     iterations++;
     memcpy(lam_x, m->lam_x, sizeof(double) * RTI_NW);
@@ -385,7 +412,8 @@ int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int 
       w[i] += m->d[i];
       if (fabs(m->d[i]) > norm) norm = fabs(m->d[i]);
     }
-    if (norm <= tol) { stop = 1; break; }
+    if (m->loose) m->loose = 0;
+    else if (norm <= tol) { stop = 1; break; }
     if (iterations >= max_iter) { stop = 0; break; }
     if (rti_now() - start >= budget) { stop = 3; break; }
     mark = rti_now();

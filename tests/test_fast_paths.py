@@ -186,22 +186,36 @@ def test_check_previous_accepts_exactly_what_its_definition_accepts():
                 ocp.check_previous(value)
 
 
-def test_plausible_array_accepts_exactly_finite_values_within_the_bound():
+@pytest.mark.parametrize("shape", [(2, 3), (5, 4)])  # Python floats, then numpy (SMALL_ARRAY)
+def test_plausible_array_accepts_exactly_finite_values_within_the_bound(shape):
     bound = check.PLAUSIBLE_MAGNITUDE
     values = [0.0, -bound, bound, np.nextafter(bound, np.inf), -np.nextafter(bound, np.inf), np.nan, np.inf]
     rng = np.random.default_rng(5)
     for _ in range(200):
-        value = rng.choice(values, size=(2, 3))
+        value = rng.choice(values, size=shape, p=[0.8, *[0.2 / 6] * 6])
         if np.all(np.isfinite(value)) and np.all(np.abs(value) <= bound):
-            result = check.plausible_array("w", value.tolist(), (2, 3))
+            result = check.plausible_array("w", value.tolist(), shape)
             assert np.array_equal(result, value) and result.dtype == float
         else:
             with pytest.raises(ValueError, match="w must"):
-                check.plausible_array("w", value, (2, 3))
+                check.plausible_array("w", value, shape)
     with pytest.raises(ValueError, match="shape"):
         check.plausible_array("w", np.zeros(6), (2, 3))
     with pytest.raises(ValueError, match="real array"):
         check.plausible_array("w", ["a", None], (2,))
+
+
+@pytest.mark.parametrize("size", [3, check.SMALL_ARRAY, check.SMALL_ARRAY + 1, 40])
+def test_within_is_its_numpy_definition(size):
+    """``within`` on both of its paths: every entry in its interval, NaN in none."""
+    rng = np.random.default_rng(size)
+    choices = np.array([-2.0, -1.0, 0.0, 1.0, 2.0, np.nan, np.inf, -np.inf])
+    for _ in range(300):
+        values = rng.choice(choices, size=size, p=[0.15, 0.15, 0.3, 0.15, 0.15, 0.04, 0.03, 0.03])
+        lower, upper = -1.0 - rng.random(size) * (rng.random() < 0.5), np.ones(size)
+        expected = bool(np.all((values >= lower) & (values <= upper)))
+        assert check.within(values, lower.tolist(), upper.tolist()) is expected
+        assert check.within(values, -1.0, 1.0) is bool(np.all(np.abs(values) <= 1.0))
 
 
 def test_check_previous_still_checks_the_default_zero_against_the_box():

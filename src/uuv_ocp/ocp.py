@@ -488,8 +488,8 @@ class Ocp(Transcribed):
             slack = 1e-6 * np.maximum(1.0, np.abs(spec.lower)), 1e-6 * np.maximum(1.0, np.abs(spec.upper))
             largest = np.finfo(float).max
             bounds = (
-                np.maximum(spec.lower - slack[0], -largest),
-                np.minimum(spec.upper + slack[1], largest),
+                np.maximum(spec.lower - slack[0], -largest).tolist(),
+                np.minimum(spec.upper + slack[1], largest).tolist(),
             )
             self._store["previous_bounds"] = bounds
         try:
@@ -497,7 +497,7 @@ class Ocp(Transcribed):
         except (TypeError, ValueError):
             pass
         else:
-            if value.shape == (spec.control_size,) and ((value >= bounds[0]) & (value <= bounds[1])).all():
+            if value.shape == (spec.control_size,) and check.within(value, *bounds):
                 return value
         u_prev = check.finite_array("u_prev", u_prev, (spec.control_size,))
         # solvers hold the box to their tolerance (IPOPT: ~1e-8 relative); more is an error

@@ -431,7 +431,7 @@ class NlpSolver:
     def _uses_still_water(self, p: np.ndarray) -> bool:
         """Whether the instance ``p`` is solved with the still-water NLP (see class notes)."""
         part = self._still_water_slice
-        return self.still_water and part is not None and not np.any(p[part])
+        return self.still_water and part is not None and not p[part].any()
 
     def _still_water_nlp(self, data: NlpData) -> dict[str, ca.SX]:
         """``data.nlp`` with the current parameters replaced by zero (CasADi simplifies)."""

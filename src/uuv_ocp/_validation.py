@@ -6,6 +6,7 @@ so that bad input is rejected before any solver runs.
 
 from __future__ import annotations
 
+import itertools
 import math
 import numbers
 import reprlib
@@ -31,9 +32,9 @@ def within(values: np.ndarray, lower: float | Sequence[float], upper: float | Se
     flat = values.ravel()
     if flat.size > SMALL_ARRAY:
         return bool(((flat >= np.asarray(lower)) & (flat <= np.asarray(upper))).all())
-    if isinstance(lower, float) and isinstance(upper, float):
-        return all(lower <= value <= upper for value in flat.tolist())
-    return all(low <= value <= high for value, low, high in zip(flat.tolist(), lower, upper, strict=True))
+    lows = itertools.repeat(lower) if isinstance(lower, float) else lower
+    highs = itertools.repeat(upper) if isinstance(upper, float) else upper
+    return all(low <= value <= high for value, low, high in zip(flat.tolist(), lows, highs, strict=False))
 
 
 def shown(value: object) -> str:

@@ -25,7 +25,9 @@ Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 qua
 ``--interleaved``: only the C step's rows of ``INTERLEAVED``, three rounds interleaved
 (``--rounds K``: K);
 ``--speed-abs-quality``: only the closed-loop quality of HPIPM's ``speed_abs`` mode;
-``--quality``: only the closed-loop quality of the default C step against fatrop).
+``--quality``: only the closed-loop quality of the default C step against fatrop;
+``--loose-first-qp``: only the converged mode's iterations with and without ``loose_first_qp``
+and the step sizes of its Gauss–Newton iterations).
 """
 
 from __future__ import annotations
@@ -171,6 +173,11 @@ INTERLEAVED: tuple[tuple[str, str, dict], ...] = (
     ("wheel", WHEEL, {}),
     ("native, converged", NATIVE, {"mode": "converged"}),
     ("native, converged, step_control", NATIVE, {"mode": "converged", "lean": True}),
+    (
+        "native, converged, every QP tight, step_control",
+        NATIVE,
+        {"mode": "converged", "lean": True, "qpsol_options": {"loose_first_qp": False}},
+    ),
     ("wheel, converged", WHEEL, {"mode": "converged"}),
 )
 
@@ -307,6 +314,63 @@ def hpipm_settings(steps: int = 300) -> list[dict]:
             }
         )
     return rows
+
+
+def loose_first_qp(steps: int = 300, every: int = 10, depth: int = 4) -> dict:
+    """Converged ``step_control`` on s2 with ``loose_first_qp`` on and off (one loop each).
+
+    Per setting: Gauss–Newton iterations of the resident steps (median, mean), steps that took
+    the general path after the cold first one, and the largest difference between the two
+    loops' applied controls (N, N·m).  ``norms[k]``: the ``k+1``-th step's
+    ``‖d‖∞`` (scaled variables) of the all-tight iteration from the shifted warm start, at
+    every ``every``-th state of the loose-first loop (the first ``depth`` steps).
+    """
+    from uuv_ocp.judge import instance_parameters
+
+    problem = _problem()
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    current = np.zeros(2)
+    rows, controls = {}, {}
+    norms: list[list[float]] = [[] for _ in range(depth)]
+    tight = _built_controller(
+        "sqp-rti", {**OCP, "mode": "converged", "qpsol_options": {"loose_first_qp": False}}, NATIVE
+    )
+    loose = _built_controller("sqp-rti", {**OCP, "mode": "converged"}, NATIVE)
+    for label, controller in (("loose first QP (default)", loose), ("every QP tight", tight)):
+        controller.reset()
+        state, control = problem.reference.initial_state(0.0), np.zeros(3)
+        iterations, general, applied = [], 0, []
+        for k in range(steps):
+            t = k * problem.dt
+            plan = controller._resident  # noqa: SLF001 (the bench reads the resident plan)
+            if label.startswith("loose") and k >= 2 and k % every == 0 and plan is not None:
+                backend = tight.backend
+                p = instance_parameters(problem, state, t, u_prev=control, current=current)
+                warm = controller.backend.resident_iterate(plan).shift()
+                primal, lam_g, lam_x = backend._initial_point(plan.variant, p, warm)  # noqa: SLF001
+                step = backend.ocp_step(plan.variant, plan.still_water)
+                scale = backend.objective_scale
+                for depth_index in range(depth):
+                    info = step.iterate(
+                        primal, p, lam_x * scale, lam_g * scale, False, depth_index + 1, 0.0, 1e-6, math.inf
+                    )[3]
+                    norms[depth_index].append(float(info[2]))
+            control = controller.step_control(state, t, control, current)
+            if k and controller.last_output is None:
+                plan = controller._resident  # noqa: SLF001
+                iterations.append(float(controller.backend.ocp_step(plan.variant, plan.still_water).info[0]))
+            elif k:
+                general += 1
+            applied.append(control.copy())
+            state = np.array(plant(state, control, current)).ravel()
+        rows[label] = {
+            "median": float(np.median(iterations)),
+            "mean": float(np.mean(iterations)),
+            "general": general,
+        }
+        controls[label] = np.array(applied)
+    first, second = controls.values()
+    return {"rows": rows, "control_difference": float(np.max(np.abs(first - second))), "norms": norms}
 
 
 def generated_c_speed(problem: uo.TrackingProblem, duration: float) -> dict:
@@ -497,15 +561,31 @@ def main(
     rounds: int = 0,
     speed_abs: bool = False,
     quality_only: bool = False,
+    loose_first: bool = False,
 ) -> None:
     """Print the speed table (ratios to fatrop) and the quality table (``quick``: s2 only).
 
     ``settings``: only the table of HPIPM settings of the ``hpipm-ocp`` path; ``rounds``: only
     the interleaved table (:func:`interleaved`) over that many rounds; ``speed_abs``: only the
     quality table of :data:`SPEED_ABS_QUALITY`; ``quality_only``: only the quality table of the
-    default C step and fatrop.
+    default C step and fatrop; ``loose_first``: only :func:`loose_first_qp`.
     """
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    if loose_first:
+        result = loose_first_qp()
+        print("\nconverged step_control, s2 closed loop (30 s from rest): Gauss-Newton iterations")
+        for label, row in result["rows"].items():
+            print(
+                f"{label:<28} median {row['median']:.0f}  mean {row['mean']:.2f}  "
+                f"general-path steps {row['general']}"
+            )
+        print(f"largest difference of the applied controls: {result['control_difference']:.2e}")
+        for index, values in enumerate(result["norms"]):
+            print(
+                f"step {index + 1} of the all-tight iteration: |d|inf median {np.median(values):.1e}, "
+                f"range {min(values):.1e} - {max(values):.1e}, over {len(values)} states"
+            )
+        return
     if quality_only:
         solvers = QUALITY_SOLVERS[1:]  # the default C step against fatrop
         print("\nlargest position error (m) and settling times (s), RTI (C step) vs fatrop, 30 s")
@@ -564,4 +644,5 @@ if __name__ == "__main__":
         else 0,
         speed_abs="--speed-abs-quality" in sys.argv,
         quality_only="--quality" in sys.argv,
+        loose_first="--loose-first-qp" in sys.argv,
     )

@@ -38,7 +38,10 @@ Modes (options):
 ``mode="converged"``
     Iterate until the step ``‖d‖∞ ≤ tol`` (default 1e-8, scaled variables) or ``max_iter``
     (default 50) steps: the full Gauss–Newton SQP (no globalisation), converging to the
-    optimum of the NLP where Gauss–Newton converges.
+    optimum of the NLP where Gauss–Newton converges.  With the C step, the first QP of a call
+    is solved with the ``rti`` mode's HPIPM settings and the others tight
+    (``qpsol_options["loose_first_qp"]``, default True): only a tight QP's step can end the
+    iteration.
 
 ``deadline`` (seconds): no further iteration starts once it has passed (the first always runs),
 so ``iterations=k`` with a deadline is "extra iterations up to the deadline"; a call that
@@ -125,8 +128,8 @@ RTI_OPTIONS: tuple[Option, ...] = (
         AUTO,
         "dict",
         "options of the QP solver (`hpipm-ocp`: `mode`, `iter_max`, `tol_stat`, `tol_eq`, "
-        "`tol_ineq`, `tol_comp`, `warm_start`, `cond_horizon`; with `qpsol='auto'`, options "
-        "with other keys, e.g. CasADi's `{'hpipm': {...}}`, select `hpipm`)",
+        "`tol_ineq`, `tol_comp`, `warm_start`, `cond_horizon`, `loose_first_qp`; with "
+        "`qpsol='auto'`, options with other keys, e.g. CasADi's `{'hpipm': {...}}`, select `hpipm`)",
         meaning="`HPIPM_DEFAULTS` (residuals 1e-10) for hpipm in converged mode, `OCP_QP_CONVERGED` "
         "(balance mode, 1e-10) for hpipm-ocp in converged mode, else `{}`",
     ),

@@ -316,59 +316,99 @@ def hpipm_settings(steps: int = 300) -> list[dict]:
     return rows
 
 
-def loose_first_qp(steps: int = 300, every: int = 10, depth: int = 4) -> dict:
-    """Converged ``step_control`` on s2 with ``loose_first_qp`` on and off (one loop each).
+def _bluerov2_survey() -> tuple[uo.TrackingProblem, np.ndarray]:
+    """Return the BlueROV2 Heavy survey of ``examples/bluerov2_depth.py`` and its start (0.5 m above)."""
+    from uuv_ocp.model import Vehicle6DOF
 
-    Per setting: Gauss–Newton iterations of the resident steps (median, mean), steps that took
-    the general path after the cold first one, and the largest difference between the two
-    loops' applied controls (N, N·m).  ``norms[k]``: the ``k+1``-th step's
-    ``‖d‖∞`` (scaled variables) of the all-tight iteration from the shifted warm start, at
-    every ``every``-th state of the loose-first loop (the first ``depth`` steps).
+    sys.path.insert(0, "examples")
+    try:
+        import bluerov2_depth as example
+    finally:
+        sys.path.pop(0)
+    survey = uo.Reference.lawnmower(
+        (0.0, 0.0),
+        width=example.WIDTH,
+        spacing=example.SPACING,
+        lanes=3,
+        speed=example.SPEED,
+        depth=example.DEPTH,
+    )
+    problem = uo.TrackingProblem(Vehicle6DOF.bluerov2_heavy(), survey, horizon=20, dt=0.1)
+    start = survey.initial_state(0.0)
+    start[2] -= 0.5
+    return problem, start
+
+
+def loose_first_qp(
+    case: str = "s2", steps: int = 300, every: int = 10, depth: int = 4, rounds: int = 2
+) -> dict:
+    """Converged ``step_control`` with ``loose_first_qp`` on and off, ``rounds`` loops each, alternated.
+
+    ``case``: ``"s2"`` (RexROV) or ``"bluerov2"`` (the 6-DOF survey).  Per setting: Gauss–Newton
+    iterations of the resident steps (median, mean), steps that took the general path after
+    the cold first one, the median time in C (median over the rounds), and the largest
+    difference between the two settings' applied controls (N, N·m).  ``norms[k]``: the
+    ``k+1``-th step's ``‖d‖∞`` (scaled variables) of the all-tight iteration from the shifted
+    warm start, at every ``every``-th state of the loose-first loop (the first ``depth`` steps).
     """
     from uuv_ocp.judge import instance_parameters
 
-    problem = _problem()
+    if case == "bluerov2":
+        problem, start = _bluerov2_survey()
+    else:
+        problem = _problem(case)
+        start = problem.reference.initial_state(0.0)
     plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
-    current = np.zeros(2)
-    rows, controls = {}, {}
+    still = np.zeros(plant.size1_in(2))
+    converged = {**OCP, "mode": "converged"}
+    settings = {
+        "loose first QP (default)": uo.NMPC(problem, "sqp-rti", options=converged),
+        "every QP tight": uo.NMPC(
+            problem, "sqp-rti", options={**converged, "qpsol_options": {"loose_first_qp": False}}
+        ),
+    }
+    rows: dict = {label: {"c_ms": []} for label in settings}
+    controls = {}
     norms: list[list[float]] = [[] for _ in range(depth)]
-    tight = _built_controller(
-        "sqp-rti", {**OCP, "mode": "converged", "qpsol_options": {"loose_first_qp": False}}, NATIVE
-    )
-    loose = _built_controller("sqp-rti", {**OCP, "mode": "converged"}, NATIVE)
-    for label, controller in (("loose first QP (default)", loose), ("every QP tight", tight)):
-        controller.reset()
-        state, control = problem.reference.initial_state(0.0), np.zeros(3)
-        iterations, general, applied = [], 0, []
-        for k in range(steps):
-            t = k * problem.dt
-            plan = controller._resident  # noqa: SLF001 (the bench reads the resident plan)
-            if label.startswith("loose") and k >= 2 and k % every == 0 and plan is not None:
-                backend = tight.backend
-                p = instance_parameters(problem, state, t, u_prev=control, current=current)
-                warm = controller.backend.resident_iterate(plan).shift()
-                primal, lam_g, lam_x = backend._initial_point(plan.variant, p, warm)  # noqa: SLF001
-                step = backend.ocp_step(plan.variant, plan.still_water)
-                scale = backend.objective_scale
-                for depth_index in range(depth):
-                    info = step.iterate(
-                        primal, p, lam_x * scale, lam_g * scale, False, depth_index + 1, 0.0, 1e-6, math.inf
-                    )[3]
-                    norms[depth_index].append(float(info[2]))
-            control = controller.step_control(state, t, control, current)
-            if k and controller.last_output is None:
-                plan = controller._resident  # noqa: SLF001
-                iterations.append(float(controller.backend.ocp_step(plan.variant, plan.still_water).info[0]))
-            elif k:
-                general += 1
-            applied.append(control.copy())
-            state = np.array(plant(state, control, current)).ravel()
-        rows[label] = {
-            "median": float(np.median(iterations)),
-            "mean": float(np.mean(iterations)),
-            "general": general,
-        }
-        controls[label] = np.array(applied)
+    tight = settings["every QP tight"].backend
+    for round_index in range(rounds):
+        for label, controller in settings.items():
+            controller.reset()
+            state, control = start.copy(), np.zeros(problem.spec().control_size)
+            iterations, general, applied, inside = [], 0, [], []
+            for k in range(steps):
+                t = k * problem.dt
+                plan = controller._resident  # noqa: SLF001 (the bench reads the resident plan)
+                sample = k >= 2 and k % every == 0 and plan is not None
+                if label.startswith("loose") and round_index == 0 and sample:
+                    p = instance_parameters(problem, state, t, u_prev=control)
+                    warm = controller.backend.resident_iterate(plan).shift()
+                    primal, lam_g, lam_x = tight._initial_point(plan.variant, p, warm)  # noqa: SLF001
+                    step = tight.ocp_step(plan.variant, plan.still_water)
+                    scale = tight.objective_scale
+                    for index in range(depth):
+                        info = step.iterate(
+                            primal, p, lam_x * scale, lam_g * scale, False, index + 1, 0.0, 1e-6, math.inf
+                        )[3]
+                        norms[index].append(float(info[2]))
+                control = controller.step_control(state, t, control)
+                if k and controller.last_output is None:
+                    plan = controller._resident  # noqa: SLF001
+                    info = controller.backend.ocp_step(plan.variant, plan.still_water).info
+                    iterations.append(float(info[0]))
+                    inside.append(float(info[6] + info[7]))
+                elif k:
+                    general += 1
+                applied.append(control.copy())
+                state = np.array(plant(state, control, still)).ravel()
+            rows[label]["c_ms"].append(1e3 * float(np.median(inside)))
+            if round_index == 0:
+                rows[label].update(
+                    median=float(np.median(iterations)), mean=float(np.mean(iterations)), general=general
+                )
+                controls[label] = np.array(applied)
+    for row in rows.values():
+        row["c_ms"] = float(np.median(row["c_ms"]))
     first, second = controls.values()
     return {"rows": rows, "control_difference": float(np.max(np.abs(first - second))), "norms": norms}
 
@@ -571,13 +611,13 @@ def main(
     default C step and fatrop; ``loose_first``: only :func:`loose_first_qp`.
     """
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
-    if loose_first:
-        result = loose_first_qp()
-        print("\nconverged step_control, s2 closed loop (30 s from rest): Gauss-Newton iterations")
+    for case in ("s2", "bluerov2") if loose_first else ():
+        result = loose_first_qp(case)
+        print(f"\nconverged step_control, {case} closed loop (30 s from rest), two rounds alternated")
         for label, row in result["rows"].items():
             print(
-                f"{label:<28} median {row['median']:.0f}  mean {row['mean']:.2f}  "
-                f"general-path steps {row['general']}"
+                f"{label:<28} Gauss-Newton iterations median {row['median']:.0f}, mean {row['mean']:.2f}; "
+                f"general-path steps {row['general']}; in C {row['c_ms']:.3f} ms"
             )
         print(f"largest difference of the applied controls: {result['control_difference']:.2e}")
         for index, values in enumerate(result["norms"]):
@@ -585,6 +625,7 @@ def main(
                 f"step {index + 1} of the all-tight iteration: |d|inf median {np.median(values):.1e}, "
                 f"range {min(values):.1e} - {max(values):.1e}, over {len(values)} states"
             )
+    if loose_first:
         return
     if quality_only:
         solvers = QUALITY_SOLVERS[1:]  # the default C step against fatrop

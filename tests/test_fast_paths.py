@@ -215,7 +215,11 @@ def test_within_is_its_numpy_definition(size):
         lower, upper = -1.0 - rng.random(size) * (rng.random() < 0.5), np.ones(size)
         expected = bool(np.all((values >= lower) & (values <= upper)))
         assert check.within(values, lower.tolist(), upper.tolist()) is expected
+        assert check.within(values, lower, upper) is expected
         assert check.within(values, -1.0, 1.0) is bool(np.all(np.abs(values) <= 1.0))
+        assert check.within(values, -1, np.float32(1.0)) is bool(np.all(np.abs(values) <= 1.0))
+    with pytest.raises(ValueError):  # a bound per entry, or one for all: nothing in between
+        check.within(np.zeros(size), [0.0] * (size - 1), 1.0)
 
 
 def test_check_previous_still_checks_the_default_zero_against_the_box():

@@ -15,7 +15,7 @@ import uuv_ocp as uo
 from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
 from uuv_ocp.solvers import REGISTRY, get_solver
 from uuv_ocp.solvers.result import Iterate
-from uuv_ocp.solvers.rti import RtiSolver
+from uuv_ocp.solvers.rti import HPIPM_DEFAULTS, RtiSolver
 from uuv_ocp.solvers.rti_ocp import STOP_CONVERGED, STOP_MAX_ITER, ocp_qp_options
 
 TIGHT_HPIPM = {"hpipm": {f"res_{k}_max": 1e-12 for k in "gbdm"}}
@@ -356,6 +356,20 @@ def test_automatic_qp_path(problem, monkeypatch):
         RtiSolver(problem, {"qpsol": "hpipm-ocp", "qpsol_options": {"hpipm": {}}})
 
 
+def test_c_step_options_without_the_c_step_are_checked_then_left_out(problem, instance, monkeypatch):
+    """``qpsol="auto"`` where the C step is not built: its options warn and do not reach CasADi."""
+    monkeypatch.setenv("UUV_OCP_COMPILED", "0")
+    with pytest.raises(ValueError, match=r"options\['qpsol_options'\]\['iter_max'\]"):
+        RtiSolver(problem, {"qpsol_options": {"iter_max": 0}})
+    options = {"mode": "converged", "qpsol_options": {"loose_first_qp": False}, "slack_tolerance": 4e-7}
+    with pytest.warns(RuntimeWarning, match="options of the C step"):
+        backend = RtiSolver(problem, options)
+    assert backend.qpsol == "hpipm" and backend.qpsol_options == HPIPM_DEFAULTS
+    x0, reference = instance
+    result = backend.solve(problem.parameters(x0, 3.0), reference.iterate)  # a warm, conic solve
+    assert result.success and result.status.endswith("converged")
+
+
 def test_numpy_integers_are_accepted_where_ints_are():
     """``iter_max`` and ``cond_horizon`` from numpy arrays (np.int64) are ints, stored as Python ints."""
     merged = ocp_qp_options(
@@ -567,9 +581,10 @@ def test_resident_seed_checks_its_sizes(problem):
 def test_converged_mode_solves_only_its_first_qp_loosely(problem, instance):
     """``loose_first_qp``: a converged call's first QP has the rti mode's HPIPM settings.
 
-    The first step equals an rti-mode step bit for bit (the tight settings give another one);
-    a loose step never ends the iteration, however small; the converged point is the one of
-    tight QPs throughout, to the step tolerance.
+    Two steps equal an rti-mode step then a tight one, bit for bit (tight throughout gives
+    another point); a loose step never ends the iteration, however small, and none is taken
+    where one step may be all there is; the converged point is the one of tight QPs
+    throughout, to the step tolerance.
     """
     needs_compiler("hpipm-ocp")
     x0, reference = instance
@@ -588,13 +603,15 @@ def test_converged_mode_solves_only_its_first_qp_loosely(problem, instance):
         steps[name] = backend.ocp_step("hard", backend._uses_still_water(p))
     lam_x, lam_g = np.zeros(data.lbx.size), np.zeros(data.lbg.size)
 
-    def run(name, start, max_iter, tol=1e-10):
-        return steps[name].iterate(start, p, lam_x, lam_g, False, max_iter, tol, 1e-6, math.inf)
+    def run(name, start, max_iter, tol=1e-10, budget=math.inf):
+        return steps[name].iterate(start, p, lam_x, lam_g, False, max_iter, tol, 1e-6, budget)
 
-    first = {name: run(name, w, 1) for name in steps}
-    assert first["loose"][3][3] == STOP_MAX_ITER
-    np.testing.assert_array_equal(first["loose"][0], first["rti"][0])
-    assert np.max(np.abs(first["tight"][0] - first["rti"][0])) > 1e-12
+    # two steps: an rti step, then a tight one from where it went (a GN QP ignores the duals)
+    two = {name: run(name, w, 2) for name in ("loose", "tight")}
+    assert two["loose"][3][3] == STOP_MAX_ITER
+    by_hand = run("tight", run("rti", w, 1)[0], 1)[0]
+    np.testing.assert_array_equal(two["loose"][0], by_hand)
+    assert np.max(np.abs(two["tight"][0] - by_hand)) > 1e-12
     converged = {name: run(name, w, 50) for name in ("loose", "tight")}
     for name, (_, _, _, info) in converged.items():
         assert info[3] == STOP_CONVERGED, name
@@ -605,6 +622,10 @@ def test_converged_mode_solves_only_its_first_qp_loosely(problem, instance):
     assert run("tight", optimum, 50, tol=1e-6)[3][0] == 1
     again = run("loose", optimum, 50, tol=1e-6)[3]
     assert again[3] == STOP_CONVERGED and again[0] == 2
+    # where one step may be all there is (max_iter=1, a deadline's budget) every QP is tight
+    for limits in ({"max_iter": 1}, {"max_iter": 50, "budget": 1e-9}):
+        single = run("loose", optimum, tol=1e-6, **limits)[3]
+        assert single[3] == STOP_CONVERGED and single[0] == 1, limits
 
 
 def general_step(controller: uo.NMPC, x, t, u_prev, current=None, parameters=None):

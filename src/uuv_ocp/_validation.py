@@ -6,7 +6,6 @@ so that bad input is rejected before any solver runs.
 
 from __future__ import annotations
 
-import itertools
 import math
 import numbers
 import reprlib
@@ -21,20 +20,38 @@ _SHORT.maxlist = _SHORT.maxtuple = 8
 #: up to this many entries :func:`within` compares Python floats (one conversion) instead of
 #: calling three ufuncs: 0.7 against 3.8 µs on a 6-vector, every closed-loop step
 SMALL_ARRAY = 16
+#: a bound of :func:`within`: one real number, or one per entry
+Bound = float | Sequence[float] | np.ndarray
 
 
-def within(values: np.ndarray, lower: float | Sequence[float], upper: float | Sequence[float]) -> bool:
+def within(values: np.ndarray, lower: Bound, upper: Bound) -> bool:
     """Whether every entry of ``values`` lies in ``[lower, upper]`` (NaN does not).
 
-    ``lower`` and ``upper``: one float for every entry, or a sequence of floats per entry (in
-    flat order).
+    ``lower`` and ``upper``: one real number for every entry, or one per entry (a list or an
+    array of ``values.size`` numbers, flat order; another size raises ``ValueError``).
     """
     flat = values.ravel()
     if flat.size > SMALL_ARRAY:
-        return bool(((flat >= np.asarray(lower)) & (flat <= np.asarray(upper))).all())
-    lows = itertools.repeat(lower) if isinstance(lower, float) else lower
-    highs = itertools.repeat(upper) if isinstance(upper, float) else upper
-    return all(low <= value <= high for value, low, high in zip(flat.tolist(), lows, highs, strict=False))
+        low, high = np.ravel(np.asarray(lower, dtype=float)), np.ravel(np.asarray(upper, dtype=float))
+        for bound in (low, high):
+            if bound.size not in (1, flat.size):
+                raise ValueError(f"within: {bound.size} bounds for {flat.size} values")
+        return bool(((flat >= low) & (flat <= high)).all())
+    entries = flat.tolist()
+    lows, highs = _per_entry(lower, len(entries)), _per_entry(upper, len(entries))
+    return all(low <= value <= high for value, low, high in zip(entries, lows, highs, strict=True))
+
+
+def _per_entry(bound: Bound, size: int) -> list[float]:
+    """``bound`` as ``size`` floats: a float or a list of them as they come (the hot path)."""
+    if isinstance(bound, float):
+        return [bound] * size
+    if isinstance(bound, list) and len(bound) == size:
+        return bound
+    array = np.asarray(bound, dtype=float)
+    if array.ndim == 0:
+        return [float(array)] * size
+    return array.ravel().tolist()
 
 
 def shown(value: object) -> str:

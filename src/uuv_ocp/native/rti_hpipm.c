@@ -374,8 +374,9 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
 /* Gauss-Newton iterations from w (updated in place).
  *
  * prepared: use the QP of uuv_rti_prepare (its state moved to p's), else linearise at w first.
- * With loose_first, the first QP is solved with the first settings (its step is never taken as
- * converged: only a step of the QP solver's own settings is).
+ * With loose_first, max_iter > 1 and no budget (inf), the first QP is solved with the first
+ * settings (its step is never taken as converged: only a step of the QP solver's own settings
+ * is).
  * Stops after max_iter steps, at a step with |d|_inf <= tol, at a QP solution that violates
  * the linearised constraints by more than qp_tol (not taken), or when budget seconds passed
  * (checked before each further iteration).  info: [iterations, violation, last |d|_inf,
@@ -397,7 +398,8 @@ int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int 
     rti_patch_state(m, p);
   }
   m->prepared = 0;
-  m->loose = m->loose_first;
+  /* a loose step cannot end the iteration: not where one step may be all there is */
+  m->loose = m->loose_first && max_iter > 1 && isinf(budget);
   for (;;) {
     mark = rti_now();
     violation = rti_solve_qp(m, &qp_iter);

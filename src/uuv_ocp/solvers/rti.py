@@ -39,9 +39,9 @@ Modes (options):
     Iterate until the step ``‖d‖∞ ≤ tol`` (default 1e-8, scaled variables) or ``max_iter``
     (default 50) steps: the full Gauss–Newton SQP (no globalisation), converging to the
     optimum of the NLP where Gauss–Newton converges.  With the C step, the first QP of a call
-    is solved with the ``rti`` mode's HPIPM settings and the others tight
-    (``qpsol_options["loose_first_qp"]``, default True): only a tight QP's step can end the
-    iteration.
+    is solved with the HPIPM settings of ``rti`` mode and the others tight
+    (``qpsol_options["loose_first_qp"]``, default True; not with ``max_iter=1`` or a
+    deadline): only a tight QP's step can end the iteration.
 
 ``deadline`` (seconds): no further iteration starts once it has passed (the first always runs),
 so ``iterations=k`` with a deadline is "extra iterations up to the deadline"; a call that
@@ -330,6 +330,19 @@ class RtiSolver(NlpSolver):
         )
         self.qpsol = ("hpipm" if conic_options else _automatic_qpsol()) if qpsol == "auto" else qpsol
         tight = self.qpsol == "hpipm" and self.mode == "converged"
+        ocp_keys_only = isinstance(qpsol_options, dict) and bool(qpsol_options) and not conic_options
+        if qpsol == "auto" and self.qpsol == "hpipm" and ocp_keys_only:
+            # options of the C step where it cannot be built: checked, then left out (CasADi's
+            # conic interface would refuse them at the first solve)
+            ocp_qp_options(dict(qpsol_options), self.mode == "converged", problem.spec().horizon)
+            warnings.warn(
+                f"sqp-rti: qpsol_options {sorted(qpsol_options)} are options of the C step "
+                "(qpsol='hpipm-ocp'), which is not built here; CasADi's hpipm interface runs with "
+                "its own settings",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+            qpsol_options = AUTO
         if qpsol_options is AUTO:
             qpsol_options = HPIPM_DEFAULTS if tight else {}
         if not isinstance(qpsol_options, dict):

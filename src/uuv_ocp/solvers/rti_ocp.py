@@ -68,11 +68,12 @@ OCP_QP_CONVERGED: dict[str, Any] = {
     "tol_ineq": 1e-10,
     "tol_comp": 1e-10,
 }
-#: HPIPM settings of the first QP of a converged call with ``loose_first_qp`` (the ``rti`` mode's):
-#: the first Gauss–Newton step from a shifted warm start is large (s2: ‖d‖∞ ≈ 0.1 against
-#: 1e-6 for the second), so its QP needs no 1e-10 solution; the tight QPs after it decide
-#: convergence (s2 closed loop: 25 % less time in C, same iterations; docs/solvers.md)
-LOOSE_FIRST_QP = {key: OCP_QP_DEFAULTS[key] for key in ("mode", "tol_stat", "tol_eq", "tol_ineq", "tol_comp")}
+#: the settings of the first QP of a converged call with ``loose_first_qp``: those the same
+#: ``qpsol_options`` give in ``rti`` mode.  The first Gauss–Newton step from a shifted warm
+#: start is large (s2: ‖d‖∞ ≈ 0.09 against 3e-6 for the second), so its QP needs no 1e-10
+#: solution; the tight QPs after it decide convergence (same iterations, a third less time in
+#: C on s2 and the BlueROV2: ``python -m benchmarks.bench_rti --loose-first-qp``)
+LOOSE_SETTINGS = ("mode", "tol_stat", "tol_eq", "tol_ineq", "tol_comp")
 #: stop codes of ``uuv_rti_iterate``
 STOP_MAX_ITER, STOP_CONVERGED, STOP_INFEASIBLE, STOP_DEADLINE, STOP_EVALUATION = range(5)
 
@@ -85,7 +86,9 @@ def ocp_qp_options(options: dict[str, Any], converged: bool, horizon: int = 0) -
     """Check the HPIPM options: the defaults, the converged mode's tolerances, then ``options``.
 
     ``cond_horizon="auto"`` becomes ``horizon // 4`` stages when ``horizon`` ≥
-    :data:`AUTO_CONDENSING_FROM`, else 0 (no partial condensing).
+    :data:`AUTO_CONDENSING_FROM`, else 0 (no partial condensing).  ``loose_first_qp`` stays on
+    only in converged mode; ``"loose_settings"`` (added) are the mode and tolerances the same
+    ``options`` give in ``rti`` mode, for that first QP.
 
     Raises
     ------
@@ -118,6 +121,8 @@ def ocp_qp_options(options: dict[str, Any], converged: bool, horizon: int = 0) -
     if merged["cond_horizon"] == "auto":
         merged["cond_horizon"] = horizon // 4 if horizon >= AUTO_CONDENSING_FROM else 0
     merged["loose_first_qp"] = converged and merged["loose_first_qp"]  # rti: one kind of QP
+    rti_settings = {**OCP_QP_DEFAULTS, **options}
+    merged["loose_settings"] = {key: rti_settings[key] for key in LOOSE_SETTINGS}
     return merged
 
 
@@ -661,7 +666,7 @@ def _options_array(options: dict[str, Any]) -> list[float]:
     """HPIPM options in the order ``uuv_rti_create`` reads them.
 
     The QP solver's settings, the partial condensing horizon, ``loose_first_qp``, then the
-    first QP's settings (:data:`LOOSE_FIRST_QP`, with the same ``iter_max`` and warm start).
+    first QP's settings (``loose_settings``, with the same ``iter_max`` and warm start).
     """
 
     def settings(source: dict[str, Any]) -> list[float]:
@@ -673,7 +678,7 @@ def _options_array(options: dict[str, Any]) -> list[float]:
         *settings(options),
         float(options["cond_horizon"]),
         float(options["loose_first_qp"]),
-        *settings(LOOSE_FIRST_QP),
+        *settings(options["loose_settings"]),
     ]
 
 

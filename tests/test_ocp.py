@@ -375,7 +375,7 @@ def test_compare_ranks_feasible_rows_first_and_reports_violations_by_kind():
 
 
 def test_fatrop_stalling_on_an_obstacle_is_finished_by_ipopt_from_its_iterate():
-    """Finish fatrop's stalled solves next to an obstacle with IPOPT from its iterate.
+    """Finish fatrop's stalled solves next to an obstacle with IPOPT from its iterate, at once.
 
     Fatrop reaches the optimum but stalls (dual infeasibility under a large inertia-correction
     regularisation); the rescue converges to the optimum IPOPT finds on its own.
@@ -387,6 +387,8 @@ def test_fatrop_stalling_on_an_obstacle_is_finished_by_ipopt_from_its_iterate():
     fatrop = uo.solve(problem, "fatrop", x0=x0, t0=5.0)
     ipopt = uo.solve(problem, "ipopt", x0=x0, t0=5.0)
     assert fatrop.success and fatrop.max_violation <= 1e-6
-    assert fatrop.details["attempts"][-1][0].endswith("(rescue)")
+    # the stall is recognised at once (fatrop's iteration limit, a feasible plan): no robust
+    # retry that would stall the same way first
+    assert [name for name, _, _ in fatrop.details["attempts"]] == ["hard", "hard (rescue)"]
     assert fatrop.cost == pytest.approx(ipopt.cost, rel=1e-8)
     assert np.min(rock.signed_distance(fatrop.states[1:])) >= -1e-6

@@ -19,7 +19,8 @@ accelerates from rest.  Every exact backend therefore handles ``terminal="equali
 
 Deadline (``deadline`` option, seconds of wall time per :meth:`NlpSolver.solve`).  Checked at
 two levels: *between attempts* — after the deadline no new attempt of the fallback chain
-(hard → soft → cold retry → penalty escalations → robust retry) starts — and *inside an
+(hard → soft → cold retry → penalty escalations → robust retry → rescue; a backend's rescue
+also right after an attempt that :meth:`~NlpSolver.stalled`) starts — and *inside an
 attempt* where the plugin offers a hook: ``ipopt`` and ``sqpmethod`` call CasADi's
 ``iteration_callback`` after every iteration and stop when it reports the deadline passed
 (IPOPT additionally gets ``max_wall_time`` and ``max_cpu_time`` = the deadline).  CasADi 3.8's
@@ -375,9 +376,26 @@ class NlpSolver:
     def rescue_options(self) -> dict[str, Any]:
         """Options (with a ``"plugin"`` key) of a retry by another plugin from the last iterate.
 
-        Tried after every other attempt failed; ``{}`` (the default): none.
+        Tried after every other attempt failed, or at once after an attempt that
+        :meth:`stalled`; ``{}`` (the default): none.
         """
         return {}
+
+    def stalled(self, attempt: dict[str, Any], p: np.ndarray) -> bool:
+        """Whether a failed ``attempt`` stalled next to a solution (default: never).
+
+        A backend with a rescue (:meth:`rescue_options`) that says so hands that attempt's
+        iterate to the rescue at once, instead of running the rest of its fallback chain first.
+        """
+        return False
+
+    def judged_violation(self, attempt: dict[str, Any], p: np.ndarray) -> float:
+        """Return the judge's largest violation of ``attempt``'s plan (see :func:`uuv_ocp.score`)."""
+        relaxed = self.relaxed(attempt["variant"], attempt["primal"])
+        iterate = self.plan_iterate(
+            attempt["variant"], attempt["primal"], attempt["lam_g"], attempt["lam_x"], relaxed
+        )
+        return score_parameters(self.problem, iterate.scaled_controls.ravel(), p, self.judge_terms)[1]
 
     def _transfer_maps(self, source: str, target: str) -> tuple[np.ndarray, np.ndarray]:
         """Index maps moving primal and dual vectors from one NLP variant to another (cached)."""
@@ -618,6 +636,9 @@ class NlpSolver:
                 skipped += 1
                 return False
             attempts.append(self._attempt(variant, p, warm, robust=robust))
+            if robust != "rescue" and self.rescue_options() and self.stalled(attempts[-1], p):
+                # stuck next to a solution: the rest of the chain would stall the same way
+                attempt(variant, self._iterate_of(attempts[-1]), robust="rescue")
             return True
 
         soft_available = "soft" in self.variants

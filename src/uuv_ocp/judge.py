@@ -12,6 +12,10 @@ from uuv_ocp.native.buffered import BufferedFunction
 if TYPE_CHECKING:
     from uuv_ocp.build import Transcribed
 
+FEASIBILITY_TOLERANCE = 1e-6
+"""Largest judged violation (:func:`score`: its own units; box and rate: scaled) of a plan that
+counts as feasible: a swarm's ``success``, ``compare``'s feasible rows, fatrop's stall test."""
+
 
 def instance_parameters(
     problem: Transcribed,

@@ -651,7 +651,7 @@ def comparison_figure(rows: Sequence[Any], title: str = "") -> Figure:
     """
     from matplotlib.patches import Patch
 
-    from uuv_ocp.studies.compare import FEASIBILITY_TOLERANCE
+    from uuv_ocp.judge import FEASIBILITY_TOLERANCE
 
     rows = sorted(rows, key=lambda row: getattr(row, "rank", 0) or 0)
     if not rows:

@@ -267,10 +267,13 @@ static inline double rti_outside(double v, double lo, double hi, double lo_mask,
 
 /* Solve the loaded QP; write d (NLP order) and the multipliers; return the violation of the
  * linearised constraints (inf if the solution is not finite). */
+/* The IPM workspace of the QP solved next (and last): the loose first one's or the solver's. */
+static inline struct d_ocp_qp_ipm_ws* rti_ws(rti_memory* m) { return m->loose ? &m->first_ws : &m->ws; }
+
 static double rti_solve_qp(rti_memory* m, int* qp_iter) {
   double *lam_x = m->lam_x, *lam_g = m->lam_g;
   struct d_ocp_qp_ipm_arg* arg = m->loose ? &m->first_arg : &m->arg;
-  struct d_ocp_qp_ipm_ws* ws = m->loose ? &m->first_ws : &m->ws;
+  struct d_ocp_qp_ipm_ws* ws = rti_ws(m);
   int k, i, j, nx, nu, nb, ng;
   double violation = 0.0, v, *data = m->data;
   rti_set_bounds0(m);
@@ -404,7 +407,7 @@ int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int 
     mark = rti_now();
     violation = rti_solve_qp(m, &qp_iter);
     t_qp += rti_now() - mark;
-    d_ocp_qp_ipm_get_status(m->loose ? &m->first_ws : &m->ws, &status);
+    d_ocp_qp_ipm_get_status(rti_ws(m), &status);
     if (!(violation <= qp_tol)) { stop = 2; break; }
     iterations++;
     memcpy(lam_x, m->lam_x, sizeof(double) * RTI_NW);

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
+
+from uuv_ocp.judge import FEASIBILITY_TOLERANCE
 from uuv_ocp.solvers.ipopt import IPOPT_MAX_ITER
 from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import Option, option_names, revise
 from uuv_ocp.transcription.multiple_shooting import NlpData
 
 FATROP_MAX_ITER = 200
-#: largest judged violation (see ``uo.score``) of a plan at fatrop's iteration limit that counts
-#: as a stall next to a solution (the feasibility tolerance of ``compare``)
-STALL_FEASIBILITY = 1e-6
 """Fatrop's iteration limit when ``max_iter`` is ``None``."""
 
 FATROP_OPTIONS: tuple[Option, ...] = revise(
@@ -59,8 +59,8 @@ class FatropSolver(NlpSolver):
         """Fatrop's conservative initial barrier, ``mu_init = 1e-3``."""
         return {"fatrop.mu_init": 1e-3}
 
-    def stalled(self, attempt: dict[str, Any], p: Any) -> bool:
-        """At fatrop's iteration limit with a plan the judge finds feasible (:data:`STALL_FEASIBILITY`).
+    def stalled(self, attempt: dict[str, Any], p: np.ndarray) -> bool:
+        """At fatrop's iteration limit with a plan the judge finds feasible (``FEASIBILITY_TOLERANCE``).
 
         That is the inertia-correction stall described in :meth:`rescue_options`: the robust
         retry (another ``mu_init``) stalled the same way there, 201 more iterations per step
@@ -69,7 +69,7 @@ class FatropSolver(NlpSolver):
         limit = self.max_iter or FATROP_MAX_ITER
         if attempt["success"] or attempt["iterations"] < limit:
             return False
-        return self.judged_violation(attempt, p) <= STALL_FEASIBILITY
+        return self._judged(attempt, p)[2] <= FEASIBILITY_TOLERANCE
 
     def rescue_options(self) -> dict[str, Any]:
         """IPOPT (this package's settings) from fatrop's last iterate, duals included.

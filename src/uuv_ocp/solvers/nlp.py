@@ -389,13 +389,17 @@ class NlpSolver:
         """
         return False
 
-    def judged_violation(self, attempt: dict[str, Any], p: np.ndarray) -> float:
-        """Return the judge's largest violation of ``attempt``'s plan (see :func:`uuv_ocp.score`)."""
-        relaxed = self.relaxed(attempt["variant"], attempt["primal"])
+    def _judged(
+        self, attempt: dict[str, Any], p: np.ndarray, relaxed: bool | None = None
+    ) -> tuple[Iterate, float, float]:
+        """Return ``attempt``'s plan and warm start, and the judge's cost and violation of the plan."""
+        if relaxed is None:
+            relaxed = self.relaxed(attempt["variant"], attempt["primal"])
         iterate = self.plan_iterate(
             attempt["variant"], attempt["primal"], attempt["lam_g"], attempt["lam_x"], relaxed
         )
-        return score_parameters(self.problem, iterate.scaled_controls.ravel(), p, self.judge_terms)[1]
+        cost, violation = score_parameters(self.problem, iterate.scaled_controls.ravel(), p, self.judge_terms)
+        return iterate, cost, violation
 
     def _transfer_maps(self, source: str, target: str) -> tuple[np.ndarray, np.ndarray]:
         """Index maps moving primal and dual vectors from one NLP variant to another (cached)."""
@@ -636,7 +640,8 @@ class NlpSolver:
                 skipped += 1
                 return False
             attempts.append(self._attempt(variant, p, warm, robust=robust))
-            if robust != "rescue" and self.rescue_options() and self.stalled(attempts[-1], p):
+            failed = not attempts[-1]["success"] and robust != "rescue"
+            if failed and self.stalled(attempts[-1], p) and self.rescue_options():
                 # stuck next to a solution: the rest of the chain would stall the same way
                 attempt(variant, self._iterate_of(attempts[-1]), robust="rescue")
             return True
@@ -708,11 +713,8 @@ class NlpSolver:
         elapsed: float,
     ) -> SolveResult:
         problem = self.problem
-        iterate = self.plan_iterate(
-            final["variant"], final["primal"], final["lam_g"], final["lam_x"], relaxed
-        )
+        iterate, cost, violation = self._judged(final, p, relaxed)
         scaled, states = iterate.scaled_controls, iterate.states
-        cost, violation = score_parameters(problem, scaled.ravel(), p, self.judge_terms)
         status = final["status"]
         if final["variant"].startswith("soft"):
             status = f"soft_terminal: {status}" if relaxed else f"soft_terminal_held: {status}"

@@ -47,7 +47,7 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
-from uuv_ocp.judge import score_terms
+from uuv_ocp.judge import FEASIBILITY_TOLERANCE, score_terms
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
 from uuv_ocp.solvers.options import AUTO, Option, format_value, one_of, option_defaults, option_names
@@ -95,11 +95,6 @@ def _compiled_default(value: object) -> bool:
         return True
     return check.boolean("options['compiled']", value)
 
-
-FEASIBILITY_TOLERANCE = 1e-6
-"""Largest violation of a hard constraint (its own units; box and rate: scaled) that a swarm
-result may have and still report ``success``; a terminal equality is relaxed instead
-(``terminal_relaxed``), as in the exact solvers' soft fallback."""
 
 CANDIDATE_METRICS = ("states", "controls")
 CANDIDATE_DISTANCE = {"states": 0.5, "controls": 0.1}

@@ -24,7 +24,7 @@ from uuv_ocp.build import Transcribed
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import SimulationInterrupted, simulate
 from uuv_ocp.interrupts import check_interrupt, remember_interrupts
-from uuv_ocp.judge import score_terms
+from uuv_ocp.judge import FEASIBILITY_TOLERANCE, score_terms
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.plotting import save_tracking_figures
@@ -217,9 +217,6 @@ def _fmt(value: float) -> str:
     if not math.isfinite(value):
         return "nan"
     return f"{value:.2e}" if value < 1e-2 else f"{value:.3f}"
-
-
-FEASIBILITY_TOLERANCE = 1e-6  # largest violation (its units; box and rate: scaled) of a feasible row
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,9 @@ Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 qua
 ``--speed-abs-quality``: only the closed-loop quality of HPIPM's ``speed_abs`` mode;
 ``--quality``: only the closed-loop quality of the default C step against fatrop;
 ``--loose-first-qp``: only the converged mode's iterations with and without ``loose_first_qp``
-and the step sizes of its Gauss–Newton iterations).
+and the step sizes of its Gauss–Newton iterations;
+``--reference-problem``: only the C step on issue 13's acados reference problem beside s2, in
+interleaved: see :func:`reference_interleaved`).
 """
 
 from __future__ import annotations
@@ -316,6 +318,106 @@ def hpipm_settings(steps: int = 300) -> list[dict]:
     return rows
 
 
+def reference_problem(horizon: int = 20, dt: float = 0.1) -> uo.Ocp:
+    """Issue 13's acados reference problem, declared as a plain :class:`uuv_ocp.Ocp`.
+
+    The acados figures of issue 13 were measured on "the same RexROV problem (6 states, 3
+    controls, N = 20, dt = 0.1 s, RK4, Gauss–Newton, partial-condensing HPIPM)", 0.30 ms in C
+    with a terminal equality: six states, so without the previous control that s2's rate cost
+    and rate bounds lift into the state (9 states and 3 rate rows per stage in s2's QP).  This
+    is s2's problem (its dynamics, weights, wrapped tracking error, control box and terminal
+    equality with its exact-penalty relaxation) with the rate weight on the scaled control
+    itself instead of its increment and no rate bound: the QP size of the acados figures.
+    """
+    from casadi import DM, sin, vertcat
+
+    from uuv_ocp.tracking import Weights, control_limits
+
+    s2 = _problem()
+    max_thrust = control_limits(s2.vehicle)[0]
+    weights = Weights()
+    ocp = uo.Ocp(
+        horizon=horizon,
+        dt=dt,
+        terminal_penalty=weights.terminal_penalty,
+        constraint_penalty=weights.terminal_penalty,
+        name="acados_reference",
+    )
+    state = ocp.state("x", 6)
+    tau = ocp.control("tau", 3, lower=-max_thrust, upper=max_thrust)
+    reference = ocp.parameter("reference", 6, stagewise=True)
+    ocp.set_der(state, s2.vehicle.dynamics_function()(state, tau, DM.zeros(2)))
+    error = state - reference
+    wrapped = vertcat(error[0], error[1], 2.0 * sin(error[2] / 2.0), error[3], error[4], error[5])
+    ocp.add_stage_cost(residual=tau / DM(max_thrust), weight=weights.rate)
+    ocp.add_stage_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity), start=1)
+    assert s2.terminal == "equality"
+    ocp.subject_to(state == reference, at="terminal")
+    return ocp
+
+
+def reference_interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
+    """``step_control`` on :func:`reference_problem` and on s2, RTI and converged, in rounds.
+
+    Each of the four controllers runs its own s2 closed loop (30 s from rest; the reference
+    problem gets s2's reference window as its parameter, built outside the timing, where s2's
+    ``step_control`` builds its own window inside it); each round runs the four loops one after
+    the other, the order rotating, so that the machine's drift falls on all alike (stepping them
+    in lockstep instead evicts each one's caches between its steps: 1.5x slower).  Per round and
+    controller: median wall time, median time in C (the C step's own clock), the largest
+    position error from 6 s on, and the steps the C step did not take alone.  The C step's time
+    on the two problems is the like-for-like comparison with acados' figures; issue 13's
+    targets are on s2.
+    """
+    s2 = _problem()
+    ocp = reference_problem(s2.horizon, s2.dt)
+    reference, dt, horizon = s2.reference, s2.dt, s2.horizon
+    plant = uo.rk4_step(s2.vehicle.dynamics_function(), dt, 10)
+    windows = [{"reference": reference.evaluate(k * dt + dt * np.arange(horizon + 1))} for k in range(steps)]
+    cases = [
+        ("reference problem, rti", ocp, {**OCP}),
+        ("s2, rti", s2, {**OCP}),
+        ("reference problem, converged", ocp, {**OCP, "mode": "converged"}),
+        ("s2, converged", s2, {**OCP, "mode": "converged"}),
+    ]
+    controllers = [uo.NMPC(problem, "sqp-rti", options=options) for _, problem, options in cases]
+    rows = []
+    for round_index in range(rounds + 1):  # round 0 builds the C steps and is not reported
+        measured: dict[int, dict] = {}
+        for offset in range(len(cases)):
+            i = (round_index + offset) % len(cases)
+            label, problem, _ = cases[i]
+            controller = controllers[i]
+            controller.reset()
+            state, control = reference.initial_state(0.0), np.zeros(3)
+            walls, c_times, errors = [], [], []
+            for k in range(steps if round_index else 3):
+                t = k * dt
+                start = time.perf_counter()
+                if problem is ocp:
+                    control = controller.step_control(state, 0.0, parameters=windows[k])
+                else:
+                    control = controller.step_control(state, t, control)
+                walls.append(time.perf_counter() - start)
+                if k and controller.last_output is None:  # a step of the C step alone
+                    c_times.append(_resident_c_time(controller))
+                state = np.array(plant(state, control, np.zeros(2))).ravel()
+                if t >= 6.0:
+                    target = reference.evaluate([t + dt])[0]
+                    errors.append(float(np.max(np.abs(state[:2] - target[:2]))))
+            if round_index:
+                measured[i] = {
+                    "round": round_index,
+                    "label": label,
+                    "wall_ms": 1e3 * float(np.median(walls[1:])),
+                    "c_ms": 1e3 * float(np.median(c_times)) if c_times else math.nan,
+                    "settled": max(errors),
+                    "general_steps": steps - 1 - len(c_times),
+                }
+        rows.extend(measured[i] for i in sorted(measured))  # in the order of ``cases``
+    return rows
+
+
 def _bluerov2_survey() -> tuple[uo.TrackingProblem, np.ndarray]:
     """Return the BlueROV2 Heavy survey of ``examples/bluerov2_depth.py`` and its start (0.5 m above)."""
     from uuv_ocp.model import Vehicle6DOF
@@ -595,6 +697,30 @@ def print_quality(rows: list, labels: list[str]) -> None:
         )
 
 
+def print_reference(rounds: int) -> None:
+    """Print :func:`reference_interleaved` over ``rounds`` rounds, then each row's median."""
+    print(
+        f"\nstep_control on issue 13's reference problem (6 states) and on s2 (9), "
+        f"{rounds} interleaved rounds of a 30 s closed loop, ms per step"
+    )
+    print(f"{'round':<7}{'controller':<32}{'wall':>8}{'in C':>8}{'settled (m)':>13}{'general':>9}")
+    rows = reference_interleaved(rounds)
+    for row in rows:
+        print(
+            f"{row['round']:<7}{row['label']:<32}{row['wall_ms']:>8.3f}{_ms(row['c_ms']):>8}"
+            f"{row['settled']:>13.2e}{row['general_steps']:>9d}"
+        )
+    medians = {}
+    for label in dict.fromkeys(row["label"] for row in rows):
+        mine = [row for row in rows if row["label"] == label]
+        medians[label] = [float(np.median([r[key] for r in mine])) for key in ("wall_ms", "c_ms")]
+        print(f"{label}: median over rounds {medians[label][0]:.3f} ms, in C {medians[label][1]:.3f} ms")
+    for mode in ("rti", "converged"):
+        ours, s2 = medians[f"reference problem, {mode}"], medians[f"s2, {mode}"]
+        print(f"{mode}: reference problem / s2, wall {ours[0] / s2[0]:.2f}, in C {ours[1] / s2[1]:.2f}")
+    print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+
+
 def main(
     quick: bool = False,
     settings: bool = False,
@@ -602,15 +728,20 @@ def main(
     speed_abs: bool = False,
     quality_only: bool = False,
     loose_first: bool = False,
+    reference_rounds: int = 0,
 ) -> None:
     """Print the speed table (ratios to fatrop) and the quality table (``quick``: s2 only).
 
     ``settings``: only the table of HPIPM settings of the ``hpipm-ocp`` path; ``rounds``: only
     the interleaved table (:func:`interleaved`) over that many rounds; ``speed_abs``: only the
     quality table of :data:`SPEED_ABS_QUALITY`; ``quality_only``: only the quality table of the
-    default C step and fatrop; ``loose_first``: only :func:`loose_first_qp`.
+    default C step and fatrop; ``loose_first``: only :func:`loose_first_qp`;
+    ``reference_rounds``: only :func:`reference_interleaved` over that many rounds.
     """
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
+    if reference_rounds:
+        print_reference(reference_rounds)
+        return
     for case in ("s2", "bluerov2") if loose_first else ():
         result = loose_first_qp(case)
         print(f"\nconverged step_control, {case} closed loop (30 s from rest), two rounds alternated")
@@ -670,6 +801,7 @@ def main(
             f"{row['median_ms'] / base:>9.2f}"
         )
     print(f"\ngenerated C loop (examples/c/nmpc_loop.c): {c_driver_speed(_problem())}")
+    print_reference(1 if quick else 3)
     print("\nlargest position error (m): after the transient (t >= 5 s) and over the run, 30 s")
     rows = quality(references=("s2",), bluerov=False) if quick else quality()
     print_quality(rows, [label for label, _, _ in QUALITY_SOLVERS])
@@ -686,4 +818,7 @@ if __name__ == "__main__":
         speed_abs="--speed-abs-quality" in sys.argv,
         quality_only="--quality" in sys.argv,
         loose_first="--loose-first-qp" in sys.argv,
+        reference_rounds=(int(sys.argv[sys.argv.index("--rounds") + 1]) if "--rounds" in sys.argv else 3)
+        if "--reference-problem" in sys.argv
+        else 0,
     )

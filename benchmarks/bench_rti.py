@@ -28,7 +28,7 @@ Run: ``python -m benchmarks.bench_rti`` (``--quick``: speed table and the s2 qua
 ``--quality``: only the closed-loop quality of the default C step against fatrop;
 ``--loose-first-qp``: only the converged mode's iterations with and without ``loose_first_qp``
 and the step sizes of its Gauss–Newton iterations;
-``--reference-problem``: only the C step on issue 13's acados reference problem beside s2, in
+``--reference-problem``: only the C step on issue 13's acados reference problem beside s2,
 interleaved: see :func:`reference_interleaved`).
 """
 
@@ -331,7 +331,7 @@ def reference_problem(horizon: int = 20, dt: float = 0.1) -> uo.Ocp:
     """
     from casadi import DM, sin, vertcat
 
-    from uuv_ocp.tracking import Weights, control_limits
+    from uuv_ocp.tracking import Weights, _angle_indices, control_limits
 
     s2 = _problem()
     max_thrust = control_limits(s2.vehicle)[0]
@@ -348,7 +348,8 @@ def reference_problem(horizon: int = 20, dt: float = 0.1) -> uo.Ocp:
     reference = ocp.parameter("reference", 6, stagewise=True)
     ocp.set_der(state, s2.vehicle.dynamics_function()(state, tau, DM.zeros(2)))
     error = state - reference
-    wrapped = vertcat(error[0], error[1], 2.0 * sin(error[2] / 2.0), error[3], error[4], error[5])
+    angles = _angle_indices(6)  # s2's wrapping of the heading error
+    wrapped = vertcat(*[2.0 * sin(error[i] / 2.0) if i in angles else error[i] for i in range(6)])
     ocp.add_stage_cost(residual=tau / DM(max_thrust), weight=weights.rate)
     ocp.add_stage_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity), start=1)
     assert s2.terminal == "equality"

@@ -54,6 +54,11 @@ NATIVE, WHEEL = "native", "wheel"
 SPEED_VARIANTS: tuple[tuple[str, str, dict | None], ...] = (
     ("sqp-rti hpipm-ocp native", "sqp-rti", {**OCP, "hpipm": NATIVE}),
     ("native, step_control", "sqp-rti", {**OCP, "hpipm": NATIVE, "lean": True}),
+    (
+        "native, step_control, HPIPM only",
+        "sqp-rti",
+        {**OCP, "hpipm": NATIVE, "lean": True, "qpsol_options": {"equality_first": False}},
+    ),
     ("sqp-rti hpipm-ocp wheel", "sqp-rti", {**OCP, "hpipm": WHEEL}),
     ("native, no condensing", "sqp-rti", {**OCP, "hpipm": NATIVE, "qpsol_options": {"cond_horizon": 0}}),
     ("native, speed_abs", "sqp-rti", {**OCP, "hpipm": NATIVE, "qpsol_options": {"mode": "speed_abs"}}),
@@ -173,8 +178,14 @@ INTERLEAVED: tuple[tuple[str, str, dict], ...] = (
     ("native, speed_abs", NATIVE, {"qpsol_options": {"mode": "speed_abs"}}),
     ("native, no condensing", NATIVE, {"qpsol_options": {"cond_horizon": 0}}),
     ("wheel", WHEEL, {}),
+    ("native, step_control, HPIPM only", NATIVE, {"lean": True, "qpsol_options": {"equality_first": False}}),
     ("native, converged", NATIVE, {"mode": "converged"}),
     ("native, converged, step_control", NATIVE, {"mode": "converged", "lean": True}),
+    (
+        "native, converged, step_control, HPIPM only",
+        NATIVE,
+        {"mode": "converged", "lean": True, "qpsol_options": {"equality_first": False}},
+    ),
     (
         "native, converged, every QP tight, step_control",
         NATIVE,
@@ -259,21 +270,34 @@ def _ms(value: float) -> str:
     return "–" if np.isnan(value) else f"{value:.3f}"
 
 
+def _resident_info(controller: uo.NMPC) -> np.ndarray:
+    """Return the C step's ``info`` of ``controller``'s last resident step (``OcpQpStep.iterate``)."""
+    plan = controller._resident  # noqa: SLF001 (the bench reads the C step's own record)
+    step = controller.backend.ocp_step(plan.variant, plan.still_water)
+    return step.info
+
+
 def _resident_c_time(controller: uo.NMPC) -> float:
     """Seconds the C step of ``controller``'s last resident step measured itself (linearisations, QPs)."""
-    plan = controller._resident  # noqa: SLF001 (the bench reads the C step's own clock)
-    step = controller.backend.ocp_step(plan.variant, plan.still_water)
-    return float(step.info[6] + step.info[7])
+    info = _resident_info(controller)
+    return float(info[6] + info[7])
 
 
-#: HPIPM settings of the ``hpipm-ocp`` path compared by ``--hpipm-options``
+def _resident_qp_iterations(controller: uo.NMPC) -> int:
+    """HPIPM's iterations on the last QP of the last resident step (0: the equality-first solve)."""
+    return int(_resident_info(controller)[4])
+
+
+#: HPIPM settings of the ``hpipm-ocp`` path compared by ``--hpipm-options`` (HPIPM on every QP
+#: but in the first row, the default, where the equality-first solve answers the QPs it can)
 HPIPM_SETTINGS: tuple[dict, ...] = (
     {},
-    {"mode": "speed_abs"},
-    {"warm_start": True},
-    {"mode": "speed_abs", "warm_start": True},
-    {"cond_horizon": 5},
-    {"mode": "speed_abs", "cond_horizon": 5},
+    {"equality_first": False},
+    {"mode": "speed_abs", "equality_first": False},
+    {"warm_start": True, "equality_first": False},
+    {"mode": "speed_abs", "warm_start": True, "equality_first": False},
+    {"cond_horizon": 0, "equality_first": False},
+    {"mode": "speed_abs", "cond_horizon": 0, "equality_first": False},
 )
 
 
@@ -366,20 +390,25 @@ def reference_interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
     the other, the order rotating, so that the machine's drift falls on all alike (stepping them
     in lockstep instead evicts each one's caches between its steps: 1.5x slower).  Per round and
     controller: median wall time, median time in C (the C step's own clock), the largest
-    position error from 6 s on, and the steps the C step did not take alone.  The C step's time
-    on the two problems is the like-for-like comparison with acados' figures; issue 13's
-    targets are on s2.
+    position error from 6 s on, the steps the C step did not take alone, and the share of its
+    steps whose last QP the equality-first Riccati solve answered (no inequality active).  The
+    C step's time on the two problems is the like-for-like comparison with acados' figures;
+    issue 13's targets are on s2.  The "HPIPM only" rows (``equality_first=False``, each on a
+    problem of its own) show what the equality-first solve saves.
     """
     s2 = _problem()
     ocp = reference_problem(s2.horizon, s2.dt)
     reference, dt, horizon = s2.reference, s2.dt, s2.horizon
     plant = uo.rk4_step(s2.vehicle.dynamics_function(), dt, 10)
     windows = [{"reference": reference.evaluate(k * dt + dt * np.arange(horizon + 1))} for k in range(steps)]
+    hpipm_only = {"qpsol_options": {"equality_first": False}}
     cases = [
         ("reference problem, rti", ocp, {**OCP}),
         ("s2, rti", s2, {**OCP}),
+        ("s2, rti, HPIPM only", _problem(), {**OCP, **hpipm_only}),
         ("reference problem, converged", ocp, {**OCP, "mode": "converged"}),
         ("s2, converged", s2, {**OCP, "mode": "converged"}),
+        ("s2, converged, HPIPM only", _problem(), {**OCP, "mode": "converged", **hpipm_only}),
     ]
     controllers = [uo.NMPC(problem, "sqp-rti", options=options) for _, problem, options in cases]
     rows = []
@@ -391,17 +420,18 @@ def reference_interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
             controller = controllers[i]
             controller.reset()
             state, control = reference.initial_state(0.0), np.zeros(3)
-            walls, c_times, errors = [], [], []
+            walls, c_times, errors, riccati = [], [], [], 0
             for k in range(steps if round_index else 3):
                 t = k * dt
                 start = time.perf_counter()
-                if problem is ocp:
+                if problem is ocp:  # the reference problem: its window is a parameter
                     control = controller.step_control(state, 0.0, parameters=windows[k])
                 else:
                     control = controller.step_control(state, t, control)
                 walls.append(time.perf_counter() - start)
                 if k and controller.last_output is None:  # a step of the C step alone
                     c_times.append(_resident_c_time(controller))
+                    riccati += _resident_qp_iterations(controller) == 0
                 state = np.array(plant(state, control, np.zeros(2))).ravel()
                 if t >= 6.0:
                     target = reference.evaluate([t + dt])[0]
@@ -414,6 +444,7 @@ def reference_interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
                     "c_ms": 1e3 * float(np.median(c_times)) if c_times else math.nan,
                     "settled": max(errors),
                     "general_steps": steps - 1 - len(c_times),
+                    "riccati_share": riccati / max(len(c_times), 1),
                 }
         rows.extend(measured[i] for i in sorted(measured))  # in the order of ``cases``
     return rows
@@ -704,12 +735,14 @@ def print_reference(rounds: int) -> None:
         f"\nstep_control on issue 13's reference problem (6 states) and on s2 (9), "
         f"{rounds} interleaved rounds of a 30 s closed loop, ms per step"
     )
-    print(f"{'round':<7}{'controller':<32}{'wall':>8}{'in C':>8}{'settled (m)':>13}{'general':>9}")
+    print(
+        f"{'round':<7}{'controller':<32}{'wall':>8}{'in C':>8}{'settled (m)':>13}{'general':>9}{'Riccati':>9}"
+    )
     rows = reference_interleaved(rounds)
     for row in rows:
         print(
             f"{row['round']:<7}{row['label']:<32}{row['wall_ms']:>8.3f}{_ms(row['c_ms']):>8}"
-            f"{row['settled']:>13.2e}{row['general_steps']:>9d}"
+            f"{row['settled']:>13.2e}{row['general_steps']:>9d}{row['riccati_share']:>9.0%}"
         )
     medians = {}
     for label in dict.fromkeys(row["label"] for row in rows):

@@ -66,6 +66,20 @@ def instance(problem):
     return x0, reference
 
 
+def gauss_newton_qp(data, w: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Return the Gauss–Newton QP at ``w``: the Hessian 2 JᵣᵀJᵣ, the gradient, ∂g/∂w and g.
+
+    Independent of the backends: Jacobians by CasADi AD of the NLP's own expressions.
+    """
+    nlp, residual = data.nlp, data.residual
+    jr = ca.Function("jr", [nlp["x"], nlp["p"]], [ca.jacobian(residual, nlp["x"])])
+    jg = ca.Function("jg", [nlp["x"], nlp["p"]], [ca.jacobian(nlp["g"], nlp["x"]), nlp["g"]])
+    gf = ca.Function("gf", [nlp["x"], nlp["p"]], [ca.gradient(nlp["f"], nlp["x"])])
+    jacobian_r = np.array(jr(w, p))
+    a, g = (np.array(v) for v in jg(w, p))
+    return 2 * jacobian_r.T @ jacobian_r, np.array(gf(w, p)).ravel(), a, g.ravel()
+
+
 def test_registered_as_exact_backend():
     assert "sqp-rti" in uo.available_solvers()
     assert REGISTRY.kind("sqp-rti") == "exact"
@@ -110,15 +124,7 @@ def test_one_iteration_is_one_gauss_newton_step(problem, instance, qpsol):
     p = problem.parameters(x0, 3.0)
     result = backend.solve(p, warm)
     assert result.success and result.iterations == 1
-    # independent step: Jacobians by CasADi AD of the NLP's own expressions, KKT by numpy
-    nlp, residual = data.nlp, data.residual
-    jr = ca.Function("jr", [nlp["x"], nlp["p"]], [ca.jacobian(residual, nlp["x"])])
-    jg = ca.Function("jg", [nlp["x"], nlp["p"]], [ca.jacobian(nlp["g"], nlp["x"]), nlp["g"]])
-    gf = ca.Function("gf", [nlp["x"], nlp["p"]], [ca.gradient(nlp["f"], nlp["x"])])
-    jacobian_r = np.array(jr(w, p))
-    a, g = (np.array(v) for v in jg(w, p))
-    hessian = 2 * jacobian_r.T @ jacobian_r
-    gradient = np.array(gf(w, p)).ravel()
+    hessian, gradient, a, g = gauss_newton_qp(data, w, p)
     # active set of the QP guessed from IPOPT's multipliers at the nearby optimum (casadi's
     # sign convention: lam > 0 at an upper bound); those rows become equalities at that bound
     lam_g, lam_x = reference.iterate.lam_g, reference.iterate.lam_x
@@ -154,6 +160,62 @@ def test_one_iteration_is_one_gauss_newton_step(problem, instance, qpsol):
     lam_g = result.iterate.lam_g
     assert np.all(lam_g[~equality & (linear < data.ubg - 1e-7)] <= 1e-6)  # > 0 only at an upper side
     assert np.all(lam_g[~equality & (linear > data.lbg + 1e-7)] >= -1e-6)
+
+
+@pytest.fixture(scope="module")
+def calm_instance(problem):
+    """Return a state on the path at t = 20 s and IPOPT's optimum there (no inequality active)."""
+    x0 = problem.reference.evaluate([20.0])[0]
+    options = {"plugin_options": {"ipopt.tol": 1e-12, "ipopt.bound_relax_factor": 0.0}}
+    reference = uo.solve(problem, "ipopt", x0=x0, t0=20.0, options=options)
+    assert reference.success
+    return x0, reference
+
+
+@pytest.mark.parametrize("cond_horizon", [0, 5])
+def test_equality_first_solves_an_inactive_qp_exactly(problem, calm_instance, cond_horizon):
+    """Without an active inequality the C step's QP is solved by one Riccati recursion.
+
+    Checked against the dense KKT system of the QP with its equalities alone (numpy), its
+    inequalities strictly inside, the Lagrangian stationary with zero inequality multipliers,
+    and HPIPM's solution of the same QP (``equality_first=False``) within HPIPM's tolerance.
+    """
+    needs_compiler("hpipm-ocp")
+    x0, reference = calm_instance
+    data = problem.build().hard
+    rng = np.random.default_rng(5)
+    w = reference.iterate.primal.copy()
+    w[data.state_index.ravel()] += 1e-4 * rng.standard_normal(data.state_index.size)
+    warm = Iterate(
+        scaled_controls=w[data.control_index], states=w[data.state_index], primal=w, variant="hard"
+    )
+    p = problem.parameters(x0, 20.0)
+    results, qp_iterations = {}, {}
+    for first in (True, False):
+        settings = {"cond_horizon": cond_horizon, "equality_first": first}
+        backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp", "qpsol_options": settings})
+        results[first] = backend.solve(p, warm)
+        assert results[first].success and results[first].iterations == 1
+        qp_iterations[first] = backend.ocp_step("hard", results[first].details["still_water"]).info[4]
+    assert qp_iterations[True] == 0 and qp_iterations[False] > 0  # the Riccati path / HPIPM's
+    hessian, gradient, a, g = gauss_newton_qp(data, w, p)
+    equality = data.lbg == data.ubg
+    constraint = a[equality]
+    n, m = hessian.shape[0], constraint.shape[0]
+    kkt = np.block([[hessian, constraint.T], [constraint, np.zeros((m, m))]])
+    step = np.linalg.solve(kkt, np.concatenate([-gradient, data.lbg[equality] - g[equality]]))[:n]
+    linear = g + a @ step
+    assert np.all(linear[~equality] < data.ubg[~equality]) and np.all(linear[~equality] > data.lbg[~equality])
+    assert np.all(w + step < data.ubx) and np.all(w + step > data.lbx)
+    result = results[True]
+    np.testing.assert_allclose(result.iterate.primal, w + step, rtol=0, atol=1e-9)
+    lam_g, lam_x = result.iterate.lam_g, result.iterate.lam_x
+    stationarity = hessian @ step + gradient + a.T @ lam_g + lam_x
+    assert np.max(np.abs(stationarity)) <= 1e-9 * max(1.0, np.max(np.abs(gradient)))
+    assert np.all(lam_g[~equality] == 0.0) and np.all(lam_x == 0.0)
+    np.testing.assert_allclose(result.iterate.primal, results[False].iterate.primal, rtol=0, atol=1e-6)
+    scale = max(1.0, np.max(np.abs(lam_g)))
+    np.testing.assert_allclose(lam_g, results[False].iterate.lam_g, rtol=0, atol=1e-5 * scale)
 
 
 @WITH_CONDENSING

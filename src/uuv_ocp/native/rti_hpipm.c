@@ -19,6 +19,23 @@
 /* offsets of one stage's blocks in the data vector (rti_off[k][...]) */
 enum { O_A, O_B, O_BV, O_Q, O_S, O_R, O_QV, O_RV, O_C, O_D, O_LG, O_UG, O_LBX, O_UBX, O_LBU, O_UBU };
 
+/* The equality-first solve (rti_eq_solve): the Riccati factorisation of the QP without its
+ * inequalities, per stage k < N: L the Cholesky factor of R + B'P B, Y = L^-1 (S + B'P A), and
+ * the cost-to-go Hessian P_k (P_N = Q_N); p, w the vectors of the last pass. */
+typedef struct {
+  double P[RTI_N + 1][RTI_MAX_NX * RTI_MAX_NX];
+  double L[RTI_N + 1][RTI_MAX_NU * RTI_MAX_NU];
+  double Y[RTI_N + 1][RTI_MAX_NU * RTI_MAX_NX];
+  double p[RTI_N + 1][RTI_MAX_NX];
+  double w[RTI_N + 1][RTI_MAX_NU];
+  double PA[RTI_MAX_NX * RTI_MAX_NX], PB[RTI_MAX_NX * RTI_MAX_NU], g[RTI_MAX_NX], h[RTI_MAX_NX];
+  double c[RTI_MAX_NX];                     /* extra terminal gradient E'nu of a pass */
+  double M[RTI_MAX_NG * RTI_MAX_NG], nu[RTI_MAX_NG], rhs[RTI_MAX_NG];
+  double xN[RTI_MAX_NX];
+  int rows[RTI_MAX_NG];                     /* stage N's equality rows (enforced), ne of them */
+  int ne;
+} rti_eq;
+
 typedef struct {
   struct d_ocp_qp_dim dim;
   struct d_ocp_qp qp;
@@ -34,6 +51,9 @@ typedef struct {
   int loose;              /* the QP solved next is the loose first one */
   /* partial condensing to cond_n stages (0: none): the IPM runs on pqp */
   int cond_n;
+  int eq_first;           /* try rti_eq_solve before HPIPM */
+  int qp_status;          /* HPIPM's status of the last QP (0 when rti_eq_solve solved it) */
+  rti_eq eq;
   int cond_lhs;           /* pqp's matrices are those of the loaded QP (only bounds moved) */
   struct d_ocp_qp_dim pdim;
   struct d_ocp_qp pqp;
@@ -113,7 +133,8 @@ static int rti_ipm_create(const double* settings, struct d_ocp_qp_dim* dim, stru
 }
 
 /* options: the QP solver's settings (rti_ipm_create's seven), the partial condensing horizon
- * (0 or >= N: none), loose_first (0/1), and the first QP's seven settings when loose_first.
+ * (0 or >= N: none), loose_first (0/1), the first QP's seven settings (read when loose_first),
+ * and equality_first (0/1).
  * Returns NULL when out of memory. */
 void* uuv_rti_create(const double* options) {
   rti_memory* m = (rti_memory*)calloc(1, sizeof(rti_memory));
@@ -160,6 +181,7 @@ void* uuv_rti_create(const double* options) {
   ipm_dim = m->cond_n ? &m->pdim : &m->dim;
   if (rti_ipm_create(options, ipm_dim, &m->arg, &m->ws, &m->arg_mem, &m->ws_mem)) goto fail;
   m->loose_first = options[8] != 0.0;
+  m->eq_first = options[16] != 0.0;
   if (m->loose_first &&
       rti_ipm_create(options + 9, ipm_dim, &m->first_arg, &m->first_ws, &m->first_arg_mem, &m->first_ws_mem))
     goto fail;
@@ -265,18 +287,275 @@ static inline double rti_outside(double v, double lo, double hi, double lo_mask,
   return violation;
 }
 
-/* Solve the loaded QP; write d (NLP order) and the multipliers; return the violation of the
- * linearised constraints (inf if the solution is not finite). */
+
+/* ---- equality first: the QP without its inequalities, by one Riccati recursion ----
+ *
+ * Where no inequality is active at the QP's solution, that solution is the solution of the QP
+ * with its equalities alone (the dynamics, the fixed x_0, stage N's equality rows), with zero
+ * inequality multipliers: the KKT conditions hold exactly.  In a tracking loop that is most
+ * steps once the transient is over, and one Riccati recursion costs about one of HPIPM's
+ * interior-point iterations.  So rti_eq_solve solves the equality-constrained QP and keeps the
+ * solution only if it satisfies every inequality (no tolerance); otherwise HPIPM solves the QP.
+ * It applies when x_0 is fully fixed by its box, stage N has no inputs and the reduced Hessians
+ * R + B'P B are positive definite (not with the soft NLP's L1 slacks: their pivot is zero).
+ * Stage N's equality rows E x_N = e are enforced by their multiplier nu: the solution is affine
+ * in nu (a terminal gradient E'nu), so ne homogeneous passes give E dx_N/dnu and one small
+ * linear solve gives nu.  Conventions as HPIPM's: pi_k multiplies A x + B u + b - x_{k+1}. */
+
+/* Factorise backward from P_N = Q_N; 0 when a pivot of R + B'P B is not positive. */
+static int rti_eq_factor(rti_memory* m) {
+  rti_eq* e = &m->eq;
+  const double* data = m->data;
+  int k, i, j, l;
+  {
+    const int nx = rti_nx[RTI_N];
+    memcpy(e->P[RTI_N], data + rti_off[RTI_N][O_Q], sizeof(double) * nx * nx);
+  }
+  for (k = RTI_N - 1; k >= 0; --k) {
+    const int* o = rti_off[k];
+    const int nx = rti_nx[k], nu = rti_nu[k], nx1 = rti_nx[k + 1];
+    const double *A = data + o[O_A], *B = data + o[O_B], *P1 = e->P[k + 1];
+    double *P = e->P[k], *L = e->L[k], *Y = e->Y[k], *PA = e->PA, *PB = e->PB, v;
+    for (j = 0; j < nx; ++j)
+      for (i = 0; i < nx1; ++i) {
+        for (v = 0.0, l = 0; l < nx1; ++l) v += P1[i + l * nx1] * A[l + j * nx1];
+        PA[i + j * nx1] = v;
+      }
+    for (j = 0; j < nu; ++j)
+      for (i = 0; i < nx1; ++i) {
+        for (v = 0.0, l = 0; l < nx1; ++l) v += P1[i + l * nx1] * B[l + j * nx1];
+        PB[i + j * nx1] = v;
+      }
+    for (j = 0; j < nu; ++j) /* R + B'P B, lower triangle */
+      for (i = j; i < nu; ++i) {
+        for (v = data[o[O_R] + i + j * nu], l = 0; l < nx1; ++l) v += B[l + i * nx1] * PB[l + j * nx1];
+        L[i + j * nu] = v;
+      }
+    for (j = 0; j < nx; ++j) /* S + B'P A */
+      for (i = 0; i < nu; ++i) {
+        for (v = data[o[O_S] + i + j * nu], l = 0; l < nx1; ++l) v += B[l + i * nx1] * PA[l + j * nx1];
+        Y[i + j * nu] = v;
+      }
+    for (j = 0; j < nx; ++j) /* Q + A'P A */
+      for (i = j; i < nx; ++i) {
+        for (v = data[o[O_Q] + i + j * nx], l = 0; l < nx1; ++l) v += A[l + i * nx1] * PA[l + j * nx1];
+        P[i + j * nx] = v;
+      }
+    for (j = 0; j < nu; ++j) { /* Cholesky: L L' = R + B'P B */
+      const double diagonal = L[j + j * nu];
+      for (v = diagonal, l = 0; l < j; ++l) v -= L[j + l * nu] * L[j + l * nu];
+      if (!(v > 1e-12 * diagonal && v > 0.0)) return 0; /* singular or indefinite (or NaN) */
+      L[j + j * nu] = v = sqrt(v);
+      for (i = j + 1; i < nu; ++i) {
+        double t = L[i + j * nu];
+        for (l = 0; l < j; ++l) t -= L[i + l * nu] * L[j + l * nu];
+        L[i + j * nu] = t / v;
+      }
+    }
+    for (j = 0; j < nx; ++j) /* Y = L^-1 (S + B'P A) */
+      for (i = 0; i < nu; ++i) {
+        for (v = Y[i + j * nu], l = 0; l < i; ++l) v -= L[i + l * nu] * Y[l + j * nu];
+        Y[i + j * nu] = v / L[i + i * nu];
+      }
+    for (j = 0; j < nx; ++j) /* P = Q + A'P A - Y'Y, both triangles */
+      for (i = j; i < nx; ++i) {
+        for (v = P[i + j * nx], l = 0; l < nu; ++l) v -= Y[l + i * nu] * Y[l + j * nu];
+        P[i + j * nx] = P[j + i * nx] = v;
+      }
+  }
+  return 1;
+}
+
+/* One solve with the factorisation: the QP's vectors (homogeneous: b, q, r and x_0 zero) and the
+ * extra terminal gradient c (NULL: none).  Writes u_k, x_k into ux and returns x_N in ux too. */
+static void rti_eq_pass(rti_memory* m, int homogeneous, const double* c, double* ux) {
+  rti_eq* e = &m->eq;
+  const double* data = m->data;
+  int k, i, j, l;
+  double v;
+  {
+    const int nx = rti_nx[RTI_N];
+    double* p = e->p[RTI_N];
+    for (i = 0; i < nx; ++i) p[i] = (homogeneous ? 0.0 : data[rti_off[RTI_N][O_QV] + i]) + (c ? c[i] : 0.0);
+  }
+  for (k = RTI_N - 1; k >= 0; --k) {
+    const int* o = rti_off[k];
+    const int nx = rti_nx[k], nu = rti_nu[k], nx1 = rti_nx[k + 1];
+    const double *A = data + o[O_A], *B = data + o[O_B], *P1 = e->P[k + 1], *p1 = e->p[k + 1];
+    const double *L = e->L[k], *Y = e->Y[k];
+    double *g = e->g, *w = e->w[k], *p = e->p[k];
+    for (i = 0; i < nx1; ++i) g[i] = p1[i];
+    if (!homogeneous)
+      for (j = 0; j < nx1; ++j) {
+        const double bj = data[o[O_BV] + j];
+        for (i = 0; i < nx1; ++i) g[i] += P1[i + j * nx1] * bj;
+      }
+    for (i = 0; i < nu; ++i) { /* w = L^-1 (r + B'g) */
+      for (v = homogeneous ? 0.0 : data[o[O_RV] + i], l = 0; l < nx1; ++l) v += B[l + i * nx1] * g[l];
+      for (l = 0; l < i; ++l) v -= L[i + l * nu] * w[l];
+      w[i] = v / L[i + i * nu];
+    }
+    for (i = 0; i < nx; ++i) { /* p = q + A'g - Y'w */
+      for (v = homogeneous ? 0.0 : data[o[O_QV] + i], l = 0; l < nx1; ++l) v += A[l + i * nx1] * g[l];
+      for (l = 0; l < nu; ++l) v -= Y[l + i * nu] * w[l];
+      p[i] = v;
+    }
+  }
+  { /* x_0: the fixed box values (all of x_0 is boxed: rti_eq_applies) */
+    double* x = ux + rti_oux[0] + rti_nu[0];
+    for (i = 0; i < rti_nbx[0]; ++i) x[rti_idxbx[rti_obx[0] + i]] = homogeneous ? 0.0 : m->lbx0[i];
+  }
+  for (k = 0; k < RTI_N; ++k) {
+    const int* o = rti_off[k];
+    const int nx = rti_nx[k], nu = rti_nu[k], nx1 = rti_nx[k + 1];
+    const double *A = data + o[O_A], *B = data + o[O_B], *L = e->L[k], *Y = e->Y[k], *w = e->w[k];
+    double *u = ux + rti_oux[k], *x = u + nu, *next = ux + rti_oux[k + 1] + rti_nu[k + 1];
+    for (i = nu - 1; i >= 0; --i) { /* u = -L'^-1 (Y x + w) */
+      for (v = -w[i], l = 0; l < nx; ++l) v -= Y[i + l * nu] * x[l];
+      for (l = i + 1; l < nu; ++l) v -= L[l + i * nu] * u[l];
+      u[i] = v / L[i + i * nu];
+    }
+    for (i = 0; i < nx1; ++i) {
+      for (v = homogeneous ? 0.0 : data[o[O_BV] + i], l = 0; l < nx; ++l) v += A[i + l * nx1] * x[l];
+      for (l = 0; l < nu; ++l) v += B[i + l * nx1] * u[l];
+      next[i] = v;
+    }
+  }
+}
+
+/* E x_N for stage N's equality rows (C_N's rows e->rows). */
+static void rti_eq_rows(const rti_memory* m, const double* xN, double* out) {
+  const int ng = rti_ng[RTI_N], nx = rti_nx[RTI_N];
+  const double* C = m->data + rti_off[RTI_N][O_C];
+  int i, l;
+  for (i = 0; i < m->eq.ne; ++i) {
+    double v = 0.0;
+    for (l = 0; l < nx; ++l) v += C[m->eq.rows[i] + l * ng] * xN[l];
+    out[i] = v;
+  }
+}
+
+/* Solve M nu = rhs (ne x ne, Gaussian elimination with partial pivoting, M and rhs
+ * overwritten); 0 when a pivot is below 1e-12 of M's largest entry. */
+static int rti_eq_small_solve(int n, double* M, double* rhs, double* x) {
+  int i, j, l, pivot;
+  double scale = 0.0, t;
+  for (i = 0; i < n * n; ++i)
+    if (fabs(M[i]) > scale) scale = fabs(M[i]);
+  for (j = 0; j < n; ++j) {
+    for (pivot = j, i = j + 1; i < n; ++i)
+      if (fabs(M[i + j * n]) > fabs(M[pivot + j * n])) pivot = i;
+    if (!(fabs(M[pivot + j * n]) > 1e-12 * scale)) return 0;
+    if (pivot != j) {
+      for (l = j; l < n; ++l) { t = M[j + l * n]; M[j + l * n] = M[pivot + l * n]; M[pivot + l * n] = t; }
+      t = rhs[j]; rhs[j] = rhs[pivot]; rhs[pivot] = t;
+    }
+    for (i = j + 1; i < n; ++i) {
+      t = M[i + j * n] / M[j + j * n];
+      for (l = j; l < n; ++l) M[i + l * n] -= t * M[j + l * n];
+      rhs[i] -= t * rhs[j];
+    }
+  }
+  for (i = n - 1; i >= 0; --i) {
+    for (t = rhs[i], l = i + 1; l < n; ++l) t -= M[i + l * n] * x[l];
+    x[i] = t / M[i + i * n];
+  }
+  return 1;
+}
+
+/* The structure rti_eq_solve needs: x_0 fully fixed by its box, no inputs at stage N. */
+static int rti_eq_applies(void) {
+  int i;
+  if (rti_nu[RTI_N] != 0 || rti_nbx[0] != rti_nx[0]) return 0;
+  for (i = 0; i < rti_nbx[0]; ++i)
+    if (rti_lbx_mask[rti_obx[0] + i] == 0.0 || rti_ubx_mask[rti_obx[0] + i] == 0.0) return 0;
+  return 1;
+}
+
+static double rti_excess(const rti_memory* m, int inequalities_only);
+
+/* Solve the loaded QP with its equalities alone; 1 (m->ux, m->pi, m->lam written) when that
+ * solution satisfies every inequality, else 0 (the QP goes to HPIPM). */
+static int rti_eq_solve(rti_memory* m) {
+  rti_eq* e = &m->eq;
+  const double* data = m->data;
+  const int ngN = rti_ng[RTI_N], nxN = rti_nx[RTI_N];
+  const double* C = data + rti_off[RTI_N][O_C];
+  int i, k, l;
+  if (!rti_eq_applies()) return 0;
+  e->ne = 0;
+  for (i = 0; i < ngN; ++i)
+    if (rti_lg_mask[rti_og[RTI_N] + i] != 0.0 && rti_ug_mask[rti_og[RTI_N] + i] != 0.0 &&
+        data[rti_off[RTI_N][O_LG] + i] == data[rti_off[RTI_N][O_UG] + i])
+      e->rows[e->ne++] = i;
+  if (!rti_eq_factor(m)) return 0;
+  if (e->ne) {
+    const double* xN = m->ux + rti_oux[RTI_N];
+    for (i = 0; i < e->ne; ++i) { /* column i of E dx_N/dnu: a pass with terminal gradient E'e_i */
+      for (l = 0; l < nxN; ++l) e->c[l] = C[e->rows[i] + l * ngN];
+      rti_eq_pass(m, 1, e->c, m->ux);
+      rti_eq_rows(m, xN, e->M + i * e->ne);
+    }
+    rti_eq_pass(m, 0, NULL, m->ux);
+    rti_eq_rows(m, xN, e->rhs);
+    for (i = 0; i < e->ne; ++i) e->rhs[i] = data[rti_off[RTI_N][O_LG] + e->rows[i]] - e->rhs[i];
+    if (!rti_eq_small_solve(e->ne, e->M, e->rhs, e->nu)) return 0;
+    for (l = 0; l < nxN; ++l) e->c[l] = 0.0;
+    for (i = 0; i < e->ne; ++i)
+      for (l = 0; l < nxN; ++l) e->c[l] += C[e->rows[i] + l * ngN] * e->nu[i];
+    rti_eq_pass(m, 0, e->c, m->ux);
+  } else {
+    rti_eq_pass(m, 0, NULL, m->ux);
+  }
+  if (!(rti_excess(m, 1) <= 0.0)) return 0; /* an inequality is active (or NaN): HPIPM's QP */
+  /* multipliers: pi_k = P_{k+1} x_{k+1} + p_{k+1}; nu on the equality rows; x_0's box from
+   * stationarity in x_0; every inequality's zero */
+  for (k = 0; k < RTI_N; ++k) {
+    const int nx1 = rti_nx[k + 1];
+    const double *x1 = m->ux + rti_oux[k + 1] + rti_nu[k + 1], *P1 = e->P[k + 1];
+    double* pi = m->pi + rti_ox[k + 1] - rti_nx[0];
+    for (i = 0; i < nx1; ++i) {
+      double v = e->p[k + 1][i];
+      for (l = 0; l < nx1; ++l) v += P1[i + l * nx1] * x1[l];
+      pi[i] = v;
+    }
+  }
+  memset(m->lam, 0, sizeof(double) * RTI_NLAM);
+  {
+    double* lam = m->lam + rti_olam[RTI_N];
+    const int nbk = rti_nbu[RTI_N] + rti_nbx[RTI_N];
+    for (i = 0; i < e->ne; ++i) {
+      const double v = e->nu[i];
+      lam[2 * nbk + e->rows[i]] = v < 0.0 ? -v : 0.0;      /* lam_lg */
+      lam[2 * nbk + ngN + e->rows[i]] = v > 0.0 ? v : 0.0; /* lam_ug */
+    }
+  }
+  {
+    const int* o = rti_off[0];
+    const int nx = rti_nx[0], nu = rti_nu[0], nx1 = RTI_N ? rti_nx[1] : 0, nbk = rti_nbu[0] + rti_nbx[0];
+    const double *u = m->ux + rti_oux[0], *x = u + nu, *pi = m->pi;
+    double* lam = m->lam + rti_olam[0];
+    for (i = 0; i < rti_nbx[0]; ++i) {
+      const int j = rti_idxbx[rti_obx[0] + i];
+      double v = data[o[O_QV] + j]; /* -(Q x + S'u + q + A'pi) in x_0's component j */
+      for (l = 0; l < nx; ++l) v += data[o[O_Q] + j + l * nx] * x[l];
+      for (l = 0; l < nu; ++l) v += data[o[O_S] + l + j * nu] * u[l];
+      for (l = 0; l < nx1; ++l) v += data[o[O_A] + l + j * nx1] * pi[l];
+      lam[rti_nbu[0] + i] = v > 0.0 ? v : 0.0;        /* lam_lb - lam_ub = Q x + S'u + q + A'pi */
+      lam[nbk + rti_nbu[0] + i] = v < 0.0 ? -v : 0.0;
+    }
+  }
+  return 1;
+}
+
 /* The IPM workspace of the QP solved next (and last): the loose first one's or the solver's. */
 static inline struct d_ocp_qp_ipm_ws* rti_ws(rti_memory* m) { return m->loose ? &m->first_ws : &m->ws; }
 
-static double rti_solve_qp(rti_memory* m, int* qp_iter) {
-  double *lam_x = m->lam_x, *lam_g = m->lam_g;
+/* Solve the loaded QP with HPIPM (condensed or not) into m->ux, m->pi, m->lam; its iterations. */
+static int rti_hpipm_solve(rti_memory* m) {
   struct d_ocp_qp_ipm_arg* arg = m->loose ? &m->first_arg : &m->arg;
   struct d_ocp_qp_ipm_ws* ws = rti_ws(m);
-  int k, i, j, nx, nu, nb, ng;
-  double violation = 0.0, v, *data = m->data;
-  rti_set_bounds0(m);
+  int k, iterations;
   if (m->cond_n) {
     /* the preparation condenses the matrices; a new state changes only the right-hand side */
 #ifdef UUV_HPIPM_OLD_PART_COND
@@ -299,26 +578,36 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
   } else {
     d_ocp_qp_ipm_solve(&m->qp, &m->sol, arg, ws);
   }
-  /* HPIPM's status (max_iter, min_step) is no verdict on the step: like the Python path, the
-   * solution is judged by the violation of the linearised constraints computed below */
-  d_ocp_qp_ipm_get_iter(ws, qp_iter);
+  d_ocp_qp_ipm_get_iter(ws, &iterations);
+  d_ocp_qp_ipm_get_status(ws, &m->qp_status);
   for (k = 0; k <= RTI_N; ++k) {
-    double* u = m->ux + rti_oux[k];
-    double* x = u + rti_nu[k];
+    double *u = m->ux + rti_oux[k], *x = u + rti_nu[k], *lam = m->lam + rti_olam[k];
+    const int nbk = rti_nbu[k] + rti_nbx[k], ng = rti_ng[k];
     d_ocp_qp_sol_get_u(k, &m->sol, u);
     d_ocp_qp_sol_get_x(k, &m->sol, x);
-    for (i = 0; i < rti_nu[k]; ++i) m->d[rti_uvar[rti_ou[k] + i]] = u[i];
-    for (i = 0; i < rti_nx[k]; ++i) m->d[rti_xvar[rti_ox[k] + i]] = x[i];
     if (k < RTI_N) d_ocp_qp_sol_get_pi(k, &m->sol, m->pi + rti_ox[k + 1] - rti_nx[0]);
+    d_ocp_qp_sol_get_lam_lb(k, &m->sol, lam);
+    d_ocp_qp_sol_get_lam_ub(k, &m->sol, lam + nbk);
+    d_ocp_qp_sol_get_lam_lg(k, &m->sol, lam + 2 * nbk);
+    d_ocp_qp_sol_get_lam_ug(k, &m->sol, lam + 2 * nbk + ng);
   }
-  /* violation of the linearised constraints: dynamics, general rows, boxes */
+  return iterations;
+}
+
+/* How far the solution in m->ux violates the linearised constraints (inf norm; 0 if it holds
+ * them; NaN propagates).  inequalities_only: only the inequalities rti_eq_solve leaves out (not
+ * the dynamics, x_0's box or stage N's equality rows m->eq.rows), with no tolerance. */
+static double rti_excess(const rti_memory* m, int inequalities_only) {
+  const double* data = m->data;
+  int k, i, j, nx, nu, nb, ng, skip = 0;
+  double violation = 0.0, v;
   for (k = 0; k <= RTI_N; ++k) {
     const int* o = rti_off[k];
     const double* u = m->ux + rti_oux[k];
     const double* x = u + rti_nu[k];
     nx = rti_nx[k];
     nu = rti_nu[k];
-    if (k < RTI_N) {
+    if (k < RTI_N && !inequalities_only) {
       const double* next = m->ux + rti_oux[k + 1] + rti_nu[k + 1];
       for (i = 0; i < rti_nx[k + 1]; ++i) {
         v = data[o[O_BV] + i] - next[i];
@@ -330,6 +619,10 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
     }
     ng = rti_ng[k];
     for (i = 0; i < ng; ++i) {
+      if (inequalities_only && k == RTI_N && skip < m->eq.ne && m->eq.rows[skip] == i) {
+        skip++;
+        continue;
+      }
       v = 0.0;
       for (j = 0; j < nx; ++j) v += data[o[O_C] + i + j * ng] * x[j];
       for (j = 0; j < nu; ++j) v += data[o[O_D] + i + j * ng] * u[j];
@@ -340,33 +633,52 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
     for (i = 0; i < nb; ++i)
       violation = rti_outside(u[rti_idxbu[rti_obu[k] + i]], data[o[O_LBU] + i], data[o[O_UBU] + i],
                               rti_lbu_mask[rti_obu[k] + i], rti_ubu_mask[rti_obu[k] + i], violation);
-    nb = rti_nbx[k];
+    nb = (inequalities_only && k == 0) ? 0 : rti_nbx[k];
     for (i = 0; i < nb; ++i)
       violation = rti_outside(x[rti_idxbx[rti_obx[k] + i]], k == 0 ? m->lbx0[i] : data[o[O_LBX] + i],
                               k == 0 ? m->lbx0[i] : data[o[O_UBX] + i], rti_lbx_mask[rti_obx[k] + i],
                               rti_ubx_mask[rti_obx[k] + i], violation);
   }
+  return violation;
+}
+
+/* Solve the loaded QP (equality first where enabled, else or then HPIPM); write d (NLP order)
+ * and the multipliers; return the violation of the linearised constraints (inf if the solution
+ * is not finite).  qp_iter: HPIPM's iterations (0: rti_eq_solve's solution). */
+static double rti_solve_qp(rti_memory* m, int* qp_iter) {
+  double *lam_x = m->lam_x, *lam_g = m->lam_g, violation;
+  int k, i, ng;
+  rti_set_bounds0(m);
+  if (m->eq_first && rti_eq_solve(m)) {
+    *qp_iter = 0;
+    m->qp_status = 0;
+  } else {
+    /* HPIPM's status (max_iter, min_step) is no verdict on the step: like the Python path,
+     * the solution is judged by the violation of the linearised constraints computed below */
+    *qp_iter = rti_hpipm_solve(m);
+  }
+  for (k = 0; k <= RTI_N; ++k) {
+    const double* u = m->ux + rti_oux[k];
+    const double* x = u + rti_nu[k];
+    for (i = 0; i < rti_nu[k]; ++i) m->d[rti_uvar[rti_ou[k] + i]] = u[i];
+    for (i = 0; i < rti_nx[k]; ++i) m->d[rti_xvar[rti_ox[k] + i]] = x[i];
+  }
+  violation = rti_excess(m, 0);
   /* multipliers in CasADi's convention (lam > 0 at an upper bound), NLP order */
-  {
-    memset(lam_x, 0, sizeof(double) * RTI_NW);
-    memset(lam_g, 0, sizeof(double) * RTI_NG);
-    for (i = 0; i < RTI_NPI; ++i) lam_g[rti_dynrow[i]] = RTI_PI_SIGN * m->pi[i];
-    for (k = 0; k <= RTI_N; ++k) {
-      double* lam = m->lam + rti_olam[k];
-      int nbk = rti_nbu[k] + rti_nbx[k];
-      ng = rti_ng[k];
-      d_ocp_qp_sol_get_lam_lb(k, &m->sol, lam);
-      d_ocp_qp_sol_get_lam_ub(k, &m->sol, lam + nbk);
-      d_ocp_qp_sol_get_lam_lg(k, &m->sol, lam + 2 * nbk);
-      d_ocp_qp_sol_get_lam_ug(k, &m->sol, lam + 2 * nbk + ng);
-      for (i = 0; i < nbk; ++i) {
-        int target = rti_blam[rti_ob[k] + i];
-        double value = lam[nbk + i] - lam[i];
-        if (target >= 0) lam_x[target] = value;
-        else lam_g[-1 - target] = value;
-      }
-      for (i = 0; i < ng; ++i) lam_g[rti_genrow[rti_og[k] + i]] = lam[2 * nbk + ng + i] - lam[2 * nbk + i];
+  memset(lam_x, 0, sizeof(double) * RTI_NW);
+  memset(lam_g, 0, sizeof(double) * RTI_NG);
+  for (i = 0; i < RTI_NPI; ++i) lam_g[rti_dynrow[i]] = RTI_PI_SIGN * m->pi[i];
+  for (k = 0; k <= RTI_N; ++k) {
+    const double* lam = m->lam + rti_olam[k];
+    const int nbk = rti_nbu[k] + rti_nbx[k];
+    ng = rti_ng[k];
+    for (i = 0; i < nbk; ++i) {
+      int target = rti_blam[rti_ob[k] + i];
+      double value = lam[nbk + i] - lam[i];
+      if (target >= 0) lam_x[target] = value;
+      else lam_g[-1 - target] = value;
     }
+    for (i = 0; i < ng; ++i) lam_g[rti_genrow[rti_og[k] + i]] = lam[2 * nbk + ng + i] - lam[2 * nbk + i];
   }
   if (!isfinite(violation)) return INFINITY;
   for (i = 0; i < RTI_NW; ++i)
@@ -407,7 +719,7 @@ int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int 
     mark = rti_now();
     violation = rti_solve_qp(m, &qp_iter);
     t_qp += rti_now() - mark;
-    d_ocp_qp_ipm_get_status(rti_ws(m), &status);
+    status = m->qp_status;
     if (!(violation <= qp_tol)) { stop = 2; break; }
     iterations++;
     memcpy(lam_x, m->lam_x, sizeof(double) * RTI_NW);

@@ -16,6 +16,16 @@ stage N−1, so the exact-penalty NLP is the same QP, L1 weight included).
 * every other constraint row (rate bounds, path, terminal) is a general constraint ``C, D`` of
   the one stage whose variables it reads.
 
+Equality first (``qpsol_options["equality_first"]``, default True): each QP is first solved
+with its equalities alone (dynamics, the fixed ``x_0``, stage N's equality rows such as the
+terminal equality) by one Riccati recursion in the hand-written C.  If that solution satisfies
+every inequality (boxes, rate and path rows; no tolerance) it is the QP's solution, with zero
+inequality multipliers: the KKT conditions hold exactly.  Otherwise, or where the recursion
+does not apply (a reduced Hessian that is not positive definite, e.g. the soft NLP's L1
+slacks), HPIPM solves the QP.  In a tracking loop no inequality is active in most steps once
+the transient is over (s2: about 5 in 6), and the recursion costs about one of HPIPM's
+interior-point iterations.
+
 The stage data are one CasADi Function ``data(w, p)`` generated as C, compiled with the
 hand-written step (``native/rti_hpipm.c``) into one library by
 :func:`uuv_ocp.native.compile.compile_functions` (content-addressed cache, checksums) and
@@ -53,6 +63,8 @@ OCP_QP_DEFAULTS: dict[str, Any] = {
     "warm_start": False,
     "cond_horizon": "auto",
     "loose_first_qp": True,
+    #: try the QP with its equalities alone first (one Riccati recursion; see the module doc)
+    "equality_first": True,
 }
 #: ``cond_horizon="auto"``: partial condensing to ``horizon // 4`` stages from this horizon on
 #: (s2, N = 20 → 5 stages: 0.19 against 0.24 ms per step in C with the native BLASFEO, 0.58
@@ -111,7 +123,7 @@ def ocp_qp_options(options: dict[str, Any], converged: bool, horizon: int = 0) -
             raise ValueError(
                 f"{name} must be 'auto' or an int >= 0 (0: no partial condensing), got {value!r}"
             )
-        if key in ("warm_start", "loose_first_qp") and not isinstance(value, bool):
+        if key in ("warm_start", "loose_first_qp", "equality_first") and not isinstance(value, bool):
             raise ValueError(f"{name} must be True or False, got {value!r}")
         real = isinstance(value, numbers.Real) and not isinstance(value, bool)
         if key.startswith("tol_") and not (real and 0.0 < float(value) < math.inf):
@@ -426,6 +438,9 @@ def c_source(
         f"#define RTI_NUX {sum(nx) + sum(nu)}\n",
         f"#define RTI_NLAM {max(2 * (sum(nbx) + sum(nbu) + sum(ngs)), 1)}\n",
         f"#define RTI_NPI {sum(nx[1:])}\n",
+        f"#define RTI_MAX_NX {max(max(nx), 1)}\n",
+        f"#define RTI_MAX_NU {max(max(nu), 1)}\n",
+        f"#define RTI_MAX_NG {max(max(ngs), 1)}\n",
         f"#define RTI_PI_SIGN ({pi_sign!r})\n",
         f"#define RTI_DATA {prefix}{function.name()}\n",
         f"#define RTI_SZ_ARG {max(int(function.sz_arg()), 2)}\n",
@@ -665,8 +680,9 @@ def build_step(
 def _options_array(options: dict[str, Any]) -> list[float]:
     """HPIPM options in the order ``uuv_rti_create`` reads them.
 
-    The QP solver's settings, the partial condensing horizon, ``loose_first_qp``, then the
-    first QP's settings (``loose_settings``, with the same ``iter_max`` and warm start).
+    The QP solver's settings, the partial condensing horizon, ``loose_first_qp``, the first
+    QP's settings (``loose_settings``, with the same ``iter_max`` and warm start), then
+    ``equality_first``.
     """
 
     def settings(source: dict[str, Any]) -> list[float]:
@@ -679,6 +695,7 @@ def _options_array(options: dict[str, Any]) -> list[float]:
         float(options["cond_horizon"]),
         float(options["loose_first_qp"]),
         *settings(options["loose_settings"]),
+        float(options["equality_first"]),
     ]
 
 

@@ -483,6 +483,12 @@ static int rti_eq_solve(rti_memory* m) {
   const double* C = data + rti_off[RTI_N][O_C];
   int i, k, l;
   if (!rti_eq_applies()) return 0;
+  /* an equality row before stage N would be left out and fail the check below: HPIPM's QP */
+  for (k = 0; k < RTI_N; ++k)
+    for (i = 0; i < rti_ng[k]; ++i)
+      if (rti_lg_mask[rti_og[k] + i] != 0.0 && rti_ug_mask[rti_og[k] + i] != 0.0 &&
+          data[rti_off[k][O_LG] + i] == data[rti_off[k][O_UG] + i])
+        return 0;
   e->ne = 0;
   for (i = 0; i < ngN; ++i)
     if (rti_lg_mask[rti_og[RTI_N] + i] != 0.0 && rti_ug_mask[rti_og[RTI_N] + i] != 0.0 &&

@@ -218,6 +218,79 @@ def test_equality_first_solves_an_inactive_qp_exactly(problem, calm_instance, co
     np.testing.assert_allclose(lam_g, results[False].iterate.lam_g, rtol=0, atol=1e-5 * scale)
 
 
+def assert_qp_kkt(data, w: np.ndarray, p: np.ndarray, result, tolerance: float = 1e-9) -> None:
+    """Assert that ``result``'s step and multipliers are a KKT point of the Gauss–Newton QP at ``w``.
+
+    Primal feasibility, stationarity of the Lagrangian, the multipliers' signs and
+    complementarity (CasADi's convention: λ > 0 only at an active upper bound, λ < 0 only at an
+    active lower bound), all computed independently of the backend: a convex QP's solution.
+    """
+    hessian, gradient, a, g = gauss_newton_qp(data, w, p)
+    step = result.iterate.primal - w
+    lam_g, lam_x = result.iterate.lam_g, result.iterate.lam_x
+    linear, point = g + a @ step, w + step
+    scale = max(1.0, np.max(np.abs(gradient)))
+    for value, lower, upper, lam in ((linear, data.lbg, data.ubg, lam_g), (point, data.lbx, data.ubx, lam_x)):
+        assert np.all(value >= lower - tolerance) and np.all(value <= upper + tolerance)
+        assert np.all(np.abs(value - upper)[lam > tolerance * scale] <= tolerance)
+        assert np.all(np.abs(value - lower)[lam < -tolerance * scale] <= tolerance)
+    stationarity = hessian @ step + gradient + a.T @ lam_g + lam_x
+    assert np.max(np.abs(stationarity)) <= tolerance * scale
+
+
+def test_equality_first_solves_the_exact_penalty_qp(problem, calm_instance):
+    """The soft NLP's QP: the slacks held at zero, each pair of slack rows one equality.
+
+    Its solution where the penalty is exact (|ν| ≤ μ on every terminal row) is a KKT point of
+    the soft QP, checked independently; HPIPM's solution of it (``equality_first=False``) agrees.
+    """
+    needs_compiler("hpipm-ocp")
+    x0, _ = calm_instance
+    p = problem.parameters(x0, 20.0)
+    soft = problem.build().soft_variant(problem.spec().terminal_penalty)
+    results, qp_iterations = {}, {}
+    for first in (True, False):
+        settings = {"equality_first": first, "cond_horizon": 0}
+        options = {"terminal_strategy": "soft", "qpsol": "hpipm-ocp", "qpsol_options": settings}
+        backend = get_solver(problem, "sqp-rti", options)
+        cold = backend.solve(p, None)  # IPOPT on the soft NLP: a KKT point to start from
+        assert cold.success and cold.iterate.variant == "soft"
+        w = cold.iterate.primal.copy()
+        w[soft.state_index.ravel()] += 1e-4 * np.random.default_rng(7).standard_normal(soft.state_index.size)
+        warm = Iterate(
+            scaled_controls=w[soft.control_index], states=w[soft.state_index], primal=w, variant="soft"
+        )
+        results[first] = backend.solve(p, warm)
+        assert results[first].success and results[first].iterate.variant == "soft"
+        qp_iterations[first] = backend.ocp_step("soft", results[first].details["still_water"]).info[4]
+        assert_qp_kkt(soft, w, p, results[first], tolerance=1e-9 if first else 1e-6)
+    assert qp_iterations[True] == 0 and qp_iterations[False] > 0
+    np.testing.assert_allclose(results[True].iterate.primal, results[False].iterate.primal, rtol=0, atol=1e-6)
+    assert np.all(results[True].iterate.primal[soft.terminal_slack_index] == 0.0)  # held at zero
+
+
+def test_equality_first_holds_the_slacks_of_a_softened_range():
+    """A soft position tube: its slacks held at zero, its two rows inequalities (not a pair)."""
+    needs_compiler("hpipm-ocp")
+    tube = uo.TrackingProblem(
+        uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1, position_tube=0.5
+    )
+    x0 = tube.reference.evaluate([20.0])[0]
+    options = {"plugin_options": {"ipopt.tol": 1e-12, "ipopt.bound_relax_factor": 0.0}}
+    reference = uo.solve(tube, "ipopt", x0=x0, t0=20.0, options=options)
+    data, p = tube.build().hard, tube.parameters(x0, 20.0)
+    w = reference.iterate.primal.copy()
+    w[data.state_index.ravel()] += 1e-4 * np.random.default_rng(9).standard_normal(data.state_index.size)
+    warm = Iterate(
+        scaled_controls=w[data.control_index], states=w[data.state_index], primal=w, variant="hard"
+    )
+    backend = get_solver(tube, "sqp-rti", {"qpsol": "hpipm-ocp", "qpsol_options": {"cond_horizon": 0}})
+    result = backend.solve(p, warm)
+    assert result.success
+    assert backend.ocp_step("hard", result.details["still_water"]).info[4] == 0  # the Riccati path
+    assert_qp_kkt(data, w, p, result)
+
+
 @WITH_CONDENSING
 def test_prepare_then_feedback_equals_step(problem, monkeypatch, qpsol):
     """The prepared linearisation with the measured state patched in = linearising there."""

@@ -21,18 +21,26 @@ enum { O_A, O_B, O_BV, O_Q, O_S, O_R, O_QV, O_RV, O_C, O_D, O_LG, O_UG, O_LBX, O
 
 /* The equality-first solve (rti_eq_solve): the Riccati factorisation of the QP without its
  * inequalities, per stage k < N: L the Cholesky factor of R + B'P B, Y = L^-1 (S + B'P A), and
- * the cost-to-go Hessian P_k (P_N = Q_N); p, w the vectors of the last pass. */
+ * the cost-to-go Hessian P_k (P_N = Q_N); p, w the vectors of the last pass.  The enforced rows
+ * (equalities of one stage K, e.g. the terminal equality) enter by their multiplier nu. */
 typedef struct {
   double P[RTI_N + 1][RTI_MAX_NX * RTI_MAX_NX];
   double L[RTI_N + 1][RTI_MAX_NU * RTI_MAX_NU];
   double Y[RTI_N + 1][RTI_MAX_NU * RTI_MAX_NX];
   double p[RTI_N + 1][RTI_MAX_NX];
   double w[RTI_N + 1][RTI_MAX_NU];
-  double PA[RTI_MAX_NX * RTI_MAX_NX], PB[RTI_MAX_NX * RTI_MAX_NU], g[RTI_MAX_NX], h[RTI_MAX_NX];
-  double c[RTI_MAX_NX];                     /* extra terminal gradient E'nu of a pass */
-  double M[RTI_MAX_NG * RTI_MAX_NG], nu[RTI_MAX_NG], rhs[RTI_MAX_NG];
-  double xN[RTI_MAX_NX];
-  int rows[RTI_MAX_NG];                     /* stage N's equality rows (enforced), ne of them */
+  double PA[RTI_MAX_NX * RTI_MAX_NX], PB[RTI_MAX_NX * RTI_MAX_NU], g[RTI_MAX_NX];
+  double cx[RTI_MAX_NX], cu[RTI_MAX_NU];    /* extra gradient C'nu, D'nu of a pass at stage K */
+  double M[RTI_MAX_NG * RTI_MAX_NG], nu[RTI_MAX_NG], rhs[RTI_MAX_NG], value[RTI_MAX_NG];
+  /* pinned inputs: zero curvature, no coupling, a lower box (the exact-penalty slacks): held at
+   * that bound, their KKT sign checked after the solve */
+  unsigned char pinned[RTI_N + 1][RTI_MAX_NU];
+  double pin[RTI_N + 1][RTI_MAX_NU];
+  int K;                                    /* the stage of the enforced rows (-1: none) */
+  int rows[RTI_MAX_NG];                     /* enforced rows of stage K, ne of them ... */
+  int partner[RTI_MAX_NG];                  /* ... and the lower row of a slack pair (-1: none) */
+  double target[RTI_MAX_NG];                /* C x + D u = target on the unpinned inputs */
+  unsigned char covered[RTI_MAX_NG];        /* stage K's rows the enforced equalities stand for */
   int ne;
 } rti_eq;
 
@@ -291,18 +299,24 @@ static inline double rti_outside(double v, double lo, double hi, double lo_mask,
 /* ---- equality first: the QP without its inequalities, by one Riccati recursion ----
  *
  * Where no inequality is active at the QP's solution, that solution is the solution of the QP
- * with its equalities alone (the dynamics, the fixed x_0, stage N's equality rows), with zero
- * inequality multipliers: the KKT conditions hold exactly.  In a tracking loop that is most
- * steps once the transient is over, and one Riccati recursion costs about one of HPIPM's
- * interior-point iterations.  So rti_eq_solve solves the equality-constrained QP and keeps the
- * solution only if it satisfies every inequality (no tolerance); otherwise HPIPM solves the QP.
- * It applies when x_0 is fully fixed by its box, stage N has no inputs and the reduced Hessians
- * R + B'P B are positive definite (not with the soft NLP's L1 slacks: their pivot is zero).
- * Stage N's equality rows E x_N = e are enforced by their multiplier nu: the solution is affine
- * in nu (a terminal gradient E'nu), so ne homogeneous passes give E dx_N/dnu and one small
- * linear solve gives nu.  Conventions as HPIPM's: pi_k multiplies A x + B u + b - x_{k+1}. */
+ * with its equalities alone (the dynamics, the fixed x_0, the equality rows of one stage K such
+ * as the terminal equality), with zero inequality multipliers: the KKT conditions hold exactly.
+ * In a tracking loop that is most steps once the transient is over, and one Riccati recursion
+ * costs about one of HPIPM's interior-point iterations.  So rti_eq_solve solves the
+ * equality-constrained QP and keeps the solution only if it satisfies every inequality (no
+ * tolerance) and every sign condition below; otherwise HPIPM solves the QP.
+ *
+ * The exact-penalty NLP's slacks s (zero curvature, no dynamics, s >= 0, cost mu s, in a pair
+ * of rows v - s <= 0, v + s >= 0) are pinned at their lower bound and the pair becomes the
+ * equality v = 0 with multiplier nu: the soft QP's solution when |nu| <= mu (the slack bound's
+ * multiplier mu - |nu| >= 0), i.e. where the penalty is exact.
+ *
+ * The enforced rows' multipliers nu: the solution is affine in an extra stage-K gradient
+ * (C'nu, D'nu), so ne homogeneous passes give the rows' response and one small linear solve
+ * gives nu.  Conventions as HPIPM's: pi_k multiplies A x + B u + b - x_{k+1}. */
 
-/* Factorise backward from P_N = Q_N; 0 when a pivot of R + B'P B is not positive. */
+/* Factorise backward from P_N = Q_N (pinned inputs: unit curvature); 0 when a pivot of
+ * R + B'P B is not positive. */
 static int rti_eq_factor(rti_memory* m) {
   rti_eq* e = &m->eq;
   const double* data = m->data;
@@ -331,6 +345,8 @@ static int rti_eq_factor(rti_memory* m) {
         for (v = data[o[O_R] + i + j * nu], l = 0; l < nx1; ++l) v += B[l + i * nx1] * PB[l + j * nx1];
         L[i + j * nu] = v;
       }
+    for (j = 0; j < nu; ++j) /* a pinned input is decoupled (rti_eq_pin): unit curvature */
+      if (e->pinned[k][j]) L[j + j * nu] = 1.0;
     for (j = 0; j < nx; ++j) /* S + B'P A */
       for (i = 0; i < nu; ++i) {
         for (v = data[o[O_S] + i + j * nu], l = 0; l < nx1; ++l) v += B[l + i * nx1] * PA[l + j * nx1];
@@ -366,39 +382,45 @@ static int rti_eq_factor(rti_memory* m) {
   return 1;
 }
 
-/* One solve with the factorisation: the QP's vectors (homogeneous: b, q, r and x_0 zero) and the
- * extra terminal gradient c (NULL: none).  Writes u_k, x_k into ux and returns x_N in ux too. */
-static void rti_eq_pass(rti_memory* m, int homogeneous, const double* c, double* ux) {
+/* One solve with the factorisation: the QP's vectors (homogeneous: b, q, r, x_0 and the pinned
+ * values zero), plus the extra stage-K gradient (cx, cu) when extra.  Writes u_k, x_k into ux. */
+static void rti_eq_pass(rti_memory* m, int homogeneous, int extra, double* ux) {
   rti_eq* e = &m->eq;
   const double* data = m->data;
-  int k, i, j, l;
+  int k, i, l;
   double v;
   {
     const int nx = rti_nx[RTI_N];
     double* p = e->p[RTI_N];
-    for (i = 0; i < nx; ++i) p[i] = (homogeneous ? 0.0 : data[rti_off[RTI_N][O_QV] + i]) + (c ? c[i] : 0.0);
+    for (i = 0; i < nx; ++i)
+      p[i] = (homogeneous ? 0.0 : data[rti_off[RTI_N][O_QV] + i]) + (extra && e->K == RTI_N ? e->cx[i] : 0.0);
   }
   for (k = RTI_N - 1; k >= 0; --k) {
     const int* o = rti_off[k];
-    const int nx = rti_nx[k], nu = rti_nu[k], nx1 = rti_nx[k + 1];
+    const int nx = rti_nx[k], nu = rti_nu[k], nx1 = rti_nx[k + 1], here = extra && e->K == k;
     const double *A = data + o[O_A], *B = data + o[O_B], *P1 = e->P[k + 1], *p1 = e->p[k + 1];
     const double *L = e->L[k], *Y = e->Y[k];
     double *g = e->g, *w = e->w[k], *p = e->p[k];
     for (i = 0; i < nx1; ++i) g[i] = p1[i];
     if (!homogeneous)
-      for (j = 0; j < nx1; ++j) {
-        const double bj = data[o[O_BV] + j];
-        for (i = 0; i < nx1; ++i) g[i] += P1[i + j * nx1] * bj;
+      for (l = 0; l < nx1; ++l) {
+        const double bl = data[o[O_BV] + l];
+        for (i = 0; i < nx1; ++i) g[i] += P1[i + l * nx1] * bl;
       }
-    for (i = 0; i < nu; ++i) { /* w = L^-1 (r + B'g) */
-      for (v = homogeneous ? 0.0 : data[o[O_RV] + i], l = 0; l < nx1; ++l) v += B[l + i * nx1] * g[l];
+    for (i = 0; i < nu; ++i) { /* w = L^-1 h_u, h_u = r + B'g (+ D'nu); a pinned input's -pin */
+      if (e->pinned[k][i]) {
+        v = homogeneous ? 0.0 : -e->pin[k][i];
+      } else {
+        for (v = homogeneous ? 0.0 : data[o[O_RV] + i], l = 0; l < nx1; ++l) v += B[l + i * nx1] * g[l];
+        if (here) v += e->cu[i];
+      }
       for (l = 0; l < i; ++l) v -= L[i + l * nu] * w[l];
       w[i] = v / L[i + i * nu];
     }
-    for (i = 0; i < nx; ++i) { /* p = q + A'g - Y'w */
+    for (i = 0; i < nx; ++i) { /* p = q + A'g - Y'w (+ C'nu) */
       for (v = homogeneous ? 0.0 : data[o[O_QV] + i], l = 0; l < nx1; ++l) v += A[l + i * nx1] * g[l];
       for (l = 0; l < nu; ++l) v -= Y[l + i * nu] * w[l];
-      p[i] = v;
+      p[i] = v + (here ? e->cx[i] : 0.0);
     }
   }
   { /* x_0: the fixed box values (all of x_0 is boxed: rti_eq_applies) */
@@ -423,14 +445,19 @@ static void rti_eq_pass(rti_memory* m, int homogeneous, const double* c, double*
   }
 }
 
-/* E x_N for stage N's equality rows (C_N's rows e->rows). */
-static void rti_eq_rows(const rti_memory* m, const double* xN, double* out) {
-  const int ng = rti_ng[RTI_N], nx = rti_nx[RTI_N];
-  const double* C = m->data + rti_off[RTI_N][O_C];
+/* C x + D u of the enforced rows at stage K, the pinned inputs left out. */
+static void rti_eq_values(const rti_memory* m, const double* ux, double* out) {
+  const rti_eq* e = &m->eq;
+  const int K = e->K, ng = rti_ng[K], nx = rti_nx[K], nu = rti_nu[K];
+  const double *C = m->data + rti_off[K][O_C], *D = m->data + rti_off[K][O_D];
+  const double *u = ux + rti_oux[K], *x = u + nu;
   int i, l;
-  for (i = 0; i < m->eq.ne; ++i) {
+  for (i = 0; i < e->ne; ++i) {
+    const int r = e->rows[i];
     double v = 0.0;
-    for (l = 0; l < nx; ++l) v += C[m->eq.rows[i] + l * ng] * xN[l];
+    for (l = 0; l < nx; ++l) v += C[r + l * ng] * x[l];
+    for (l = 0; l < nu; ++l)
+      if (!e->pinned[K][l]) v += D[r + l * ng] * u[l];
     out[i] = v;
   }
 }
@@ -472,50 +499,118 @@ static int rti_eq_applies(void) {
   return 1;
 }
 
+/* The box of input j of stage k among the stage's input boxes (-1: none). */
+static int rti_eq_ubox(int k, int j) {
+  int i;
+  for (i = 0; i < rti_nbu[k]; ++i)
+    if (rti_idxbu[rti_obu[k] + i] == j) return i;
+  return -1;
+}
+
+/* Find the pinned inputs (no curvature, no coupling, no dynamics, a lower box) and the enforced
+ * rows: equality rows, and pairs v - s <= ub, v + s >= lb on a pinned s that fix v; all of one
+ * stage K (0 when there are enforced rows at two stages). */
+static int rti_eq_structure(rti_memory* m) {
+  rti_eq* e = &m->eq;
+  const double* data = m->data;
+  int k, i, j, l, r;
+  e->K = -1;
+  e->ne = 0;
+  for (k = 0; k <= RTI_N; ++k) {
+    const int* o = rti_off[k];
+    const int nx = rti_nx[k], nu = rti_nu[k], ng = rti_ng[k], nx1 = k < RTI_N ? rti_nx[k + 1] : 0;
+    for (j = 0; j < nu; ++j) {
+      int zero = 1, box = rti_eq_ubox(k, j);
+      for (l = 0; l < nu && zero; ++l) zero = data[o[O_R] + l + j * nu] == 0.0;
+      for (l = 0; l < nx && zero; ++l) zero = data[o[O_S] + j + l * nu] == 0.0;
+      for (l = 0; l < nx1 && zero; ++l) zero = data[o[O_B] + l + j * nx1] == 0.0;
+      e->pinned[k][j] = zero && box >= 0 && rti_lbu_mask[rti_obu[k] + box] != 0.0;
+      if (e->pinned[k][j]) e->pin[k][j] = data[o[O_LBU] + box];
+    }
+    for (i = 0; i < ng; ++i) {
+      const int lo = rti_lg_mask[rti_og[k] + i] != 0.0, hi = rti_ug_mask[rti_og[k] + i] != 0.0;
+      int slack = -1, slacks = 0, partner = -1;
+      double target, held = 0.0; /* the pinned inputs' part of the row */
+      for (j = 0; j < nu; ++j)
+        if (e->pinned[k][j] && data[o[O_D] + i + j * ng] != 0.0) {
+          held += data[o[O_D] + i + j * ng] * e->pin[k][j];
+          slack = j;
+          slacks++;
+        }
+      if (lo && hi && data[o[O_LG] + i] == data[o[O_UG] + i]) {
+        target = data[o[O_LG] + i] - held; /* an equality row */
+      } else if (slacks == 1 && hi && !lo && data[o[O_D] + i + slack * ng] == -1.0) {
+        /* v - s <= ub with s held: an equality if the row v + s >= lb says v = the same value
+         * (an exact-penalty equality); otherwise both are inequalities (a softened range) */
+        target = data[o[O_UG] + i] - held;
+        for (r = 0; r < ng && partner < 0; ++r) {
+          int same = r != i && rti_lg_mask[rti_og[k] + r] != 0.0 && rti_ug_mask[rti_og[k] + r] == 0.0 &&
+                     data[o[O_D] + r + slack * ng] == 1.0 &&
+                     fabs(data[o[O_LG] + r] - e->pin[k][slack] - target) <= 1e-9 * (1.0 + fabs(target));
+          for (l = 0; l < nx && same; ++l) same = data[o[O_C] + r + l * ng] == data[o[O_C] + i + l * ng];
+          for (l = 0; l < nu && same; ++l)
+            same = l == slack || data[o[O_D] + r + l * ng] == data[o[O_D] + i + l * ng];
+          if (same) partner = r;
+        }
+        if (partner < 0) continue;
+      } else {
+        continue; /* an inequality (checked after the solve, the pinned inputs held) */
+      }
+      if (e->K >= 0 && e->K != k) return 0;
+      e->K = k;
+      e->rows[e->ne] = i;
+      e->partner[e->ne] = partner;
+      e->target[e->ne] = target;
+      e->ne++;
+    }
+  }
+  if (e->K >= 0) {
+    memset(e->covered, 0, sizeof(e->covered));
+    for (i = 0; i < e->ne; ++i) {
+      e->covered[e->rows[i]] = 1;
+      if (e->partner[i] >= 0) e->covered[e->partner[i]] = 1;
+    }
+  }
+  return 1;
+}
+
 static double rti_excess(const rti_memory* m, int inequalities_only);
 
 /* Solve the loaded QP with its equalities alone; 1 (m->ux, m->pi, m->lam written) when that
- * solution satisfies every inequality, else 0 (the QP goes to HPIPM). */
+ * solution satisfies every inequality and sign condition, else 0 (the QP goes to HPIPM). */
 static int rti_eq_solve(rti_memory* m) {
   rti_eq* e = &m->eq;
   const double* data = m->data;
-  const int ngN = rti_ng[RTI_N], nxN = rti_nx[RTI_N];
-  const double* C = data + rti_off[RTI_N][O_C];
-  int i, k, l;
-  if (!rti_eq_applies()) return 0;
-  /* an equality row before stage N would be left out and fail the check below: HPIPM's QP */
-  for (k = 0; k < RTI_N; ++k)
-    for (i = 0; i < rti_ng[k]; ++i)
-      if (rti_lg_mask[rti_og[k] + i] != 0.0 && rti_ug_mask[rti_og[k] + i] != 0.0 &&
-          data[rti_off[k][O_LG] + i] == data[rti_off[k][O_UG] + i])
-        return 0;
-  e->ne = 0;
-  for (i = 0; i < ngN; ++i)
-    if (rti_lg_mask[rti_og[RTI_N] + i] != 0.0 && rti_ug_mask[rti_og[RTI_N] + i] != 0.0 &&
-        data[rti_off[RTI_N][O_LG] + i] == data[rti_off[RTI_N][O_UG] + i])
-      e->rows[e->ne++] = i;
-  if (!rti_eq_factor(m)) return 0;
+  int i, j, k, l;
+  if (!rti_eq_applies() || !rti_eq_structure(m) || !rti_eq_factor(m)) return 0;
   if (e->ne) {
-    const double* xN = m->ux + rti_oux[RTI_N];
-    for (i = 0; i < e->ne; ++i) { /* column i of E dx_N/dnu: a pass with terminal gradient E'e_i */
-      for (l = 0; l < nxN; ++l) e->c[l] = C[e->rows[i] + l * ngN];
-      rti_eq_pass(m, 1, e->c, m->ux);
-      rti_eq_rows(m, xN, e->M + i * e->ne);
+    const int K = e->K, ng = rti_ng[K], nx = rti_nx[K], nu = rti_nu[K];
+    const double *C = data + rti_off[K][O_C], *D = data + rti_off[K][O_D];
+    for (i = 0; i < e->ne; ++i) { /* column i: the rows' response to the gradient of row i */
+      for (l = 0; l < nx; ++l) e->cx[l] = C[e->rows[i] + l * ng];
+      for (l = 0; l < nu; ++l) e->cu[l] = e->pinned[K][l] ? 0.0 : D[e->rows[i] + l * ng];
+      rti_eq_pass(m, 1, 1, m->ux);
+      rti_eq_values(m, m->ux, e->M + i * e->ne);
     }
-    rti_eq_pass(m, 0, NULL, m->ux);
-    rti_eq_rows(m, xN, e->rhs);
-    for (i = 0; i < e->ne; ++i) e->rhs[i] = data[rti_off[RTI_N][O_LG] + e->rows[i]] - e->rhs[i];
+    rti_eq_pass(m, 0, 0, m->ux);
+    rti_eq_values(m, m->ux, e->value);
+    for (i = 0; i < e->ne; ++i) e->rhs[i] = e->target[i] - e->value[i];
     if (!rti_eq_small_solve(e->ne, e->M, e->rhs, e->nu)) return 0;
-    for (l = 0; l < nxN; ++l) e->c[l] = 0.0;
-    for (i = 0; i < e->ne; ++i)
-      for (l = 0; l < nxN; ++l) e->c[l] += C[e->rows[i] + l * ngN] * e->nu[i];
-    rti_eq_pass(m, 0, e->c, m->ux);
+    memset(e->cx, 0, sizeof(e->cx));
+    memset(e->cu, 0, sizeof(e->cu));
+    for (i = 0; i < e->ne; ++i) {
+      for (l = 0; l < nx; ++l) e->cx[l] += C[e->rows[i] + l * ng] * e->nu[i];
+      for (l = 0; l < nu; ++l)
+        if (!e->pinned[K][l]) e->cu[l] += D[e->rows[i] + l * ng] * e->nu[i];
+    }
+    rti_eq_pass(m, 0, 1, m->ux);
   } else {
-    rti_eq_pass(m, 0, NULL, m->ux);
+    rti_eq_pass(m, 0, 0, m->ux);
   }
   if (!(rti_excess(m, 1) <= 0.0)) return 0; /* an inequality is active (or NaN): HPIPM's QP */
-  /* multipliers: pi_k = P_{k+1} x_{k+1} + p_{k+1}; nu on the equality rows; x_0's box from
-   * stationarity in x_0; every inequality's zero */
+  /* multipliers: pi_k = P_{k+1} x_{k+1} + p_{k+1}; nu on the enforced rows (a pair's upper row
+   * takes its positive part, the lower row its negative part); the pinned inputs' lower boxes
+   * and x_0's box from stationarity; every other inequality's zero */
   for (k = 0; k < RTI_N; ++k) {
     const int nx1 = rti_nx[k + 1];
     const double *x1 = m->ux + rti_oux[k + 1] + rti_nu[k + 1], *P1 = e->P[k + 1];
@@ -527,27 +622,47 @@ static int rti_eq_solve(rti_memory* m) {
     }
   }
   memset(m->lam, 0, sizeof(double) * RTI_NLAM);
-  {
-    double* lam = m->lam + rti_olam[RTI_N];
-    const int nbk = rti_nbu[RTI_N] + rti_nbx[RTI_N];
+  if (e->ne) {
+    const int K = e->K, ng = rti_ng[K], nbk = rti_nbu[K] + rti_nbx[K];
+    double* lam = m->lam + rti_olam[K];
     for (i = 0; i < e->ne; ++i) {
       const double v = e->nu[i];
-      lam[2 * nbk + e->rows[i]] = v < 0.0 ? -v : 0.0;      /* lam_lg */
-      lam[2 * nbk + ngN + e->rows[i]] = v > 0.0 ? v : 0.0; /* lam_ug */
+      if (e->partner[i] >= 0) {
+        lam[2 * nbk + ng + e->rows[i]] = v > 0.0 ? v : 0.0;     /* lam_ug of v - s <= ub */
+        lam[2 * nbk + e->partner[i]] = v < 0.0 ? -v : 0.0;      /* lam_lg of v + s >= lb */
+      } else {
+        lam[2 * nbk + e->rows[i]] = v < 0.0 ? -v : 0.0;         /* lam_lg */
+        lam[2 * nbk + ng + e->rows[i]] = v > 0.0 ? v : 0.0;     /* lam_ug */
+      }
+    }
+  }
+  for (k = 0; k < RTI_N; ++k) { /* pinned inputs: lam_lb = r + B'pi + D'(lam_ug - lam_lg) >= 0 */
+    const int* o = rti_off[k];
+    const int nu = rti_nu[k], ng = rti_ng[k], nbk = rti_nbu[k] + rti_nbx[k];
+    double* lam = m->lam + rti_olam[k];
+    for (j = 0; j < nu; ++j) {
+      double v;
+      if (!e->pinned[k][j]) continue;
+      v = data[o[O_RV] + j];
+      for (i = 0; i < ng; ++i) v += data[o[O_D] + i + j * ng] * (lam[2 * nbk + ng + i] - lam[2 * nbk + i]);
+      if (!(v >= 0.0)) return 0; /* the penalty is not exact here: HPIPM's QP */
+      lam[rti_eq_ubox(k, j)] = v;
     }
   }
   {
     const int* o = rti_off[0];
     const int nx = rti_nx[0], nu = rti_nu[0], nx1 = RTI_N ? rti_nx[1] : 0, nbk = rti_nbu[0] + rti_nbx[0];
+    const int ng = rti_ng[0];
     const double *u = m->ux + rti_oux[0], *x = u + nu, *pi = m->pi;
     double* lam = m->lam + rti_olam[0];
     for (i = 0; i < rti_nbx[0]; ++i) {
-      const int j = rti_idxbx[rti_obx[0] + i];
-      double v = data[o[O_QV] + j]; /* -(Q x + S'u + q + A'pi) in x_0's component j */
-      for (l = 0; l < nx; ++l) v += data[o[O_Q] + j + l * nx] * x[l];
-      for (l = 0; l < nu; ++l) v += data[o[O_S] + l + j * nu] * u[l];
-      for (l = 0; l < nx1; ++l) v += data[o[O_A] + l + j * nx1] * pi[l];
-      lam[rti_nbu[0] + i] = v > 0.0 ? v : 0.0;        /* lam_lb - lam_ub = Q x + S'u + q + A'pi */
+      const int jx = rti_idxbx[rti_obx[0] + i];
+      double v = data[o[O_QV] + jx]; /* Q x + S'u + q + A'pi + C'(lam_ug - lam_lg) in x_0's jx */
+      for (l = 0; l < nx; ++l) v += data[o[O_Q] + jx + l * nx] * x[l];
+      for (l = 0; l < nu; ++l) v += data[o[O_S] + l + jx * nu] * u[l];
+      for (l = 0; l < nx1; ++l) v += data[o[O_A] + l + jx * nx1] * pi[l];
+      for (l = 0; l < ng; ++l) v += data[o[O_C] + l + jx * ng] * (lam[2 * nbk + ng + l] - lam[2 * nbk + l]);
+      lam[rti_nbu[0] + i] = v > 0.0 ? v : 0.0;       /* lam_lb - lam_ub = v */
       lam[nbk + rti_nbu[0] + i] = v < 0.0 ? -v : 0.0;
     }
   }
@@ -602,10 +717,10 @@ static int rti_hpipm_solve(rti_memory* m) {
 
 /* How far the solution in m->ux violates the linearised constraints (inf norm; 0 if it holds
  * them; NaN propagates).  inequalities_only: only the inequalities rti_eq_solve leaves out (not
- * the dynamics, x_0's box or stage N's equality rows m->eq.rows), with no tolerance. */
+ * the dynamics, x_0's box or the rows its enforced equalities stand for), with no tolerance. */
 static double rti_excess(const rti_memory* m, int inequalities_only) {
   const double* data = m->data;
-  int k, i, j, nx, nu, nb, ng, skip = 0;
+  int k, i, j, nx, nu, nb, ng;
   double violation = 0.0, v;
   for (k = 0; k <= RTI_N; ++k) {
     const int* o = rti_off[k];
@@ -625,10 +740,7 @@ static double rti_excess(const rti_memory* m, int inequalities_only) {
     }
     ng = rti_ng[k];
     for (i = 0; i < ng; ++i) {
-      if (inequalities_only && k == RTI_N && skip < m->eq.ne && m->eq.rows[skip] == i) {
-        skip++;
-        continue;
-      }
+      if (inequalities_only && k == m->eq.K && m->eq.covered[i]) continue; /* enforced */
       v = 0.0;
       for (j = 0; j < nx; ++j) v += data[o[O_C] + i + j * ng] * x[j];
       for (j = 0; j < nu; ++j) v += data[o[O_D] + i + j * ng] * u[j];

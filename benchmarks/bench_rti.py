@@ -70,7 +70,9 @@ SPEED_VARIANTS: tuple[tuple[str, str, dict | None], ...] = (
     ("sqp-rti conic converged", "sqp-rti", {**CONIC, "mode": "converged", "compiled": True}),
     ("fatrop", "fatrop", None),
     ("fatrop compiled", "fatrop", {"compiled": True}),
+    ("sqp", "sqp", None),
     ("sqp compiled", "sqp", {"compiled": True}),
+    ("ipopt", "ipopt", None),
     ("ipopt compiled", "ipopt", {"compiled": True}),
 )
 

@@ -367,6 +367,10 @@ def test_closed_loop_holds_box_and_rate_bounds(problem, qpsol):
             {"qpsol": "hpipm-ocp", "mode": "converged", "qpsol_options": {"loose_first_qp": "yes"}},
             "options['qpsol_options']['loose_first_qp']",
         ),
+        (
+            {"qpsol": "hpipm-ocp", "qpsol_options": {"equality_first": 0}},
+            "options['qpsol_options']['equality_first']",
+        ),
     ],
 )
 def test_bad_options_are_named(problem, options, name):

@@ -507,9 +507,9 @@ static int rti_eq_ubox(int k, int j) {
   return -1;
 }
 
-/* Find the pinned inputs (no curvature, no coupling, no dynamics, a lower box) and the enforced
- * rows: equality rows, and pairs v - s <= ub, v + s >= lb on a pinned s that fix v; all of one
- * stage K (0 when there are enforced rows at two stages). */
+/* Find the pinned inputs (penalty slacks with no curvature, coupling or dynamics and a lower
+ * box) and the enforced rows: equality rows, and pairs v - s <= ub, v + s >= lb on a pinned s
+ * that fix v; all of one stage K (0 when there are enforced rows at two stages). */
 static int rti_eq_structure(rti_memory* m) {
   rti_eq* e = &m->eq;
   const double* data = m->data;
@@ -524,7 +524,9 @@ static int rti_eq_structure(rti_memory* m) {
       for (l = 0; l < nu && zero; ++l) zero = data[o[O_R] + l + j * nu] == 0.0;
       for (l = 0; l < nx && zero; ++l) zero = data[o[O_S] + j + l * nu] == 0.0;
       for (l = 0; l < nx1 && zero; ++l) zero = data[o[O_B] + l + j * nx1] == 0.0;
-      e->pinned[k][j] = zero && box >= 0 && rti_lbu_mask[rti_obu[k] + box] != 0.0;
+      /* only a penalty slack (by its NLP variable): a flat control must not jump to a bound */
+      e->pinned[k][j] =
+          rti_slack[rti_ou[k] + j] && zero && box >= 0 && rti_lbu_mask[rti_obu[k] + box] != 0.0;
       if (e->pinned[k][j]) e->pin[k][j] = data[o[O_LBU] + box];
     }
     for (i = 0; i < ng; ++i) {
@@ -604,6 +606,10 @@ static int rti_eq_solve(rti_memory* m) {
         if (!e->pinned[K][l]) e->cu[l] += D[e->rows[i] + l * ng] * e->nu[i];
     }
     rti_eq_pass(m, 0, 1, m->ux);
+    /* nearly dependent rows give a nu that does not hold them: HPIPM's QP, not a failed step */
+    rti_eq_values(m, m->ux, e->value);
+    for (i = 0; i < e->ne; ++i)
+      if (!(fabs(e->value[i] - e->target[i]) <= 1e-9 * (1.0 + fabs(e->target[i])))) return 0;
   } else {
     rti_eq_pass(m, 0, 0, m->ux);
   }

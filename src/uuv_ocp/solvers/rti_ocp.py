@@ -17,14 +17,16 @@ stage N−1, so the exact-penalty NLP is the same QP, L1 weight included).
   the one stage whose variables it reads.
 
 Equality first (``qpsol_options["equality_first"]``, default True): each QP is first solved
-with its equalities alone (dynamics, the fixed ``x_0``, stage N's equality rows such as the
-terminal equality) by one Riccati recursion in the hand-written C.  If that solution satisfies
-every inequality (boxes, rate and path rows; no tolerance) it is the QP's solution, with zero
-inequality multipliers: the KKT conditions hold exactly.  Otherwise, or where the recursion
-does not apply (a reduced Hessian that is not positive definite, e.g. the soft NLP's L1
-slacks), HPIPM solves the QP.  In a tracking loop no inequality is active in most steps once
-the transient is over (s2: about 5 in 6), and the recursion costs about one of HPIPM's
-interior-point iterations.
+with its equalities alone (dynamics, the fixed ``x_0``, the equality rows of one stage such as
+the terminal equality) by one Riccati recursion in the hand-written C; the exact-penalty
+slacks are held at their bound and each pair of slack rows that fixes a value becomes one
+equality.  If that solution satisfies every inequality (boxes, rate and path rows; no
+tolerance), its equalities to rounding and, for held slacks, the sign of their bound's
+multiplier (the penalty is exact), it is the QP's solution: the KKT conditions hold.
+Otherwise, or where the recursion does not apply (a reduced Hessian that is not positive
+definite, equality rows at two stages), HPIPM solves the QP.  In a tracking loop no inequality
+is active in most steps once the transient is over (s2: about 5 in 6), and the recursion costs
+about one of HPIPM's interior-point iterations.
 
 The stage data are one CasADi Function ``data(w, p)`` generated as C, compiled with the
 hand-written step (``native/rti_hpipm.c``) into one library by
@@ -462,6 +464,12 @@ def c_source(
         _c_array("int", "rti_olam", starts([2 * (a + b + c) for a, b, c in zip(nbx, nbu, ngs, strict=True)])),
         _c_array("int", "rti_xvar", np.concatenate(layout.xvar)),
         _c_array("int", "rti_uvar", np.concatenate(layout.uvar)),
+        # inputs that are penalty slacks (the equality-first solve may hold only these at a bound)
+        _c_array(
+            "int",
+            "rti_slack",
+            [data.variable_keys[int(v)][0].endswith("slack") for v in np.concatenate(layout.uvar)],
+        ),
         _c_array("int", "rti_dynrow", np.concatenate(layout.dynrow) if n else []),
         _c_array("int", "rti_genrow", np.concatenate(layout.genrow)),
         _c_array("int", "rti_idxbx", np.concatenate(layout.idxbx)),

@@ -47,6 +47,8 @@ from uuv_ocp.codegen import default_cache_directory
 
 #: the RTI step in C on HPIPM's OCP-QP API (``qpsol="hpipm-ocp"``)
 OCP = {"qpsol": "hpipm-ocp"}
+#: the C step with HPIPM on every QP (no equality-first Riccati solve): the "HPIPM only" rows
+HPIPM_ONLY = {"equality_first": False}
 #: CasADi's conic interface on the full-space QP (the ``sqp-rti`` default before ``hpipm-ocp``)
 CONIC = {"qpsol": "hpipm"}
 #: the C step's HPIPM per variant: the native build (``uuv-ocp hpipm build``), the wheel's
@@ -58,7 +60,7 @@ SPEED_VARIANTS: tuple[tuple[str, str, dict | None], ...] = (
     (
         "native, step_control, HPIPM only",
         "sqp-rti",
-        {**OCP, "hpipm": NATIVE, "lean": True, "qpsol_options": {"equality_first": False}},
+        {**OCP, "hpipm": NATIVE, "lean": True, "qpsol_options": HPIPM_ONLY},
     ),
     ("sqp-rti hpipm-ocp wheel", "sqp-rti", {**OCP, "hpipm": WHEEL}),
     ("native, no condensing", "sqp-rti", {**OCP, "hpipm": NATIVE, "qpsol_options": {"cond_horizon": 0}}),
@@ -181,13 +183,13 @@ INTERLEAVED: tuple[tuple[str, str, dict], ...] = (
     ("native, speed_abs", NATIVE, {"qpsol_options": {"mode": "speed_abs"}}),
     ("native, no condensing", NATIVE, {"qpsol_options": {"cond_horizon": 0}}),
     ("wheel", WHEEL, {}),
-    ("native, step_control, HPIPM only", NATIVE, {"lean": True, "qpsol_options": {"equality_first": False}}),
+    ("native, step_control, HPIPM only", NATIVE, {"lean": True, "qpsol_options": HPIPM_ONLY}),
     ("native, converged", NATIVE, {"mode": "converged"}),
     ("native, converged, step_control", NATIVE, {"mode": "converged", "lean": True}),
     (
         "native, converged, step_control, HPIPM only",
         NATIVE,
-        {"mode": "converged", "lean": True, "qpsol_options": {"equality_first": False}},
+        {"mode": "converged", "lean": True, "qpsol_options": HPIPM_ONLY},
     ),
     (
         "native, converged, every QP tight, step_control",
@@ -295,12 +297,12 @@ def _resident_qp_iterations(controller: uo.NMPC) -> int:
 #: but in the first row, the default, where the equality-first solve answers the QPs it can)
 HPIPM_SETTINGS: tuple[dict, ...] = (
     {},
-    {"equality_first": False},
-    {"mode": "speed_abs", "equality_first": False},
-    {"warm_start": True, "equality_first": False},
-    {"mode": "speed_abs", "warm_start": True, "equality_first": False},
-    {"cond_horizon": 0, "equality_first": False},
-    {"mode": "speed_abs", "cond_horizon": 0, "equality_first": False},
+    dict(HPIPM_ONLY),
+    {"mode": "speed_abs", **HPIPM_ONLY},
+    {"warm_start": True, **HPIPM_ONLY},
+    {"mode": "speed_abs", "warm_start": True, **HPIPM_ONLY},
+    {"cond_horizon": 0, **HPIPM_ONLY},
+    {"mode": "speed_abs", "cond_horizon": 0, **HPIPM_ONLY},
 )
 
 
@@ -404,7 +406,7 @@ def reference_interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
     reference, dt, horizon = s2.reference, s2.dt, s2.horizon
     plant = uo.rk4_step(s2.vehicle.dynamics_function(), dt, 10)
     windows = [{"reference": reference.evaluate(k * dt + dt * np.arange(horizon + 1))} for k in range(steps)]
-    hpipm_only = {"qpsol_options": {"equality_first": False}}
+    hpipm_only = {"qpsol_options": HPIPM_ONLY}
     cases = [
         ("reference problem, rti", ocp, {**OCP}),
         ("s2, rti", s2, {**OCP}),

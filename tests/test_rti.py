@@ -52,18 +52,34 @@ def problem() -> uo.TrackingProblem:
     return uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1)
 
 
-@pytest.fixture(scope="module")
-def instance(problem):
-    x0 = problem.reference.evaluate([3.0])[0]
-    reference = uo.solve(
-        problem,
-        "ipopt",
-        x0=x0,
-        t0=3.0,
-        options={"plugin_options": {"ipopt.tol": 1e-12, "ipopt.bound_relax_factor": 0.0}},
-    )
+def ipopt_reference(problem, t: float) -> tuple[np.ndarray, object]:
+    """Return the reference's state at ``t`` and IPOPT's tight optimum from it."""
+    x0 = problem.reference.evaluate([t])[0]
+    options = {"plugin_options": {"ipopt.tol": 1e-12, "ipopt.bound_relax_factor": 0.0}}
+    reference = uo.solve(problem, "ipopt", x0=x0, t0=t, options=options)
     assert reference.success
     return x0, reference
+
+
+def perturbed_states(
+    data, primal: np.ndarray, seed: int, variant: str = "hard"
+) -> tuple[np.ndarray, Iterate]:
+    """Return ``primal`` with its states moved by 1e-4 (seeded) and the warm start holding it.
+
+    Only states move: the controls stay inside their box.
+    """
+    w = primal.copy()
+    free = data.state_index.ravel()
+    w[free] += 1e-4 * np.random.default_rng(seed).standard_normal(free.size)
+    warm = Iterate(
+        scaled_controls=w[data.control_index], states=w[data.state_index], primal=w, variant=variant
+    )
+    return w, warm
+
+
+@pytest.fixture(scope="module")
+def instance(problem):
+    return ipopt_reference(problem, 3.0)
 
 
 def gauss_newton_qp(data, w: np.ndarray, p: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -114,13 +130,7 @@ def test_one_iteration_is_one_gauss_newton_step(problem, instance, qpsol):
     x0, reference = instance
     backend = get_solver(problem, "sqp-rti", qp_options(qpsol, tight=True))
     data = problem.build().hard
-    rng = np.random.default_rng(3)
-    w = reference.iterate.primal.copy()
-    free = data.state_index.ravel()  # perturb states only: controls stay inside their box
-    w[free] += 1e-4 * rng.standard_normal(free.size)
-    warm = Iterate(
-        scaled_controls=w[data.control_index], states=w[data.state_index], primal=w, variant="hard"
-    )
+    w, warm = perturbed_states(data, reference.iterate.primal, seed=3)
     p = problem.parameters(x0, 3.0)
     result = backend.solve(p, warm)
     assert result.success and result.iterations == 1
@@ -165,11 +175,7 @@ def test_one_iteration_is_one_gauss_newton_step(problem, instance, qpsol):
 @pytest.fixture(scope="module")
 def calm_instance(problem):
     """Return a state on the path at t = 20 s and IPOPT's optimum there (no inequality active)."""
-    x0 = problem.reference.evaluate([20.0])[0]
-    options = {"plugin_options": {"ipopt.tol": 1e-12, "ipopt.bound_relax_factor": 0.0}}
-    reference = uo.solve(problem, "ipopt", x0=x0, t0=20.0, options=options)
-    assert reference.success
-    return x0, reference
+    return ipopt_reference(problem, 20.0)
 
 
 @pytest.mark.parametrize("cond_horizon", [0, 5])
@@ -183,12 +189,7 @@ def test_equality_first_solves_an_inactive_qp_exactly(problem, calm_instance, co
     needs_compiler("hpipm-ocp")
     x0, reference = calm_instance
     data = problem.build().hard
-    rng = np.random.default_rng(5)
-    w = reference.iterate.primal.copy()
-    w[data.state_index.ravel()] += 1e-4 * rng.standard_normal(data.state_index.size)
-    warm = Iterate(
-        scaled_controls=w[data.control_index], states=w[data.state_index], primal=w, variant="hard"
-    )
+    w, warm = perturbed_states(data, reference.iterate.primal, seed=5)
     p = problem.parameters(x0, 20.0)
     results, qp_iterations = {}, {}
     for first in (True, False):
@@ -255,11 +256,7 @@ def test_equality_first_solves_the_exact_penalty_qp(problem, calm_instance):
         backend = get_solver(problem, "sqp-rti", options)
         cold = backend.solve(p, None)  # IPOPT on the soft NLP: a KKT point to start from
         assert cold.success and cold.iterate.variant == "soft"
-        w = cold.iterate.primal.copy()
-        w[soft.state_index.ravel()] += 1e-4 * np.random.default_rng(7).standard_normal(soft.state_index.size)
-        warm = Iterate(
-            scaled_controls=w[soft.control_index], states=w[soft.state_index], primal=w, variant="soft"
-        )
+        w, warm = perturbed_states(soft, cold.iterate.primal, seed=7, variant="soft")
         results[first] = backend.solve(p, warm)
         assert results[first].success and results[first].iterate.variant == "soft"
         qp_iterations[first] = backend.ocp_step("soft", results[first].details["still_water"]).info[4]
@@ -275,15 +272,9 @@ def test_equality_first_holds_the_slacks_of_a_softened_range():
     tube = uo.TrackingProblem(
         uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1, position_tube=0.5
     )
-    x0 = tube.reference.evaluate([20.0])[0]
-    options = {"plugin_options": {"ipopt.tol": 1e-12, "ipopt.bound_relax_factor": 0.0}}
-    reference = uo.solve(tube, "ipopt", x0=x0, t0=20.0, options=options)
+    x0, reference = ipopt_reference(tube, 20.0)
     data, p = tube.build().hard, tube.parameters(x0, 20.0)
-    w = reference.iterate.primal.copy()
-    w[data.state_index.ravel()] += 1e-4 * np.random.default_rng(9).standard_normal(data.state_index.size)
-    warm = Iterate(
-        scaled_controls=w[data.control_index], states=w[data.state_index], primal=w, variant="hard"
-    )
+    w, warm = perturbed_states(data, reference.iterate.primal, seed=9)
     backend = get_solver(tube, "sqp-rti", {"qpsol": "hpipm-ocp", "qpsol_options": {"cond_horizon": 0}})
     result = backend.solve(p, warm)
     assert result.success
@@ -729,9 +720,7 @@ def test_converged_mode_solves_only_its_first_qp_loosely(problem, instance):
     x0, reference = instance
     p = problem.parameters(x0, 3.0)
     data = problem.build().hard
-    w = reference.iterate.primal.copy()
-    free = data.state_index.ravel()
-    w[free] += 1e-4 * np.random.default_rng(5).standard_normal(free.size)
+    w = perturbed_states(data, reference.iterate.primal, seed=5)[0]
     steps = {}
     for name, options in {
         "rti": {},

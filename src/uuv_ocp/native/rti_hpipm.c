@@ -140,6 +140,8 @@ static int rti_ipm_create(const double* settings, struct d_ocp_qp_dim* dim, stru
   return 0;
 }
 
+static int rti_eq_applies(void);
+
 /* options: the QP solver's settings (rti_ipm_create's seven), the partial condensing horizon
  * (0 or >= N: none), loose_first (0/1), the first QP's seven settings (read when loose_first),
  * and equality_first (0/1).
@@ -189,7 +191,7 @@ void* uuv_rti_create(const double* options) {
   ipm_dim = m->cond_n ? &m->pdim : &m->dim;
   if (rti_ipm_create(options, ipm_dim, &m->arg, &m->ws, &m->arg_mem, &m->ws_mem)) goto fail;
   m->loose_first = options[8] != 0.0;
-  m->eq_first = options[16] != 0.0;
+  m->eq_first = options[16] != 0.0 && rti_eq_applies(); /* the structure is fixed per build */
   if (m->loose_first &&
       rti_ipm_create(options + 9, ipm_dim, &m->first_arg, &m->first_ws, &m->first_arg_mem, &m->first_ws_mem))
     goto fail;
@@ -295,6 +297,16 @@ static inline double rti_outside(double v, double lo, double hi, double lo_mask,
   return violation;
 }
 
+/* A net multiplier (upper minus lower, HPIPM's stationarity sign) as its two sides >= 0. */
+static inline void rti_split(double net, double* lower, double* upper) {
+  *lower = net < 0.0 ? -net : 0.0;
+  *upper = net > 0.0 ? net : 0.0;
+}
+
+/* lam_ug - lam_lg of general row i of a stage whose multipliers lam hold nbk boxes, ng rows. */
+static inline double rti_row_net(const double* lam, int nbk, int ng, int i) {
+  return lam[2 * nbk + ng + i] - lam[2 * nbk + i];
+}
 
 /* ---- equality first: the QP without its inequalities, by one Riccati recursion ----
  *
@@ -345,7 +357,7 @@ static int rti_eq_factor(rti_memory* m) {
         for (v = data[o[O_R] + i + j * nu], l = 0; l < nx1; ++l) v += B[l + i * nx1] * PB[l + j * nx1];
         L[i + j * nu] = v;
       }
-    for (j = 0; j < nu; ++j) /* a pinned input is decoupled (rti_eq_pin): unit curvature */
+    for (j = 0; j < nu; ++j) /* a pinned input is decoupled (rti_eq_structure): unit curvature */
       if (e->pinned[k][j]) L[j + j * nu] = 1.0;
     for (j = 0; j < nx; ++j) /* S + B'P A */
       for (i = 0; i < nu; ++i) {
@@ -520,13 +532,12 @@ static int rti_eq_structure(rti_memory* m) {
     const int* o = rti_off[k];
     const int nx = rti_nx[k], nu = rti_nu[k], ng = rti_ng[k], nx1 = k < RTI_N ? rti_nx[k + 1] : 0;
     for (j = 0; j < nu; ++j) {
-      int zero = 1, box = rti_eq_ubox(k, j);
+      /* only a penalty slack (by its NLP variable): a flat control must not jump to a bound */
+      int zero = rti_slack[rti_ou[k] + j], box = zero ? rti_eq_ubox(k, j) : -1;
       for (l = 0; l < nu && zero; ++l) zero = data[o[O_R] + l + j * nu] == 0.0;
       for (l = 0; l < nx && zero; ++l) zero = data[o[O_S] + j + l * nu] == 0.0;
       for (l = 0; l < nx1 && zero; ++l) zero = data[o[O_B] + l + j * nx1] == 0.0;
-      /* only a penalty slack (by its NLP variable): a flat control must not jump to a bound */
-      e->pinned[k][j] =
-          rti_slack[rti_ou[k] + j] && zero && box >= 0 && rti_lbu_mask[rti_obu[k] + box] != 0.0;
+      e->pinned[k][j] = zero && box >= 0 && rti_lbu_mask[rti_obu[k] + box] != 0.0;
       if (e->pinned[k][j]) e->pin[k][j] = data[o[O_LBU] + box];
     }
     for (i = 0; i < ng; ++i) {
@@ -584,7 +595,7 @@ static int rti_eq_solve(rti_memory* m) {
   rti_eq* e = &m->eq;
   const double* data = m->data;
   int i, j, k, l;
-  if (!rti_eq_applies() || !rti_eq_structure(m) || !rti_eq_factor(m)) return 0;
+  if (!rti_eq_structure(m) || !rti_eq_factor(m)) return 0;
   if (e->ne) {
     const int K = e->K, ng = rti_ng[K], nx = rti_nx[K], nu = rti_nu[K];
     const double *C = data + rti_off[K][O_C], *D = data + rti_off[K][O_D];
@@ -631,16 +642,9 @@ static int rti_eq_solve(rti_memory* m) {
   if (e->ne) {
     const int K = e->K, ng = rti_ng[K], nbk = rti_nbu[K] + rti_nbx[K];
     double* lam = m->lam + rti_olam[K];
-    for (i = 0; i < e->ne; ++i) {
-      const double v = e->nu[i];
-      if (e->partner[i] >= 0) {
-        lam[2 * nbk + ng + e->rows[i]] = v > 0.0 ? v : 0.0;     /* lam_ug of v - s <= ub */
-        lam[2 * nbk + e->partner[i]] = v < 0.0 ? -v : 0.0;      /* lam_lg of v + s >= lb */
-      } else {
-        lam[2 * nbk + e->rows[i]] = v < 0.0 ? -v : 0.0;         /* lam_lg */
-        lam[2 * nbk + ng + e->rows[i]] = v > 0.0 ? v : 0.0;     /* lam_ug */
-      }
-    }
+    for (i = 0; i < e->ne; ++i) /* a pair: lam_ug of v - s <= ub, lam_lg of v + s >= lb */
+      rti_split(e->nu[i], lam + 2 * nbk + (e->partner[i] >= 0 ? e->partner[i] : e->rows[i]),
+                lam + 2 * nbk + ng + e->rows[i]);
   }
   for (k = 0; k < RTI_N; ++k) { /* pinned inputs: lam_lb = r + B'pi + D'(lam_ug - lam_lg) >= 0 */
     const int* o = rti_off[k];
@@ -650,7 +654,7 @@ static int rti_eq_solve(rti_memory* m) {
       double v;
       if (!e->pinned[k][j]) continue;
       v = data[o[O_RV] + j];
-      for (i = 0; i < ng; ++i) v += data[o[O_D] + i + j * ng] * (lam[2 * nbk + ng + i] - lam[2 * nbk + i]);
+      for (i = 0; i < ng; ++i) v += data[o[O_D] + i + j * ng] * rti_row_net(lam, nbk, ng, i);
       if (!(v >= 0.0)) return 0; /* the penalty is not exact here: HPIPM's QP */
       lam[rti_eq_ubox(k, j)] = v;
     }
@@ -667,9 +671,8 @@ static int rti_eq_solve(rti_memory* m) {
       for (l = 0; l < nx; ++l) v += data[o[O_Q] + jx + l * nx] * x[l];
       for (l = 0; l < nu; ++l) v += data[o[O_S] + l + jx * nu] * u[l];
       for (l = 0; l < nx1; ++l) v += data[o[O_A] + l + jx * nx1] * pi[l];
-      for (l = 0; l < ng; ++l) v += data[o[O_C] + l + jx * ng] * (lam[2 * nbk + ng + l] - lam[2 * nbk + l]);
-      lam[rti_nbu[0] + i] = v > 0.0 ? v : 0.0;       /* lam_lb - lam_ub = v */
-      lam[nbk + rti_nbu[0] + i] = v < 0.0 ? -v : 0.0;
+      for (l = 0; l < ng; ++l) v += data[o[O_C] + l + jx * ng] * rti_row_net(lam, nbk, ng, l);
+      rti_split(-v, lam + rti_nbu[0] + i, lam + nbk + rti_nbu[0] + i); /* lam_ub - lam_lb = -v */
     }
   }
   return 1;
@@ -802,7 +805,7 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
       if (target >= 0) lam_x[target] = value;
       else lam_g[-1 - target] = value;
     }
-    for (i = 0; i < ng; ++i) lam_g[rti_genrow[rti_og[k] + i]] = lam[2 * nbk + ng + i] - lam[2 * nbk + i];
+    for (i = 0; i < ng; ++i) lam_g[rti_genrow[rti_og[k] + i]] = rti_row_net(lam, nbk, ng, i);
   }
   if (!isfinite(violation)) return INFINITY;
   for (i = 0; i < RTI_NW; ++i)

@@ -189,7 +189,12 @@ def track_references(
 
 
 def format_tracking_table(rows: Sequence[TrackingRow]) -> str:
-    """Plain-text table of :func:`track_references` rows (errors in m, times in ms)."""
+    """Plain-text table of :func:`track_references` rows (errors in m, times in ms).
+
+    When a row is a 6-DOF run (its metrics have the depth error ``max_abs_ez``), the table
+    also has the depth columns ``max|ez|``, ``|ez|t>5``, ``rms_ez`` and the 3-D position error
+    ``max|e|``, ``rms|e|`` (blank on 3-DOF rows).
+    """
     columns = [
         ("ref", 4, lambda r: r.reference),
         ("solver", 7, lambda r: r.solver),
@@ -200,6 +205,16 @@ def format_tracking_table(rows: Sequence[TrackingRow]) -> str:
         ("|ey|t>5", 9, lambda r: _fmt(r.metrics["max_abs_ey_settled"])),
         ("rms_ex", 7, lambda r: f"{r.metrics['rms_ex']:.3f}"),
         ("rms_ey", 7, lambda r: f"{r.metrics['rms_ey']:.3f}"),
+    ]
+    if any("max_abs_ez" in row.metrics for row in rows):  # 6-DOF: depth and 3-D errors
+        columns += [
+            ("max|ez|", 8, lambda r: _spatial(r, "max_abs_ez", "{:.3f}")),
+            ("|ez|t>5", 9, lambda r: _spatial(r, "max_abs_ez_settled")),
+            ("rms_ez", 7, lambda r: _spatial(r, "rms_ez", "{:.3f}")),
+            ("max|e|", 7, lambda r: _spatial(r, "max_e3d", "{:.3f}")),
+            ("rms|e|", 7, lambda r: _spatial(r, "rms_e3d", "{:.3f}")),
+        ]
+    columns += [
         ("med ms", 7, lambda r: f"{1e3 * r.metrics['solve_time_median']:.2f}"),
         ("p90 ms", 7, lambda r: f"{1e3 * r.metrics['solve_time_p90']:.2f}"),
         ("fail", 4, lambda r: str(int(r.metrics["failures"]))),
@@ -211,6 +226,14 @@ def format_tracking_table(rows: Sequence[TrackingRow]) -> str:
         cells = " ".join(f"{cell(row):>{width}}" for _, width, cell in columns)
         lines.append(f"{cells}  {row.note}")
     return "\n".join(lines)
+
+
+def _spatial(row: TrackingRow, key: str, style: str | None = None) -> str:
+    """Return a 6-DOF figure of ``row`` (``style``, or :func:`_fmt`); blank for a 3-DOF row."""
+    if key not in row.metrics:
+        return ""
+    value = float(row.metrics[key])
+    return style.format(value) if style is not None else _fmt(value)
 
 
 def _fmt(value: float) -> str:

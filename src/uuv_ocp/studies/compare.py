@@ -51,9 +51,11 @@ def unreachable_from(reference: Reference, vehicle: AnyVehicle, t0: float, durat
     """First time (s) on ``[t0, t0 + duration]`` at which the path is faster than the vehicle.
 
     The top speed is over ground with crabbing allowed (:meth:`Vehicle.max_horizontal_speed`:
-    surge and sway thrust together, the Munk moment held by the yaw thrust), the physical
+    surge and sway thrust together, the Munk moment held by the yaw thrust; for a 6-DOF
+    vehicle :meth:`Vehicle6DOF.max_horizontal_speed`, level at constant depth), the physical
     limit of position tracking; the surge-only figure (``max_speed()[0]``) is lower.  ``None``
-    when the path stays within reach, or for a vehicle without that bound (6-DOF).
+    when the path stays within reach, or for a vehicle and reference that do not pair (a
+    planar reference for a 6-DOF vehicle or the other way round).
     """
     return _reach(reference, vehicle, t0, duration)[1]
 
@@ -77,7 +79,7 @@ def _reach(
     states = reference.evaluate(times)
     columns = (6, 7) if reference.spatial else (3, 4)  # body-frame horizontal velocity (u_R, v_R)
     speed = np.hypot(states[:, columns[0]], states[:, columns[1]])
-    if not isinstance(vehicle, Vehicle):
+    if reference.spatial != isinstance(vehicle, Vehicle6DOF):  # a pairing that has no top speed
         return float(speed.max()), None, ""
     top, crab = vehicle.max_horizontal_speed()
     over = times[speed > top]

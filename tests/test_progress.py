@@ -67,15 +67,20 @@ def test_resumed_units_count_and_the_total_caps_the_count():
 
 
 @pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a pseudo-terminal")
-def test_a_terminal_that_reports_no_width_still_gets_a_bar():
-    """A fresh pty has 0 columns (as under `script` or some CI runners); tqdm then drew nothing."""
+@pytest.mark.parametrize("columns", [0, 100])
+def test_a_terminal_that_reports_no_size_still_gets_a_bar(columns):
+    """A fresh pty is 0 x 0 (as under `script` or some CI runners); tqdm then drew nothing."""
+    import fcntl
     import os
+    import struct
+    import termios
 
     master, slave = os.openpty()
     try:
-        assert os.get_terminal_size(slave).columns == 0
+        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 0, columns, 0, 0))  # no lines
+        assert tuple(os.get_terminal_size(slave)) == (columns, 0)
         with open(slave, "w", closefd=False) as stream:
-            with ProgressBar(5, "no width", stream=stream) as bar:
+            with ProgressBar(5, "no size", stream=stream) as bar:
                 bar.update(5)
             stream.flush()
         os.set_blocking(master, False)
@@ -83,7 +88,7 @@ def test_a_terminal_that_reports_no_width_still_gets_a_bar():
     finally:
         os.close(master)
         os.close(slave)
-    assert bar.enabled and "no width" in text and "5/5" in text
+    assert bar.enabled and "no size" in text and "5/5" in text
 
 
 def test_drawn_says_where_bars_are_drawn(monkeypatch):

@@ -63,10 +63,10 @@ def drawn(enabled: bool = True, stream: TextIO | None = None, *, force: bool = F
     return bool(enabled) and mode != "never" and (interactive or force or mode == "always")
 
 
-def _columns(stream: object) -> int | None:
-    """Width of the terminal behind ``stream`` (characters), or ``None`` if it has none."""
+def _terminal_size(stream: object) -> os.terminal_size | None:
+    """Size of the terminal behind ``stream`` (columns, lines), or ``None`` if it has none."""
     try:
-        return os.get_terminal_size(stream.fileno()).columns  # type: ignore[attr-defined]
+        return os.get_terminal_size(stream.fileno())  # type: ignore[attr-defined]
     except (AttributeError, OSError, ValueError):
         return None
 
@@ -156,8 +156,9 @@ class ProgressBar:
 
         if interactive:
             options.update(file=self.stream, mininterval=0.1)
-            if _columns(self.stream) == 0:  # a terminal of no size (some ptys, CI): tqdm drew nothing
-                options.update(dynamic_ncols=False, ncols=80)
+            size = _terminal_size(self.stream)
+            if size is not None and 0 in size:  # a pty of no size (script, some CI): tqdm drew nothing
+                options.update(dynamic_ncols=False, ncols=size.columns or 80, nrows=size.lines or 20)
         else:
             options.update(
                 file=_LogLines(self.stream),

@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from uuv_ocp.build import Transcribed
+from uuv_ocp.control.disturbances import Current
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import SimulationInterrupted, simulate
 from uuv_ocp.interrupts import check_interrupt, remember_interrupts
@@ -93,9 +94,18 @@ def _reach(
 
 
 def run_settings(
-    problem: TrackingProblem, solver: str, options: dict | None, t0: float, duration: float
+    problem: TrackingProblem,
+    solver: str,
+    options: dict | None,
+    t0: float,
+    duration: float,
+    current: Current | None = None,
 ) -> dict:
-    """Return the whole configuration of one :func:`track_references` run (its record's key)."""
+    """Return the whole configuration of one :func:`track_references` run (its record's key).
+
+    A ``current`` enters only when given, so that the keys of runs in still water stay those
+    that earlier versions wrote.
+    """
     import uuv_ocp
 
     reference = problem.reference
@@ -113,6 +123,7 @@ def run_settings(
         "t0": t0,
         "duration": duration,
         "version": uuv_ocp.__version__,
+        **({"current": current} if current is not None else {}),
     }
 
 
@@ -129,8 +140,12 @@ def track_references(
     progress: bool = True,
     figures: bool = True,
     solver_options: dict | None = None,
+    current: Current | None = None,
 ) -> list[TrackingRow]:
     """Closed-loop NMPC on each reference (paper name or :class:`Reference`) from rest; resumable.
+
+    ``current`` acts on the plant and is told to the controller (:func:`simulate`'s
+    ``current_known``); ``None`` is still water.
 
     Returns one :class:`TrackingRow` per reference and, when ``figures`` is true, writes
     ``<ref>_xoy.png``, ``<ref>_errors.png``, ``<ref>_thrust.png`` and ``<ref>_states.png`` into
@@ -149,7 +164,7 @@ def track_references(
             problem = TrackingProblem(vehicle, reference, horizon=horizon, dt=dt)
             t0 = reference.t_start
             run_duration = min(duration, problem.latest_start() - t0)
-            settings = run_settings(problem, solver, solver_options, t0, run_duration)
+            settings = run_settings(problem, solver, solver_options, t0, run_duration, current)
             label = re.sub(
                 r"[^A-Za-z0-9_.-]+", "-", f"{name}_{solver}"
             )  # a file name whatever the path's name
@@ -168,6 +183,7 @@ def track_references(
                             controller,
                             reference.initial_state(t0),
                             run_duration,
+                            current=current,
                             progress=progress,
                             label=f"{name} {solver}",
                         )

@@ -102,11 +102,19 @@ def test_track_six_dof_vehicle_flies_a_paper_reference_at_depth(tmp_path, capsys
 
     argv = ["track", "--vehicle", "bluerov2-heavy", "-r", "s2", "--duration", "0.5", "--horizon", "5"]
     assert cli.main([*argv, "--out", str(tmp_path)]) == 0
-    assert "bluerov2" in capsys.readouterr().out.lower()
+    output = capsys.readouterr().out
+    assert "bluerov2" in output.lower()
     (saved,) = (tmp_path / "runs").glob("s2*.npz")
     run = ClosedLoopResult.load(str(saved))
     assert run.states.shape == (6, 12)
     np.testing.assert_allclose(run.reference[:, 2], DEFAULT_DEPTH, atol=1e-12)
+    # reported as 6-DOF: the depth error, from the run's own arrays, and the speed flag
+    header, _, row = output.splitlines()[-5:-2]
+    titles = header.split()
+    cells = row.split()
+    depth = np.max(np.abs(run.states[:, 2] - run.reference[:, 2]))
+    assert cells[titles.index("max|ez|")] == f"{depth:.3f}"
+    assert "path speed > 1.11 m/s" in row  # s2 peaks at 1.12 m/s; the BlueROV2 Heavy tops out below
 
 
 def test_solver_names_are_case_insensitive():
@@ -147,3 +155,86 @@ def test_track_recomputes_a_corrupted_saved_run_and_names_it(tmp_path):
             ["s2"], "sqp", out_dir=tmp_path, duration=1.0, horizon=8, progress=False, figures=False
         )
     np.testing.assert_equal(again[0].metrics["max_abs_ex"], first[0].metrics["max_abs_ex"])
+
+
+def _one_error_line(capsys) -> str:
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: "), captured.err
+    return lines[0]
+
+
+def test_a_mistyped_subcommand_or_flag_gets_the_nearest_one(capsys):
+    assert cli.main(["trak", "-r", "s2"]) == 2
+    assert "did you mean 'track'?" in _one_error_line(capsys)
+    assert cli.main(["track", "--refrence", "s2"]) == 2
+    line = _one_error_line(capsys)
+    assert "--refrence" in line and "did you mean --reference?" in line
+    assert cli.main(["track", "--duraton", "3", "--sovler", "sqp"]) == 2
+    line = _one_error_line(capsys)
+    assert "--duration for --duraton" in line and "--solver for --sovler" in line
+    assert cli.main(["demo", "--quite"]) == 2
+    assert "did you mean --quiet?" in _one_error_line(capsys)
+    assert cli.main(["campaign", "--executor", "dsak"]) == 2
+    assert "did you mean 'dask'?" in _one_error_line(capsys)
+    assert cli.main(["track", "--zzzz"]) == 2  # nothing near: no guess
+    assert "did you mean" not in _one_error_line(capsys)
+
+
+def test_track_current_flag_is_validated_before_anything_runs(capsys, monkeypatch, tmp_path):
+    def must_not_run(*args, **kwargs):
+        raise AssertionError("a run started on a bad --current")
+
+    monkeypatch.setattr(cli, "track_references", must_not_run)
+    for value in ("0.3", "0.3,1,2", "a,b", "--current=-1,0", "nan,1", "0.3,inf", "3,0"):
+        flag = [value] if value.startswith("--") else ["--current", value]
+        assert cli.main(["track", "-r", "s2", "--out", str(tmp_path), *flag]) == 2
+        assert _one_error_line(capsys).startswith("error: --current"), value
+
+
+def test_track_current_reaches_the_plant_and_the_record_key(tmp_path, capsys):
+    import numpy as np
+
+    from uuv_ocp.control.simulation import ClosedLoopResult
+
+    out = str(tmp_path)
+    assert (
+        cli.main(["track", "-r", "s2", "--duration", "0.3", "--current", "0.3,1.2", "-q", "--out", out]) == 0
+    )
+    assert "constant current 0.3 m/s towards 1.2 rad" in capsys.readouterr().out
+    (record,) = (tmp_path / "runs").glob("s2_ipopt_*.npz")
+    run = ClosedLoopResult.load(record)
+    np.testing.assert_allclose(
+        run.currents, np.tile([0.3 * np.cos(1.2), 0.3 * np.sin(1.2)], (4, 1)), atol=1e-12
+    )
+    # still water is another configuration: its own record, not the current's
+    assert cli.main(["track", "-r", "s2", "--duration", "0.3", "-q", "--out", out]) == 0
+    assert len(list((tmp_path / "runs").glob("s2_ipopt_*.npz"))) == 2
+
+
+def test_track_and_demo_show_progress_where_bars_are_drawn_unless_quiet(capsys, monkeypatch, tmp_path):
+    from uuv_ocp.control.disturbances import Current
+    from uuv_ocp.progress import ENVIRONMENT_VARIABLE
+
+    calls = []
+
+    def fake(names, solver, **options):
+        calls.append((list(names), options["progress"], options["current"]))
+        return []
+
+    monkeypatch.setattr(cli, "track_references", fake)
+    monkeypatch.setenv(ENVIRONMENT_VARIABLE, "always")  # capsys's stderr is no terminal
+    assert cli.main(["track", "-r", "s2", "s3", "--current", "0.2,0", "--out", str(tmp_path)]) == 0
+    err = capsys.readouterr().err
+    assert "[1/2] s2 with ipopt" in err and "[2/2] s3 with ipopt" in err
+    assert [call[1] for call in calls] == [True, True]
+    assert calls[0][2] == Current(speed=0.2, direction=0.0)
+    calls.clear()
+    assert cli.main(["track", "-r", "s2", "--quiet", "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().err == "" and calls == [(calls[0][0], False, None)]
+    calls.clear()
+    assert cli.main(["demo", "-q", "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().err == "" and len(calls) == 10 and not any(call[1] for call in calls)
+    monkeypatch.setenv(ENVIRONMENT_VARIABLE, "auto")  # not a terminal: silent, as the bars are
+    assert cli.main(["track", "-r", "s2", "--out", str(tmp_path)]) == 0
+    assert capsys.readouterr().err == ""

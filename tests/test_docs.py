@@ -316,4 +316,23 @@ def test_site_builds_strict(tmp_path):
     assert result.returncode == 0, result.stderr[-4000:]
     warnings = [line for line in result.stderr.splitlines() if re.match(r"^WARNING", line)]
     assert warnings == []
-    assert (tmp_path / "site" / "api" / "problems" / "index.html").exists()
+    assert (tmp_path / "site" / "api" / "problems.html").exists()
+    assert broken_local_links(tmp_path / "site") == []
+
+
+def broken_local_links(site: Path) -> list[str]:
+    """Links of the built pages that do not open a file when the site is read from disk.
+
+    Under ``file://`` a link to a folder (``cli/``) opens a directory listing, not the page, so
+    every relative ``href`` and ``src`` must name an existing file (``use_directory_urls: false``).
+    """
+    broken = []
+    for page in sorted(set(site.rglob("*.html")) - {site / "404.html"}):  # 404: served, never opened
+        for link in re.findall(r'(?:href|src)="([^"]*)"', page.read_text(encoding="utf-8")):
+            target = link.split("#", 1)[0].split("?", 1)[0]
+            if not target or re.match(r"^[a-z][a-z0-9+.-]*:|^//", target):
+                continue  # an anchor on the page, or another site
+            resolved = (page.parent / target).resolve()
+            if not resolved.is_file():
+                broken.append(f"{page.relative_to(site)}: {link}")
+    return broken

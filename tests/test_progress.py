@@ -64,3 +64,39 @@ def test_resumed_units_count_and_the_total_caps_the_count():
     assert bar.count == 5
     assert "5/5" in stream.getvalue()
     assert ProgressBar(0, enabled=False).total == 1
+
+
+@pytest.mark.skipif(not hasattr(__import__("os"), "openpty"), reason="needs a pseudo-terminal")
+@pytest.mark.parametrize("columns", [0, 100])
+def test_a_terminal_that_reports_no_size_still_gets_a_bar(columns):
+    """A fresh pty is 0 x 0 (as under `script` or some CI runners); tqdm then drew nothing."""
+    import fcntl
+    import os
+    import struct
+    import termios
+
+    master, slave = os.openpty()
+    try:
+        fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 0, columns, 0, 0))  # no lines
+        assert tuple(os.get_terminal_size(slave)) == (columns, 0)
+        with open(slave, "w", closefd=False) as stream:
+            with ProgressBar(5, "no size", stream=stream) as bar:
+                bar.update(5)
+            stream.flush()
+        os.set_blocking(master, False)
+        text = os.read(master, 65536).decode(errors="replace")
+    finally:
+        os.close(master)
+        os.close(slave)
+    assert bar.enabled and "no size" in text and "5/5" in text
+
+
+def test_drawn_says_where_bars_are_drawn(monkeypatch):
+    from uuv_ocp.progress import drawn
+
+    assert drawn(True, Terminal()) and not drawn(False, Terminal())
+    assert not drawn(True, io.StringIO()) and drawn(True, io.StringIO(), force=True)
+    monkeypatch.setenv(ENVIRONMENT_VARIABLE, "always")
+    assert drawn(True, io.StringIO())
+    monkeypatch.setenv(ENVIRONMENT_VARIABLE, "never")
+    assert not drawn(True, Terminal(), force=True)

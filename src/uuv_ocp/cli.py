@@ -1,14 +1,18 @@
 """Command line: ``uuv-ocp demo | track | solvers | compare | campaign | reproduce | codegen | hpipm``.
 
 Also ``python -m uuv_ocp.cli``.  Exit status: 0 on success; 2 for a bad flag or value, with one
-line ``error: ...`` on standard error naming the flag (nothing runs); 2 without a subcommand,
+line ``error: ...`` on standard error naming the flag (nothing runs; a mistyped flag or
+subcommand gets the nearest one, "did you mean --reference?"); 2 without a subcommand,
 after the help and the suggestion ``uuv-ocp demo``; 130 when interrupted (finished runs are
-saved and resumed by the same command).
+saved and resumed by the same command).  ``demo`` and ``track`` show their progress on standard
+error where bars are drawn (:mod:`uuv_ocp.progress`: a terminal, or ``UUV_OCP_PROGRESS=always``),
+not with ``--quiet``.
 """
 
 from __future__ import annotations
 
 import argparse
+import difflib
 import math
 import os
 import sys
@@ -35,12 +39,37 @@ class _UsageError(Exception):
     """A bad flag or value: printed as one line, exit status 2."""
 
 
+def _nearest(word: str, candidates: Sequence[str]) -> str | None:
+    """Return the candidate nearest a mistyped ``word`` (:func:`difflib.get_close_matches`) or ``None``."""
+    matches = difflib.get_close_matches(word, list(candidates), n=1, cutoff=0.6)
+    return matches[0] if matches else None
+
+
 class _Parser(argparse.ArgumentParser):
-    """``argparse`` whose errors are one line (``error: <prog>: ...``) and exit status 2."""
+    """``argparse`` whose errors are one line (``error: <prog>: ...``) and exit status 2.
+
+    A value outside a flag's choices (a subcommand included) names the nearest choice.
+    """
 
     def error(self, message: str) -> NoReturn:
         """Raise :class:`_UsageError` instead of printing the usage and exiting."""
         raise _UsageError(f"{self.prog}: {message} (see {self.prog} --help)")
+
+    def _check_value(self, action: argparse.Action, value: Any) -> None:
+        # argparse (3.11) lists the choices but suggests none; the nearest is what was meant
+        choices = action.choices
+        if choices is None or value in choices:
+            return
+        names = [str(choice) for choice in choices]
+        guess = _nearest(str(value), names)
+        hint = f"; did you mean {guess!r}?" if guess is not None else ""
+        raise argparse.ArgumentError(
+            action, f"invalid choice: {value!r} (choose from {', '.join(map(repr, names))}){hint}"
+        )
+
+    def option_strings(self) -> list[str]:
+        """Every flag this parser knows (``--reference``, ``-r``, ...)."""
+        return [flag for action in self._actions for flag in action.option_strings]
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -54,6 +83,7 @@ def _parser() -> argparse.ArgumentParser:
     demo = commands.add_parser("demo", help="track all ten paper references with NMPC + IPOPT for 30 s")
     demo.add_argument("--out", default="out", help="output folder (figures, saved runs)")
     demo.add_argument("--fresh", action="store_true", help="recompute runs already saved in --out")
+    demo.add_argument("--quiet", "-q", action="store_true", help="no progress on standard error")
 
     track = commands.add_parser("track", help="closed-loop tracking of chosen references")
     track.add_argument("--reference", "-r", nargs="+", default=["s2"], help=_REFERENCE_HELP)
@@ -64,6 +94,14 @@ def _parser() -> argparse.ArgumentParser:
     track.add_argument("--dt", type=float, default=0.1, help="sampling time (s)")
     track.add_argument("--out", default="out", help="output folder")
     track.add_argument("--fresh", action="store_true", help="recompute saved runs")
+    track.add_argument(
+        "--current",
+        metavar="SPEED,DIRECTION",
+        default=None,
+        help="constant current: speed (m/s, >= 0) and direction of the flow (rad, 0 = +x), "
+        "e.g. 0.3,1.57; told to the controller (default: still water)",
+    )
+    track.add_argument("--quiet", "-q", action="store_true", help="no progress on standard error")
 
     solvers = commands.add_parser("solvers", help="list the registered solver names, or one's options")
     solvers.add_argument("name", nargs="?", help="print this solver's options (a Markdown table)")
@@ -213,9 +251,29 @@ def _output_folder(folder: str) -> None:
         raise _UsageError(f"--out {folder}: the folder is not writable")
 
 
+def _current(text: str | None):
+    """Parse ``--current SPEED,DIRECTION`` into a constant :class:`~uuv_ocp.Current` (or ``None``)."""
+    if text is None:
+        return None
+    from uuv_ocp.control.disturbances import Current
+
+    parts = text.split(",")
+    try:
+        speed, direction = (float(part) for part in parts)
+    except ValueError:  # not two numbers
+        raise _UsageError(
+            f"--current must be SPEED,DIRECTION (m/s, rad; e.g. 0.3,1.57), got {text!r}"
+        ) from None
+    try:
+        return Current(speed=speed, direction=direction)
+    except ValueError as error:
+        raise _flag_error("--current", "current", error) from None
+
+
 def _check_track(args: argparse.Namespace) -> tuple[Any, list]:
     """Validate the ``track`` flags; return the vehicle and the references."""
     args.solver = _solver("--solver", args.solver)
+    args.current = _current(args.current)
     _finite("--duration", args.duration)
     _finite("--dt", args.dt)
     _horizon(args.horizon)
@@ -379,11 +437,39 @@ def _run_campaign(args: argparse.Namespace) -> int:
     return 0
 
 
+def _unrecognized(
+    parser: argparse.ArgumentParser, args: argparse.Namespace, extras: list[str]
+) -> _UsageError:
+    """One line for arguments no flag takes, with the nearest flag of each mistyped one."""
+    command = getattr(args, "command", None)
+    owner = parser
+    if command is not None:
+        owner = next(
+            action.choices[command]
+            for action in parser._actions
+            if isinstance(action, argparse._SubParsersAction)
+        )
+    flags = owner.option_strings() if isinstance(owner, _Parser) else []
+    unknown = [word.split("=", 1)[0] for word in extras if word.startswith("-")]
+    nearest = {flag: _nearest(flag, flags) for flag in unknown}
+    guesses = [
+        guess if len(unknown) == 1 else f"{guess} for {flag}"
+        for flag, guess in nearest.items()
+        if guess is not None
+    ]
+    hint = f"; did you mean {', '.join(guesses)}?" if guesses else ""
+    return _UsageError(
+        f"{owner.prog}: unrecognized arguments: {' '.join(extras)}{hint} (see {owner.prog} --help)"
+    )
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``uuv-ocp`` console script; returns the exit status (see module doc)."""
     parser = _parser()
     try:
-        args = parser.parse_args(argv)
+        args, extras = parser.parse_known_args(argv)
+        if extras:
+            raise _unrecognized(parser, args, extras)
         if args.command is None:
             parser.print_help(sys.stderr)
             print(f"\nno command given: {DEMO_HINT}", file=sys.stderr)
@@ -430,27 +516,35 @@ def _dispatch(args: argparse.Namespace) -> int:
         _output_folder(args.out)
         vehicle: Any = Vehicle.rexrov()
         names: list = list(PAPER_REFERENCES)
-        solver, duration, horizon, dt = "ipopt", 30.0, 20, 0.1
+        solver, duration, horizon, dt, current = "ipopt", 30.0, 20, 0.1, None
     else:
         vehicle, names = _check_track(args)
-        solver, duration, horizon, dt = (
+        solver, duration, horizon, dt, current = (
             args.solver,
             args.duration,
             args.horizon,
             args.dt,
+            args.current,
         )
     start = time.perf_counter()
+    rows: list = []
     try:
-        rows = track_references(
-            names,
-            solver,
-            duration=duration,
-            horizon=horizon,
-            dt=dt,
-            vehicle=vehicle,
-            out_dir=args.out,
-            fresh=args.fresh,
-        )
+        for index, name in enumerate(names, 1):
+            # one reference at a time, so that each says it has started before its controller
+            # is built (seconds, minutes under load) and its own bar appears
+            _announce(index, len(names), name, solver, quiet=args.quiet)
+            rows += track_references(
+                [name],
+                solver,
+                duration=duration,
+                horizon=horizon,
+                dt=dt,
+                vehicle=vehicle,
+                out_dir=args.out,
+                fresh=args.fresh,
+                progress=not args.quiet,
+                current=current,
+            )
     except KeyboardInterrupt as interrupt:
         print(f"\ninterrupted: {interrupt}. Run the same command again to resume.", file=sys.stderr)
         return 130
@@ -460,10 +554,24 @@ def _dispatch(args: argparse.Namespace) -> int:
         return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
     print()
     print(f"NMPC tracking, {vehicle.name}, N = {horizon}, dt = {dt} s, terminal equality, solver {solver}")
+    if current is not None:
+        print(
+            f"constant current {current.speed:g} m/s towards {current.direction:g} rad "
+            "(known to the controller)"
+        )
     print("errors in m over the whole run and for t >= t0 + 5 s; solve times per step in ms")
     print(format_tracking_table(rows))
     print(f"\nfigures and saved runs in {args.out}/  ({time.perf_counter() - start:.1f} s)")
     return 0
+
+
+def _announce(index: int, count: int, reference: Any, solver: str, *, quiet: bool) -> None:
+    """``[2/10] s3 with ipopt`` on standard error, where progress bars are drawn."""
+    from uuv_ocp.progress import drawn
+
+    if drawn(not quiet):
+        name = reference if isinstance(reference, str) else reference.name
+        print(f"[{index}/{count}] {name} with {solver}", file=sys.stderr, flush=True)
 
 
 if __name__ == "__main__":

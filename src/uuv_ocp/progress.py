@@ -24,7 +24,7 @@ from typing import Any, TextIO
 ENVIRONMENT_VARIABLE = "UUV_OCP_PROGRESS"
 _MODES = ("auto", "always", "never")
 
-__all__ = ["ENVIRONMENT_VARIABLE", "ProgressBar"]
+__all__ = ["ENVIRONMENT_VARIABLE", "ProgressBar", "drawn"]
 
 
 def _mode() -> str:
@@ -49,6 +49,26 @@ def _in_notebook() -> bool:
     from tqdm.std import tqdm as std_tqdm
 
     return notebook_tqdm is not std_tqdm
+
+
+def drawn(enabled: bool = True, stream: TextIO | None = None, *, force: bool = False) -> bool:
+    """Whether a :class:`ProgressBar` with these arguments would draw (module doc).
+
+    For messages that belong with the bars, e.g. the command line's "building the
+    controller" line before a run's bar: shown exactly where the bars are.
+    """
+    target = stream if stream is not None else sys.stderr
+    interactive = (stream is None and _in_notebook()) or _is_terminal(target)
+    mode = _mode()
+    return bool(enabled) and mode != "never" and (interactive or force or mode == "always")
+
+
+def _terminal_size(stream: object) -> os.terminal_size | None:
+    """Size of the terminal behind ``stream`` (columns, lines), or ``None`` if it has none."""
+    try:
+        return os.get_terminal_size(stream.fileno())  # type: ignore[attr-defined]
+    except (AttributeError, OSError, ValueError):
+        return None
 
 
 class _LogLines:
@@ -113,10 +133,9 @@ class ProgressBar:
         self.stream = stream if stream is not None else sys.stderr
         self.count = min(max(int(initial), 0), self.total)
         self.postfix = ""
-        mode = _mode()
         notebook = stream is None and _in_notebook()
         interactive = notebook or _is_terminal(self.stream)
-        self.enabled = bool(enabled) and mode != "never" and (interactive or force or mode == "always")
+        self.enabled = drawn(enabled, stream, force=force)
         self._bar: Any = None
         if not self.enabled:
             return
@@ -137,6 +156,9 @@ class ProgressBar:
 
         if interactive:
             options.update(file=self.stream, mininterval=0.1)
+            size = _terminal_size(self.stream)
+            if size is not None and 0 in size:  # a pty of no size (script, some CI): tqdm drew nothing
+                options.update(dynamic_ncols=False, ncols=size.columns or 80, nrows=size.lines or 20)
         else:
             options.update(
                 file=_LogLines(self.stream),

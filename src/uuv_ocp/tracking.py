@@ -33,6 +33,7 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
+from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.obstacles import Obstacle, check_obstacles
 from uuv_ocp.ocp import Ocp, OcpSpec
@@ -135,26 +136,39 @@ class ReferenceSpeedWarning(RuntimeWarning):
     """The reference moves faster than the vehicle can go somewhere on a closed-loop run."""
 
 
+def _speed_columns(reference: Reference, vehicle: Any) -> tuple[int, int] | None:
+    """Columns ``(u_R, v_R)`` of the reference state, or ``None`` where no top speed applies."""
+    if isinstance(vehicle, Vehicle) and not reference.spatial:
+        return 3, 4
+    if isinstance(vehicle, Vehicle6DOF) and reference.spatial:
+        return 6, 7
+    return None
+
+
 def warn_if_reference_too_fast(
     reference: Reference, vehicle: Any, times: np.ndarray, *, stacklevel: int = 3
 ) -> float | None:
     """Warn (:class:`ReferenceSpeedWarning`) if the path speed on ``times`` exceeds the top speed.
 
-    The top speed is :meth:`Vehicle.max_horizontal_speed <uuv_ocp.model.planar.Vehicle.
-    max_horizontal_speed>` (over ground in still water, crabbing allowed: the physical limit of
-    position tracking; the surge-only ``Vehicle.max_speed()[0]`` is lower); the path speed is
-    ``hypot(u_R, v_R)`` of the reference state.  Only 3-DOF :class:`Vehicle` models have a top
-    speed; other models are not checked.
+    The top speed is the vehicle's ``max_horizontal_speed()`` (over ground in still water,
+    crabbing allowed: the physical limit of position tracking; the surge-only
+    ``max_speed()[0]`` is lower): :meth:`Vehicle.max_horizontal_speed
+    <uuv_ocp.model.planar.Vehicle.max_horizontal_speed>` for a 3-DOF vehicle on a planar
+    reference, :meth:`Vehicle6DOF.max_horizontal_speed
+    <uuv_ocp.model.fossen6dof.Vehicle6DOF.max_horizontal_speed>` (level, at constant depth) for
+    a 6-DOF vehicle on a spatial one.  The path speed is ``hypot(u_R, v_R)`` of the reference
+    state.  Other pairings are not checked.
 
     Returns
     -------
     float or None
         The first time (s) the path speed exceeds the top speed, or ``None``.
     """
-    if not isinstance(vehicle, Vehicle) or reference.spatial:
+    columns = _speed_columns(reference, vehicle)
+    if columns is None:
         return None
     states = reference.evaluate(times)
-    speed = np.hypot(states[:, 3], states[:, 4])
+    speed = np.hypot(states[:, columns[0]], states[:, columns[1]])
     top, crab = vehicle.max_horizontal_speed()
     over = np.flatnonzero(speed > top)
     if over.size == 0:

@@ -5,6 +5,11 @@ The paper's Tables 1–4 report, per direction, the maximum absolute tracking er
 error about its mean (``var_e*``, m²) and its standard deviation (``std_e*``, m) — the paper's
 numbers (0.017–0.213 "m") are in metres, so ``std`` is the comparable one — together with the
 RMS error and solve-time statistics.
+
+A 6-DOF run (12 states ``[x, y, z, φ, θ, ψ, ...]``) is not planar: its metrics add the same
+figures for the depth error ``e_z = z − z_R`` and for the 3-D position error ``|e| =
+sqrt(e_x² + e_y² + e_z²)``.  A 3-DOF run's metrics keep exactly their planar keys, so records
+written before stay comparable.
 """
 
 from __future__ import annotations
@@ -13,8 +18,28 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+#: Number of states of a 6-DOF vehicle run (``[x, y, z, φ, θ, ψ, u, v, w, p, q, r]``).
+SPATIAL_STATES = 12
+
 if TYPE_CHECKING:
     from uuv_ocp.control.simulation import ClosedLoopResult
+
+
+def position_errors(run: ClosedLoopResult) -> np.ndarray:
+    """Position errors of a run (m): ``[e_x, e_y]``, or ``[e_x, e_y, e_z]`` for a 6-DOF run.
+
+    Parameters
+    ----------
+    run : ClosedLoopResult
+
+    Returns
+    -------
+    numpy.ndarray, shape (n+1, 2) or (n+1, 3)
+        Plant position minus reference position at each sample time; the depth column
+        ``z − z_R`` (z down) only for a run with the 12 states of a 6-DOF vehicle.
+    """
+    columns = 3 if run.states.shape[1] == SPATIAL_STATES else 2
+    return run.states[:, :columns] - run.reference[:, :columns]
 
 
 def tracking_metrics(run: ClosedLoopResult, settle_time: float = 5.0) -> dict[str, float | int]:
@@ -35,29 +60,47 @@ def tracking_metrics(run: ClosedLoopResult, settle_time: float = 5.0) -> dict[st
         ``std_ey`` (m); ``var_ex``, ``var_ey`` (m²); ``solve_time_median``, ``solve_time_p90``,
         ``solve_time_max``, ``solve_time_mean`` (s); the counts as ``int``: ``failures``,
         ``relaxed_steps``, ``steps`` and ``deadline_misses`` (steps whose solve the backend's
-        deadline stopped or outlasted).
+        deadline stopped or outlasted).  A 6-DOF run (12 states) adds the depth error
+        ``e_z = z − z_R``: ``max_abs_ez``, ``max_abs_ez_settled``, ``rms_ez``, ``std_ez`` (m),
+        ``var_ez`` (m²); and the 3-D position error ``|e|`` (Euclidean norm of ``e_x, e_y,
+        e_z``): ``max_e3d``, ``max_e3d_settled``, ``rms_e3d`` (m).
     """
-    errors = run.errors
+    errors = position_errors(run)
     settled = run.t >= run.t[0] + settle_time - 1e-9
-    settled_errors = errors[settled] if np.any(settled) else np.full((1, 2), np.nan)
+    settled_errors = errors[settled] if np.any(settled) else np.full((1, errors.shape[1]), np.nan)
     times = run.solve_times if run.solve_times.size else np.array([np.nan])
+    x, y = (_axis_metrics(axis, errors[:, i], settled_errors[:, i]) for i, axis in enumerate("xy"))
+    # the planar keys in their historical order, x before y for each figure
+    metrics: dict[str, float | int] = {}
+    for x_key, y_key in zip(x, y, strict=True):
+        metrics.update({x_key: x[x_key], y_key: y[y_key]})
+    metrics.update(
+        {
+            "solve_time_median": float(np.median(times)),
+            "solve_time_p90": float(np.percentile(times, 90)),
+            "solve_time_max": float(np.max(times)),
+            "solve_time_mean": float(np.mean(times)),
+            "failures": int(run.failures),
+            "relaxed_steps": int(np.sum(run.relaxed_steps)),
+            "steps": int(run.controls.shape[0]),
+            "deadline_misses": int(run.deadline_misses),
+        }
+    )
+    if errors.shape[1] == 3:
+        metrics.update(_axis_metrics("z", errors[:, 2], settled_errors[:, 2]))
+        distance = np.linalg.norm(errors, axis=1)
+        metrics["max_e3d"] = float(np.max(distance))
+        metrics["max_e3d_settled"] = float(np.max(np.linalg.norm(settled_errors, axis=1)))
+        metrics["rms_e3d"] = float(np.sqrt(np.mean(distance**2)))
+    return metrics
+
+
+def _axis_metrics(axis: str, error: np.ndarray, settled: np.ndarray) -> dict[str, float]:
+    """Return the five error figures of one direction (m, and m² for the variance)."""
     return {
-        "max_abs_ex": float(np.max(np.abs(errors[:, 0]))),
-        "max_abs_ey": float(np.max(np.abs(errors[:, 1]))),
-        "max_abs_ex_settled": float(np.max(np.abs(settled_errors[:, 0]))),
-        "max_abs_ey_settled": float(np.max(np.abs(settled_errors[:, 1]))),
-        "rms_ex": float(np.sqrt(np.mean(errors[:, 0] ** 2))),
-        "rms_ey": float(np.sqrt(np.mean(errors[:, 1] ** 2))),
-        "std_ex": float(np.std(errors[:, 0])),
-        "std_ey": float(np.std(errors[:, 1])),
-        "var_ex": float(np.var(errors[:, 0])),
-        "var_ey": float(np.var(errors[:, 1])),
-        "solve_time_median": float(np.median(times)),
-        "solve_time_p90": float(np.percentile(times, 90)),
-        "solve_time_max": float(np.max(times)),
-        "solve_time_mean": float(np.mean(times)),
-        "failures": int(run.failures),
-        "relaxed_steps": int(np.sum(run.relaxed_steps)),
-        "steps": int(run.controls.shape[0]),
-        "deadline_misses": int(run.deadline_misses),
+        f"max_abs_e{axis}": float(np.max(np.abs(error))),
+        f"max_abs_e{axis}_settled": float(np.max(np.abs(settled))),
+        f"rms_e{axis}": float(np.sqrt(np.mean(error**2))),
+        f"std_e{axis}": float(np.std(error)),
+        f"var_e{axis}": float(np.var(error)),
     }

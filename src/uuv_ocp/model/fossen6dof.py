@@ -521,6 +521,71 @@ class Vehicle6DOF:
             raise AttributeError(f"vehicle {self.name!r} has no thrusters, so no allocation matrix")
         return self.thrusters.allocation
 
+    # ------------------------------------------------------------ top speeds
+    def max_speed(self) -> np.ndarray:
+        """Steady-state top speed on each axis alone under full force, no current (m/s, rad/s).
+
+        Solves ``d_lin s + d_quad s² = max_thrust`` for each of the six axes, as
+        ``2 τ_max / (d_lin + sqrt(d_lin² + 4 d_quad τ_max))`` (``inf`` without damping), like
+        the 3-DOF :meth:`Vehicle.max_speed <uuv_ocp.model.planar.Vehicle.max_speed>`.  In pure
+        motion along or about one axis the Coriolis terms put no force on that axis, so this is
+        the exact on-axis balance; the restoring force (heave: weight minus buoyancy) is not
+        counted.
+
+        Returns
+        -------
+        numpy.ndarray, shape (6,)
+            ``(u, v, w)`` in m/s and ``(p, q, r)`` in rad/s.
+        """
+        d_lin = np.asarray(self.linear_damping)
+        d_quad = np.asarray(self.quadratic_damping)
+        tau = np.asarray(self.max_thrust)
+        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+            speed = 2.0 * tau / (d_lin + np.sqrt(d_lin**2 + 4.0 * d_quad * tau))
+        return np.where(np.isfinite(speed), speed, np.inf)
+
+    def max_horizontal_speed(self, resolution: int = 9001) -> tuple[float, float]:
+        """Top speed over ground at constant depth in still water, crabbing allowed: ``(m/s, rad)``.
+
+        Level, straight, steady motion at speed ``s`` with crab angle ``β`` (body velocity
+        ``ν = s (cos β, sin β, 0, 0, 0, 0)``, zero roll and pitch) needs the generalised force
+        ``τ(s) = C(ν)ν + D(ν)ν + g(0, 0)`` of this model (Coriolis with the Munk moment, damping,
+        and the restoring force that holds depth and attitude).  Each component is a quadratic
+        in ``s``; for each β on a grid of ``resolution`` angles in ``[−π/2, π/2]`` the largest
+        ``s`` with ``|τ_i(s)| <= max_thrust_i`` for every axis up to it is found from the roots,
+        and the result is the best β.  The 3-DOF :meth:`Vehicle.max_horizontal_speed
+        <uuv_ocp.model.planar.Vehicle.max_horizontal_speed>` is the planar case of the same
+        balance.
+
+        With ``thrusters`` the bound is the box ``max_thrust`` of the largest pure force per
+        axis; the thrusters may not deliver two of them at once, so the figure can be higher
+        than what they reach while crabbing (a reference faster than it is out of reach).
+
+        Parameters
+        ----------
+        resolution : int
+            Number of crab angles, >= 2.
+
+        Returns
+        -------
+        tuple of float
+            The top speed (m/s; 0 if the vehicle cannot even hold depth at rest) and its crab
+            angle β (rad, positive to starboard).
+        """
+        resolution = check.positive_int("resolution", resolution, minimum=2)
+        angles = np.linspace(-0.5 * np.pi, 0.5 * np.pi, resolution)
+        coefficients = _steady_force_coefficients(self, angles)  # (3, 6, resolution): c, b, a
+        limits = np.asarray(self.max_thrust, dtype=float)[:, None]
+        constant, linear, quadratic = coefficients
+        # the largest s before a component leaves [-limit, limit]: the first positive root of
+        # τ_i(s) - limit (leaving through the top) or of -(τ_i(s) + limit) (through the bottom)
+        upper = _first_positive_root(quadratic, linear, constant - limits)
+        lower = _first_positive_root(-quadratic, -linear, -(constant + limits))
+        speed = np.min(np.minimum(upper, lower), axis=0)
+        speed = np.where(np.any(np.abs(constant) > limits, axis=0), 0.0, speed)
+        best = int(np.argmax(speed))
+        return float(speed[best]), float(angles[best])
+
     # ------------------------------------------------------------ model terms
     def rigid_body_coriolis_matrix(self, nu):
         """``C_RB(ν)``, independent of the linear velocity (Fossen 2011 eq. 3.60).
@@ -705,3 +770,39 @@ class Vehicle6DOF:
             ["x", "f", "current"],
             ["xdot"],
         )
+
+
+def _steady_force_coefficients(vehicle: Vehicle6DOF, angles: np.ndarray) -> np.ndarray:
+    """Coefficients ``(c, b, a)`` of ``τ(s) = c + b s + a s²`` for level steady motion at crab angles.
+
+    ``τ`` is the generalised force that holds ``ν = s (cos β, sin β, 0, 0, 0, 0)`` steady at zero
+    roll and pitch, from the model's own terms; it is exactly quadratic in ``s >= 0`` (``|ν|`` is
+    ``s |ν(1)|``), so its values at ``s = 0, 1, 2`` give the coefficients.  Shape (3, 6, len(angles)).
+    """
+    nu = ca.SX.sym("nu", 6)
+    force = (
+        vehicle.coriolis_matrix(nu) @ nu + vehicle.damping_matrix(nu) @ nu + vehicle.restoring_force(0.0, 0.0)
+    )
+    required = ca.Function("steady_force", [nu], [force])
+    unit = np.zeros((6, angles.size))
+    unit[0], unit[1] = np.cos(angles), np.sin(angles)
+    batch = required.map(angles.size)
+    at0, at1, at2 = (np.array(batch(speed * unit)) for speed in (0.0, 1.0, 2.0))
+    quadratic = 0.5 * (at2 - 2.0 * at1 + at0)
+    return np.stack([at0, at1 - at0 - quadratic, quadratic])
+
+
+def _first_positive_root(a: np.ndarray, b: np.ndarray, c: np.ndarray) -> np.ndarray:
+    """Smallest ``s > 0`` with ``a s² + b s + c = 0`` where ``c <= 0`` (``inf`` if none), elementwise.
+
+    With ``c <= 0`` the polynomial starts at or below zero, so its first positive root is where
+    it first becomes positive.  The roots are ``q / a`` and ``c / q`` with
+    ``q = −(b + sign(b) sqrt(b² − 4ac)) / 2`` (no cancellation); ``a = 0`` leaves ``c / q``.
+    """
+    a, b, c = np.broadcast_arrays(*(np.asarray(value, dtype=float) for value in (a, b, c)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        discriminant = b**2 - 4.0 * a * c
+        q = -0.5 * (b + np.where(b >= 0.0, 1.0, -1.0) * np.sqrt(np.maximum(discriminant, 0.0)))
+        roots = np.stack([q / a, c / q])
+    roots = np.where(np.isfinite(roots) & (roots > 0.0) & (discriminant >= 0.0), roots, np.inf)
+    return np.min(roots, axis=0)

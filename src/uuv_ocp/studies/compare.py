@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from uuv_ocp.build import Transcribed
+from uuv_ocp.control.disturbances import Current
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import SimulationInterrupted, simulate
 from uuv_ocp.interrupts import check_interrupt, remember_interrupts
@@ -51,9 +52,11 @@ def unreachable_from(reference: Reference, vehicle: AnyVehicle, t0: float, durat
     """First time (s) on ``[t0, t0 + duration]`` at which the path is faster than the vehicle.
 
     The top speed is over ground with crabbing allowed (:meth:`Vehicle.max_horizontal_speed`:
-    surge and sway thrust together, the Munk moment held by the yaw thrust), the physical
+    surge and sway thrust together, the Munk moment held by the yaw thrust; for a 6-DOF
+    vehicle :meth:`Vehicle6DOF.max_horizontal_speed`, level at constant depth), the physical
     limit of position tracking; the surge-only figure (``max_speed()[0]``) is lower.  ``None``
-    when the path stays within reach, or for a vehicle without that bound (6-DOF).
+    when the path stays within reach, or for a vehicle and reference that do not pair (a
+    planar reference for a 6-DOF vehicle or the other way round).
     """
     return _reach(reference, vehicle, t0, duration)[1]
 
@@ -77,7 +80,7 @@ def _reach(
     states = reference.evaluate(times)
     columns = (6, 7) if reference.spatial else (3, 4)  # body-frame horizontal velocity (u_R, v_R)
     speed = np.hypot(states[:, columns[0]], states[:, columns[1]])
-    if not isinstance(vehicle, Vehicle):
+    if reference.spatial != isinstance(vehicle, Vehicle6DOF):  # a pairing that has no top speed
         return float(speed.max()), None, ""
     top, crab = vehicle.max_horizontal_speed()
     over = times[speed > top]
@@ -91,9 +94,18 @@ def _reach(
 
 
 def run_settings(
-    problem: TrackingProblem, solver: str, options: dict | None, t0: float, duration: float
+    problem: TrackingProblem,
+    solver: str,
+    options: dict | None,
+    t0: float,
+    duration: float,
+    current: Current | None = None,
 ) -> dict:
-    """Return the whole configuration of one :func:`track_references` run (its record's key)."""
+    """Return the whole configuration of one :func:`track_references` run (its record's key).
+
+    A ``current`` enters only when given, so that the keys of runs in still water stay those
+    that earlier versions wrote.
+    """
     import uuv_ocp
 
     reference = problem.reference
@@ -111,6 +123,7 @@ def run_settings(
         "t0": t0,
         "duration": duration,
         "version": uuv_ocp.__version__,
+        **({"current": current} if current is not None else {}),
     }
 
 
@@ -127,8 +140,12 @@ def track_references(
     progress: bool = True,
     figures: bool = True,
     solver_options: dict | None = None,
+    current: Current | None = None,
 ) -> list[TrackingRow]:
     """Closed-loop NMPC on each reference (paper name or :class:`Reference`) from rest; resumable.
+
+    ``current`` acts on the plant and is told to the controller (:func:`simulate`'s
+    ``current_known``); ``None`` is still water.
 
     Returns one :class:`TrackingRow` per reference and, when ``figures`` is true, writes
     ``<ref>_xoy.png``, ``<ref>_errors.png``, ``<ref>_thrust.png`` and ``<ref>_states.png`` into
@@ -147,7 +164,7 @@ def track_references(
             problem = TrackingProblem(vehicle, reference, horizon=horizon, dt=dt)
             t0 = reference.t_start
             run_duration = min(duration, problem.latest_start() - t0)
-            settings = run_settings(problem, solver, solver_options, t0, run_duration)
+            settings = run_settings(problem, solver, solver_options, t0, run_duration, current)
             label = re.sub(
                 r"[^A-Za-z0-9_.-]+", "-", f"{name}_{solver}"
             )  # a file name whatever the path's name
@@ -166,6 +183,7 @@ def track_references(
                             controller,
                             reference.initial_state(t0),
                             run_duration,
+                            current=current,
                             progress=progress,
                             label=f"{name} {solver}",
                         )
@@ -189,7 +207,12 @@ def track_references(
 
 
 def format_tracking_table(rows: Sequence[TrackingRow]) -> str:
-    """Plain-text table of :func:`track_references` rows (errors in m, times in ms)."""
+    """Plain-text table of :func:`track_references` rows (errors in m, times in ms).
+
+    When a row is a 6-DOF run (its metrics have the depth error ``max_abs_ez``), the table
+    also has the depth columns ``max|ez|``, ``|ez|t>5``, ``rms_ez`` and the 3-D position error
+    ``max|e|``, ``rms|e|`` (blank on 3-DOF rows).
+    """
     columns = [
         ("ref", 4, lambda r: r.reference),
         ("solver", 7, lambda r: r.solver),
@@ -200,6 +223,16 @@ def format_tracking_table(rows: Sequence[TrackingRow]) -> str:
         ("|ey|t>5", 9, lambda r: _fmt(r.metrics["max_abs_ey_settled"])),
         ("rms_ex", 7, lambda r: f"{r.metrics['rms_ex']:.3f}"),
         ("rms_ey", 7, lambda r: f"{r.metrics['rms_ey']:.3f}"),
+    ]
+    if any("max_abs_ez" in row.metrics for row in rows):  # 6-DOF: depth and 3-D errors
+        columns += [
+            ("max|ez|", 8, lambda r: _spatial(r, "max_abs_ez", "{:.3f}")),
+            ("|ez|t>5", 9, lambda r: _spatial(r, "max_abs_ez_settled")),
+            ("rms_ez", 7, lambda r: _spatial(r, "rms_ez", "{:.3f}")),
+            ("max|e|", 7, lambda r: _spatial(r, "max_e3d", "{:.3f}")),
+            ("rms|e|", 7, lambda r: _spatial(r, "rms_e3d", "{:.3f}")),
+        ]
+    columns += [
         ("med ms", 7, lambda r: f"{1e3 * r.metrics['solve_time_median']:.2f}"),
         ("p90 ms", 7, lambda r: f"{1e3 * r.metrics['solve_time_p90']:.2f}"),
         ("fail", 4, lambda r: str(int(r.metrics["failures"]))),
@@ -211,6 +244,14 @@ def format_tracking_table(rows: Sequence[TrackingRow]) -> str:
         cells = " ".join(f"{cell(row):>{width}}" for _, width, cell in columns)
         lines.append(f"{cells}  {row.note}")
     return "\n".join(lines)
+
+
+def _spatial(row: TrackingRow, key: str, style: str | None = None) -> str:
+    """Return a 6-DOF figure of ``row`` (``style``, or :func:`_fmt`); blank for a 3-DOF row."""
+    if key not in row.metrics:
+        return ""
+    value = float(row.metrics[key])
+    return style.format(value) if style is not None else _fmt(value)
 
 
 def _fmt(value: float) -> str:

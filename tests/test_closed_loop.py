@@ -133,13 +133,11 @@ def test_solver_crashes_never_stop_the_loop(s2_problem):
         REGISTRY._factories.pop("failing-ipopt", None)
         REGISTRY._factories.pop("interrupted-ipopt", None)
     assert run.controls.shape[0] == 30
-    assert run.failures == 10
-    # the backend's exception is recorded with its type and message
-    assert all(
-        status == "exception: RuntimeError: synthetic solver crash"
-        for status, failed in zip(run.statuses, run.fallback_steps, strict=True)
-        if failed
-    )
+    # one call in three crashes (any 30 consecutive calls: 10, whatever the warm-up took), and
+    # the backend's exception is recorded with its type and message on each of those steps
+    crashed = [status == "exception: RuntimeError: synthetic solver crash" for status in run.statuses]
+    assert sum(crashed) == 10
+    assert np.all(run.fallback_steps[crashed])
     # fallback applies the next control of the previous plan
     assert np.all(np.isfinite(run.states))
 
@@ -174,6 +172,8 @@ def test_interrupt_returns_the_partial_run(s2_problem):
 
     controller = uo.NMPC(s2_problem, "ipopt")
     controller.backend = Interrupting(s2_problem)
+    controller.warm_up(s2_problem.reference.initial_state(0.0))  # simulate then warms up no more
+    Interrupting.calls = 0
     with pytest.raises(KeyboardInterrupt) as stop:  # Ctrl-C reaches the caller ...
         uo.simulate(controller, s2_problem.reference.initial_state(0.0), 2.0)
     run = stop.value.result  # ... with the five finished steps, marked as interrupted

@@ -350,3 +350,18 @@ def test_metric_counts_are_integers():
         assert type(metrics[key]) is int, key
     assert metrics["steps"] == len(run.controls) == 5
     assert metrics["relaxed_steps"] == int(np.count_nonzero(run.relaxed_steps))
+
+
+@pytest.mark.parametrize("hold", [None, 0.0], ids=["default-hold", "no-hold"])
+def test_a_waypoint_mission_reaches_its_last_waypoint(hold):
+    """The closed loop ends N dt before the reference: the mission's hold keeps the end inside."""
+    points = [(0.0, 0.0), (4.0, 0.0), (4.0, 3.0)]
+    extra = {} if hold is None else {"hold": hold}
+    mission = uo.Reference.waypoints(points, 0.5, 1.0, name="mission", **extra)
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), mission, horizon=20, dt=0.1, terminal="cost")
+    run = uo.simulate(uo.NMPC(problem, "ipopt"), mission.initial_state(0.0), problem.latest_start())
+    miss = float(np.hypot(*(run.states[-1, :2] - np.asarray(points[-1]))))
+    if hold is None:
+        assert miss < 0.05 and np.hypot(*run.states[-1, 3:5]) < 0.05  # there, and at rest
+    else:  # ending on arrival, the run stops N dt = 2 s (1 m at 0.5 m/s) short of it
+        assert miss > 0.5

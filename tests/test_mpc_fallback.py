@@ -235,3 +235,51 @@ def test_simulate_warms_the_controller_up_once(s2_problem, monkeypatch):
     assert len(warm_ups) == 1
     # the warm-up leaves no trace: the same run twice
     np.testing.assert_array_equal(first.controls, again.controls)
+
+
+# -- saying so when a compile takes a while ---------------------------------------------------
+
+
+def test_a_slow_notice_is_one_line_and_quick_work_prints_nothing(monkeypatch):
+    import io
+
+    from uuv_ocp.progress import SlowNotice
+
+    monkeypatch.setenv("UUV_OCP_PROGRESS", "always")
+    stream = io.StringIO()
+    with SlowNotice("compiling x", delay=0.0, stream=stream) as notice:
+        assert notice._shown.wait(10.0)  # the timer has fired: the work is "slow"
+    assert stream.getvalue().startswith("compiling x ... done in ") and stream.getvalue().count("\n") == 1
+    quick = io.StringIO()
+    with SlowNotice("compiling y", delay=3600.0, stream=quick):
+        pass
+    assert quick.getvalue() == ""
+    monkeypatch.setenv("UUV_OCP_PROGRESS", "never")
+    assert not SlowNotice("compiling z", delay=0.0, stream=io.StringIO()).enabled
+
+
+@needs_compiler
+def test_a_c_compile_runs_inside_a_slow_notice(tmp_path, monkeypatch):
+    import casadi as ca
+
+    import uuv_ocp.native.compile as native
+
+    texts = []
+
+    class Recorder:
+        def __init__(self, text, *args, **kwargs):
+            texts.append(text)
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            return None
+
+    monkeypatch.setattr(native, "SlowNotice", Recorder)
+    x = ca.SX.sym("x", 2)
+    function = ca.Function("notice_probe", [x], [ca.sumsqr(x)])
+    native.compile_functions([function], tmp_path, name="notice_probe")
+    assert texts == [f"uuv_ocp: compiling notice_probe (first use; cached in {tmp_path})"]
+    native.compile_functions([function], tmp_path, name="notice_probe")  # from the cache: silent
+    assert len(texts) == 1

@@ -56,8 +56,6 @@ backend's tolerance.
 
 from __future__ import annotations
 
-import sys
-import threading
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -82,8 +80,6 @@ STEADY_ITERATIONS = 3
 #: Weight of the scaled controls' squares in the steady control's least squares: it only
 #: breaks ties (more thrusters than driven rows), far below the residuals' (m/s², rad/s²) scale.
 STEADY_REGULARISATION = 1e-10
-#: Seconds a :meth:`NMPC.warm_up` runs before it says on standard error what it is building.
-WARM_UP_NOTICE = 2.0
 
 
 @dataclass(frozen=True)
@@ -201,10 +197,9 @@ class NMPC:
         on first use (``sqp-rti``: the escalated soft penalties, the other still-water flag).
         A failed step here is no error (the loop will report its own).
         """
-        label = f"{self.solver_name} on {self.problem.spec().name}"
-        with _SlowNotice(f"NMPC: building {label} (first use compiles; cached afterwards)"):
-            output = self.step(x, t, u_prev, current, parameters)
-            self.step(x, t, output.control, current, parameters)
+        # a C compile inside says so on standard error (uuv_ocp.native.compile, SlowNotice)
+        output = self.step(x, t, u_prev, current, parameters)
+        self.step(x, t, output.control, current, parameters)
         self.reset()
         self.warmed_up = True
 
@@ -592,43 +587,3 @@ class NMPC:
             z = np.clip(solution.x, lower, upper)
         control = spec.physical(z)
         return control if np.all(np.isfinite(control)) else None
-
-
-class _SlowNotice:
-    """Say on standard error what is being built when it takes longer than :data:`WARM_UP_NOTICE`.
-
-    One line: the text when the delay has passed, then ``done in <s> s`` when the work ends;
-    nothing for quick work.  Drawn where the progress bars are (a terminal, or
-    ``UUV_OCP_PROGRESS=always``; see :mod:`uuv_ocp.progress`).
-    """
-
-    def __init__(self, text: str, delay: float = WARM_UP_NOTICE) -> None:
-        from uuv_ocp.progress import ProgressBar
-
-        self.text = text
-        self.delay = delay
-        self.enabled = ProgressBar(1, text).enabled  # the bars' policy: someone is watching
-        self._timer: threading.Timer | None = None
-        self._shown = threading.Event()
-        self._start = 0.0
-
-    def _show(self) -> None:
-        sys.stderr.write(f"{self.text} ...")
-        sys.stderr.flush()
-        self._shown.set()
-
-    def __enter__(self) -> _SlowNotice:
-        self._start = time.perf_counter()
-        if self.enabled:
-            self._timer = threading.Timer(self.delay, self._show)
-            self._timer.daemon = True
-            self._timer.start()
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-            self._timer.join()
-        if self._shown.is_set():
-            sys.stderr.write(f" done in {time.perf_counter() - self._start:.1f} s\n")
-            sys.stderr.flush()

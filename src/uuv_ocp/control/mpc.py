@@ -350,8 +350,8 @@ class NMPC:
         if not np.all(np.isfinite(controls)):
             return f"non-finite controls (the backend reported {result.status!r})"
         if self.path_constrained and getattr(self.backend, "feedback", None) is None:
-            known = result.details.get("violations", {}).get("constraint")  # a swarm's judge
-            violation = float(known) if known is not None else self._violations(controls, p)["constraint"]
+            # judged here, whatever the backend reports (a plug-in's details included)
+            violation = self._violations(controls, p)["constraint"]
             if not violation <= FEASIBILITY_TOLERANCE:
                 return (
                     f"path constraint violated by {violation:.3g} > {FEASIBILITY_TOLERANCE:g} "
@@ -569,12 +569,11 @@ class NMPC:
         regularisation = np.sqrt(STEADY_REGULARISATION) * np.eye(spec.control_size)
         z = np.clip(spec.scaled(np.asarray(start, dtype=float)), lower, upper)
         for _ in range(STEADY_ITERATIONS):
-            residual, jacobian = (
-                np.array(value, dtype=float) for value in function(state, spec.physical(z), p)
-            )
-            if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(jacobian))):
+            values = function(state, spec.physical(z), p)
+            residual, derivative = (np.array(value, dtype=float) for value in values)
+            if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(derivative))):
                 return None
-            slope = jacobian * scale  # d f_v / d z
+            slope = derivative * scale  # d f_v / d z
             # f_v(z') ≈ residual + slope (z' − z): the box-constrained least squares of the model's
             # linearisation (exact for the UUV models, affine in the controls), ties broken
             # toward small controls by a tiny Tikhonov term (more thrusters than driven rows)

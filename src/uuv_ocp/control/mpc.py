@@ -57,6 +57,7 @@ backend's tolerance.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -501,15 +502,19 @@ class NMPC:
         """
         spec = self.problem.spec()
         last = spec.physical(self.problem.previous_scaled(p))
-        candidates: list[tuple[str, np.ndarray]] = []
-        if self._plan is not None:
-            candidates.append(("shifted plan", np.vstack([self._plan[1:], self._plan[-1:]])))
-        steady = self._steady_control(p, last)
-        if steady is not None:
-            candidates.append(("steady control", self._ramp(last, steady)))
-        candidates.append(("held control", np.tile(last, (spec.horizon, 1))))
+        previous = self._plan
+
+        def candidates() -> Iterator[tuple[str, np.ndarray]]:
+            """Yield the plans in order, each built only when the ones before it were not admissible."""
+            if previous is not None:
+                yield "shifted plan", np.vstack([previous[1:], previous[-1:]])
+            steady = self._steady_control(p, last)
+            if steady is not None:
+                yield "steady control", self._ramp(last, steady)
+            yield "held control", np.tile(last, (spec.horizon, 1))
+
         best: tuple[float, str, np.ndarray] | None = None
-        for source, plan in candidates:
+        for source, plan in candidates():
             kinds = self._violations(plan, p)
             violation = max(kinds["bound"], kinds["rate"], kinds["constraint"])
             if violation <= FEASIBILITY_TOLERANCE:

@@ -380,7 +380,10 @@ def test_failed_qp_takes_the_nmpc_fallback(problem, monkeypatch, qpsol):
     monkeypatch.setattr(backend, "qp_tolerance", 1e-300)  # no QP solution passes the test
     output = controller.step(problem.reference.initial_state(0.0), 0.0)
     assert output.fallback and "infeasible" in output.message
-    assert np.all(output.control == 0.0)
+    # no plan yet: the steady control (NMPC's fallback), one rate step from the zero start
+    assert output.fallback_source == "steady control"
+    spec = problem.spec()
+    assert np.all(np.abs(output.control) <= spec.max_rate * spec.dt * (1 + 1e-12))
 
 
 def test_interrupt_inside_the_qp_propagates(problem, monkeypatch):

@@ -109,7 +109,7 @@ def joint_times(points, speed, radius, t_start):
 @pytest.mark.parametrize("case", list(CASES))
 def test_position_and_velocity_are_continuous_at_every_joint(case):
     points, speed, radius, t_start = CASES[case]
-    reference = Reference.waypoints(points, speed, radius, t_start=t_start)
+    reference = Reference.waypoints(points, speed, radius, t_start=t_start, hold=0.0)
     scale = max(1.0, float(np.max(np.abs(points))))
     joints = joint_times(points, speed, radius, t_start)
     assert joints.size >= 1
@@ -135,7 +135,7 @@ def test_position_and_velocity_are_continuous_at_every_joint(case):
 @pytest.mark.parametrize("case", list(CASES))
 def test_speed_is_constant_along_the_whole_path(case):
     points, speed, radius, t_start = CASES[case]
-    reference = Reference.waypoints(points, speed, radius, t_start=t_start)
+    reference = Reference.waypoints(points, speed, radius, t_start=t_start, hold=0.0)
     dense = np.linspace(reference.t_start, reference.t_end, 20001)
     states = reference.evaluate(dense)
     assert np.max(np.abs(states[:, 3] - speed)) < 1e-9
@@ -152,7 +152,7 @@ def test_speed_is_constant_along_the_whole_path(case):
 @pytest.mark.parametrize("case", list(CASES))
 def test_heading_is_continuous_and_follows_the_legs(case):
     points, speed, radius, t_start = CASES[case]
-    reference = Reference.waypoints(points, speed, radius, t_start=t_start)
+    reference = Reference.waypoints(points, speed, radius, t_start=t_start, hold=0.0)
     dense = np.linspace(reference.t_start, reference.t_end, 5001)
     psi = reference.evaluate(dense)[:, 2]
     step = dense[1] - dense[0]
@@ -172,7 +172,7 @@ def test_heading_is_continuous_and_follows_the_legs(case):
 @pytest.mark.parametrize("case", list(CASES))
 def test_arcs_are_circles_of_the_turn_radius(case):
     points, speed, radius, t_start = CASES[case]
-    reference = Reference.waypoints(points, speed, radius, t_start=t_start)
+    reference = Reference.waypoints(points, speed, radius, t_start=t_start, hold=0.0)
     scale = max(1.0, float(np.max(np.abs(points))))
     arcs = [seg for seg in segments(points, radius) if seg[0] == "arc"]
     assert arcs
@@ -187,7 +187,7 @@ def test_arcs_are_circles_of_the_turn_radius(case):
 @pytest.mark.parametrize("case", list(CASES))
 def test_duration_is_length_over_speed_and_ends_are_the_waypoints(case):
     points, speed, radius, t_start = CASES[case]
-    reference = Reference.waypoints(points, speed, radius, t_start=t_start)
+    reference = Reference.waypoints(points, speed, radius, t_start=t_start, hold=0.0)
     assert reference.t_start == t_start
     assert reference.t_end - reference.t_start == pytest.approx(
         total_length(points, radius) / speed, rel=1e-12
@@ -198,7 +198,7 @@ def test_duration_is_length_over_speed_and_ends_are_the_waypoints(case):
 
 def test_square_numbers_by_hand():
     # 10 m square, R = 2: three legs lose 2 R in total each side pair, two quarter circles
-    reference = Reference.waypoints(SQUARE, 1.0, 2.0)
+    reference = Reference.waypoints(SQUARE, 1.0, 2.0, hold=0.0)
     assert reference.t_end == pytest.approx(30.0 - 4 * 2.0 + 2 * (math.pi / 2) * 2.0)
     quarter = reference.evaluate([8.0 + math.pi / 2])[0]  # halfway round the first arc
     np.testing.assert_allclose(
@@ -208,28 +208,28 @@ def test_square_numbers_by_hand():
 
 def test_straight_through_waypoint_needs_no_arc():
     points = [[0.0, 0.0], [5.0, 0.0], [10.0, 0.0], [10.0, 8.0]]
-    reference = Reference.waypoints(points, 1.0, 2.0)
+    reference = Reference.waypoints(points, 1.0, 2.0, hold=0.0)
     assert reference.t_end == pytest.approx(10.0 - 2.0 + 8.0 - 2.0 + math.pi)
     straight = reference.evaluate(np.linspace(0.0, 8.0, 81))
     np.testing.assert_allclose(straight[:, 1:3], 0.0, atol=1e-15)
     np.testing.assert_allclose(straight[:, 0], np.linspace(0.0, 8.0, 81), atol=1e-12)
     # a turn below 1e-9 rad counts as straight through as well
-    nearly = Reference.waypoints([[0.0, 0.0], [5.0, 0.0], [10.0, 1e-12], [10.0, 8.0]], 1.0, 2.0)
+    nearly = Reference.waypoints([[0.0, 0.0], [5.0, 0.0], [10.0, 1e-12], [10.0, 8.0]], 1.0, 2.0, hold=0.0)
     assert nearly.t_end == pytest.approx(reference.t_end, abs=1e-9)
 
 
 def test_heading_unwraps_over_repeated_loops():
     loop = SQUARE + [[0.0, 0.0]]
     points = loop + loop[1:] + loop[1:] + [[10.0, 0.0]]  # three laps, 12 left turns
-    reference = Reference.waypoints(points, 1.0, 2.0)
+    reference = Reference.waypoints(points, 1.0, 2.0, hold=0.0)
     psi = reference.evaluate(np.linspace(0.0, reference.t_end, 3001))[:, 2]
     assert psi[-1] - psi[0] == pytest.approx(12 * math.pi / 2, abs=1e-9)
     assert np.all(np.diff(psi) >= -1e-12)
 
 
 def test_many_waypoints_cost_no_more_than_few():
-    few = Reference.waypoints(random_walk(1, 4), 1.0, 1.0)
-    many = Reference.waypoints(random_walk(2, 40), 1.0, 1.0)
+    few = Reference.waypoints(random_walk(1, 4), 1.0, 1.0, hold=0.0)
+    many = Reference.waypoints(random_walk(2, 40), 1.0, 1.0, hold=0.0)
     # piece look-ups are binary searches: the instruction count does not grow with the pieces
     assert many.function.n_instructions() <= few.function.n_instructions() + 5
     assert many.function.n_instructions() < 200
@@ -237,7 +237,7 @@ def test_many_waypoints_cost_no_more_than_few():
 
 
 def test_waypoints_work_in_a_tracking_problem():
-    reference = Reference.waypoints(SQUARE, 0.5, 2.0)
+    reference = Reference.waypoints(SQUARE, 0.5, 2.0, hold=0.0)
     problem = uo.TrackingProblem(uo.Vehicle.rexrov(), reference, horizon=10)
     for t0 in (15.5, 15.0):  # the first arc starts at 8 m / 0.5 m/s = 16 s; 15.0 s: cached blocks
         window = problem.reference_window(t0)
@@ -250,8 +250,8 @@ POINTS_3D = [[0.0, 0.0, 0.0], [10.0, 0.0, 4.0], [10.0, 10.0, 5.0], [0.0, 10.0, 1
 
 
 def test_spatial_waypoints_share_the_horizontal_path_and_keep_roll_pitch_zero():
-    spatial = Reference.waypoints(POINTS_3D, 0.8, 2.5)
-    planar = Reference.waypoints(np.asarray(POINTS_3D)[:, :2], 0.8, 2.5)
+    spatial = Reference.waypoints(POINTS_3D, 0.8, 2.5, hold=0.0)
+    planar = Reference.waypoints(np.asarray(POINTS_3D)[:, :2], 0.8, 2.5, hold=0.0)
     assert spatial.spatial and spatial.state_dim == 12 and spatial.heading_index == 5
     assert spatial.t_end == planar.t_end
     t = np.linspace(0.0, spatial.t_end, 2001)
@@ -263,7 +263,7 @@ def test_spatial_waypoints_share_the_horizontal_path_and_keep_roll_pitch_zero():
 
 def test_spatial_waypoints_are_c1_in_depth_and_linear_between_stations():
     speed, radius = 0.8, 2.5
-    reference = Reference.waypoints(POINTS_3D, speed, radius)
+    reference = Reference.waypoints(POINTS_3D, speed, radius, hold=0.0)
     layout = segments(POINTS_3D, radius)
     # w = dz/dt by finite differences, everywhere
     t = np.linspace(1e-3, reference.t_end - 1e-3, 4001)
@@ -289,7 +289,7 @@ def test_spatial_waypoints_are_c1_in_depth_and_linear_between_stations():
 
 def test_spatial_straight_through_waypoint_blends_the_slope():
     points = [[0.0, 0.0, 0.0], [10.0, 0.0, 5.0], [20.0, 0.0, 5.0]]
-    reference = Reference.waypoints(points, 1.0, 2.0)
+    reference = Reference.waypoints(points, 1.0, 2.0, hold=0.0)
     w = reference.evaluate([10.0 - 1e-9, 10.0, 10.0 + 1e-9])[:, 8]
     assert np.max(np.abs(np.diff(w))) < 1e-6
     assert reference.evaluate([5.0])[0, 8] == pytest.approx(0.5)
@@ -300,7 +300,7 @@ def test_spatial_straight_through_waypoint_blends_the_slope():
 def test_lawnmower_lanes_are_parallel_and_spaced_as_asked():
     origin, width, spacing, lanes, speed, heading = (5.0, -2.0), 30.0, 6.0, 4, 0.8, 0.4
     reference = Reference.lawnmower(
-        origin, width=width, spacing=spacing, lanes=lanes, speed=speed, heading=heading
+        origin, width=width, spacing=spacing, lanes=lanes, speed=speed, heading=heading, hold=0.0
     )
     radius = spacing / 2
     along = np.array([math.cos(heading), math.sin(heading)])
@@ -323,7 +323,9 @@ def test_lawnmower_lanes_are_parallel_and_spaced_as_asked():
 
 
 def test_lawnmower_at_depth_is_spatial_and_level():
-    reference = Reference.lawnmower(width=20.0, spacing=5.0, lanes=3, speed=1.0, turn_radius=2.0, depth=12.0)
+    reference = Reference.lawnmower(
+        width=20.0, spacing=5.0, lanes=3, speed=1.0, turn_radius=2.0, depth=12.0, hold=0.0
+    )
     assert reference.spatial
     states = reference.evaluate(np.linspace(0.0, reference.t_end, 501))
     np.testing.assert_allclose(states[:, 2], 12.0, atol=1e-12)
@@ -608,3 +610,38 @@ def test_paper_references_are_bit_identical_to_the_tangent_formulas(name):
     states = reference.evaluate(t)
     np.testing.assert_array_equal(states[:, [0, 1, 3, 4, 5]], legacy[:, [0, 1, 3, 4, 5]])
     np.testing.assert_allclose(states[:, 2], legacy[:, 2], rtol=0, atol=1e-13)  # unwrapping: rounding
+
+
+# ---------------------------------------------------------------------- the mission's end
+@pytest.mark.parametrize("case", list(CASES))
+def test_a_mission_holds_its_last_waypoint_at_rest(case):
+    points, speed, radius, t_start = CASES[case]
+    moving = Reference.waypoints(points, speed, radius, t_start=t_start, hold=0.0)
+    mission = Reference.waypoints(points, speed, radius, t_start=t_start, hold=7.5)
+    arrival = t_start + total_length(points, radius) / speed
+    assert mission.t_end == pytest.approx(arrival + 7.5, rel=1e-12)
+    # the same path up to the last waypoint (the heading: the path's direction, not the tangent
+    # of the velocity, which agree there)
+    before = np.linspace(t_start, arrival, 3001)[:-1]
+    np.testing.assert_allclose(mission.evaluate(before), moving.evaluate(before), atol=1e-9)
+    # then the last waypoint, with the last leg's heading, at rest
+    after = mission.evaluate(np.linspace(arrival + 1e-6, mission.t_end, 50))
+    np.testing.assert_allclose(after[:, :2], np.tile(points[-1], (50, 1)), atol=1e-9)
+    leg = np.asarray(points[-1], dtype=float) - np.asarray(points[-2], dtype=float)
+    assert np.allclose(np.cos(after[:, 2]), leg[0] / np.hypot(*leg)) and np.allclose(
+        np.sin(after[:, 2]), leg[1] / np.hypot(*leg)
+    )
+    np.testing.assert_array_equal(np.abs(after[:, 3:]), 0.0)
+
+
+def test_a_spatial_mission_holds_its_last_waypoint_and_depth():
+    mission = Reference.waypoints(POINTS_3D, 0.8, 2.5, hold=5.0)
+    after = mission.evaluate([mission.t_end - 4.0, mission.t_end])
+    np.testing.assert_allclose(after[:, :3], np.tile(POINTS_3D[-1], (2, 1)), atol=1e-9)
+    np.testing.assert_array_equal(np.abs(after[:, 6:]), 0.0)
+
+
+@pytest.mark.parametrize("hold", [-1.0, math.nan, math.inf, "5"])
+def test_bad_hold_raises(hold):
+    with pytest.raises(ValueError, match="hold must be"):
+        Reference.waypoints(SQUARE, 1.0, 1.0, hold=hold)

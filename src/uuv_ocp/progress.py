@@ -19,12 +19,14 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
+import time
 from typing import Any, TextIO
 
 ENVIRONMENT_VARIABLE = "UUV_OCP_PROGRESS"
 _MODES = ("auto", "always", "never")
 
-__all__ = ["ENVIRONMENT_VARIABLE", "ProgressBar", "drawn"]
+__all__ = ["ENVIRONMENT_VARIABLE", "ProgressBar", "SlowNotice", "drawn"]
 
 
 def _mode() -> str:
@@ -194,3 +196,55 @@ class ProgressBar:
         if self._bar is not None:
             self._bar.close()
             self._bar = None
+
+
+class SlowNotice:
+    """Say on standard error what is being done when it takes longer than ``delay`` seconds.
+
+    Use as a context manager around work that is usually quick but can be slow (a C compile
+    on first use, a warm-up that compiles): one line, the text once ``delay`` has passed, then
+    ``done in <s> s`` when the work ends; nothing at all for quick work.  Drawn where the
+    progress bars are (a terminal, a notebook, ``UUV_OCP_PROGRESS=always``; never with
+    ``UUV_OCP_PROGRESS=never``).
+
+    Parameters
+    ----------
+    text : str
+        What is being done, e.g. ``"compiling uuv_ocp_rti (first use; cached afterwards)"``.
+    delay : float
+        Seconds before the line appears.
+    stream : file-like, optional
+        Where to write (standard error by default).
+    """
+
+    def __init__(self, text: str, delay: float = 1.0, stream: TextIO | None = None) -> None:
+        self.text = text
+        self.delay = float(delay)
+        self.stream = stream if stream is not None else sys.stderr
+        self.enabled = drawn(True, stream)
+        self._timer: threading.Timer | None = None
+        self._shown = threading.Event()
+        self._start = 0.0
+
+    def _show(self) -> None:
+        self.stream.write(f"{self.text} ...")
+        self.stream.flush()
+        self._shown.set()
+
+    def __enter__(self) -> SlowNotice:
+        """Start the clock (and the timer of the line)."""
+        self._start = time.perf_counter()
+        if self.enabled:
+            self._timer = threading.Timer(self.delay, self._show)
+            self._timer.daemon = True
+            self._timer.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        """Stop the timer; end the line with the time taken if it was shown."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer.join()
+        if self._shown.is_set():
+            self.stream.write(f" done in {time.perf_counter() - self._start:.1f} s\n")
+            self.stream.flush()

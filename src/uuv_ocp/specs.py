@@ -22,6 +22,7 @@ Reference file (TOML)::
     points = [[0, 0], [20, 0], [20, 10]]   # m; three columns for a spatial (6-DOF) path
     speed = 0.5               # m/s
     turn_radius = 2.0         # m
+    hold = 10.0               # s at the last waypoint, at rest (default 10)
 
 The other kinds take the keyword arguments of :meth:`Reference.lawnmower`,
 :meth:`Reference.hold` (``pose``, ``duration``) and :meth:`Reference.paper` (``name``).  A

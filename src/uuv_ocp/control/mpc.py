@@ -5,12 +5,34 @@ and shifts it by one interval before the next solve (primal and, for exact solve
 for swarms the shifted best plan seeds the next population).  :meth:`NMPC.reset` forgets it,
 so the same state and time always give the same control after a reset.
 
-Fallback (documented contract): when a solve reports ``success=False`` or returns non-finite
-controls, the controller applies the next control of its previous plan (the shifted plan) if
-it has one, otherwise it holds the last applied control.  The step is counted in
-``ClosedLoopResult.failures`` and the closed loop never stops on a solver failure; the
-backend's status or exception is in ``StepOutput.message``.  ``KeyboardInterrupt`` (CasADi's,
-raised as a ``RuntimeError`` naming it, included) always propagates.
+Fallback (documented contract; docs/solvers.md).  A fresh plan is applied when the backend
+reports ``success``, its controls are finite and, on a problem with hard path constraints
+(obstacles, state bounds: every hard constraint but the terminal equality), the judge
+(:func:`uuv_ocp.judge.score_terms`) finds them violated by at most
+:data:`~uuv_ocp.judge.FEASIBILITY_TOLERANCE` along the plan's rollout from the measured state.
+The last test matters for the swarms, which hold path constraints only by a penalty; a
+real-time iteration (``sqp-rti``) is exempt, its one QP holds the linearised constraints.
+Otherwise the step takes the *fallback*, the first admissible plan of
+
+1. the shifted previous plan (the last applied plan, one interval on, last control repeated);
+2. the *steady control* ramped to at the rate bound: the control that holds the reference's
+   velocities (an Ocp: the measured ones) at the measured pose against the model's drift
+   (damping, current, restoring forces), i.e. the least-squares solution of ``f_v(x, u) = 0``
+   for the rows ``f_v`` of the dynamics the controls drive, clipped to the box;
+3. the last applied control held;
+
+where admissible means: the judge finds the plan within the control box, the rate bound
+against the last applied control and the hard path constraints (to ``FEASIBILITY_TOLERANCE``)
+from the measured state.  When none is admissible, the one with the smallest violation is
+applied.  The steady control does not steer back to the reference; it stops the error from
+growing as fast as it would with no control or a stale one.  The step is counted in
+``ClosedLoopResult.failures`` and the closed loop never stops on a solver failure; why the
+fresh plan was refused is in ``StepOutput.message`` (the backend's status, its exception,
+``"non-finite controls ..."`` or ``"path constraint violated ..."``) and which plan was
+applied in ``StepOutput.fallback_source``.  ``KeyboardInterrupt`` (CasADi's, raised as a
+``RuntimeError`` naming it, included) always propagates.  A backend whose ``solve`` returns
+something other than a :class:`~uuv_ocp.solvers.SolveResult` is a broken plug-in, not a
+failed solve: the step raises ``TypeError`` naming it.
 
 Deadlines (backend option ``deadline``, seconds; see docs/solvers.md): a step whose backend
 reports ``details["deadline_hit"]`` sets ``StepOutput.deadline_hit`` and is counted in
@@ -18,6 +40,10 @@ reports ``details["deadline_hit"]`` sets ``StepOutput.deadline_hit`` and is coun
 the deadline reports ``success=False``, so the step takes the fallback above; a swarm stopped by
 it returns its best plan so far, which is applied when feasible (``success``) — a swarm is an
 anytime method, its plan is ready at the deadline.
+
+Building: :meth:`NMPC.warm_up` runs what the first steps would build or compile (the cold
+start's NLP, ``sqp-rti``'s C step, JIT code) on one instance and forgets it; :func:`simulate`
+calls it before its loop, so that no timed step compiles.
 
 Phases: :meth:`NMPC.step` is :meth:`NMPC.prepare` (before the state is measured: the
 time, last control and data of the step; a real-time-iteration backend linearises then)
@@ -31,18 +57,30 @@ backend's tolerance.
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
+import casadi as ca
 import numpy as np
+from scipy.optimize import lsq_linear
 
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
-from uuv_ocp.judge import instance_parameters
+from uuv_ocp.judge import FEASIBILITY_TOLERANCE, instance_parameters, score_terms
 from uuv_ocp.solvers import REGISTRY, get_solver
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.solvers.rti import ResidentPlan
+from uuv_ocp.tracking import TrackingProblem
+from uuv_ocp.transcription.multiple_shooting import parameter_blocks
+
+#: Linearisations of the steady control's least squares (the UUV models are affine in the
+#: controls: the first one is exact; the others only matter for a model that is not).
+STEADY_ITERATIONS = 3
+#: Weight of the scaled controls' squares in the steady control's least squares: it only
+#: breaks ties (more thrusters than driven rows), far below the residuals' (m/s², rad/s²) scale.
+STEADY_REGULARISATION = 1e-10
 
 
 @dataclass(frozen=True)
@@ -58,11 +96,17 @@ class StepOutput:
     fallback : bool
         Whether ``control`` comes from the fallback rather than the fresh solution.
     message : str
-        Why the fallback was used: the backend's status, or ``"exception: <type>: <message>"``
-        when the backend raised (empty when the fresh solution is applied).
+        Why the fallback was used: the backend's status, ``"exception: <type>: <message>"``
+        when the backend raised, ``"non-finite controls (...)"`` or ``"path constraint
+        violated by ... (...)"`` (with the backend's status); empty when the fresh solution is
+        applied.
     deadline_hit : bool
         Whether the backend's ``deadline`` option stopped or outlasted this solve
         (``result.details["deadline_hit"]``; see the module doc).
+    fallback_source : str
+        Which fallback plan was applied (module doc): ``"shifted plan"``, ``"steady control"``
+        or ``"held control"``, with ``" (least violation)"`` appended when none was
+        admissible; empty when the fresh solution is applied.
     """
 
     control: np.ndarray
@@ -70,6 +114,7 @@ class StepOutput:
     fallback: bool
     message: str = ""
     deadline_hit: bool = False
+    fallback_source: str = ""
 
 
 class NMPC:
@@ -100,6 +145,11 @@ class NMPC:
         self.problem = problem
         self.solver_name = REGISTRY.resolve(solver)  # the registered spelling: "IPOPT" -> "ipopt"
         self.backend = get_solver(problem, solver, options)
+        if not callable(getattr(self.backend, "solve", None)):
+            raise TypeError(
+                f"solver {self.solver_name!r}: its factory returned a {type(self.backend).__name__}, which "
+                "has no solve(p, warm_start, rng) method (see uuv_ocp.solvers.base.Backend)"
+            )
         if seed is not None:
             seed = check.positive_int("seed", seed, minimum=0)
         self.seed = seed
@@ -114,6 +164,10 @@ class NMPC:
         self._resident: ResidentPlan | None = None
         self._token = object()  # this controller, as the owner of a C step's resident warm start
         self._bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # see _admissible
+        self._path_constrained: bool | None = None  # whether fresh plans are judged (module doc)
+        self._steady: tuple[ca.Function, np.ndarray] | None = None  # see _steady_control
+        #: whether :meth:`warm_up` has run (what the steps build is built)
+        self.warmed_up = False
         #: the last :meth:`feedback_control` step's output (None after a step by the C step alone)
         self.last_output: StepOutput | None = None
 
@@ -125,6 +179,30 @@ class NMPC:
         self._pending = None
         self._prepared_p = None
         self._rng = np.random.default_rng(self.seed)
+
+    def warm_up(
+        self,
+        x: object,
+        t: float = 0.0,
+        u_prev: object | None = None,
+        current: object | None = None,
+        parameters: dict[str, Any] | None = None,
+    ) -> None:
+        """Build and compile what the steps will need, on the instance of :meth:`step`; then reset.
+
+        Runs a cold step and a warm step at state ``x`` and time ``t`` (the paths
+        :meth:`step` takes in a closed loop: the cold start's NLP, ``sqp-rti``'s C step and its
+        compiled judge, JIT code), then :meth:`reset`: the controller's next step is the one it
+        would have taken without the warm-up.  :func:`~uuv_ocp.simulate` calls it before its
+        loop, so that no timed step compiles.  What only an unusual step needs is still built
+        on first use (``sqp-rti``: the escalated soft penalties, the other still-water flag).
+        A failed step here is no error (the loop will report its own).
+        """
+        # a C compile inside says so on standard error (uuv_ocp.native.compile, SlowNotice)
+        output = self.step(x, t, u_prev, current, parameters)
+        self.step(x, t, output.control, current, parameters)
+        self.reset()
+        self.warmed_up = True
 
     @property
     def iterate(self) -> Iterate | None:
@@ -238,19 +316,65 @@ class NMPC:
             result = None
             failure_reason = f"exception: {type(error).__name__}: {error}"
         else:
-            failure_reason = "" if result.success and np.all(np.isfinite(result.controls)) else result.status
+            if not isinstance(result, SolveResult):  # a broken plug-in, not a failed solve
+                raise TypeError(
+                    f"solver {self.solver_name!r} ({type(self.backend).__name__}) returned a "
+                    f"{type(result).__name__} from solve(); a backend must return a uuv_ocp SolveResult"
+                )
+            failure_reason = self._refusal(result, p)
         late = result is not None and bool(result.details.get("deadline_hit", False))
         if not failure_reason:
+            assert result is not None
             control = self._accept(result.controls, result.iterate, u_prev)
             return StepOutput(control, result, False, deadline_hit=late)
-        control = self._admissible(self._fallback_control(u_prev), u_prev)
+        fallback, source = self._fallback_control(p)
+        control = self._admissible(fallback, u_prev)
         if late and result is not None and np.all(np.isfinite(result.iterate.scaled_controls)):
             # the stopped solve's progress warm-starts the next one (iterations carry on across
             # steps, as in real-time iteration schemes); its plan is not applied
             self._iterate = result.iterate.shift()
         elif self._iterate is not None:
             self._iterate = self._iterate.shift()
-        return StepOutput(control, result, True, failure_reason, deadline_hit=late)
+        return StepOutput(control, result, True, failure_reason, deadline_hit=late, fallback_source=source)
+
+    def _refusal(self, result: SolveResult, p: np.ndarray) -> str:
+        """Why the fresh plan of ``result`` is not applied (module doc), or ``""`` to apply it."""
+        if not result.success:
+            return str(result.status) or "failed (no status)"
+        spec = self.problem.spec()
+        controls = np.asarray(result.controls)
+        if controls.shape != (spec.horizon, spec.control_size):
+            return (
+                f"controls of shape {controls.shape}, expected {(spec.horizon, spec.control_size)} "
+                f"(the backend reported {result.status!r})"
+            )
+        if not np.all(np.isfinite(controls)):
+            return f"non-finite controls (the backend reported {result.status!r})"
+        if self.path_constrained and getattr(self.backend, "feedback", None) is None:
+            # judged here, whatever the backend reports (a plug-in's details included)
+            violation = self._violations(controls, p)["constraint"]
+            if not violation <= FEASIBILITY_TOLERANCE:
+                return (
+                    f"path constraint violated by {violation:.3g} > {FEASIBILITY_TOLERANCE:g} "
+                    f"(the backend reported {result.status!r})"
+                )
+        return ""
+
+    @property
+    def path_constrained(self) -> bool:
+        """Whether the problem has hard path constraints (every hard one but terminal equalities)."""
+        if self._path_constrained is None:
+            self._path_constrained = any(
+                c.soft is None and not (c.place == "terminal" and np.all(c.equality))
+                for c, _ in self.problem.spec().constraints
+            )
+        return self._path_constrained
+
+    def _violations(self, plan: np.ndarray, p: np.ndarray) -> dict[str, float]:
+        """Return the judge's largest violations of ``plan`` (physical, (N, nu)) on instance ``p``."""
+        scaled = self.problem.spec().scaled(np.asarray(plan, dtype=float)).ravel()
+        _, kinds = score_terms(self.problem, scaled, p)
+        return kinds
 
     def feedback_control(self, x: object) -> np.ndarray:
         """:meth:`feedback`'s control alone, by the shortest path the backend has.
@@ -368,9 +492,102 @@ class NMPC:
         # np.clip's values (NaN included) without its ~5 µs of dispatch
         return np.minimum(np.maximum(control, lower), np.maximum(lower, upper))
 
-    def _fallback_control(self, u_prev: object | None) -> np.ndarray:
-        if self._plan is not None and self._plan.shape[0] > 1:
-            self._plan = np.vstack([self._plan[1:], self._plan[-1:]])
-            return self._plan[0].copy()
+    def _fallback_control(self, p: np.ndarray) -> tuple[np.ndarray, str]:
+        """Return the fallback's control and which plan it comes from (module doc); keep that plan.
+
+        Candidates in order: the shifted previous plan, the steady control ramped to at the
+        rate bound, the last control held; the first the judge finds admissible on ``p``
+        (box, rate bound against the last applied control, hard path constraints), else the
+        least violating.
+        """
         spec = self.problem.spec()
-        return np.zeros(spec.control_size) if u_prev is None else np.asarray(u_prev, dtype=float)
+        last = spec.physical(self.problem.previous_scaled(p))
+        previous = self._plan
+
+        def candidates() -> Iterator[tuple[str, np.ndarray]]:
+            """Yield the plans in order, each built only when the ones before it were not admissible."""
+            if previous is not None:
+                yield "shifted plan", np.vstack([previous[1:], previous[-1:]])
+            steady = self._steady_control(p, last)
+            if steady is not None:
+                yield "steady control", self._ramp(last, steady)
+            yield "held control", np.tile(last, (spec.horizon, 1))
+
+        best: tuple[float, str, np.ndarray] | None = None
+        for source, plan in candidates():
+            kinds = self._violations(plan, p)
+            violation = max(kinds["bound"], kinds["rate"], kinds["constraint"])
+            if violation <= FEASIBILITY_TOLERANCE:
+                best = (violation, source, plan)
+                break
+            if best is None or violation < best[0]:  # NaN never replaces a number
+                best = (violation, source, plan)
+        else:
+            assert best is not None
+            best = (best[0], f"{best[1]} (least violation)", best[2])
+        assert best is not None
+        _, source, plan = best
+        # only a solver's plan is carried on: the steady control is recomputed at every step
+        # from the measured state, never replayed open loop
+        self._plan = plan if source.startswith("shifted plan") else None
+        return plan[0].copy(), source
+
+    def _ramp(self, last: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """Plan (N, nu) moving from ``last`` toward ``target`` at the rate bound, then holding it."""
+        spec = self.problem.spec()
+        step = spec.max_rate * spec.dt
+        plan = np.empty((spec.horizon, spec.control_size))
+        previous = last
+        for k in range(spec.horizon):
+            previous = np.clip(target, previous - step, previous + step)
+            plan[k] = previous
+        return plan
+
+    def _steady_control(self, p: np.ndarray, start: np.ndarray) -> np.ndarray | None:
+        """Return the steady control of ``p`` (module doc), clipped to the box; ``None`` if not finite.
+
+        Least squares of ``f_v(x_s, u)`` over the control box, linearised at ``start`` (and
+        relinearised, for a model not affine in the controls): ``f_v`` are the rows of the
+        dynamics (at node 0, with its current) that depend on the controls, ``x_s`` the measured
+        state with those rows replaced by the reference's (a tracking problem).
+        """
+        spec = self.problem.spec()
+        if self._steady is None:
+            x = ca.SX.sym("x", spec.state_dim)
+            u = ca.SX.sym("u", spec.control_size)
+            parameters = ca.SX.sym("p", spec.layout.size)
+            _, _, pg, nodes = parameter_blocks(spec, parameters)
+            rate = spec.dynamics(x, u, nodes[0], pg)
+            jacobian = ca.jacobian(rate, u)
+            rows = np.unique(np.array(jacobian.sparsity().get_triplet()[0], dtype=int))
+            if rows.size == 0:  # the controls drive nothing directly: nothing to hold
+                rows = np.arange(spec.state_dim)
+            function = ca.Function("steady_control", [x, u, parameters], [rate[rows], jacobian[rows, :]])
+            self._steady = (function, rows)
+        function, rows = self._steady
+        state = np.array(p[spec.layout.x0], dtype=float)
+        if isinstance(self.problem, TrackingProblem):  # hold the reference's velocities
+            state[rows] = self.problem.parameter_parts(p)[1][0][rows]
+        scale = spec.control_scale
+        # the box in scaled controls z (u = centre + scale z): every column of the same order
+        lower, upper = (spec.scaled_lower, spec.scaled_upper)
+        regularisation = np.sqrt(STEADY_REGULARISATION) * np.eye(spec.control_size)
+        z = np.clip(spec.scaled(np.asarray(start, dtype=float)), lower, upper)
+        for _ in range(STEADY_ITERATIONS):
+            values = function(state, spec.physical(z), p)
+            residual, derivative = (np.array(value, dtype=float) for value in values)
+            if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(derivative))):
+                return None
+            slope = derivative * scale  # d f_v / d z
+            # f_v(z') ≈ residual + slope (z' − z): the box-constrained least squares of the model's
+            # linearisation (exact for the UUV models, affine in the controls), ties broken
+            # toward small controls by a tiny Tikhonov term (more thrusters than driven rows)
+            solution = lsq_linear(
+                np.vstack([slope, regularisation]),
+                np.concatenate([slope @ z - residual.ravel(), np.zeros(spec.control_size)]),
+                bounds=(lower, upper),
+                method="bvls",
+            )
+            z = np.clip(solution.x, lower, upper)
+        control = spec.physical(z)
+        return control if np.all(np.isfinite(control)) else None

@@ -74,7 +74,9 @@ class ClosedLoopResult:
     currents : numpy.ndarray, shape (n+1, nc)
         Inertial current velocity (m/s); zero columns for a problem without a current.
     statuses : tuple of str
-        Solver status per step.
+        Solver status per step; on a fallback step why the fresh plan was refused
+        (:attr:`StepOutput.message <uuv_ocp.control.mpc.StepOutput>`: the backend's status, its
+        exception, ``"non-finite controls (...)"``, ``"path constraint violated by ..."``).
     solver : str
         Solver name.
     interrupted : bool
@@ -217,7 +219,9 @@ def simulate(
     Parameters
     ----------
     controller : NMPC
-        The controller (reset before the run).
+        The controller: warmed up unless it was already (:meth:`NMPC.warm_up
+        <uuv_ocp.control.mpc.NMPC.warm_up>`: what its steps build and compile is built before
+        the loop, so no timed step compiles), and reset before the run.
     x0 : array_like, shape (nx,)
         Initial plant state.
     duration : float
@@ -327,7 +331,6 @@ def simulate(
     relaxed = np.zeros(steps, dtype=bool)
     deadline_steps = np.zeros(steps, dtype=bool)
     statuses: list[str] = []
-    controller.reset()
     u_prev = np.clip(np.zeros(nu), spec.lower, spec.upper)
     completed = 0
     interrupted = False
@@ -338,6 +341,14 @@ def simulate(
         remember_interrupts(),
     ):
         try:
+            # everything the steps build (sqp-rti's C step, the cold start's NLP) is built here,
+            # not in the first timed steps (once per controller: builds stay with its backend)
+            if controller.warmed_up:
+                controller.reset()
+            elif tracking:
+                controller.warm_up(x0, t0, u_prev, currents[0] if current_known else np.zeros(nc))
+            else:
+                controller.warm_up(x0, 0.0, u_prev, parameters=parameters)
             for k in range(steps):
                 check_interrupt()  # a Ctrl-C CasADi swallowed (uuv_ocp.interrupts) stops here
                 measured = states[k] + (noise.sample(rng) if noise is not None else 0.0)
@@ -358,9 +369,10 @@ def simulate(
                 if result is not None:
                     iterations[k] = result.iterations
                     relaxed[k] = result.terminal_relaxed
-                    statuses.append(result.status)
-                else:
-                    statuses.append(output.message or "exception")
+                # a refused plan's reason (a NaN plan's "success" is no success), else the status
+                statuses.append(
+                    (output.message or "fallback") if output.fallback or result is None else result.status
+                )
                 try:
                     if tracking:
                         path = plant_step(states[k], controls[k], currents[k])

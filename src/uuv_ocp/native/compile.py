@@ -56,6 +56,8 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from uuv_ocp.progress import SlowNotice
+
 __all__ = [
     "COMPILER_CANDIDATES",
     "DEFAULT_FLAGS",
@@ -749,7 +751,9 @@ def compile_functions(
             _install_copy(staged_source, source)  # installed first: inspectable on failure
             _install_copy(staged_header, header)
             try:
-                _compile(command, temporary, library)
+                # a compile takes seconds to minutes (the swarms' and sqp-rti's first use): say so
+                with SlowNotice(f"uuv_ocp: compiling {name} (first use; cached in {directory})"):
+                    _compile(command, temporary, library)
             except CompilationError as error:
                 raise CompilationError(f"{error}\n(generated source kept at {source})") from None
         _install(staged_source, source)

@@ -46,6 +46,10 @@ UNWRAP_STEP = 0.1
 #: ``[x, y, z, φ, θ, ψ, u, v, w, p, q, r]``.
 PLANAR_STATE_DIM = 6
 SPATIAL_STATE_DIM = 12
+#: Default time (s) a waypoint mission stays at its last waypoint (:meth:`Reference.waypoints`):
+#: longer than the usual horizons (N dt = 2 to 5 s) plus the vehicle's lag, so that a closed
+#: loop, which ends N dt before the reference does, reaches the last waypoint.
+WAYPOINT_HOLD = 10.0
 
 
 def _paper_catalogue() -> dict[str, tuple[PathFunction, float, float, str]]:
@@ -242,6 +246,7 @@ class Reference:
         turn_radius: float,
         name: str = "waypoints",
         t_start: float = 0.0,
+        hold: float = WAYPOINT_HOLD,
     ) -> Reference:
         """Straight legs between waypoints joined by tangent circular arcs, at constant speed.
 
@@ -258,17 +263,27 @@ class Reference:
         name : str
             Label.
         t_start : float
-            Time (s) at the first waypoint; ``t_end = t_start + length / speed``.
+            Time (s) at the first waypoint; the last is reached at ``t_start + length / speed``.
+        hold : float
+            Time (s, >= 0) the reference then stays at the last waypoint, at rest with the last
+            leg's heading; ``t_end = t_start + length / speed + hold``.  A closed loop's horizon
+            must stay inside the reference, so it ends ``N dt`` before ``t_end``: with
+            ``hold >= N dt`` (plus the time the vehicle lags behind) the mission reaches its
+            last waypoint.  ``hold=0`` ends the reference on arrival, still moving.
 
         Returns
         -------
         Reference
-            Position C¹ in time (continuous velocity), tangent heading, ``u_R = speed``,
-            ``r_R = ±speed / turn_radius`` on arcs and 0 on legs.
+            Position C¹ in time (continuous velocity) until the last waypoint, tangent heading,
+            ``u_R = speed``, ``r_R = ±speed / turn_radius`` on arcs and 0 on legs; then (the
+            velocity drops to zero there) the last waypoint at rest.
         """
         geometry = WaypointPath(points, turn_radius)
         speed = check.positive_float("speed", speed)
         t_start = check.finite_float("t_start", t_start)
+        hold = check.nonnegative_float("hold", hold)
+        if not math.isfinite(hold):
+            raise ValueError(f"hold must be a finite number of seconds >= 0, got {hold!r}")
 
         def arc_length(t: ca.SX) -> ca.SX:
             return speed * (t - t_start)
@@ -277,13 +292,23 @@ class Reference:
             f"{geometry.count} {'spatial ' if geometry.spatial else ''}waypoints at {speed:g} m/s, "
             f"turn radius {geometry.turn_radius:g} m, length {geometry.length:g} m"
         )
-        t_end = t_start + geometry.length / speed
+        t_end = t_start + geometry.length / speed + hold
+        heading = None  # the tangent's, from the velocity
+        if hold > 0.0:
+            # the arc length stops at the last waypoint; the heading is the path's direction,
+            # which stays defined at rest (the tangent of a vanishing velocity does not)
+            description += f", then {hold:g} s at the last waypoint"
+
+            def arc_length(t: ca.SX) -> ca.SX:
+                return ca.fmin(speed * (t - t_start), geometry.length)
+
+            heading = lambda t: geometry.heading(arc_length(t))  # noqa: E731
         path_x = lambda t: geometry.horizontal(arc_length(t))[0]  # noqa: E731
         path_y = lambda t: geometry.horizontal(arc_length(t))[1]  # noqa: E731
         if not geometry.spatial:
-            return cls(path_x, path_y, name, t_start, t_end, description)
+            return cls(path_x, path_y, name, t_start, t_end, description, heading=heading)
         path_z = lambda t: geometry.depth(arc_length(t))  # noqa: E731
-        return cls(path_x, path_y, name, t_start, t_end, description, path_z=path_z)
+        return cls(path_x, path_y, name, t_start, t_end, description, path_z=path_z, heading=heading)
 
     @classmethod
     def lawnmower(
@@ -299,6 +324,7 @@ class Reference:
         depth: float | None = None,
         name: str = "lawnmower",
         t_start: float = 0.0,
+        hold: float = WAYPOINT_HOLD,
     ) -> Reference:
         """Boustrophedon survey of ``lanes`` parallel lanes of length ``width``.
 
@@ -327,11 +353,13 @@ class Reference:
             Label.
         t_start : float
             Time (s) at the start of the first lane.
+        hold : float
+            Time (s, >= 0) at the end of the last lane, at rest (see :meth:`waypoints`).
         """
         points = lawnmower_points(origin, width, spacing, lanes, heading, depth)
         spacing = float(spacing)
         radius = spacing / 2.0 if turn_radius is None else turn_radius
-        return cls.waypoints(points, speed, radius, name, t_start)
+        return cls.waypoints(points, speed, radius, name, t_start, hold)
 
     @classmethod
     def hold(cls, pose: object, name: str = "hold", duration: float = math.inf) -> Reference:

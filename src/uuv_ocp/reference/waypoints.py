@@ -200,6 +200,23 @@ class WaypointPath:
             coordinates.append(PiecewiseExpression(expression, constants, values))
         return coordinates[0], coordinates[1]
 
+    def heading(self, s: ca.SX) -> PiecewiseExpression:
+        """Direction of the path (rad, from the x axis towards the y axis) at arc length ``s``.
+
+        The tangent's angle: a leg's direction, ``b + σ / a`` on an arc (initial direction
+        ``b``, signed radius ``a``).  Wrapped into (−π, π] on legs; a reference unwraps it.
+        Given as the heading of a reference, it stays defined where the path speed vanishes
+        (a mission holding its last waypoint).
+        """
+        pieces = self._pieces
+        rows = [piece[:1] + piece[2:] for piece in pieces]  # start, base_x, base_y, a, b, is_arc
+        constants = ca.SX.sym("piece_heading", len(rows[0]))
+        start, _, _, a, b, is_arc = ca.vertsplit(constants)
+        line = ca.atan2(b, a)
+        arc = b + (s - start) / ca.if_else(is_arc, a, 1.0)  # finite on lines too
+        expression = ca.if_else(is_arc, arc, line)
+        return PiecewiseExpression(expression, constants, _look_up(s, rows, "waypoint_pieces"))
+
     def depth(self, s: ca.SX) -> PiecewiseExpression:
         """Depth ``z`` (m, positive down) of a spatial path at arc length ``s`` (m, SX)."""
         if not self.spatial:

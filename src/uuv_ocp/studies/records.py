@@ -573,8 +573,8 @@ def rebuild_index(folder: str | Path) -> int:
             continue
         with np.load(record, allow_pickle=False) as data:
             config = json.loads(str(data["record_config"]))
-        if not isinstance(config, dict) or "trial" not in config:
-            continue
+        if not isinstance(config, dict) or record.name != f"trial_{config.get('trial', -1):04d}.npz":
+            continue  # not a campaign trial, or copied from another trial: its campaign recomputes it
         rows.append(
             _row(folder, record, record.parent.name, int(config["trial"]), config, digest, run, run.metrics())
         )

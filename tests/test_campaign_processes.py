@@ -149,9 +149,7 @@ def test_a_trial_that_kills_its_worker_every_time_is_given_up_after_max_tries(
     out = tmp_path / "out"
     with (
         pytest.warns(WorkerRestartWarning),
-        pytest.raises(
-            WorkerCrashed, match=rf"trial 2: the worker process died each of the {MAX_TRIES}"
-        ),
+        pytest.raises(WorkerCrashed, match=rf"trial 2: the worker process died each of the {MAX_TRIES}"),
     ):
         run_campaign(small(trials=TRIALS), out, workers=2, progress=False)
     assert len(marker.read_text().split()) == MAX_TRIES  # bounded: no endless loop

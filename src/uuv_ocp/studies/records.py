@@ -500,8 +500,8 @@ def _damage(path: Path) -> str:
         return ""
     if not stat.S_ISREG(mode):  # SQLite would block on a FIFO, fail on a directory
         return _kind(mode)
-    try:
-        connection = _raw_connect(path)
+    try:  # read-only: a damaged file is kept as it was found
+        connection = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=BUSY_TIMEOUT)
         try:
             columns = [row[1] for row in connection.execute("PRAGMA table_info(trials)")]
             tables = connection.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]

@@ -557,3 +557,15 @@ def test_writing_a_record_over_a_directory_names_the_path(tmp_path, uninterrupte
     with pytest.raises(StorageError, match=r"a directory is in the way at .*run\.npz"):
         write_record(tmp_path / "run.npz", run, {"a": 1})
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]
+
+
+def test_a_missing_index_is_rebuilt_from_every_campaigns_records_silently(two_campaigns):
+    (two_campaigns / "index.sqlite").unlink()  # e.g. a campaign killed between a record and its row
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", IndexWarning)
+        result = run_campaign(small(), two_campaigns, workers=1, progress=False)
+    assert result.resumed == 3
+    assert (
+        len(query_trials(two_campaigns)) == 5
+        and len(query_trials(two_campaigns, campaign=small(seed=9).name)) == 2
+    )

@@ -526,8 +526,8 @@ def check_index(folder: str | Path) -> str | None:
 
     A damaged index (not an SQLite database, truncated, failing SQLite's ``quick_check``, another
     schema, or not a regular file) is moved aside (:func:`set_aside`, kept for inspection) and
-    rebuilt from the records (:func:`rebuild_index`); so is a missing one when campaign folders
-    hold records.  A locked index raises :class:`StorageError`.
+    rebuilt from the records (:func:`rebuild_index`); a missing one is rebuilt too (silently)
+    when campaign folders hold records.  A locked index raises :class:`StorageError`.
 
     Returns
     -------
@@ -552,8 +552,8 @@ def check_index(folder: str | Path) -> str | None:
             f"{count} record{'s' if count != 1 else ''}"
         )
     if not os.path.lexists(path) and any(folder.glob("*/trial_*.npz")):
-        count = rebuild_index(folder)
-        return f"index {path} was missing; rebuilt from {count} record{'s' if count != 1 else ''}"
+        # no news for the user: a campaign killed between a record and its row leaves this
+        rebuild_index(folder)
     return None
 
 

@@ -422,6 +422,8 @@ def test_a_damaged_index_is_moved_aside_and_rebuilt_from_every_campaigns_records
     index = out / "index.sqlite"
     damage(index)
     kept = None if stat.S_ISFIFO(index.lstat().st_mode) else index.read_bytes()
+    with pytest.raises(StorageError, match=r"index\.sqlite is damaged .*the next campaign run"):
+        query_trials(out)  # a reader says so (and does not block on a FIFO)
     with pytest.warns(IndexWarning, match=r"damaged .*moved aside to index\.sqlite\.damaged-"):
         result = run_campaign(small(), out, workers=1, progress=False)
     assert result.resumed == 3 and not result.recomputed

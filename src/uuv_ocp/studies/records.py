@@ -662,10 +662,21 @@ def query_trials(
     list of dict
         One dict per row with the schema's columns; ``metrics`` and ``config`` decoded from JSON.
         Empty when the folder has no index.
+
+    Raises
+    ------
+    StorageError
+        The index is damaged (see :func:`check_index`) or locked.
     """
     folder = Path(folder)
-    if not (folder / INDEX_NAME).exists():
+    if not os.path.lexists(folder / INDEX_NAME):
         return []
+    reason = _damage(folder / INDEX_NAME)  # never block on a FIFO, nor decode another schema's rows
+    if reason:
+        raise StorageError(
+            f"index {folder / INDEX_NAME} is damaged ({reason}); the next campaign run in {folder} "
+            "moves it aside and rebuilds it from the records"
+        )
     clauses, values = [], []
     for column, value in (("campaign", campaign), ("solver", solver), ("reference", reference)):
         if value is not None:

@@ -186,8 +186,9 @@ class TaskRunner:
 
         A dead worker breaks the whole pool and fails every task in flight with it; which of
         them killed it is unknown, so after a restart each of them runs alone once (the others
-        wait), and a task whose worker dies while it runs alone is the one.  Tasks that never
-        started are not charged.
+        wait), and a task whose worker dies while it runs alone is the one: only such a death
+        can give a task up.  Keeping no more than ``workers`` tasks submitted means no queued,
+        never-started task is charged with a death.
         """
         todo = collections.deque(tasks)
         alone: collections.deque[tuple[Any, tuple]] = collections.deque()  # suspects, one at a time

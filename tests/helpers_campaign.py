@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from uuv_ocp.studies.campaign import CampaignConfig
+from uuv_ocp.studies.campaign import trial_task as _trial_task
 
 # wall-clock arrays differ between two runs of the same trial; the checksum covers them
 WALL_CLOCK = {"solve_times", "record_checksum"}
@@ -107,3 +108,20 @@ def alive(pids, within):
     while time.monotonic() < deadline and any(state(pid) not in ("gone", "Z") for pid in pids):
         time.sleep(0.1)
     return {pid: state(pid) for pid in pids if state(pid) not in ("gone", "Z")}
+
+
+KILL_ENV = "UUV_OCP_TEST_KILL"  # "<trial>:<once|always>:<marker file>", read by killing_trial_task
+
+
+def killing_trial_task(config, index):
+    """``trial_task`` whose worker process SIGKILLs itself on trial ``<trial>`` (see KILL_ENV).
+
+    ``once``: only the first time (the marker file records it); ``always``: every time.  Each
+    kill first appends a line to the marker file, so the test counts the tries independently.
+    """
+    trial, mode, marker = os.environ[KILL_ENV].split(":", 2)
+    if index == int(trial) and (mode == "always" or not Path(marker).exists()):
+        with open(marker, "a") as stream:
+            stream.write(f"{os.getpid()}\n")
+        os.kill(os.getpid(), signal.SIGKILL)
+    return _trial_task(config, index)

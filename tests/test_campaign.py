@@ -1,18 +1,32 @@
 """Monte Carlo campaigns: keying and resume, checked records, faults, the index, config files."""
 
+import errno
+import os
 import shutil
+import signal
+import sqlite3
+import stat
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from helpers_campaign import assert_same_records, small
+from helpers_campaign import CLI_FLAGS, assert_same_records, small
 from uuv_ocp import cli
 from uuv_ocp.studies import campaign as campaign_module
+from uuv_ocp.studies import records as records_module
 from uuv_ocp.studies.campaign import CampaignConfig, run_campaign
 from uuv_ocp.studies.campaign_file import load_campaign_file
-from uuv_ocp.studies.records import RecordWarning, query_trials, read_record, write_record
+from uuv_ocp.studies.records import (
+    IndexWarning,
+    RecordWarning,
+    StorageError,
+    query_trials,
+    read_record,
+    write_record,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -348,3 +362,212 @@ def test_the_process_alias_runs_the_pool_even_for_one_worker(tmp_path, uninterru
     monkeypatch.setattr(campaign_module, "simulate", no_simulation_in_this_process)
     result = run_campaign(small(trials=1), tmp_path, executor="process", workers=1, progress=False)
     assert_same_records(result.directory, uninterrupted.directory, 1)
+
+
+# ---------------------------------------------------------------- damaged, locked, full, not a file
+def _garbage_index(path):
+    path.write_bytes(b"\x00garbage, not SQLite\xff" * 200)
+
+
+def _truncated_index(path):
+    path.write_bytes(path.read_bytes()[:5000])  # mid-page: SQLite's header promises more
+
+
+def _index_of_another_schema(path):
+    path.unlink()
+    connection = sqlite3.connect(path)
+    connection.execute("CREATE TABLE trials (path TEXT PRIMARY KEY, score REAL)")
+    connection.commit()
+    connection.close()
+
+
+def _fifo_index(path):
+    path.unlink()
+    os.mkfifo(path)
+
+
+@pytest.fixture
+def two_campaigns(tmp_path, uninterrupted, other_campaign):
+    """Return an output folder holding both campaigns' records and their index."""
+    out = tmp_path / "out"
+    shutil.copytree(uninterrupted.directory, out / uninterrupted.directory.name)
+    shutil.copytree(other_campaign.directory, out / other_campaign.directory.name)
+    for campaign in (small(), small(seed=9, trials=2)):  # index them as the campaigns did
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", IndexWarning)
+            run_campaign(campaign, out, workers=1, progress=False)
+    assert len(query_trials(out)) == 5
+    return out
+
+
+@pytest.fixture
+def no_hang():
+    """Fail (instead of hanging for good) when the test body blocks for more than 120 s."""
+
+    def timeout(signum, frame):
+        raise AssertionError("blocked for 120 s")
+
+    previous = signal.signal(signal.SIGALRM, timeout)
+    signal.alarm(120)
+    yield
+    signal.alarm(0)
+    signal.signal(signal.SIGALRM, previous)
+
+
+@pytest.mark.parametrize("damage", [_garbage_index, _truncated_index, _index_of_another_schema, _fifo_index])
+def test_a_damaged_index_is_moved_aside_and_rebuilt_from_every_campaigns_records(
+    two_campaigns, uninterrupted, damage, no_hang
+):
+    out = two_campaigns
+    index = out / "index.sqlite"
+    damage(index)
+    kept = None if stat.S_ISFIFO(index.lstat().st_mode) else index.read_bytes()
+    with pytest.raises(StorageError, match=r"index\.sqlite is damaged .*the next campaign run"):
+        query_trials(out)  # a reader says so (and does not block on a FIFO)
+    with pytest.warns(IndexWarning, match=r"damaged .*moved aside to index\.sqlite\.damaged-"):
+        result = run_campaign(small(), out, workers=1, progress=False)
+    assert result.resumed == 3 and not result.recomputed
+    (aside,) = [p for p in out.glob("index.sqlite.damaged-*") if not p.name.endswith(("-wal", "-shm"))]
+    assert kept is None or aside.read_bytes() == kept  # kept as it was, for inspection
+    rows = query_trials(out)  # the other campaign's rows too: rebuilt from its records
+    assert [(row["campaign"], row["trial"]) for row in rows] == sorted(
+        [(uninterrupted.config.name, i) for i in range(3)] + [(small(seed=9).name, i) for i in range(2)]
+    )
+    ours = [row for row in rows if row["campaign"] == uninterrupted.config.name]
+    assert [row["max_abs_ex"] for row in ours] == [t["max_abs_ex"] for t in uninterrupted.trials]
+
+
+def test_the_command_line_says_in_one_line_that_it_rebuilt_the_index(two_campaigns, capsys):
+    _garbage_index(two_campaigns / "index.sqlite")
+    code = cli.main([*_CLI_SMALL, "--out", str(two_campaigns)])
+    err = capsys.readouterr().err
+    assert code == 0, err
+    (line,) = [line for line in err.splitlines() if "index" in line]
+    assert line.startswith("warning: index ") and "rebuilt from 5 records" in line
+
+
+_CLI_SMALL = ["campaign", *CLI_FLAGS, "--trials", "3", "--workers", "1"]
+
+
+@pytest.fixture
+def locked_index(two_campaigns, monkeypatch):
+    """Hold a write transaction on the index (as an sqlite3 shell left in BEGIN would)."""
+    monkeypatch.setattr(records_module, "BUSY_TIMEOUT", 0.2)  # the mechanism, not the 5 s
+    holder = sqlite3.connect(two_campaigns / "index.sqlite", isolation_level=None)
+    holder.execute("BEGIN IMMEDIATE")
+    yield two_campaigns
+    holder.rollback()
+    holder.close()
+
+
+def test_a_locked_index_is_one_clear_error_naming_who_holds_it(locked_index, capsys):
+    assert records_module.BUSY_TIMEOUT <= 10  # prompt, not a minute  # noqa: PLR2004
+    with pytest.raises(StorageError, match=r"index .*index\.sqlite is locked") as caught:
+        run_campaign(small(), locked_index, workers=1, progress=False)
+    assert f"pid {os.getpid()} " in str(caught.value)  # this test process holds it
+    assert cli.main([*_CLI_SMALL, "--out", str(locked_index)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith("error: index ") and "locked" in err
+
+
+def _enospc_on_call(monkeypatch, failing_call):
+    save, calls = np.savez_compressed, [0]
+
+    def full_disk(*args, **kwargs):
+        calls[0] += 1
+        if calls[0] == failing_call:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        return save(*args, **kwargs)
+
+    monkeypatch.setattr(np, "savez_compressed", full_disk)
+
+
+def test_a_full_disk_is_one_clear_error_and_loses_nothing_already_written(
+    tmp_path, uninterrupted, monkeypatch, capsys
+):
+    _enospc_on_call(monkeypatch, 2)  # trial 0 is written, trial 1's write finds the disk full
+    directory = tmp_path / small().name
+    with pytest.raises(StorageError, match=r"No space left on device; free space") as caught:
+        run_campaign(small(), tmp_path, workers=1, progress=False)
+    assert f"trial_0001.npz in {directory}" in str(caught.value) and caught.value.errno == errno.ENOSPC
+    assert sorted(p.name for p in directory.iterdir()) == ["trial_0000.npz"]  # no half-written file
+    assert read_record(directory / "trial_0000.npz", small().trial_settings(0), steps=small().steps())
+    assert [row["trial"] for row in query_trials(tmp_path)] == [0]
+    _enospc_on_call(monkeypatch, 1)
+    assert cli.main([*_CLI_SMALL, "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(directory) in err and "No space left" in err
+    monkeypatch.undo()  # the disk has room again
+    resumed = run_campaign(small(), tmp_path, workers=1, progress=False)
+    assert resumed.resumed == 1 and not resumed.recomputed
+    assert_same_records(directory, uninterrupted.directory, 3)
+
+
+def test_a_full_disk_under_the_index_is_one_clear_error(two_campaigns, monkeypatch):
+    connect = records_module._raw_connect
+
+    def no_room_to_grow(path):  # SQLite's own SQLITE_FULL: the file may not grow by one page
+        connection = connect(path)
+        pages = connection.execute("PRAGMA page_count").fetchone()[0]
+        connection.execute(f"PRAGMA max_page_count = {pages}")
+        return connection
+
+    filler = sqlite3.connect(two_campaigns / "index.sqlite")  # the last free byte of every page taken
+    filler.execute("CREATE TABLE filler (x BLOB)")
+    filler.execute("INSERT INTO filler VALUES (zeroblob(100000))")
+    filler.commit()
+    filler.execute("VACUUM")
+    filler.close()
+    monkeypatch.setattr(records_module, "_raw_connect", no_room_to_grow)
+    with pytest.raises(StorageError, match=r"cannot write index .*: no space left in ") as caught:
+        run_campaign(small(trials=4), two_campaigns, workers=1, progress=False)
+    assert caught.value.errno == errno.ENOSPC
+    assert (two_campaigns / small().name / "trial_0003.npz").exists()  # the record went first
+
+
+def _fifo(path):
+    os.mkfifo(path)
+
+
+def _directory(path):
+    path.mkdir()
+    (path / "inside.txt").write_text("kept")
+
+
+@pytest.mark.parametrize(("make", "kind"), [(_fifo, "a FIFO"), (_directory, "a directory")])
+def test_a_fifo_or_directory_at_a_record_path_is_set_aside_and_recomputed(
+    tmp_path, uninterrupted, make, kind, no_hang
+):
+    out = tmp_path / "out"
+    shutil.copytree(uninterrupted.directory, out / uninterrupted.directory.name)
+    victim = out / uninterrupted.directory.name / "trial_0001.npz"
+    victim.unlink()
+    make(victim)
+    with pytest.warns(RecordWarning, match=rf"trial_0001\.npz: {kind}.*not a record file; moved aside to "):
+        result = run_campaign(small(), out, workers=1, progress=False)
+    assert result.recomputed == (1,) and result.resumed == 2
+    assert_same_records(result.directory, uninterrupted.directory, 3)
+    (aside,) = victim.parent.glob("trial_0001.npz.damaged-*")
+    assert aside.is_dir() == (kind == "a directory")
+
+
+def test_writing_a_record_over_a_directory_names_the_path(tmp_path, uninterrupted):
+    from uuv_ocp import ClosedLoopResult
+
+    run = ClosedLoopResult.load(str(uninterrupted.directory / "trial_0000.npz"))
+    (tmp_path / "run.npz").mkdir()
+    with pytest.raises(StorageError, match=r"a directory is in the way at .*run\.npz"):
+        write_record(tmp_path / "run.npz", run, {"a": 1})
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.npz"]
+
+
+def test_a_missing_index_is_rebuilt_from_every_campaigns_records_silently(two_campaigns):
+    (two_campaigns / "index.sqlite").unlink()  # e.g. a campaign killed between a record and its row
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", IndexWarning)
+        result = run_campaign(small(), two_campaigns, workers=1, progress=False)
+    assert result.resumed == 3
+    assert (
+        len(query_trials(two_campaigns)) == 5
+        and len(query_trials(two_campaigns, campaign=small(seed=9).name)) == 2
+    )

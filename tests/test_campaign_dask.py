@@ -2,14 +2,25 @@
 
 import os
 import signal
+import socket
 import sys
 import threading
 import time
 
 import pytest
 
-from helpers_campaign import alive, assert_same_records, descendants, small, start_campaign, wait_for_records
-from uuv_ocp.studies.campaign import run_campaign
+from helpers_campaign import (
+    CLI_FLAGS,
+    alive,
+    assert_same_records,
+    descendants,
+    small,
+    start_campaign,
+    wait_for_records,
+)
+from uuv_ocp import cli
+from uuv_ocp.studies import executors
+from uuv_ocp.studies.campaign import SchedulerUnreachable, run_campaign
 
 distributed = pytest.importorskip("dask.distributed", reason="the dask extra is not installed")
 TRIALS = 4
@@ -73,3 +84,19 @@ def test_sigkill_of_the_parent_takes_its_dask_workers(tmp_path):
     process.kill()
     process.wait(timeout=30)
     assert alive(children, within=10.0) == {}
+
+
+def test_an_unreachable_scheduler_is_one_prompt_error_naming_it(tmp_path, monkeypatch, capsys):
+    with socket.socket() as probe:  # a port nobody listens on
+        probe.bind(("127.0.0.1", 0))
+        address = f"tcp://127.0.0.1:{probe.getsockname()[1]}"
+    monkeypatch.setattr(executors, "DASK_CONNECT_TIMEOUT", 1.0)  # the mechanism, not the 10 s
+    assert executors.DASK_CONNECT_TIMEOUT < 30  # dask's own default: half a minute of silence
+    with pytest.raises(SchedulerUnreachable, match=rf"no Dask scheduler answered at {address} within 1 s"):
+        run_campaign(small(trials=1), tmp_path, executor="dask", scheduler=address, progress=False)
+    code = cli.main(
+        ["campaign", *CLI_FLAGS, "--trials", "1", "--executor", "dask"]
+        + ["--scheduler", address, "--out", str(tmp_path)]
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and address in err and "--out" not in err

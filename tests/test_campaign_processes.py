@@ -10,8 +10,21 @@ import sys
 
 import pytest
 
-from helpers_campaign import alive, assert_same_records, descendants, small, start_campaign, wait_for_records
-from uuv_ocp.studies.campaign import run_campaign
+from helpers_campaign import (
+    CLI_FLAGS,
+    KILL_ENV,
+    alive,
+    assert_same_records,
+    descendants,
+    killing_trial_task,
+    small,
+    start_campaign,
+    wait_for_records,
+)
+from uuv_ocp import cli
+from uuv_ocp.studies import campaign as campaign_module
+from uuv_ocp.studies.campaign import WorkerCrashed, WorkerRestartWarning, run_campaign
+from uuv_ocp.studies.executors import MAX_TRIES
 from uuv_ocp.studies.records import query_trials, read_record, write_record
 
 TRIALS = 6
@@ -73,7 +86,8 @@ def test_two_campaigns_into_one_folder_give_complete_sound_records(tmp_path, uni
     for process in (first, second):
         _, err = process.communicate(timeout=300)
         assert process.returncode == 0, err
-        assert "Warning" not in err  # neither read a half-written record of the other
+        # neither read a half-written record of the other (the CLI shows warnings as "warning: ...")
+        assert not [line for line in err.splitlines() if line.startswith("warning: ") or "Warning: " in line]
     directory = tmp_path / small().name
     assert check_sound_records(directory, small(trials=TRIALS)) == TRIALS
     assert_same_records(directory, uninterrupted.directory, TRIALS)
@@ -103,3 +117,52 @@ def test_synchronised_writers_of_one_record_never_clash(tmp_path, uninterrupted)
     assert [writer.exitcode for writer in writers] == [0, 0]
     assert read_record(path, {"trial": 0}) is not None
     assert sorted(p.name for p in tmp_path.iterdir()) == ["trial_0000.npz"]
+
+
+def _kill_in_worker(monkeypatch, tmp_path, trial, mode):
+    """Run the campaign's trials through killing_trial_task; return its marker file (one line a kill)."""
+    marker = tmp_path / f"killed_{trial}.txt"
+    monkeypatch.setenv(KILL_ENV, f"{trial}:{mode}:{marker}")  # spawned workers inherit it
+    monkeypatch.setattr(campaign_module, "trial_task", killing_trial_task)  # pickled by reference
+    return marker
+
+
+def test_a_local_worker_killed_mid_campaign_is_replaced_and_its_trial_rerun(
+    tmp_path, uninterrupted, monkeypatch
+):
+    marker = _kill_in_worker(monkeypatch, tmp_path, 1, "once")
+    out = tmp_path / "out"
+    with pytest.warns(WorkerRestartWarning, match=r"worker process died.*trial 1") as caught:
+        result = run_campaign(small(trials=TRIALS), out, workers=2, progress=False)
+    assert len(marker.read_text().split()) == 1  # it did die, once
+    restarts = [w for w in caught if issubclass(w.category, WorkerRestartWarning)]
+    assert len(restarts) == 1 and "\n" not in str(restarts[0].message)
+    assert result.resumed == 0 and len(result.trials) == TRIALS
+    assert check_sound_records(result.directory, small(trials=TRIALS)) == TRIALS
+    assert_same_records(result.directory, uninterrupted.directory, TRIALS)
+    assert [row["trial"] for row in query_trials(out)] == list(range(TRIALS))
+
+
+def test_a_trial_that_kills_its_worker_every_time_is_given_up_after_max_tries(
+    tmp_path, uninterrupted, monkeypatch, capsys
+):
+    marker = _kill_in_worker(monkeypatch, tmp_path, 2, "always")
+    out = tmp_path / "out"
+    with (
+        pytest.warns(WorkerRestartWarning),
+        pytest.raises(WorkerCrashed, match=rf"trial 2: the worker process died each of the {MAX_TRIES}"),
+    ):
+        run_campaign(small(trials=TRIALS), out, workers=2, progress=False)
+    assert len(marker.read_text().split()) == MAX_TRIES  # bounded: no endless loop
+    directory = out / small().name
+    others = [i for i in range(TRIALS) if i != 2]
+    assert sorted(int(p.stem[-4:]) for p in directory.glob("trial_*.npz")) == others
+    assert_same_records(directory, uninterrupted.directory, others)
+    # the command line: one line, exit status 2
+    marker.unlink()
+    code = cli.main(
+        ["campaign", *CLI_FLAGS, "--trials", "3", "--workers", "2", "--out", str(tmp_path / "cli")]
+    )
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("error:") == 1 and "trial 2" in err
+    assert [line for line in err.splitlines() if line.startswith("warning:")]  # the restarts, one line each

@@ -17,6 +17,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, NoReturn
@@ -385,10 +386,17 @@ def _run_reproduce(args: argparse.Namespace) -> int:
     return 0
 
 
+def _one_line_warning(message: Any, category: Any, *args: Any, **kwargs: Any) -> None:
+    """Show a campaign's warning as ``warning: message``, one line (no source line)."""
+    print(f"warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+
 def _run_campaign(args: argparse.Namespace) -> int:
     """``uuv-ocp campaign``: flags or ``--config FILE``; the file's ``[run]`` fills unset run flags."""
     from uuv_ocp.studies.campaign import CampaignConfig, format_summary, format_summary_table, run_campaigns
     from uuv_ocp.studies.campaign_file import load_campaign_file
+    from uuv_ocp.studies.executors import SchedulerUnreachable, WorkerCrashed
+    from uuv_ocp.studies.records import StorageError, write_text
 
     try:
         if args.config is not None:
@@ -416,8 +424,10 @@ def _run_campaign(args: argparse.Namespace) -> int:
         _output_folder(str(out))
         if not isinstance(workers, int) or workers < 1:
             raise _UsageError(f"--workers must be an integer >= 1, got {workers}")
-        results = run_campaigns(configs, out, executor=executor, workers=workers, scheduler=scheduler)
-    except ValueError as error:
+        with warnings.catch_warnings():  # a damaged record or index, a restarted pool: one line each
+            warnings.showwarning = _one_line_warning
+            results = run_campaigns(configs, out, executor=executor, workers=workers, scheduler=scheduler)
+    except (ValueError, StorageError, SchedulerUnreachable, WorkerCrashed) as error:  # one line each
         return _fail(str(error))
     except OSError as error:
         return _fail(f"--out: {error.strerror or error} ({error.filename or ''})")
@@ -429,9 +439,12 @@ def _run_campaign(args: argparse.Namespace) -> int:
         print(f"trials saved in {result.directory}")
     if args.config is not None:  # the file and the table of its campaigns, beside the results
         stem = Path(args.config).stem
-        (Path(out) / f"{stem}.toml").write_text(loaded.text, encoding="utf-8")
         table = format_summary_table(results)
-        (Path(out) / f"{stem}_summary.txt").write_text(table + "\n", encoding="utf-8")
+        try:  # atomic: a full disk leaves the previous files whole
+            write_text(Path(out) / f"{stem}.toml", loaded.text, "campaign file")
+            write_text(Path(out) / f"{stem}_summary.txt", table + "\n", "summary")
+        except StorageError as error:
+            return _fail(str(error))
         print(table)
         print(f"config and summary saved as {Path(out) / stem}.toml and {Path(out) / stem}_summary.txt")
     return 0

@@ -14,8 +14,11 @@ vehicles, reference, solver and options, horizon, dt, duration, disturbances, se
 package version) and a checksum, and indexed in ``<out>/index.sqlite``.  The folder ``<name>``
 is keyed by everything but the trial count, so a rerun, or the same campaign with more trials,
 reuses every sound record; a record that fails its checks is reported (:class:`RecordWarning`)
-and recomputed.  An interrupted campaign loses only the trials in progress and writes no
-record of them.  A trial whose run faults (non-finite measurement, plant blow-up) is recorded
+and recomputed, and a damaged index is moved aside and rebuilt (:class:`IndexWarning`).  An
+interrupted campaign loses only the trials in progress and writes no record of them; a local
+worker process that dies is replaced and its trials rerun (:class:`WorkerRestartWarning`).
+A full disk or a locked index stops the campaign with a one-line :class:`StorageError`.
+A trial whose run faults (non-finite measurement, plant blow-up) is recorded
 up to the fault and counted in the summary's ``faults``.
 """
 
@@ -25,9 +28,8 @@ import dataclasses
 import functools
 import hashlib
 import math
-import os
 import re
-import tempfile
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,16 +46,27 @@ from uuv_ocp.interrupts import check_interrupt, remember_interrupts
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.reference.path import Reference
 from uuv_ocp.specs import reference_from_spec, vehicle_from_spec
-from uuv_ocp.studies.executors import EXECUTORS, TaskRunner, require_dask
+from uuv_ocp.studies.executors import (
+    EXECUTORS,
+    SchedulerUnreachable,
+    TaskRunner,
+    WorkerCrashed,
+    WorkerRestartWarning,
+    require_dask,
+)
 from uuv_ocp.studies.records import (
     INDEX_NAME,
+    IndexWarning,
     RecordWarning,
+    StorageError,
     canonical,
+    check_index,
     check_writable,
     index_trial,
     query_trials,
     read_record,
     write_record,
+    write_text,
 )
 from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions
 
@@ -62,7 +75,12 @@ __all__ = [
     "INDEX_NAME",
     "CampaignConfig",
     "CampaignResult",
+    "IndexWarning",
     "RecordWarning",
+    "SchedulerUnreachable",
+    "StorageError",
+    "WorkerCrashed",
+    "WorkerRestartWarning",
     "format_summary",
     "format_summary_table",
     "query_trials",
@@ -395,6 +413,18 @@ def run_campaign(
     Returns
     -------
     CampaignResult
+
+    Raises
+    ------
+    StorageError
+        A record or the index could not be written (disk full, quota, a locked index); one
+        line naming the folder.  Every finished trial is saved: rerunning resumes.
+    WorkerCrashed
+        A trial's local worker process died each of :data:`~uuv_ocp.studies.executors.MAX_TRIES`
+        times it ran; raised after every other trial is recorded.
+    SchedulerUnreachable
+        ``scheduler`` did not answer within
+        :data:`~uuv_ocp.studies.executors.DASK_CONNECT_TIMEOUT` seconds.
     """
     return run_campaigns(
         [config], out_dir, executor=executor, workers=workers, progress=progress, scheduler=scheduler
@@ -431,6 +461,9 @@ def run_campaigns(
     if executor == "dask":
         require_dask()
     out = check_writable(out_dir)
+    repaired = check_index(out)
+    if repaired:
+        warnings.warn(repaired, IndexWarning, stacklevel=3)
     metrics: list[dict[int, dict]] = [{} for _ in configs]
     faults: list[dict[int, str | None]] = [{} for _ in configs]
     recomputed: list[list[int]] = [[] for _ in configs]
@@ -460,15 +493,32 @@ def run_campaigns(
     label = f"campaign {configs[0].name}" if len(configs) == 1 else f"{len(configs)} campaigns"
     # remember_interrupts: a Ctrl-C that CasADi swallows while a trial's problem is built is
     # raised by that trial's first closed-loop step, or after the record being written
+    crashed: list[str] = []
+
+    def restarted(message: str, keys: list) -> None:
+        trials = ", ".join(f"{configs[c].name} trial {i}" for c, i in keys)
+        warnings.warn(f"{message}: {trials}", WorkerRestartWarning, stacklevel=2)
+
     with ProgressBar(total, label, progress, initial=sum(resumed)) as bar, remember_interrupts():
         if pending:
-            with TaskRunner(executor, workers, scheduler) as runner:
+            with TaskRunner(executor, workers, scheduler, on_restart=restarted) as runner:
                 for (c, index), run in runner.run(trial_task, pending):
                     config = configs[c]
+                    if isinstance(run, WorkerCrashed):  # the others go on; reported at the end
+                        crashed.append(f"{config.name} trial {index}")
+                        continue
                     metrics[c][index] = _record(config, index, out / config.name, run)
                     faults[c][index] = run.fault
                     bar.update(1)
                     check_interrupt()
+    if crashed:
+        from uuv_ocp.studies.executors import MAX_TRIES
+
+        raise WorkerCrashed(
+            f"{', '.join(crashed)}: the worker process died each of the {MAX_TRIES} times it ran "
+            "(killed, out of memory, or a crash in native code); no record written for "
+            f"{'it' if len(crashed) == 1 else 'them'}, every other trial is saved (rerun to retry)"
+        )
     results = []
     for c, config in enumerate(configs):
         trials = tuple(metrics[c][i] for i in range(config.trials))
@@ -483,23 +533,10 @@ def run_campaigns(
             tuple(recomputed[c]),
             resumed[c],
         )
-        _write_text(directory / "config.toml", _config_toml(config))
-        _write_text(directory / "summary.txt", format_summary(result) + "\n")
+        write_text(directory / "config.toml", _config_toml(config), "campaign file")
+        write_text(directory / "summary.txt", format_summary(result) + "\n", "summary")
         results.append(result)
     return tuple(results)
-
-
-def _write_text(path: Path, text: str) -> None:
-    """Write ``text`` atomically (unique temporary name, then rename)."""
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(handle, "w", encoding="utf-8") as stream:
-            stream.write(text)
-        os.chmod(temporary, 0o644)
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
 
 
 def _config_toml(config: CampaignConfig) -> str:

@@ -9,15 +9,20 @@ worker that dies, is killed or is interrupted never leaves a record behind.
   order.  Workers ignore SIGINT (Ctrl-C stops the driver, which stops them) and die with their
   parent: on Linux ``prctl(PR_SET_PDEATHSIG, SIGKILL)``, elsewhere a thread that polls the
   parent's pid.  ``"process"`` is an alias kept from earlier versions (the pool even for
-  ``workers=1``).
+  ``workers=1``).  A worker that dies (killed, out of memory, a crash in native code) breaks
+  the pool; the runner starts a new one and reruns the tasks that were running, each alone
+  first so that the one that kills its worker is known; a task whose worker dies
+  :data:`MAX_TRIES` times is handed back as a :class:`WorkerCrashed` instead of a result.
 * ``"dask"``: :mod:`dask.distributed` (the ``dask`` extra): a :class:`~distributed.LocalCluster`
   of ``workers`` single-threaded worker processes, or the cluster whose scheduler is at
-  ``scheduler`` (``tcp://host:port``).  A task lost with a dead worker is rerun elsewhere by
+  ``scheduler`` (``tcp://host:port``), which must answer within :data:`DASK_CONNECT_TIMEOUT`
+  (else :class:`SchedulerUnreachable`).  A task lost with a dead worker is rerun elsewhere by
   the scheduler.
 """
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures
 import contextlib
 import ctypes
@@ -28,12 +33,34 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures.process import BrokenProcessPool
 from types import TracebackType
 from typing import Any
 
 EXECUTORS = ("local", "process", "dask")
 DASK_HINT = "pip install 'uuv_ocp[dask]' (or: pip install 'dask[distributed]')"
 _PR_SET_PDEATHSIG = 1  # from <linux/prctl.h>
+#: Tries of a task whose local worker process dies under it before it is given up.
+MAX_TRIES = 3
+#: Seconds to reach a Dask scheduler given by address (dask's own default is 30 s).  A scheduler
+#: that is up answers in milliseconds, even across a network; 10 s leaves room for a slow link.
+DASK_CONNECT_TIMEOUT = 10.0
+
+
+class SchedulerUnreachable(ConnectionError):
+    """The Dask scheduler given by address did not answer (the message names it)."""
+
+    def __str__(self) -> str:
+        """Return the one-line message."""
+        return str(self.args[0]) if self.args else ""
+
+
+class WorkerCrashed(RuntimeError):
+    """A task's worker process died every time the task ran (:data:`MAX_TRIES` times)."""
+
+
+class WorkerRestartWarning(UserWarning):
+    """A local worker process died; the pool was restarted and its tasks are rerun."""
 
 
 def require_dask() -> Any:
@@ -75,10 +102,20 @@ class TaskRunner:
         Worker processes (local pool, or the Dask ``LocalCluster``), >= 1.
     scheduler : str, optional
         Address of a running Dask scheduler; only with ``executor="dask"``.
+    on_restart : callable, optional
+        ``on_restart(message, keys)``: called when the local pool was restarted after a worker
+        died, with a one-line message and the keys of the tasks that are rerun.
     """
 
-    def __init__(self, executor: str, workers: int, scheduler: str | None = None) -> None:
+    def __init__(
+        self,
+        executor: str,
+        workers: int,
+        scheduler: str | None = None,
+        on_restart: Callable[[str, list], None] | None = None,
+    ) -> None:
         self.executor, self.workers, self.scheduler = executor, workers, scheduler
+        self.on_restart = on_restart
         self._stack = contextlib.ExitStack()
         self._pool: concurrent.futures.ProcessPoolExecutor | None = None
         self._client: Any = None
@@ -99,20 +136,37 @@ class TaskRunner:
                 )
                 self._client = self._stack.enter_context(distributed.Client(cluster))
             else:
-                self._client = self._stack.enter_context(distributed.Client(self.scheduler))
+                try:
+                    client = distributed.Client(self.scheduler, timeout=DASK_CONNECT_TIMEOUT)
+                except (OSError, TimeoutError) as error:  # dask says "Timed out trying to connect"
+                    self._stack.close()
+                    raise SchedulerUnreachable(
+                        f"no Dask scheduler answered at {self.scheduler} within {DASK_CONNECT_TIMEOUT:g} s "
+                        f"({type(error).__name__}: {' '.join(str(error).split())[:200]}); start one "
+                        "(dask scheduler) or check the address and port"
+                    ) from None
+                self._client = self._stack.enter_context(client)
         elif self.executor == "process" or self.workers > 1:
-            self._pool = concurrent.futures.ProcessPoolExecutor(
-                max_workers=self.workers,
-                mp_context=multiprocessing.get_context("spawn"),  # no inherited threads or locks
-                initializer=die_with_parent,
-                initargs=(os.getpid(),),
-            )
+            self._pool = self._new_pool()
         return self
+
+    def _new_pool(self) -> concurrent.futures.ProcessPoolExecutor:
+        return concurrent.futures.ProcessPoolExecutor(
+            max_workers=self.workers,
+            mp_context=multiprocessing.get_context("spawn"),  # no inherited threads or locks
+            initializer=die_with_parent,
+            initargs=(os.getpid(),),
+        )
 
     def run(
         self, function: Callable[..., Any], tasks: Sequence[tuple[Any, tuple]]
     ) -> Iterator[tuple[Any, Any]]:
-        """Run ``function(*args)`` for every ``(key, args)``; yield ``(key, result)`` as they finish."""
+        """Run ``function(*args)`` for every ``(key, args)``; yield ``(key, result)`` as they finish.
+
+        On the local pool, a task whose worker died :data:`MAX_TRIES` times yields a
+        :class:`WorkerCrashed` as its result; ``on_restart``, if given, is called with one line
+        each time the pool is restarted.
+        """
         if self._client is not None:
             from dask.distributed import as_completed
 
@@ -120,12 +174,73 @@ class TaskRunner:
             for future in as_completed(futures):
                 yield futures[future], future.result()
         elif self._pool is not None:
-            pending = {self._pool.submit(function, *args): key for key, args in tasks}
-            for future in concurrent.futures.as_completed(pending):
-                yield pending[future], future.result()
+            yield from self._run_pool(function, tasks)
         else:
             for key, args in tasks:
                 yield key, function(*args)
+
+    def _run_pool(
+        self, function: Callable[..., Any], tasks: Sequence[tuple[Any, tuple]]
+    ) -> Iterator[tuple[Any, Any]]:
+        """Run the tasks on the local pool, at most ``workers`` in flight (so every one is running).
+
+        A dead worker breaks the whole pool and fails every task in flight with it; which of
+        them killed it is unknown, so after a restart each of them runs alone once (the others
+        wait), and a task whose worker dies while it runs alone is the one: only such a death
+        can give a task up.  Keeping no more than ``workers`` tasks submitted means no queued,
+        never-started task is charged with a death.
+        """
+        todo = collections.deque(tasks)
+        alone: collections.deque[tuple[Any, tuple]] = collections.deque()  # suspects, one at a time
+        tries: collections.Counter[Any] = collections.Counter()
+        running: dict[concurrent.futures.Future, tuple[Any, tuple]] = {}
+        while todo or alone or running:
+            assert self._pool is not None
+            if alone:
+                if not running:
+                    task = alone.popleft()
+                    running[self._pool.submit(function, *task[1])] = task
+            else:
+                while todo and len(running) < self.workers:
+                    task = todo.popleft()
+                    running[self._pool.submit(function, *task[1])] = task
+            done, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
+            lost = []
+            for future in done:
+                task = running.pop(future)
+                if isinstance(future.exception(), BrokenProcessPool):
+                    lost.append(task)
+                    continue
+                yield task[0], future.result()
+            if not lost:
+                continue
+            # the pool is broken: every task still in flight is lost with it
+            lost += [running[future] for future in running]
+            running.clear()
+            single = len(lost) == 1
+            retry = []
+            for task in lost:
+                tries[task[0]] += 1
+                if single and tries[task[0]] >= MAX_TRIES:
+                    yield (
+                        task[0],
+                        WorkerCrashed(
+                            f"task {task[0]!r}: its worker process died each of the {tries[task[0]]} times "
+                            "it ran (killed, out of memory, or a crash in native code)"
+                        ),
+                    )
+                else:
+                    retry.append(task)
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = self._new_pool()
+            alone.extend(retry)
+            if self.on_restart is not None and retry:
+                self.on_restart(
+                    f"a worker process died; restarted the pool and rerunning {len(retry)} "
+                    f"lost task{'s' if len(retry) != 1 else ''} (each alone first; "
+                    f"a task whose worker dies {MAX_TRIES} times is given up)",
+                    [task[0] for task in retry],
+                )
 
     def __exit__(
         self,

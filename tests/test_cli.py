@@ -238,3 +238,19 @@ def test_track_and_demo_show_progress_where_bars_are_drawn_unless_quiet(capsys, 
     monkeypatch.setenv(ENVIRONMENT_VARIABLE, "auto")  # not a terminal: silent, as the bars are
     assert cli.main(["track", "-r", "s2", "--out", str(tmp_path)]) == 0
     assert capsys.readouterr().err == ""
+
+
+def test_track_reports_a_storage_error_in_one_line(tmp_path, capsys, monkeypatch):
+    # a full disk while the run is saved: one line naming the file, exit 2 (was "...: " with
+    # the --out prefix and an empty file name, the message of an ordinary OSError)
+    from uuv_ocp.studies import compare
+    from uuv_ocp.studies.records import StorageError
+
+    def full_disk(path, *args, **kwargs):
+        raise StorageError(f"cannot write the run {path}: no space left on device", 28)
+
+    monkeypatch.setattr(compare, "write_record", full_disk)
+    code = cli.main(["track", "-r", "s2", "--duration", "0.3", "--horizon", "5", "--out", str(tmp_path)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and "no space left on device" in err[0] and "--out" not in err[0], err

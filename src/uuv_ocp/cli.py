@@ -27,6 +27,8 @@ from uuv_ocp.reference.path import PAPER_REFERENCES
 from uuv_ocp.solvers import REGISTRY
 from uuv_ocp.specs import VEHICLE_PRESETS
 from uuv_ocp.studies.compare import format_tracking_table, track_references
+from uuv_ocp.studies.executors import SchedulerUnreachable, WorkerCrashed
+from uuv_ocp.studies.records import StorageError, write_text
 
 DEMO_HINT = "start with `uuv-ocp demo` (all ten paper references, NMPC + IPOPT, 30 s each)"
 _VEHICLE_HELP = f"{' | '.join(VEHICLE_PRESETS)} | FILE.toml (docs/vehicles.md)"
@@ -395,8 +397,6 @@ def _run_campaign(args: argparse.Namespace) -> int:
     """``uuv-ocp campaign``: flags or ``--config FILE``; the file's ``[run]`` fills unset run flags."""
     from uuv_ocp.studies.campaign import CampaignConfig, format_summary, format_summary_table, run_campaigns
     from uuv_ocp.studies.campaign_file import load_campaign_file
-    from uuv_ocp.studies.executors import SchedulerUnreachable, WorkerCrashed
-    from uuv_ocp.studies.records import StorageError, write_text
 
     try:
         if args.config is not None:
@@ -509,7 +509,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     if command == "reproduce":
         try:
             return _run_reproduce(args)
-        except ValueError as error:
+        except (ValueError, StorageError, WorkerCrashed) as error:  # one line each
             return _fail(str(error))
         except OSError as error:
             return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
@@ -561,7 +561,7 @@ def _dispatch(args: argparse.Namespace) -> int:
     except KeyboardInterrupt as interrupt:
         print(f"\ninterrupted: {interrupt}. Run the same command again to resume.", file=sys.stderr)
         return 130
-    except ValueError as error:
+    except (ValueError, StorageError) as error:  # a StorageError names its file and folder
         return _fail(str(error))
     except OSError as error:
         return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")

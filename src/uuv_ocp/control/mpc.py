@@ -39,7 +39,7 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import instance_parameters
-from uuv_ocp.solvers import REGISTRY, get_solver
+from uuv_ocp.solvers import REGISTRY, new_solver
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.solvers.rti import ResidentPlan
@@ -99,7 +99,8 @@ class NMPC:
     ) -> None:
         self.problem = problem
         self.solver_name = REGISTRY.resolve(solver)  # the registered spelling: "IPOPT" -> "ipopt"
-        self.backend = get_solver(problem, solver, options)
+        # a backend of its own: solver memory, buffers and warm starts are never shared
+        self.backend = new_solver(problem, solver, options)
         if seed is not None:
             seed = check.positive_int("seed", seed, minimum=0)
         self.seed = seed

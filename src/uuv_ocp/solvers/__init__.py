@@ -202,7 +202,7 @@ def new_solver(problem: Transcribed, name: str, options: dict[str, Any] | None =
 
 
 def get_solver(problem: Transcribed, name: str, options: dict[str, Any] | None = None) -> Any:
-    """The calling thread's backend for ``problem`` (built once per thread, content, name and options).
+    """Return the calling thread's backend for ``problem`` (one per thread, content, name, options).
 
     Equal problems share it within a thread; another thread gets a backend of its own.  Use
     :func:`new_solver` for a backend that nothing else hands out.

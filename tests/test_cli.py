@@ -126,7 +126,7 @@ def test_solver_names_are_case_insensitive():
     assert REGISTRY.resolve("Multistart-SQP") == "multistart-sqp"
     problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=5)
     assert uo.NMPC(problem, "SQP").solver_name == "sqp"
-    assert uo.get_solver(problem, "SQP") is uo.get_solver(problem, "sqp")  # one backend per name
+    assert uo.get_solver(problem, "SQP") is uo.get_solver(problem, "sqp")  # one per name (and thread)
 
 
 def test_solvers_name_prints_that_backends_declared_options(capsys):

@@ -4,14 +4,22 @@
 or a preset such as :class:`~uuv_ocp.tracking.TrackingProblem`): dimensions, the parameter
 vector, the built NLP variants and condensed Functions, and conversions between physical and
 scaled controls.  Nothing is built in a constructor: :meth:`Transcribed.build` builds on first
-use and keeps the result on the problem, keyed by the problem's content digest
-(``OcpSpec.key``), so a problem that is changed (a new object) is never served a stale build.
-Compiled native code is cached on disk by the digest of its generated source
-(:mod:`uuv_ocp.native.compile`), so equal problems share it across objects and processes.
+use and keeps the result in one package-level cache keyed by the problem's content digest
+(``OcpSpec.key``): two equal problems share one build, and a problem that is changed (a new
+object) is never served a stale build.  The cache is thread-safe (a build runs once, under
+:data:`uuv_ocp._concurrency.BUILD_LOCK`) and bounded: it keeps the :data:`BUILD_CACHE_SIZE`
+builds used last and drops the oldest (whoever holds a dropped build keeps using it; the next
+``build()`` of its problem builds again).  A :class:`Built` holds only CasADi Functions and
+expressions, never evaluation memory: every caller evaluates through buffers of its own
+(:meth:`Transcribed.buffered`: one per thread).  Compiled native code is cached on disk by the
+digest of its generated source (:mod:`uuv_ocp.native.compile`), so equal problems share it across
+objects and processes.
 """
 
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -19,6 +27,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK, BuildCache
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.transcription.condensed import condense, decode
@@ -51,8 +60,19 @@ class Built:
         if not self.spec.has_terminal_equality:
             return None
         if terminal_penalty not in self._soft:
-            self._soft[terminal_penalty] = transcribe(self.spec, self.step, True, terminal_penalty)
+            with BUILD_LOCK:  # a build is shared by threads: one of them transcribes it
+                if terminal_penalty not in self._soft:
+                    self._soft[terminal_penalty] = transcribe(self.spec, self.step, True, terminal_penalty)
         return self._soft[terminal_penalty]
+
+
+#: Most builds :meth:`Transcribed.build` keeps (the least recently used is dropped first).
+BUILD_CACHE_SIZE = 32
+#: Most zero-copy callers :meth:`Transcribed.buffered` keeps per thread (oldest dropped first).
+BUFFERED_PER_THREAD = 64
+
+_BUILDS: BuildCache[Built] = BuildCache(BUILD_CACHE_SIZE)
+_THREAD = threading.local()  # .callers: this thread's BufferedFunctions by (spec key, name)
 
 
 def build_spec(spec: OcpSpec) -> Built:
@@ -82,25 +102,33 @@ class Transcribed:
 
     @property
     def _cache(self) -> dict[Any, Any]:
-        """Alias of the build store (the name before the redesign)."""
+        """Alias of the problem's store of derived data (the name before the redesign)."""
         return self._store
 
     # ---------------------------------------------------------------- building
     def build(self) -> Built:
-        """Build (once, on first use) and return the CasADi objects shared by all solvers."""
+        """Build (once per content, on first use) and return the CasADi objects all solvers share.
+
+        Kept in the package's build cache (module doc): equal problems share one build.
+        """
         spec = self.spec()
-        built = self._store.get(("built", spec.key))
-        if built is None:
-            built = build_spec(spec)
-            self._store[("built", spec.key)] = built
-        return built
+        return _BUILDS.get(spec.key, lambda: build_spec(spec))
 
     def buffered(self, name: str) -> BufferedFunction:
-        """Zero-copy caller of the built Function ``name`` (``"rollout"``, ``"score_terms"``, …)."""
-        key = ("buffered", name)
-        if key not in self._store:
-            self._store[key] = BufferedFunction(getattr(self.build(), name))
-        caller: BufferedFunction = self._store[key]
+        """Zero-copy caller of the built Function ``name`` (``"rollout"``, ``"score_terms"``, …).
+
+        The calling thread's own caller (its buffers are written by every call): a caller is
+        never shared between threads.
+        """
+        callers: OrderedDict[tuple[str, str], BufferedFunction] | None = getattr(_THREAD, "callers", None)
+        if callers is None:
+            callers = _THREAD.callers = OrderedDict()
+        key = (self.spec().key, name)
+        caller = callers.get(key)
+        if caller is None:
+            caller = callers[key] = BufferedFunction(getattr(self.build(), name))
+            if len(callers) > BUFFERED_PER_THREAD:
+                callers.popitem(last=False)
         return caller
 
     # -------------------------------------------------------------- dimensions

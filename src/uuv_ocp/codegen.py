@@ -49,6 +49,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BuildCache, serialised
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import instance_parameters
 from uuv_ocp.native.compile import (
@@ -225,6 +226,7 @@ def _renamed(function: ca.Function, name: str) -> ca.Function:
     )
 
 
+@serialised
 def generate_c(
     problem: Transcribed,
     directory: str | Path,
@@ -566,30 +568,34 @@ def jit_directory() -> contextlib.AbstractContextManager[str]:
 
 
 def compiled_build(problem: Transcribed, population: int) -> GeneratedCode | None:
-    """Build (once per problem and population) what the solvers' ``compiled=True`` runs on.
+    """Build (once per problem content, population and cache folder) what ``compiled=True`` runs on.
 
     Returns the compiled ``cost_batch`` + IGWO step, ``rollout`` and ``score_terms`` of
     ``problem``, or ``None`` with one warning when the compiled path is unavailable: no
     compiler works, the compiled code fails its verification, or the cache folder cannot be
     used (unsafe or not writable: the warning names it and the fix).
     """
-    cache = problem._store.setdefault("codegen", {})
-    if population not in cache:
+    directory = default_cache_directory()
+
+    def build() -> GeneratedCode | None:
         try:
-            cache[population] = generate_c(
-                problem,
-                default_cache_directory(),
-                functions=("cost_batch", "rollout", "score_terms"),
-                population=population,
+            return generate_c(
+                problem, directory, functions=("cost_batch", "rollout", "score_terms"), population=population
             )
         except (CodegenError, OSError) as error:
             warnings.warn(
                 f"compiled=True unavailable ({error}); using CasADi's virtual machine instead",
                 RuntimeWarning,
-                stacklevel=3,
+                stacklevel=5,
             )
-            cache[population] = None
-    return cache[population]
+            return None
+
+    # equal problems share a build: the key is the content, the population and the folder
+    return _COMPILED_BUILDS.get((problem.spec().key, population, str(directory)), build)
+
+
+#: :func:`compiled_build`'s builds by (problem content, population, cache folder); bounded.
+_COMPILED_BUILDS: BuildCache[GeneratedCode | None] = BuildCache(32)
 
 
 class NativeIgwo:

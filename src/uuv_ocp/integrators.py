@@ -5,6 +5,7 @@ from __future__ import annotations
 import casadi as ca
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import serialised
 
 
 def _rk4_states(dynamics: ca.Function, dt: float, substeps: int) -> tuple[list[ca.SX], list[ca.SX]]:
@@ -25,6 +26,7 @@ def _rk4_states(dynamics: ca.Function, dt: float, substeps: int) -> tuple[list[c
     return inputs, states
 
 
+@serialised
 def rk4_step(dynamics: ca.Function, dt: float, substeps: int = 1, name: str = "rk4") -> ca.Function:
     """Classical fourth-order Runge–Kutta map over one interval of length ``dt``.
 
@@ -55,6 +57,7 @@ def rk4_step(dynamics: ca.Function, dt: float, substeps: int = 1, name: str = "r
     )
 
 
+@serialised
 def rk4_path(dynamics: ca.Function, dt: float, substeps: int = 1, name: str = "rk4_path") -> ca.Function:
     """Map ``x`` to the states after every sub-step of :func:`rk4_step` (same arithmetic, numbers).
 

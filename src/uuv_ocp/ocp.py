@@ -38,6 +38,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 
 INTEGRATORS = ("rk4",)
@@ -410,8 +411,10 @@ class Ocp(Transcribed):
     def spec(self) -> OcpSpec:
         """Check the declaration, make the Ocp immutable and return its frozen description."""
         if "spec" not in self._store:
-            self._store["spec"] = _freeze(self)
-            self._frozen = True
+            with BUILD_LOCK:  # CasADi Functions are built here (uuv_ocp._concurrency)
+                if "spec" not in self._store:
+                    self._store["spec"] = _freeze(self)
+                    self._frozen = True
         spec: OcpSpec = self._store["spec"]
         return spec
 

@@ -32,6 +32,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
@@ -278,7 +279,9 @@ class TrackingProblem(Transcribed):
     def ocp(self) -> Ocp:
         """The :class:`~uuv_ocp.ocp.Ocp` this preset declares (built once, immutable)."""
         if "ocp" not in self._store:
-            self._store["ocp"] = self._declare()
+            with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
+                if "ocp" not in self._store:
+                    self._store["ocp"] = self._declare()
         ocp: Ocp = self._store["ocp"]
         return ocp
 

@@ -68,7 +68,7 @@ from scipy.optimize import lsq_linear
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE, instance_parameters, score_terms
-from uuv_ocp.solvers import REGISTRY, get_solver
+from uuv_ocp.solvers import REGISTRY, new_solver
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.solvers.rti import ResidentPlan
@@ -144,7 +144,8 @@ class NMPC:
     ) -> None:
         self.problem = problem
         self.solver_name = REGISTRY.resolve(solver)  # the registered spelling: "IPOPT" -> "ipopt"
-        self.backend = get_solver(problem, solver, options)
+        # a backend of its own: solver memory, buffers and warm starts are never shared
+        self.backend = new_solver(problem, solver, options)
         if not callable(getattr(self.backend, "solve", None)):
             raise TypeError(
                 f"solver {self.solver_name!r}: its factory returned a {type(self.backend).__name__}, which "

@@ -25,6 +25,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import serialised
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.metrics import tracking_metrics
 from uuv_ocp.control.mpc import NMPC
@@ -459,6 +460,7 @@ def _vehicle_plant(problem: TrackingProblem, plant: Any, dt: float, substeps: in
     return rk4_path(dynamics, dt, substeps, name="plant_step"), vehicle_dimensions(vehicle)[2]
 
 
+@serialised
 def _ocp_plant(problem: Any, plant: Any, parameters: Any, dt: float, substeps: int) -> ca.Function:
     """RK4 plant path ``(x, u) -> (nx, substeps)``: ``plant`` or the Ocp's dynamics at ``parameters``."""
     spec = problem.spec()

@@ -53,6 +53,7 @@ import numpy as np
 import numpy.typing as npt
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import serialised
 from uuv_ocp.model.thrusters import GENERALISED_FORCE_NAMES, ThrusterConfiguration
 
 STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
@@ -727,6 +728,7 @@ class Vehicle6DOF:
         return self.dynamics_expression(state, control, current)
 
     @cached_property
+    @serialised
     def dynamics(self) -> ca.Function:
         """``dynamics(x[12], tau[6], current[3]) -> xdot[12]`` as a CasADi Function (SX graph).
 
@@ -749,6 +751,7 @@ class Vehicle6DOF:
         return self.dynamics
 
     @cached_property
+    @serialised
     def thruster_dynamics(self) -> ca.Function:
         """``thruster_dynamics(x[12], f[n], current[3]) -> xdot[12]`` with ``τ = T f``.
 

@@ -28,6 +28,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import serialised
 
 STATE_NAMES = ("x", "y", "psi", "u", "v", "r")
 STATE_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s")
@@ -239,6 +240,7 @@ class Vehicle:
             r_dot,
         )
 
+    @serialised
     def dynamics_function(self) -> ca.Function:
         """``f(x[6], tau[3], current[2]) -> xdot[6]`` as a CasADi Function (SX graph)."""
         state = ca.SX.sym("x", STATE_DIM)

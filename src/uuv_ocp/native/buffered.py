@@ -3,17 +3,21 @@
 An ordinary call converts every numpy argument to a ``DM`` and every result back (≈ 50–150 µs
 for the functions of a tracking problem); the buffer interface reads and writes numpy memory
 directly.  Same Function, same arithmetic: the results are bit-identical to an ordinary call.
-A caller owns its buffers, so one caller must not be used from two threads at once (the
-callers cached on a problem or a reference are therefore not thread-safe; processes are fine,
-and a copy gets buffers of its own).
+A caller owns its buffers and CasADi memory, so the package gives every owner its own (a backend,
+a thread: ``Transcribed.buffered``, ``Reference.evaluate``); a copy (``copy``, ``deepcopy``,
+pickle) gets buffers of its own.  A caller that is shared anyway is still safe: its calls take a
+lock of their own, so two threads calling it at once take turns instead of mixing their inputs.
 """
 
 from __future__ import annotations
 
+import threading
 from typing import Any, cast
 
 import casadi as ca
 import numpy as np
+
+from uuv_ocp._concurrency import BUILD_LOCK
 
 
 class BufferedFunction:
@@ -27,6 +31,11 @@ class BufferedFunction:
     """
 
     def __init__(self, function: ca.Function) -> None:
+        with BUILD_LOCK:  # a densifying wrapper and Function.buffer build CasADi objects
+            self._build(function)
+        self._lock = threading.Lock()
+
+    def _build(self, function: ca.Function) -> None:
         dense = all(function.sparsity_in(i).is_dense() for i in range(function.n_in())) and all(
             function.sparsity_out(i).is_dense() for i in range(function.n_out())
         )
@@ -60,13 +69,14 @@ class BufferedFunction:
         ``inputs`` are the inputs' values: flat vectors of their nonzeros, or dense matrices of
         the inputs' shape (taken column by column, as CasADi stores them).
         """
-        for index, (target, value) in enumerate(zip(self._inputs, inputs, strict=True)):
-            value = np.asarray(value, dtype=float)
-            if value.size != target.size:
-                raise ValueError(
-                    f"input {index} of {self.function.name()!r} needs {target.size} values, "
-                    f"got shape {value.shape}"
-                )
-            target[:] = value.ravel(order="F")
-        self._trigger()
-        return [output.copy() for output in self._outputs]
+        with self._lock:  # the buffers are this caller's: one call at a time writes them
+            for index, (target, value) in enumerate(zip(self._inputs, inputs, strict=True)):
+                value = np.asarray(value, dtype=float)
+                if value.size != target.size:
+                    raise ValueError(
+                        f"input {index} of {self.function.name()!r} needs {target.size} values, "
+                        f"got shape {value.shape}"
+                    )
+                target[:] = value.ravel(order="F")
+            self._trigger()
+            return [output.copy() for output in self._outputs]

@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 import numbers
 import re
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, NoReturn
@@ -33,6 +34,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK, serialised
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.reference.waypoints import PiecewiseExpression, WaypointPath, lawnmower_points
 
@@ -111,7 +113,10 @@ class Reference:
     path_z: PathFunction | None = None
     heading: PathFunction | None = None
     _function: ca.Function = field(init=False, repr=False, compare=False)
+    # the map of the Function over n times, by n (shared: Functions are only read), and each
+    # thread's zero-copy callers of them (.maps, by n: buffers are written by every call)
     _maps: dict = field(init=False, repr=False, compare=False, default_factory=dict)
+    _callers: threading.local = field(init=False, repr=False, compare=False, default_factory=threading.local)
 
     def __post_init__(self) -> None:
         """Validate the fields (``ValueError`` names the first bad one) and build the Function."""
@@ -437,6 +442,7 @@ class Reference:
             raise ValueError(f"{label} must return a scalar expression, got shape {expression.shape}")
         return expression
 
+    @serialised
     def _build_function(self) -> ca.Function:
         time = ca.SX.sym("t")
         placeholders: list[tuple[ca.SX, ca.SX]] = []
@@ -498,9 +504,16 @@ class Reference:
 
     def _raw(self, times: np.ndarray) -> np.ndarray:
         size = times.size
-        if size not in self._maps:  # CasADi would build a new map on every horzcat call
-            self._maps[size] = BufferedFunction(self._function.map(size))
-        (states,) = self._maps[size](times)
+        callers = getattr(self._callers, "maps", None)
+        if callers is None:  # the first evaluation in this thread
+            callers = self._callers.maps = {}
+        caller = callers.get(size)
+        if caller is None:
+            with BUILD_LOCK:  # CasADi would build a new map on every horzcat call: once per size
+                if size not in self._maps:
+                    self._maps[size] = self._function.map(size)
+                caller = callers[size] = BufferedFunction(self._maps[size])
+        (states,) = caller(times)
         return states.reshape(size, -1)
 
     def evaluate(self, times: object) -> np.ndarray:

@@ -2,17 +2,30 @@
 
 A backend is a class constructed as ``Backend(problem, options)`` with a method
 ``solve(p, warm_start) -> SolveResult``.  Adding one is a single :func:`register_solver` call.
-Backend instances are cached on the problem (keyed by name and options), so repeated solves
-of the same problem never rebuild CasADi objects.
+
+A backend is stateful (its solver memory, zero-copy buffers, warm starts of a C step) and is
+owned by whoever created it; no two threads ever share one through this module:
+
+- :func:`new_solver` builds a backend of your own (what :class:`~uuv_ocp.control.NMPC` does);
+- :func:`solve` checks a backend out of a small package-level pool, keyed by the problem's
+  content, the solver name and the options, for the length of the call: a backend in use is
+  never handed to another call (a second thread gets another one, built then), so repeated
+  solves stay fast without sharing;
+- :func:`get_solver` returns the calling thread's backend for (problem content, name,
+  options), built on its first request in that thread.
 """
 
 from __future__ import annotations
 
+import contextlib
 import difflib
 import json
-from collections.abc import Callable
+import threading
+from collections import OrderedDict
+from collections.abc import Callable, Iterator
 from typing import Any
 
+from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import instance_parameters
 from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
@@ -153,19 +166,81 @@ def _options_key(options: dict[str, Any] | None) -> str:
     return json.dumps(options or {}, sort_keys=True, default=repr)
 
 
-def get_solver(problem: Transcribed, name: str, options: dict[str, Any] | None = None) -> Any:
-    """Backend instance for ``problem`` (built once per problem, name and options)."""
+#: Most idle backends :func:`solve` keeps (the least recently returned is dropped first).
+POOL_SIZE = 16
+#: Most backends :func:`get_solver` keeps per thread (the least recently requested is dropped).
+THREAD_SOLVERS = 16
+
+_POOL: OrderedDict[tuple[Any, ...], list[Any]] = OrderedDict()  # key -> idle backends
+_POOL_LOCK = threading.Lock()
+_THREAD = threading.local()  # .solvers: this thread's get_solver backends by key
+
+
+def _checked(problem: Transcribed, name: str, options: dict[str, Any] | None) -> tuple[str, tuple[Any, ...]]:
+    """Validate the arguments of a backend request; the registered name and the backend's key."""
     if not isinstance(problem, Transcribed):
         raise ValueError(f"problem must be a uuv_ocp.Ocp or TrackingProblem, got {type(problem).__name__}")
     if options is not None and not isinstance(options, dict):
         raise ValueError(f"options must be a dict or None, got {options!r}")
     name = REGISTRY.resolve(name)
+    return name, (type(problem), problem.spec().key, name, _options_key(options))
+
+
+def new_solver(problem: Transcribed, name: str, options: dict[str, Any] | None = None) -> Any:
+    """Build a new backend ``name`` for ``problem``, owned by the caller (shared with nobody).
+
+    Raises
+    ------
+    ValueError
+        Not a problem, an unknown name or options that are not a dict (or that the backend
+        rejects), before anything is built.
+    """
+    name, _ = _checked(problem, name, options)
     factory = REGISTRY.factory(name)
-    cache = problem._store.setdefault("solvers", {})
-    key = (name, _options_key(options))
-    if key not in cache:
-        cache[key] = factory(problem, options)
-    return cache[key]
+    with BUILD_LOCK:  # constructors build CasADi objects
+        return factory(problem, options)
+
+
+def get_solver(problem: Transcribed, name: str, options: dict[str, Any] | None = None) -> Any:
+    """Return the calling thread's backend for ``problem`` (one per thread, content, name, options).
+
+    Equal problems share it within a thread; another thread gets a backend of its own.  Use
+    :func:`new_solver` for a backend that nothing else hands out.
+    """
+    name, key = _checked(problem, name, options)
+    solvers: OrderedDict[tuple[Any, ...], Any] | None = getattr(_THREAD, "solvers", None)
+    if solvers is None:
+        solvers = _THREAD.solvers = OrderedDict()
+    backend = solvers.get(key)
+    if backend is None:
+        backend = solvers[key] = new_solver(problem, name, options)
+        if len(solvers) > THREAD_SOLVERS:
+            solvers.popitem(last=False)
+    else:
+        solvers.move_to_end(key)
+    return backend
+
+
+@contextlib.contextmanager
+def checked_out(problem: Transcribed, name: str, options: dict[str, Any] | None = None) -> Iterator[Any]:
+    """Lend a backend from the pool for the ``with`` block (exclusively; see the module doc)."""
+    name, key = _checked(problem, name, options)
+    with _POOL_LOCK:
+        idle = _POOL.get(key)
+        backend = idle.pop() if idle else None
+    if backend is None:
+        backend = new_solver(problem, name, options)
+    try:
+        yield backend
+    finally:
+        with _POOL_LOCK:
+            _POOL.setdefault(key, []).append(backend)
+            _POOL.move_to_end(key)
+            while sum(len(idle) for idle in _POOL.values()) > POOL_SIZE:
+                oldest = next(iter(_POOL))
+                _POOL[oldest].pop(0)
+                if not _POOL[oldest]:
+                    del _POOL[oldest]
 
 
 def solve(
@@ -207,11 +282,11 @@ def solve(
     SolveResult
         Never raises on solver failure: ``success=False`` and ``status`` say what happened.
     """
-    backend = get_solver(problem, solver, options)
-    p = instance_parameters(problem, x0, t0, u_prev=u_prev, current=current, parameters=parameters)
-    if warm_start is not None and not isinstance(warm_start, Iterate):
-        raise ValueError(f"warm_start must be a uuv_ocp Iterate or None, got {type(warm_start).__name__}")
-    return backend.solve(p, warm_start)
+    with checked_out(problem, solver, options) as backend:
+        p = instance_parameters(problem, x0, t0, u_prev=u_prev, current=current, parameters=parameters)
+        if warm_start is not None and not isinstance(warm_start, Iterate):
+            raise ValueError(f"warm_start must be a uuv_ocp Iterate or None, got {type(warm_start).__name__}")
+        return backend.solve(p, warm_start)
 
 
 __all__ = [
@@ -229,6 +304,7 @@ __all__ = [
     "minimize",
     "available_solvers",
     "get_solver",
+    "new_solver",
     "register_solver",
     "solve",
 ]

@@ -48,6 +48,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import score_parameters
 from uuv_ocp.native.buffered import BufferedFunction
@@ -468,6 +469,16 @@ class NlpSolver:
         self, variant: str, robust: bool | str = False, still_water: bool = False
     ) -> BufferedFunction:
         """Return the variant's ``nlpsol``, called zero-copy (no numpy -> DM conversions per step)."""
+        solver = self._solvers.get((variant, robust, still_water))
+        if solver is None:
+            with BUILD_LOCK:  # nlpsol, its JIT and callbacks build CasADi objects (uuv_ocp._concurrency)
+                solver = self._built_solver(variant, robust, still_water)
+        return solver
+
+    def _built_solver(
+        self, variant: str, robust: bool | str = False, still_water: bool = False
+    ) -> BufferedFunction:
+        """Build (once) and return :meth:`_solver`'s ``nlpsol``; under the package's build lock."""
         key = (variant, robust, still_water)
         if key not in self._solvers:
             data = self.variants[variant]

@@ -74,6 +74,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK, serialised
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers.base import reraise_interrupt
@@ -211,6 +212,7 @@ class ResidentPlan(NamedTuple):
     control: np.ndarray
 
 
+@serialised
 def qp_functions(
     data: NlpData, still_water_slice: slice | None, objective_scale: float, name: str
 ) -> tuple[ca.Function, ca.Sparsity, ca.Sparsity]:
@@ -248,6 +250,7 @@ def _nonzeros(matrix: ca.SX) -> ca.SX:
     return ca.vertcat(*entries) if entries else ca.SX(0, 1)
 
 
+@serialised
 def qp_step_function(
     hessian: ca.Sparsity,
     jacobian: ca.Sparsity,
@@ -378,6 +381,7 @@ class RtiSolver(NlpSolver):
         self._first_controls: dict[str, tuple[np.ndarray, ...]] = {}
 
     # ---------------------------------------------------------------- functions
+    @serialised
     def _sparsities(self, variant: str) -> tuple[ca.Function, ca.Sparsity, ca.Sparsity]:
         if variant not in self._qp_structure:
             self._qp_structure[variant] = qp_functions(
@@ -438,17 +442,18 @@ class RtiSolver(NlpSolver):
                 if v != variant and v in self.variants and variant in ("hard", "soft")
             ]
             try:
-                for name in together:
-                    self._ocp_steps[(name, still_water)] = build_step(
-                        self.variants[name],
-                        spec.state_dim,
-                        np.arange(spec.layout.size)[self._x0],
-                        self.objective_scale,
-                        self._still_water_slice if still_water else None,
-                        self.ocp_qp_options,
-                        default_cache_directory(),
-                        f"uuv_ocp_rti_{name.replace('.', '_')}{'_still_water' if still_water else ''}",
-                    )
+                with BUILD_LOCK:  # code generation, compilation and loading
+                    for name in together:
+                        self._ocp_steps[(name, still_water)] = build_step(
+                            self.variants[name],
+                            spec.state_dim,
+                            np.arange(spec.layout.size)[self._x0],
+                            self.objective_scale,
+                            self._still_water_slice if still_water else None,
+                            self.ocp_qp_options,
+                            default_cache_directory(),
+                            f"uuv_ocp_rti_{name.replace('.', '_')}{'_still_water' if still_water else ''}",
+                        )
             except (CodegenError, OSError, UnsupportedStructure) as error:
                 warnings.warn(
                     f"sqp-rti: qpsol='hpipm-ocp' unavailable ({type(error).__name__}: {error}); "
@@ -464,6 +469,7 @@ class RtiSolver(NlpSolver):
                 self.judge_terms = self._compiled_judge()
         return self._ocp_steps[key]
 
+    @serialised
     def _compiled_judge(self) -> BufferedFunction:
         """Compile the judge's ``score_terms`` beside the C step (CasADi's VM if that fails).
 
@@ -477,6 +483,7 @@ class RtiSolver(NlpSolver):
         loaded, _ = load_or_fallback([terms], default_cache_directory(), name="uuv_ocp_rti_judge")
         return BufferedFunction(loaded[terms.name()])
 
+    @serialised
     def _compiled(self, function: ca.Function) -> ca.Function:
         """Compile ``function`` to C in the solvers' cache (CasADi's VM if unavailable)."""
         from uuv_ocp.codegen import default_cache_directory
@@ -978,6 +985,7 @@ def _automatic_qpsol() -> str:
     return "hpipm-ocp"
 
 
+@serialised
 def nmpc_step_function(
     problem: Transcribed, name: str = "nmpc_step", qpsol: str = "hpipm-ocp"
 ) -> tuple[ca.Function, RtiSolver]:

@@ -118,9 +118,10 @@ def test_equal_problems_share_one_build():
     """The build cache is keyed by content: two equal problem objects, one build."""
     reference = uo.Reference.paper("s2")
     assert make_problem(reference).build() is make_problem(reference).build()
-    assert make_problem(reference).build() is not uo.TrackingProblem(
-        uo.Vehicle.rexrov(), reference, horizon=HORIZON + 1
-    ).build()
+    assert (
+        make_problem(reference).build()
+        is not uo.TrackingProblem(uo.Vehicle.rexrov(), reference, horizon=HORIZON + 1).build()
+    )
 
 
 def test_get_solver_gives_each_thread_its_own_backend():

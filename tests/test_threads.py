@@ -204,3 +204,32 @@ def test_a_shared_reference_evaluates_right_in_every_thread():
     for thread in threads:
         thread.join()
     assert wrong == [0] * THREADS
+
+
+def test_one_controller_stepped_by_two_threads_raises():
+    # a controller is one closed loop: a second thread inside it gets a clear error, never a
+    # control interleaved from two loops (the issue: silent wrong controls)
+    problem = make_problem()
+    controller = uo.NMPC(problem, "ipopt")
+    x0 = problem.reference.initial_state(0.0)
+    inside, release = threading.Event(), threading.Event()
+    solve = controller.backend.solve
+
+    def slow_solve(*args, **kwargs):
+        inside.set()
+        release.wait(30)
+        return solve(*args, **kwargs)
+
+    controller.backend.solve = slow_solve
+    worker = threading.Thread(target=controller.step, args=(x0, 0.0))
+    worker.start()
+    try:
+        assert inside.wait(60)
+        with pytest.raises(RuntimeError, match="another thread is inside this controller"):
+            controller.step(x0, 0.0)
+    finally:
+        release.set()
+        worker.join()
+    controller.backend.solve = solve
+    controller.warm_up(x0, 0.0)  # nested calls by one thread pass
+    assert controller.step(x0, 0.0).control.shape == (3,)

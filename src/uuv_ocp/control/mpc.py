@@ -56,10 +56,12 @@ backend's tolerance.
 
 from __future__ import annotations
 
+import functools
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import casadi as ca
 import numpy as np
@@ -117,6 +119,37 @@ class StepOutput:
     fallback_source: str = ""
 
 
+_Method = TypeVar("_Method", bound=Callable[..., Any])
+
+
+def _one_thread(method: _Method) -> _Method:
+    """Refuse a second thread inside one controller's steps (a clear error, not a wrong control).
+
+    A controller's warm start, plan and backend memory are one closed loop's state: two threads
+    stepping it at once would interleave two loops.  Nested calls by the same thread (``step``
+    inside ``warm_up``) pass; the check costs one non-blocking lock per call.
+    """
+
+    @functools.wraps(method)
+    def guarded(self: NMPC, *args: Any, **kwargs: Any) -> Any:
+        me = threading.get_ident()
+        if self._stepping == me:
+            return method(self, *args, **kwargs)
+        if not self._step_lock.acquire(blocking=False):
+            raise RuntimeError(
+                f"NMPC.{method.__name__} was called while another thread is inside this controller "
+                f"({self.solver_name}); a controller is one closed loop: give each thread its own NMPC"
+            )
+        self._stepping = me
+        try:
+            return method(self, *args, **kwargs)
+        finally:
+            self._stepping = None
+            self._step_lock.release()
+
+    return guarded  # type: ignore[return-value]
+
+
 class NMPC:
     """Nonlinear MPC controller for any problem (an :class:`~uuv_ocp.ocp.Ocp` or a tracking preset).
 
@@ -142,6 +175,8 @@ class NMPC:
         seed: int | None = None,
         warm_start: bool = True,
     ) -> None:
+        self._step_lock = threading.Lock()  # see _one_thread
+        self._stepping: int | None = None
         self.problem = problem
         self.solver_name = REGISTRY.resolve(solver)  # the registered spelling: "IPOPT" -> "ipopt"
         # a backend of its own: solver memory, buffers and warm starts are never shared
@@ -172,6 +207,7 @@ class NMPC:
         #: the last :meth:`feedback_control` step's output (None after a step by the C step alone)
         self.last_output: StepOutput | None = None
 
+    @_one_thread
     def reset(self) -> None:
         """Forget the warm start and the previous plan; restart the random generator."""
         self._iterate = None
@@ -181,6 +217,7 @@ class NMPC:
         self._prepared_p = None
         self._rng = np.random.default_rng(self.seed)
 
+    @_one_thread
     def warm_up(
         self,
         x: object,
@@ -225,6 +262,7 @@ class NMPC:
             self._iterate = iterate.shift()
             self._resident = None
 
+    @_one_thread
     def step(
         self,
         x: object,
@@ -249,6 +287,7 @@ class NMPC:
         self.prepare(t, u_prev, current, parameters)
         return self.feedback(x)
 
+    @_one_thread
     def prepare(
         self,
         t: float = 0.0,
@@ -282,6 +321,7 @@ class NMPC:
             return
         self._prepared_p = p
 
+    @_one_thread
     def feedback(self, x: object) -> StepOutput:
         """Run the feedback phase: the measured state ``x`` in, the control to apply out.
 
@@ -377,6 +417,7 @@ class NMPC:
         _, kinds = score_terms(self.problem, scaled, p)
         return kinds
 
+    @_one_thread
     def feedback_control(self, x: object) -> np.ndarray:
         """:meth:`feedback`'s control alone, by the shortest path the backend has.
 
@@ -404,6 +445,7 @@ class NMPC:
         self.last_output = self._solve_step(p, u_prev)
         return self.last_output.control
 
+    @_one_thread
     def step_control(
         self,
         x: object,

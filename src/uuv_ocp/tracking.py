@@ -297,7 +297,8 @@ class TrackingProblem(Transcribed):
         wrapped = ca.vertcat(*[2.0 * ca.sin(error[i] / 2.0) if i in angles else error[i] for i in range(nx)])
         increment = (tau - ocp.previous(tau)) / ca.DM(max_thrust)
         ocp.add_stage_cost(residual=increment, weight=weights.rate)
-        ocp.add_stage_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity), start=1)
+        if self.horizon > 1:  # nodes 1..N-1; N = 1 has none (x_1 is the terminal node)
+            ocp.add_stage_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity), start=1)
         if self.terminal == "none":
             ocp.add_terminal_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity))
         elif self.terminal == "cost":

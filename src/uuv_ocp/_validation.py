@@ -188,6 +188,35 @@ def plausible_array(name: str, value: object, shape: Sequence[int]) -> np.ndarra
     return array
 
 
+#: Smallest mass or moment of inertia accepted for a vehicle (kg, kg·m²): below it the
+#: accelerations ``τ / m`` of a full thrust overflow float64 once squared in a cost.
+SMALLEST_INERTIA = 1e-6
+
+
+def plausible_parameter(
+    name: str, value: float | Sequence[float], unit: str, *, minimum: float | None = None
+) -> None:
+    """Raise ``ValueError`` unless every entry of ``value`` (already finite) lies in the plausible range.
+
+    The range is ``|entry| <= PLAUSIBLE_MAGNITUDE`` (1e9: a million tonnes, a giganewton),
+    and ``entry >= minimum`` if given.  ``mass=1e308`` was accepted and its solve "succeeded"
+    with zero accelerations; such a value is a unit or typing mistake, not a vehicle.
+    """
+    entries = [value] if isinstance(value, int | float) else list(value)
+    for index, entry in enumerate(entries):
+        where = "" if len(entries) == 1 and isinstance(value, int | float) else f" (entry {index})"
+        if abs(entry) > PLAUSIBLE_MAGNITUDE:
+            raise ValueError(
+                f"{name} must be at most {PLAUSIBLE_MAGNITUDE:g} {unit} in magnitude (a plausibility "
+                f"bound of vehicle parameters), got {entry:g}{where}"
+            )
+        if minimum is not None and entry < minimum:
+            raise ValueError(
+                f"{name} must be at least {minimum:g} {unit} (a plausibility bound of vehicle "
+                f"parameters), got {entry:g}{where}"
+            )
+
+
 def choice(name: str, value: object, allowed: Sequence[str]) -> str:
     """Return ``value`` if it is one of ``allowed``, else raise naming the valid options."""
     if not isinstance(value, str) or value not in allowed:

@@ -402,9 +402,9 @@ API_CASES: list[tuple[str, Callable[[], object], type[Exception], str]] = [
     ),
     (
         "from_xy-vanishing-speed",
-        lambda: _reference(path_x=lambda t: 0 * t + 1.0, path_y=lambda t: t**2),
+        lambda: _reference(path_x=lambda t: (t - 1.0) ** 3, path_y=lambda t: 0 * t).evaluate([1.0]),
         ValueError,
-        r"vanishing or non-finite speed at t = 0.0 s \(speed 0(\.0)? m/s\)",
+        r"vanishing or non-finite speed at t = 1.0 s \(speed 0(\.0)? m/s\)",
     ),
     ("evaluate-str", lambda: REFERENCE.evaluate(["a"]), ValueError, r"times must be real numbers"),
     ("evaluate-nan", lambda: REFERENCE.evaluate([NAN]), ValueError, r"times must be finite, got \[nan\]"),

@@ -480,8 +480,10 @@ class Reference:
         unbounded window), sampled every ``CHECK_STEP`` = 0.1 s (at most ``CHECK_SAMPLES``
         samples).  ``ValueError``, naming the first time concerned, when
 
-        * the state is not finite, or the tangent heading is undefined (speed below
-          ``MIN_PATH_SPEED``; a constant path: it does not move), at a sample;
+        * the position (or a given heading, velocity or yaw rate) is not finite at a sample, or
+          the path does not move (speed below ``MIN_PATH_SPEED`` at every sample: its tangent
+          heading is undefined everywhere; an isolated stop is allowed, and raises only when a
+          window containing it is evaluated);
         * a position lies beyond ±1e9 m (``PLAUSIBLE_MAGNITUDE``: a unit or typing mistake);
         * the position, the velocity or a given heading jumps (a step or a kink of the path).
 
@@ -510,8 +512,15 @@ class Reference:
                 f"every sampled time of [{self.t_start:g}, {self.t_start + span:g}] s, so its tangent "
                 "heading is undefined; give heading= (or use Reference.hold to keep station)"
             )
-        if np.any(bad):
-            self._raise_defect(grid[np.argmax(bad) : np.argmax(bad) + 1])
+        # an isolated point where the path stops (its tangent heading undefined) is allowed: only
+        # a window containing it raises, at evaluation; a position or a given heading must be
+        # defined everywhere
+        undefined = ~np.all(np.isfinite(states[:, : self._position_dim]), axis=1)
+        if self.heading is not None:
+            undefined |= bad
+        if np.any(undefined):
+            row = int(np.argmax(undefined))
+            self._raise_defect(grid[row : row + 1])
         positions = states[:, : self._position_dim]
         far = np.abs(positions) > check.PLAUSIBLE_MAGNITUDE
         if np.any(far):

@@ -96,7 +96,7 @@ NAN, INF = math.nan, math.inf
 
 
 def _declared_ocp(build: Callable[[uo.Ocp, ca.SX, ca.SX], object], horizon: int = 4) -> uo.Ocp:
-    """A one-state Ocp with ``build(ocp, x, u)`` applied (the call under test)."""
+    """Return a one-state Ocp with ``build(ocp, x, u)`` applied (the call under test)."""
     ocp = uo.Ocp(horizon=horizon, dt=0.1, name="issue31")
     x = ocp.state("x")
     u = ocp.control("u", lower=-1.0, upper=1.0)
@@ -260,7 +260,12 @@ ISSUE31_CASES: list[tuple[str, Callable[[], object], type[Exception], str]] = [
         r"position \(1e\+300, 0.0\) m at t = 0 s lies beyond",
     ),
     ("i31-vehicle-mass-1e308", lambda: _vehicle(mass=1e308), ValueError, r"^mass must be at most 1e\+09 kg"),
-    ("i31-vehicle-mass-1e-300", lambda: _vehicle(mass=1e-300), ValueError, r"^mass must be at least 1e-06 kg"),
+    (
+        "i31-vehicle-mass-1e-300",
+        lambda: _vehicle(mass=1e-300),
+        ValueError,
+        r"^mass must be at least 1e-06 kg",
+    ),
     (
         "i31-vehicle-damping-1e12",
         lambda: _vehicle(linear_damping=(1.0, 1e12, 1.0)),
@@ -1005,7 +1010,9 @@ def _weight_vectors(dof: int, nu: int) -> st.SearchStrategy:
 
 @settings(max_examples=60, deadline=None)
 @given(
-    st.sampled_from([3, 6]).flatmap(lambda dof: st.integers(1, 12).flatmap(lambda nu: _weight_vectors(dof, nu))),
+    st.sampled_from([3, 6]).flatmap(
+        lambda dof: st.integers(1, 12).flatmap(lambda nu: _weight_vectors(dof, nu))
+    ),
     valid_positive,
     valid_positive,
 )

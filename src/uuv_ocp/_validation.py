@@ -299,11 +299,16 @@ def _nlpsol_failure(plugin: str, options: dict) -> str | None:
 
 
 def _casadi_reason(text: str) -> str:
-    """The informative line of a CasADi error, without source paths and option listings."""
+    """Return the informative line of a CasADi error, without source paths and option listings."""
     lines = []
     for line in text.splitlines():
         line = line.strip()
-        if not line or line.startswith(">") or line.startswith("Use print_options") or line.startswith("Did you"):
+        if (
+            not line
+            or line.startswith(">")
+            or line.startswith("Use print_options")
+            or line.startswith("Did you")
+        ):
             continue
         # ".../casadi/core/options.cpp:255: Unknown option: bogus" -> "Unknown option: bogus"
         while line.startswith(".../") and ": " in line:

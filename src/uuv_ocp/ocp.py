@@ -181,7 +181,7 @@ class Ocp(Transcribed):
         return declared
 
     def state(self, name: str, size: int = 1) -> ca.SX:
-        """Declare a state of ``size`` entries (1..``MAX_SYMBOL_SIZE``); declaration order is the state order."""
+        """Declare a state of ``size`` entries (1..``MAX_SYMBOL_SIZE``), in the state's order."""
         return self._declare("state", name, size).symbol
 
     def control(

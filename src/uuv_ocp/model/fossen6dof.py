@@ -305,12 +305,9 @@ class Vehicle6DOF:
         if self.max_thrust_rate is None:
             set_field(self, "max_thrust_rate", tuple(2.0 * limit for limit in limits))
         else:
-            set_field(
-                self,
-                "max_thrust_rate",
-                check.vector("max_thrust_rate", self.max_thrust_rate, FORCE_DIM, positive=True),
-            )
-        check.plausible_parameter("max_thrust_rate", self.max_thrust_rate, "N/s or N·m/s")
+            rates = check.vector("max_thrust_rate", self.max_thrust_rate, FORCE_DIM, positive=True)
+            check.plausible_parameter("max_thrust_rate", rates, "N/s or N·m/s")
+            set_field(self, "max_thrust_rate", rates)
 
     def __getstate__(self) -> dict:
         """Pickle the parameters only; cached CasADi Functions are rebuilt on demand."""

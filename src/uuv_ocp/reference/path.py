@@ -502,8 +502,10 @@ class Reference:
         states = self._raw(grid)
         bad = self._defective(states)
         moving = states[:, self._surge_index]
-        if self.heading is None and np.all(np.isfinite(states[:, : self._position_dim])) and np.all(
-            ~(moving >= MIN_PATH_SPEED)
+        if (
+            self.heading is None
+            and np.all(np.isfinite(states[:, : self._position_dim]))
+            and np.all(~(moving >= MIN_PATH_SPEED))
         ):
             kind = "horizontal speed" if self.spatial else "speed"
             raise ValueError(
@@ -558,7 +560,7 @@ class Reference:
     def _interval_scores(
         self, start: np.ndarray, end: np.ndarray, start_states: np.ndarray, end_states: np.ndarray
     ) -> np.ndarray:
-        """Changes over each interval ``[start[i], end[i]]`` (m, m/s, rad), one column each.
+        """Return the changes over each interval ``[start[i], end[i]]`` (m, m/s, rad), one column each.
 
         Columns: the position change minus the trapezoidal integral of the velocity (O(w³) if
         smooth), the velocity change (O(w)), and the heading change minus the integral of the
@@ -580,11 +582,14 @@ class Reference:
         return scores
 
     def _find_jump(self, grid: np.ndarray, states: np.ndarray) -> tuple[float, str, float, str] | None:
-        """``(time, what, size, unit)`` of a jump of position, velocity or heading on ``grid``, or ``None``."""
+        """Return ``(time, what, size, unit)`` of a jump of position, velocity or heading, or ``None``."""
         motion = self._motion(states)
         # one scale per column over the window (relative to max(1, largest value))
         scale = np.array(
-            [max(1.0, float(np.max(np.linalg.norm(motion[what][0], axis=1)))) for what in ("position", "velocity")]
+            [
+                max(1.0, float(np.max(np.linalg.norm(motion[what][0], axis=1))))
+                for what in ("position", "velocity")
+            ]
             + [1.0]
         )
         scores = self._interval_scores(grid[:-1], grid[1:], states[:-1], states[1:]) / scale

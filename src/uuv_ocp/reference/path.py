@@ -606,14 +606,16 @@ class Reference:
         low_states, high_states = states[suspects].copy(), states[suspects + 1].copy()
         count = low.size
         index = np.arange(count)
+        conclusive = np.ones(count, dtype=bool)
         for _ in range(CHECK_BISECTIONS):
             middle = 0.5 * (low + high)
             mid_states = self._raw(middle)
-            if not np.all(np.isfinite(mid_states)):
-                break  # an undefined point between samples: evaluation names it when reached
+            # a stop between samples (undefined tangent heading, NaN yaw rate): that interval
+            # cannot shrink, so it says nothing; evaluation names the stop when a window holds it
+            conclusive &= np.all(np.isfinite(mid_states), axis=1)
             left = (self._interval_scores(low, middle, low_states, mid_states) / scale).max(axis=1)
             right = (self._interval_scores(middle, high, mid_states, high_states) / scale).max(axis=1)
-            go_left = left >= right
+            go_left = (left >= right) | ~conclusive
             high = np.where(go_left, middle, high)
             high_states = np.where(go_left[:, None], mid_states, high_states)
             low = np.where(go_left, low, middle)
@@ -626,7 +628,7 @@ class Reference:
                 difference = (difference + math.pi) % (2.0 * math.pi) - math.pi
             size = np.linalg.norm(difference, axis=1)
             scale = np.maximum(1.0, np.maximum(np.linalg.norm(values, axis=1), np.linalg.norm(other, axis=1)))
-            jumped = index[size > JUMP_TOLERANCE * scale]
+            jumped = index[(size > JUMP_TOLERANCE * scale) & conclusive]
             if jumped.size:
                 first = jumped[np.argmin(low[jumped])]
                 return float(0.5 * (low[first] + high[first])), what, float(size[first]), unit

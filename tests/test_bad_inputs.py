@@ -94,6 +94,288 @@ def _generate(**kw):
 
 NAN, INF = math.nan, math.inf
 
+
+def _declared_ocp(build: Callable[[uo.Ocp, ca.SX, ca.SX], object], horizon: int = 4) -> uo.Ocp:
+    """Return a one-state Ocp with ``build(ocp, x, u)`` applied (the call under test)."""
+    ocp = uo.Ocp(horizon=horizon, dt=0.1, name="issue31")
+    x = ocp.state("x")
+    u = ocp.control("u", lower=-1.0, upper=1.0)
+    build(ocp, x, u)
+    return ocp
+
+
+def _with_dynamics(ocp: uo.Ocp, x: ca.SX, u: ca.SX) -> None:
+    ocp.set_der(x, u)
+    ocp.add_stage_cost(x**2 + u**2)
+
+
+def _plugin(solver: str, plugin_options: dict):
+    return uo.get_solver(PROBLEM, solver, {"plugin_options": plugin_options})
+
+
+def _kink(t):
+    return ca.fabs(t - 5.0)
+
+
+def _step(t):
+    return ca.if_else(t > 5.0, 5.0, 0.0)
+
+
+# issue 31 §7: each crashed (a traceback from CasADi or numpy) or passed silently before
+ISSUE31_CASES: list[tuple[str, Callable[[], object], type[Exception], str]] = [
+    # -- crashes
+    (
+        "i31-set_der-undeclared-symbol",
+        lambda: _declared_ocp(lambda o, x, u: o.set_der(x, ca.SX.sym("q") * u)),
+        ValueError,
+        r"derivative of state 'x' depends on undeclared symbol\(s\) \['q'\]",
+    ),
+    (
+        "i31-state-size-huge",
+        lambda: uo.Ocp().state("z", 10**12),
+        ValueError,
+        r"size of state 'z' must be an integer in \[1, 100000\] .*got 1000000000000",
+    ),
+    (
+        "i31-control-size-huge",
+        lambda: uo.Ocp().control("w", 10**12),
+        ValueError,
+        r"size of control 'w' must be an integer in \[1, 100000\]",
+    ),
+    (
+        "i31-parameter-size-huge",
+        lambda: uo.Ocp().parameter("p", 10**9),
+        ValueError,
+        r"size of parameter 'p' must be an integer in \[1, 100000\]",
+    ),
+    (
+        "i31-plugin_options-ipopt-type",
+        lambda: _plugin("ipopt", {"ipopt.tol": "abc"}),
+        ValueError,
+        r"options\['plugin_options'\]\['ipopt.tol'\] = 'abc' is refused by CasADi's 'ipopt' .*wrong type",
+    ),
+    (
+        "i31-plugin_options-ipopt-nested-type",
+        lambda: _plugin("ipopt", {"ipopt": {"print_level": 0, "tol": "abc"}}),
+        ValueError,
+        r"options\['plugin_options'\]\['ipopt'\]\['tol'\] = 'abc' is refused",
+    ),
+    (
+        "i31-plugin_options-ipopt-unknown",
+        lambda: _plugin("ipopt", {"bogus": 1}),
+        ValueError,
+        r"options\['plugin_options'\]\['bogus'\] = 1 is refused by CasADi's 'ipopt' .*Unknown option: bogus",
+    ),
+    (
+        "i31-plugin_options-ipopt-own-unknown",
+        lambda: _plugin("ipopt", {"ipopt.no_such_option": 1}),
+        ValueError,
+        r"\['ipopt.no_such_option'\] = 1 is refused .*No such IPOPT option: no_such_option",
+    ),
+    (
+        "i31-plugin_options-ipopt-range",
+        lambda: _plugin("ipopt", {"ipopt.tol": -1.0}),
+        ValueError,
+        r"\['ipopt.tol'\] = -1.0 is refused .*Invalid options",
+    ),
+    (
+        "i31-plugin_options-sqp-unknown",
+        lambda: _plugin("sqp", {"bogus": 1}),
+        ValueError,
+        r"\['bogus'\] = 1 is refused by CasADi's 'sqpmethod'",
+    ),
+    (
+        "i31-plugin_options-sqp-type",
+        lambda: _plugin("sqp", {"tol_du": "abc"}),
+        ValueError,
+        r"\['tol_du'\] = 'abc' is refused .*Illegal type for tol_du",
+    ),
+    (
+        "i31-plugin_options-fatrop-own-unknown",
+        lambda: _plugin("fatrop", {"fatrop.bogus": 1}),
+        ValueError,
+        r"\['fatrop.bogus'\] = 1 is refused by CasADi's 'fatrop' .*not supported: bogus",
+    ),
+    (
+        "i31-plugin_options-fatrop-other-plugin",
+        lambda: _plugin("fatrop", {"ipopt.tol": 1e-8}),
+        ValueError,
+        r"\['ipopt.tol'\] = 1e-08 is refused by CasADi's 'fatrop' .*Unknown option: ipopt",
+    ),
+    (
+        "i31-compare-seed-negative",
+        lambda: uo.compare(PROBLEM, ["ipopt"], x0=X0, t0=3.0, seed=-1),
+        ValueError,
+        r"^seed must be an integer >= 0, got -1$",
+    ),
+    # -- silent before
+    (
+        "i31-reference-kink",
+        lambda: _reference(path_x=lambda t: t, path_y=_kink, t_end=10.0),
+        ValueError,
+        r"must be continuous in position and velocity .*its velocity jumps by [0-9.]+ m/s at t = 5 s",
+    ),
+    (
+        "i31-reference-5m-jump",
+        lambda: _reference(path_x=lambda t: t, path_y=_step, t_end=10.0),
+        ValueError,
+        r"its position jumps by 5 m at t = 5 s",
+    ),
+    (
+        "i31-reference-speed-kink",
+        lambda: _reference(path_x=lambda t: ca.if_else(t > 3.0, 2.0 * t - 3.0, t), path_y=lambda t: 0 * t),
+        ValueError,
+        r"its velocity jumps by 1 m/s at t = 3 s",
+    ),
+    (
+        "i31-reference-heading-jump",
+        lambda: _reference(
+            path_x=lambda t: 0 * t, path_y=lambda t: 0 * t, heading=lambda t: ca.if_else(t > 5.0, 1.0, 0.0)
+        ),
+        ValueError,
+        r"its heading jumps by 1 rad at t = 5 s",
+    ),
+    (
+        "i31-reference-spatial-jump",
+        lambda: uo.Reference.from_xyz(lambda t: t, lambda t: 0 * t, _step, t_end=10.0),
+        ValueError,
+        r"its position jumps by 5 m at t = 5 s",
+    ),
+    (
+        "i31-waypoints-1e300",
+        lambda: uo.Reference.waypoints([[0, 0], [1e300, 0]], 1.0, 1.0),
+        ValueError,
+        r"points must lie within ±1e\+09 m .*points\[1\] = \(1e\+300, 0.0\)",
+    ),
+    (
+        "i31-from_xy-1e300",
+        lambda: _reference(path_x=lambda t: 1e300 + t),
+        ValueError,
+        r"position \(1e\+300, 0.0\) m at t = 0 s lies beyond ±1e\+09 m",
+    ),
+    (
+        "i31-hold-1e300",
+        lambda: uo.Reference.hold((1e300, 0.0, 0.0)),
+        ValueError,
+        r"position \(1e\+300, 0.0\) m at t = 0 s lies beyond",
+    ),
+    ("i31-vehicle-mass-1e308", lambda: _vehicle(mass=1e308), ValueError, r"^mass must be at most 1e\+09 kg"),
+    (
+        "i31-vehicle-mass-1e-300",
+        lambda: _vehicle(mass=1e-300),
+        ValueError,
+        r"^mass must be at least 1e-06 kg",
+    ),
+    (
+        "i31-vehicle-damping-1e12",
+        lambda: _vehicle(linear_damping=(1.0, 1e12, 1.0)),
+        ValueError,
+        r"^linear_damping must be at most 1e\+09 .*got 1e\+12 \(entry 1\)",
+    ),
+    (
+        "i31-vehicle6dof-mass-1e308",
+        lambda: dataclasses.replace(uo.Vehicle6DOF.bluerov2_heavy(), mass=1e308),
+        ValueError,
+        r"^mass must be at most 1e\+09 kg",
+    ),
+    (
+        "i31-weights-all-zero",
+        lambda: uo.Weights(pose=(0,) * 3, velocity=(0,) * 3, rate=(0,) * 3, terminal=(0,) * 6),
+        ValueError,
+        r"weights.pose, weights.velocity and weights.terminal must not all be zero",
+    ),
+    (
+        "i31-weights-no-tracking-cost",
+        lambda: _problem(terminal="none", weights=uo.Weights(pose=(0,) * 3, velocity=(0,) * 3)),
+        ValueError,
+        r"weights.pose and weights.velocity must not all be zero with terminal='none'",
+    ),
+    (
+        "i31-weights-pose-2",
+        lambda: uo.Weights(pose=(1.0, 1.0)),
+        ValueError,
+        r"^weights.pose must have 3 entries \(3-DOF: x, y, psi\) or 6 \(6-DOF\), got 2",
+    ),
+    (
+        "i31-weights-terminal-3",
+        lambda: uo.Weights(terminal=(1.0, 1.0, 1.0)),
+        ValueError,
+        r"^weights.terminal must have 6 entries .*got 3",
+    ),
+    (
+        "i31-weights-velocity-6",
+        lambda: uo.Weights(velocity=(1.0,) * 6),
+        ValueError,
+        r"^weights.velocity must have 3 entries",
+    ),
+    (
+        "i31-simulate-parameters-tracking",
+        lambda: _simulate(parameters={"a": 1.0}),
+        ValueError,
+        r"parameters is for an Ocp; a TrackingProblem takes its parameters from the reference",
+    ),
+    (
+        "i31-compare-no-solver",
+        lambda: uo.compare(PROBLEM, [], x0=X0, t0=3.0),
+        ValueError,
+        r"solvers must be a non-empty list of solver names, e.g. \['ipopt'\], got \[\]",
+    ),
+    (
+        "i31-compare-solvers-str",
+        lambda: uo.compare(PROBLEM, "ipopt", x0=X0, t0=3.0),
+        ValueError,
+        r"solvers must be a non-empty list of solver names",
+    ),
+    (
+        "i31-subject_to-nan",
+        lambda: _declared_ocp(lambda o, x, u: o.subject_to(x <= NAN)),
+        ValueError,
+        r"constraint .* must hold no NaN, got the constant nan",
+    ),
+    (
+        "i31-bounded-nan-expression",
+        lambda: _declared_ocp(lambda o, x, u: o.bounded(-1.0, x * NAN, 1.0)),
+        ValueError,
+        r"constraint .* must hold no NaN",
+    ),
+    (
+        "i31-stage-cost-nan",
+        lambda: _declared_ocp(lambda o, x, u: o.add_stage_cost(NAN * x**2)),
+        ValueError,
+        r"stage cost must hold finite numbers \(no NaN or inf\), got the constant nan",
+    ),
+    (
+        "i31-terminal-residual-inf",
+        lambda: _declared_ocp(lambda o, x, u: o.add_terminal_cost(residual=x - INF)),
+        ValueError,
+        r"terminal cost residual must hold finite numbers",
+    ),
+    (
+        "i31-set_der-nan",
+        lambda: _declared_ocp(lambda o, x, u: o.set_der(x, u + NAN)),
+        ValueError,
+        r"derivative of state 'x' must hold finite numbers",
+    ),
+    (
+        "i31-from_xy-constant",
+        lambda: _reference(path_x=lambda t: 0 * t + 1.0, path_y=lambda t: 0 * t + 2.0, t_end=10.0),
+        ValueError,
+        r"does not move: its speed is below 1e-06 m/s at every sampled time of \[0, 10\] s",
+    ),
+    (
+        "i31-from_xy-nan",
+        lambda: _reference(path_x=lambda t: NAN * t),
+        ValueError,
+        r"its position is not finite at t = 0.0 s",
+    ),
+    (
+        "i31-from_xy-nan-later",
+        lambda: _reference(path_y=lambda t: ca.sqrt(4.0 - t), t_end=10.0),
+        ValueError,
+        r"its position is not finite at t = 4.0\d* s",
+    ),
+]
+
 # (id, call, exception type, pattern the message must match)
 API_CASES: list[tuple[str, Callable[[], object], type[Exception], str]] = [
     # -- references
@@ -125,7 +407,7 @@ API_CASES: list[tuple[str, Callable[[], object], type[Exception], str]] = [
     ),
     (
         "from_xy-vanishing-speed",
-        lambda: _reference(path_x=lambda t: 0 * t, path_y=lambda t: 0 * t).evaluate([1.0]),
+        lambda: _reference(path_x=lambda t: (t - 1.0) ** 3, path_y=lambda t: 0 * t).evaluate([1.0]),
         ValueError,
         r"vanishing or non-finite speed at t = 1.0 s \(speed 0(\.0)? m/s\)",
     ),
@@ -443,6 +725,7 @@ API_CASES: list[tuple[str, Callable[[], object], type[Exception], str]] = [
         ValueError,
         r"t0 must be fin",
     ),
+    *ISSUE31_CASES,
 ]
 
 
@@ -485,10 +768,88 @@ def test_reference_within_the_top_speed_does_not_warn():
         uo.simulate(_controller(), X0, 0.2, t0=3.0)
 
 
-def test_minimize_with_an_always_nan_objective_says_so():
-    result = _minimize(fun=lambda X: np.full(len(X), np.nan), iterations=3, seed=0)
-    assert not result.success and result.fun == math.inf
+@pytest.mark.parametrize("method", ["igwo", "gwo", "ssa", "pso"])
+def test_minimize_with_an_always_nan_objective_says_so(method):
+    result = _minimize(fun=lambda X: np.full(len(X), np.nan), iterations=3, seed=0, method=method)
+    assert result is not None and not result.success and result.fun == math.inf
     assert "no finite value" in result.message
+
+
+# -- issue 31 §7, cases that are not one call raising ------------------------------------------
+
+
+def test_cost_ratio_of_a_zero_best_cost():
+    """A held pose costs exactly 0: the ratio was 0 / 0 (ZeroDivisionError in the CLI)."""
+    from uuv_ocp.studies.compare import cost_ratio
+
+    assert cost_ratio(0.0, 0.0) == 1.0
+    assert cost_ratio(2.5, 0.0) == math.inf
+    assert cost_ratio(3.0, 1.5) == 2.0
+    assert math.isnan(cost_ratio(math.nan, 0.0))
+
+
+def test_cli_compare_on_a_held_pose_from_rest(capsys, tmp_path, monkeypatch):
+    """`compare -r hold 0,0,0 --t0 0`: every cost is 0 (the vehicle rests on the pose)."""
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(["compare", "-r", "hold", "0,0,0", "--solvers", "ipopt", "--t0", "0"]) == 0
+    captured = capsys.readouterr()
+    row = next(line for line in captured.out.splitlines() if "ipopt" in line)
+    cost, ratio = row.split()[2:4]
+    assert float(cost) == 0.0 and float(ratio) == 1.0, row
+
+
+def test_cli_waypoints_beyond_the_plausibility_bound(capsys, tmp_path, monkeypatch):
+    """Waypoints at 1e300 ran and printed nan in the table, exit status 0."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "far.csv").write_text("0,0\n1e300,0\n")
+    assert cli.main(["track", "-r", "waypoints", "far.csv", "--duration", "1"]) == 2
+    captured = capsys.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and captured.out == "", captured
+    assert re.search(r"^error: --reference: .*points must lie within ±1e\+09 m", lines[0]), lines[0]
+
+
+def test_horizon_one_solves():
+    """N = 1 is in the documented range [1, 10000]; it failed with "start must be < horizon = 1".
+
+    With N = 1 the cost is the rate term of u_0 and the terminal term of x_1: two backends
+    (interior point and SQP) must agree on that one-interval problem.
+    """
+    problem = _problem(horizon=1, terminal="none")
+    ipopt, sqp = (_solve(solver, problem=problem) for solver in ("ipopt", "sqp"))
+    assert ipopt.success and sqp.success and ipopt.controls.shape == (1, 3)
+    np.testing.assert_allclose(ipopt.controls, sqp.controls, atol=1e-4 * float(np.max(VEHICLE.max_thrust)))
+    assert ipopt.cost == pytest.approx(sqp.cost, rel=1e-6)
+    # the paper's terminal equality cannot hold after one step: the soft fallback solves it
+    held = _solve(problem=_problem(horizon=1))
+    assert held.controls.shape == (1, 3) and np.isfinite(held.cost)
+
+
+def test_plugin_options_that_casadi_accepts_still_pass():
+    """The plugin_options check must not refuse valid settings (those tests and benchmarks use)."""
+    for solver, options in [
+        ("ipopt", {"ipopt.tol": 1e-12, "ipopt.bound_relax_factor": 0.0}),
+        ("ipopt", {"ipopt": {"tol": 1e-10}, "oracle_options": {"ad_weight": 1.0}}),
+        ("fatrop", {"fatrop.mu_init": 1e-4}),
+        ("sqp", {"tol_du": 1e-12, "tol_pr": 1e-12}),
+    ]:
+        assert _plugin(solver, options).plugin_options == options
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: uo.Reference.paper("s8"),
+        lambda: uo.Reference.waypoints([(0, 0), (20, 0), (20, 5), (0, 5)], speed=0.5, turn_radius=2.0),
+        lambda: uo.Reference.lawnmower(width=30, spacing=6, lanes=4, speed=1.0, depth=3.0),
+        lambda: uo.Reference.hold((1.0, 2.0, 0.5)),
+        lambda: uo.Reference.from_xy(lambda t: 5e6 + 0.5 * t, lambda t: 4e6 + 2 * ca.sin(0.5 * t)),
+    ],
+    ids=["s8", "square", "lawnmower-3d", "hold", "utm-coordinates"],
+)
+def test_smooth_references_pass_the_window_check(make):
+    """C¹ paths, curvature jumps of waypoint joints included, are not mistaken for kinks."""
+    make().check_window()
 
 
 # -- command line ------------------------------------------------------------------------------
@@ -636,11 +997,27 @@ def test_a_vector_field_with_text_in_it_is_rejected(text):
 weight_vectors = st.lists(valid_nonnegative, min_size=1, max_size=12).map(tuple)
 
 
+def _weight_vectors(dof: int, nu: int) -> st.SearchStrategy:
+    """pose, velocity, rate, terminal of consistent lengths (dof 3 or 6, nu controls), not all zero."""
+
+    def vector(n: int) -> st.SearchStrategy:
+        return st.lists(valid_nonnegative, min_size=n, max_size=n).map(tuple)
+
+    return st.tuples(vector(dof), vector(dof), vector(nu), vector(2 * dof)).filter(
+        lambda w: any(w[0] + w[1] + w[3])
+    )
+
+
 @settings(max_examples=60, deadline=None)
-@given(weight_vectors, weight_vectors, weight_vectors, weight_vectors, valid_positive, valid_positive)
-def test_weights_accept_every_nonnegative_vector_and_positive_penalty(
-    pose, velocity, rate, terminal, rho, tube
-):
+@given(
+    st.sampled_from([3, 6]).flatmap(
+        lambda dof: st.integers(1, 12).flatmap(lambda nu: _weight_vectors(dof, nu))
+    ),
+    valid_positive,
+    valid_positive,
+)
+def test_weights_accept_every_nonnegative_vector_and_positive_penalty(vectors, rho, tube):
+    pose, velocity, rate, terminal = vectors
     weights = uo.Weights(pose, velocity, rate, terminal, terminal_penalty=rho, tube_penalty=tube)
     assert weights.pose == tuple(float(v) for v in pose) and weights.terminal_penalty == rho
 

@@ -188,8 +188,134 @@ def plausible_array(name: str, value: object, shape: Sequence[int]) -> np.ndarra
     return array
 
 
+#: Smallest mass or moment of inertia accepted for a vehicle (kg, kg·m²): below it the
+#: accelerations ``τ / m`` of a full thrust overflow float64 once squared in a cost.
+SMALLEST_INERTIA = 1e-6
+
+
+def plausible_parameter(
+    name: str, value: float | Sequence[float], unit: str, *, minimum: float | None = None
+) -> None:
+    """Raise ``ValueError`` unless every entry of ``value`` (already finite) lies in the plausible range.
+
+    The range is ``|entry| <= PLAUSIBLE_MAGNITUDE`` (1e9: a million tonnes, a giganewton),
+    and ``entry >= minimum`` if given.  ``mass=1e308`` was accepted and its solve "succeeded"
+    with zero accelerations; such a value is a unit or typing mistake, not a vehicle.
+    """
+    entries = [value] if isinstance(value, int | float) else list(value)
+    for index, entry in enumerate(entries):
+        where = "" if len(entries) == 1 and isinstance(value, int | float) else f" (entry {index})"
+        if abs(entry) > PLAUSIBLE_MAGNITUDE:
+            raise ValueError(
+                f"{name} must be at most {PLAUSIBLE_MAGNITUDE:g} {unit} in magnitude (a plausibility "
+                f"bound of vehicle parameters), got {entry:g}{where}"
+            )
+        if minimum is not None and entry < minimum:
+            raise ValueError(
+                f"{name} must be at least {minimum:g} {unit} (a plausibility bound of vehicle "
+                f"parameters), got {entry:g}{where}"
+            )
+
+
 def choice(name: str, value: object, allowed: Sequence[str]) -> str:
     """Return ``value`` if it is one of ``allowed``, else raise naming the valid options."""
     if not isinstance(value, str) or value not in allowed:
         raise ValueError(f"{name} must be one of {sorted(allowed)}, got {shown(value)}")
     return str(value)
+
+
+#: Options that keep a plugin silent while :func:`nlpsol_options` tries the user's options
+#: on a one-variable NLP (the user's own entries override them).
+_QUIET_PLUGIN_OPTIONS: dict[str, dict] = {
+    "ipopt": {"ipopt.print_level": 0, "ipopt.sb": "yes"},
+    "fatrop": {"fatrop.print_level": 0},
+    "sqpmethod": {
+        "print_header": False,
+        "print_iteration": False,
+        "print_status": False,
+        "qpsol": "qrqp",
+        "qpsol_options": {"print_iter": False, "print_header": False, "error_on_fail": False},
+    },
+}
+#: Words of CasADi's and the plugins' errors about an option (other errors of the trial NLP,
+#: e.g. a structure option that does not fit one variable, are left to the real solve).
+_OPTION_ERRORS = ("option", "Option", "type mismatch", "Illegal type", "can_cast_to")
+
+
+def nlpsol_options(name: str, plugin: str, options: dict) -> None:
+    """Raise ``ValueError`` if CasADi's ``plugin`` refuses ``options`` (``nlpsol`` options).
+
+    CasADi checks option names and types when a solver is created, IPOPT its own options
+    there too, fatrop its own when it first solves; so the options are tried on a
+    one-variable NLP, created and solved once (a few ms, only for non-empty ``options``).  An
+    unknown name or a wrong type crashed the first solve with a CasADi traceback before.  The
+    message names the first refused entry (each entry is tried alone to find it).
+    """
+    if not options:
+        return
+    failure = _nlpsol_failure(plugin, options)
+    if failure is None:
+        return
+    entry, reason = f"{name}", failure
+    for key, value in options.items():
+        parts = [({key: value}, f"[{key!r}]")]
+        if isinstance(value, dict):  # e.g. {"ipopt": {"tol": ...}}: name the nested entry
+            parts = [({key: {sub: item}}, f"[{key!r}][{sub!r}]") for sub, item in value.items()] or parts
+        for trial, path in parts:
+            alone = _nlpsol_failure(plugin, trial)
+            if alone is not None:
+                (item,) = trial.values()
+                if path.count("[") > 1:
+                    (item,) = item.values()
+                entry, reason = f"{name}{path} = {shown(item)}", alone
+                break
+        else:
+            continue
+        break
+    raise ValueError(
+        f"{entry} is refused by CasADi's {plugin!r} nlpsol plugin: {reason} "
+        f"(its options: casadi.doc_nlpsol({plugin!r}))"
+    )
+
+
+def _nlpsol_failure(plugin: str, options: dict) -> str | None:
+    """Why ``plugin`` refuses ``options`` on a one-variable NLP (one line), or ``None``."""
+    import casadi as ca
+
+    x = ca.SX.sym("x")
+    merged = {**_QUIET_PLUGIN_OPTIONS.get(plugin, {}), "print_time": False, "error_on_fail": False}
+    if "qpsol" in options or "qpsol_options" in options:  # the quiet QP options are QRQP's
+        merged.pop("qpsol_options", None)
+    merged.update(options)
+    try:
+        solver = ca.nlpsol("plugin_options_check", plugin, {"x": x, "f": x**2}, merged)
+        solver(x0=1.0)
+    except RuntimeError as error:
+        text = str(error)
+        if not any(word in text for word in _OPTION_ERRORS):
+            return None
+        return _casadi_reason(text)
+    return None
+
+
+def _casadi_reason(text: str) -> str:
+    """Return the informative line of a CasADi error, without source paths and option listings."""
+    lines = []
+    for line in text.splitlines():
+        line = line.strip()
+        if (
+            not line
+            or line.startswith(">")
+            or line.startswith("Use print_options")
+            or line.startswith("Did you")
+        ):
+            continue
+        # ".../casadi/core/options.cpp:255: Unknown option: bogus" -> "Unknown option: bogus"
+        while line.startswith(".../") and ": " in line:
+            line = line.split(": ", 1)[1]
+        if line.startswith("Error calling") or line.startswith("Error in Function"):
+            continue
+        lines.append(line)
+    useful = [line for line in lines if not line.startswith("Assertion")] or lines
+    reason = "; ".join(useful[-2:]) if useful else "refused"
+    return "wrong type for this option (type mismatch)" if reason == "type mismatch" else reason

@@ -44,6 +44,11 @@ from uuv_ocp.build import Transcribed
 INTEGRATORS = ("rk4",)
 PLACES = ("path", "initial", "terminal")
 MAX_HORIZON = 10_000  # larger horizons exhaust memory while building the NLP (documented bound)
+#: Largest number of entries of one declared state, control or parameter.  The NLP holds
+#: N + 1 copies of each, and CasADi allocates the symbol at once: ``state("z", 10**12)`` died
+#: in ``std::bad_alloc``.  1e5 is far beyond the dense OCPs this package builds (a 6-DOF
+#: vehicle has 12 states) and still allocates in milliseconds.
+MAX_SYMBOL_SIZE = 100_000
 
 _COMPARISONS = {ca.OP_LE: "<=", ca.OP_LT: "<", ca.OP_EQ: "=="}
 
@@ -169,7 +174,7 @@ class Ocp(Transcribed):
             raise ValueError(f"{kind} name must be a Python identifier string, got {name!r}")
         if name in self._names():
             raise ValueError(f"{kind} {name!r} is already declared (names must be unique)")
-        count = check.positive_int(f"size of {kind} {name!r}", size)
+        count = _symbol_size(f"size of {kind} {name!r}", size)
         declared = Declared(name, kind, ca.SX.sym(name, count), **extra)
         {"state": self._states, "control": self._controls, "parameter": self._parameters}[kind].append(
             declared
@@ -177,7 +182,7 @@ class Ocp(Transcribed):
         return declared
 
     def state(self, name: str, size: int = 1) -> ca.SX:
-        """Declare a state of ``size`` entries; declaration order is the state order."""
+        """Declare a state of ``size`` entries (1..``MAX_SYMBOL_SIZE``), in the state's order."""
         return self._declare("state", name, size).symbol
 
     def control(
@@ -199,7 +204,7 @@ class Ocp(Transcribed):
         max_rate : float or array_like, optional
             Bound on ``|u_k − u_{k−1}| / dt`` (units per second), ``inf`` entries for none.
         """
-        count = check.positive_int(f"size of control {name!r}", size)
+        count = _symbol_size(f"size of control {name!r}", size)
         low = _bound_vector(f"lower of control {name!r}", lower, count)
         high = _bound_vector(f"upper of control {name!r}", upper, count)
         if np.any(low > high):
@@ -239,6 +244,9 @@ class Ocp(Transcribed):
                 f"derivative of state {declared.name!r} must have shape {declared.symbol.shape}, "
                 f"got {expression.shape}"
             )
+        # an undeclared symbol here crashed much later, in CasADi's Function constructor
+        self._check_symbols(expression, f"derivative of state {declared.name!r}")
+        _check_constants(expression, f"derivative of state {declared.name!r}", allow_inf=False)
         self._derivatives[declared.name] = expression
 
     # ------------------------------------------------------------------ costs
@@ -282,6 +290,7 @@ class Ocp(Transcribed):
             if sx.shape != (1, 1):
                 raise ValueError(f"{what} expression must be scalar, got shape {sx.shape}")
             self._check_symbols(sx, what)
+            _check_constants(sx, what, allow_inf=False)
             return CostTerm(sx, False, start)
         sx = ca.vec(_as_sx("residual", residual))
         if weight is not None:
@@ -290,6 +299,7 @@ class Ocp(Transcribed):
                 raise ValueError(f"weight must be finite and >= 0, got {weights}")
             sx = ca.sqrt(ca.DM(weights)) * sx
         self._check_symbols(sx, what)
+        _check_constants(sx, f"{what} residual", allow_inf=False)
         return CostTerm(sx, True, start)
 
     # ------------------------------------------------------------- constraints
@@ -339,6 +349,8 @@ class Ocp(Transcribed):
         at = check.choice("at", at, PLACES)
         weight = None if soft is None else check.positive_float("soft", soft)
         self._check_symbols(sx, "constraint")
+        # ``x <= nan`` reached the solver, which read the NaN row as anything it liked
+        _check_constants(sx, f"constraint {_short(label)}", allow_inf=True)
         controls = self._depends_on_controls(sx)
         if at == "terminal" and controls:
             raise ValueError("a constraint at='terminal' must not depend on controls (node N has none)")
@@ -752,6 +764,40 @@ def _as_sx(name: str, value: object) -> ca.SX:
         return ca.SX(np.asarray(value, dtype=float)) if not isinstance(value, ca.DM) else ca.SX(value)
     except (TypeError, ValueError, NotImplementedError) as error:
         raise ValueError(f"{name} must be a casadi SX expression or numbers, got {value!r}") from error
+
+
+def _symbol_size(name: str, size: object) -> int:
+    """``size`` as an int in ``[1, MAX_SYMBOL_SIZE]``, or ``ValueError`` naming ``name``."""
+    count = check.positive_int(name, size)
+    if count > MAX_SYMBOL_SIZE:
+        raise ValueError(
+            f"{name} must be an integer in [1, {MAX_SYMBOL_SIZE}] (the size bound of one declaration), "
+            f"got {count}"
+        )
+    return count
+
+
+def _check_constants(sx: ca.SX, what: str, *, allow_inf: bool) -> None:
+    """Raise ``ValueError`` if ``sx`` holds a NaN constant (or, unless ``allow_inf``, an infinite one).
+
+    The constants are read from the instructions of a Function of ``sx`` (CasADi keeps every
+    constant of an expression graph as one ``OP_CONST`` instruction): exact, and 0.3 ms for the
+    RexROV's dynamics.
+    """
+    function = ca.Function("constants", ca.symvar(sx), [sx])
+    for k in range(function.n_instructions()):
+        if function.instruction_id(k) != ca.OP_CONST:
+            continue
+        value = function.instruction_constant(k)
+        if math.isnan(value) or (not allow_inf and math.isinf(value)):
+            expected = "no NaN" if allow_inf else "finite numbers (no NaN or inf)"
+            raise ValueError(f"{what} must hold {expected}, got the constant {value} in {_short(sx)}")
+
+
+def _short(value: object) -> str:
+    """``value`` printed, cut to 120 characters for an error message."""
+    text = " ".join(str(value).split())
+    return text if len(text) <= 120 else text[:117] + "..."
 
 
 def _bound_vector(name: str, value: object, size: int) -> np.ndarray:

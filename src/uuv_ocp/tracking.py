@@ -80,9 +80,12 @@ class Weights:
     pose : tuple of floats
         Weights on the pose error: 3-DOF ``(q_x, q_y, q_ψ)``, 6-DOF ``(q_x, q_y, q_z, q_φ,
         q_θ, q_ψ)``; position errors (1/m²), angle errors wrap-safe as
-        ``2(1 − cos(ψ − ψ_R))`` (1/rad²).
+        ``2(1 − cos(ψ − ψ_R))`` (1/rad²).  Its length (3 or 6) fixes the lengths of
+        ``velocity`` (the same) and ``terminal`` (twice).
     velocity : tuple of floats
         Weights on the body-velocity errors (s²/m², s²/rad²), one per degree of freedom.
+        Every weight is finite and >= 0; ``pose``, ``velocity`` and ``terminal`` are not all
+        zero (``ValueError``).
     rate : tuple of floats
         Weights on the scaled control increments ``Δτ / τ_max`` (dimensionless), one per
         control.
@@ -131,6 +134,29 @@ class Weights:
             set_field(self, name, check.vector(f"weights.{name}", value, length, nonnegative=True))
         for name in ("terminal_penalty", "rate_penalty", "tube_penalty"):
             set_field(self, name, check.positive_float(f"weights.{name}", getattr(self, name)))
+        # the lengths fit one vehicle class on their own: a pose of 2 weights was accepted here
+        # and refused only by a TrackingProblem (a 3-DOF vehicle has 3 pose weights, 6-DOF 6)
+        dof = len(self.pose)
+        if dof not in (3, 6):
+            raise ValueError(
+                f"weights.pose must have 3 entries (3-DOF: x, y, psi) or 6 (6-DOF), got {dof}: "
+                f"{check.shown(self.pose)}"
+            )
+        if len(self.velocity) != dof:
+            raise ValueError(
+                f"weights.velocity must have {dof} entries (one per degree of freedom, as "
+                f"weights.pose), got {len(self.velocity)}: {check.shown(self.velocity)}"
+            )
+        if len(self.terminal) != 2 * dof:
+            raise ValueError(
+                f"weights.terminal must have {2 * dof} entries (one per state: {dof} pose, {dof} "
+                f"velocity), got {len(self.terminal)}: {check.shown(self.terminal)}"
+            )
+        if not any(self.pose + self.velocity + self.terminal):
+            raise ValueError(
+                "weights.pose, weights.velocity and weights.terminal must not all be zero (no cost "
+                "would track the reference)"
+            )
 
 
 class ReferenceSpeedWarning(RuntimeWarning):
@@ -262,6 +288,15 @@ class TrackingProblem(Transcribed):
                     f"weights.{name} must have {expected} entries for this vehicle, got "
                     f"{getattr(self.weights, name)!r}"
                 )
+        tracked = {"none": ("pose", "velocity"), "cost": ("pose", "velocity", "terminal")}
+        if self.terminal in tracked and not any(
+            any(getattr(self.weights, name)) for name in tracked[self.terminal]
+        ):
+            names = " and ".join(f"weights.{name}" for name in tracked[self.terminal])
+            raise ValueError(
+                f"{names} must not all be zero with terminal={self.terminal!r}: no cost would track "
+                "the reference"
+            )
         object.__setattr__(self, "substeps", check.positive_int("substeps", self.substeps))
         check.boolean("rate_limits", self.rate_limits)
         if self.position_tube is not None:
@@ -314,7 +349,8 @@ class TrackingProblem(Transcribed):
         wrapped = ca.vertcat(*[2.0 * ca.sin(error[i] / 2.0) if i in angles else error[i] for i in range(nx)])
         increment = (tau - ocp.previous(tau)) / ca.DM(max_thrust)
         ocp.add_stage_cost(residual=increment, weight=weights.rate)
-        ocp.add_stage_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity), start=1)
+        if self.horizon > 1:  # nodes 1..N-1; N = 1 has none (x_1 is the terminal node)
+            ocp.add_stage_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity), start=1)
         if self.terminal == "none":
             ocp.add_terminal_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity))
         elif self.terminal == "cost":

@@ -249,7 +249,8 @@ def simulate(
     label : str
         Progress-bar label.
     parameters : dict, optional
-        An Ocp's parameter values, held for the whole run.
+        An Ocp's parameter values, held for the whole run (a tracking problem refuses them:
+        its reference and current are its parameters).
     record_substeps : bool
         Also record the plant state after every one of its ``plant_substeps`` integration
         steps (``substep_t``, ``substep_states``): what happens between control instants, e.g.
@@ -286,6 +287,11 @@ def simulate(
         raise ValueError(f"noise must be a uuv_ocp.MeasurementNoise or None, got {noise!r}")
     dt = spec.dt
     if isinstance(problem, TrackingProblem):  # `tracking`, spelt so that type checkers narrow
+        if parameters is not None:  # it was ignored without a word
+            raise ValueError(
+                "parameters is for an Ocp; a TrackingProblem takes its parameters from the reference "
+                f"(t0) and current=, got parameters={check.shown(parameters)}"
+            )
         reference = problem.reference
         t0 = reference.t_start if t0 is None else problem.check_time(t0)
         available = problem.latest_start() - t0

@@ -202,7 +202,8 @@ class Vehicle6DOF:
         Bounds on the rate of change of the generalised force (N/s, N·m/s), > 0.  ``None``
         means ``2 × max_thrust`` per second.
     name : str
-        Label used in tables and plots.
+        Label used in tables and plots.  Every number above is at most 1e9 in magnitude and the
+        mass at least 1e-6 kg (plausibility bounds, ``ValueError`` outside).
     thrusters : ThrusterConfiguration, optional
         Thruster layout.  With it the control becomes the vector of thruster forces
         (:attr:`control_dim` is the number of thrusters, bounded by the thrusters' own
@@ -263,6 +264,20 @@ class Vehicle6DOF:
         if not isinstance(self.name, str):
             raise ValueError(f"name must be a string, got {self.name!r}")
 
+        check.plausible_parameter("mass", self.mass, "kg", minimum=check.SMALLEST_INERTIA)
+        for field, unit in (
+            ("inertia", "kg·m²"),
+            ("added_mass", "kg, kg·m or kg·m²"),
+            ("linear_damping", "N·s/m or N·m·s/rad"),
+            ("quadratic_damping", "N·s²/m² or N·m·s²/rad²"),
+            ("weight", "N"),
+            ("buoyancy", "N"),
+            ("centre_of_gravity", "m"),
+            ("centre_of_buoyancy", "m"),
+        ):
+            value = getattr(self, field)
+            entries = np.ravel(value).tolist() if not isinstance(value, float) else value
+            check.plausible_parameter(field, entries, unit)
         mass_matrix = self.mass_matrix
         smallest = float(np.linalg.eigvalsh(mass_matrix)[0])
         if smallest <= _SYMMETRY_TOLERANCE * float(np.max(np.abs(mass_matrix))):
@@ -286,15 +301,14 @@ class Vehicle6DOF:
                     f"produce no pure {', '.join(weak)}; give max_thrust explicitly"
                 )
         limits = check.vector("max_thrust", max_thrust, FORCE_DIM, positive=True)
+        check.plausible_parameter("max_thrust", limits, "N or N·m")
         set_field(self, "max_thrust", limits)
         if self.max_thrust_rate is None:
             set_field(self, "max_thrust_rate", tuple(2.0 * limit for limit in limits))
         else:
-            set_field(
-                self,
-                "max_thrust_rate",
-                check.vector("max_thrust_rate", self.max_thrust_rate, FORCE_DIM, positive=True),
-            )
+            rates = check.vector("max_thrust_rate", self.max_thrust_rate, FORCE_DIM, positive=True)
+            check.plausible_parameter("max_thrust_rate", rates, "N/s or N·m/s")
+            set_field(self, "max_thrust_rate", rates)
 
     def __getstate__(self) -> dict:
         """Pickle the parameters only; cached CasADi Functions are rebuilt on demand."""

@@ -46,9 +46,10 @@ class Vehicle:
     Parameters
     ----------
     mass : float
-        Rigid-body mass m (kg), > 0.
+        Rigid-body mass m (kg), in [1e-6, 1e9] (plausibility bounds: outside them the input is a
+        unit or typing mistake, ``ValueError``).
     inertia : float
-        Yaw moment of inertia I_z (kg·m²), > 0.
+        Yaw moment of inertia I_z (kg·m²), in [1e-6, 1e9].
     added_mass : tuple of 3 floats
         Magnitudes of the added-mass derivatives (X_u̇, Y_v̇, N_ṙ) (kg, kg, kg·m²), >= 0.
     linear_damping : tuple of 3 floats
@@ -62,6 +63,9 @@ class Vehicle:
         Bounds on the rate of change of the generalised thrust (N/s, N/s, N·m/s), > 0.
     name : str
         Label used in tables and plots.
+
+
+    Every number is at most 1e9 in magnitude (``uuv_ocp._validation.PLAUSIBLE_MAGNITUDE``).
     """
 
     mass: float
@@ -97,6 +101,16 @@ class Vehicle:
         )
         if not isinstance(self.name, str):
             raise ValueError(f"name must be a string, got {self.name!r}")
+        check.plausible_parameter("mass", self.mass, "kg", minimum=check.SMALLEST_INERTIA)
+        check.plausible_parameter("inertia", self.inertia, "kg·m²", minimum=check.SMALLEST_INERTIA)
+        for field, unit in (
+            ("added_mass", "kg or kg·m²"),
+            ("linear_damping", "N·s/m or N·m·s/rad"),
+            ("quadratic_damping", "N·s²/m² or N·m·s²/rad²"),
+            ("max_thrust", "N or N·m"),
+            ("max_thrust_rate", "N/s or N·m/s"),
+        ):
+            check.plausible_parameter(field, getattr(self, field), unit)
 
     # ------------------------------------------------------------------ presets
     @classmethod

@@ -52,6 +52,19 @@ SPATIAL_STATE_DIM = 12
 #: longer than the usual horizons (N dt = 2 to 5 s) plus the vehicle's lag, so that a closed
 #: loop, which ends N dt before the reference does, reaches the last waypoint.
 WAYPOINT_HOLD = 10.0
+#: Span (s) of an unbounded window that construction checks (:meth:`Reference.check_window`):
+#: ten minutes, twenty times the paper's runs.
+CHECK_SPAN = 600.0
+#: Sample spacing (s) of that check, and the most samples it takes on a long window.
+CHECK_STEP = 0.1
+CHECK_SAMPLES = 20_001
+#: Bisection steps that shrink a suspect sample interval to ~1e-11 of its width: a jump
+#: keeps its size there, a continuous function changes by (derivative x width) ~ 0.
+CHECK_BISECTIONS = 36
+#: Most suspect intervals bisected (the largest scores first).
+CHECK_CANDIDATES = 256
+#: Relative size (of max(1, |value|)) from which a change over the final interval is a jump.
+JUMP_TOLERANCE = 1e-6
 
 
 def _paper_catalogue() -> dict[str, tuple[PathFunction, float, float, str]]:
@@ -147,6 +160,7 @@ class Reference:
         object.__setattr__(self, "t_start", t_start)
         object.__setattr__(self, "t_end", t_end)
         object.__setattr__(self, "_function", self._build_function())
+        self.check_window()
 
     # ---------------------------------------------------------------- layout
     @property
@@ -491,6 +505,168 @@ class Reference:
             return ca.Function(name, [time], [outputs], ["t"], ["state"])
         # piecewise paths (waypoints) look their pieces up once for x and once for y: share that
         return ca.Function(name, [time], [outputs], ["t"], ["state"], {"cse": True})
+
+    # ------------------------------------------------------------ construction check
+    def check_window(self) -> None:
+        """Refuse a path that is not finite, not moving, implausibly far, or not C¹ on its window.
+
+        Run at construction on ``[t_start, t_end]`` (the first ``CHECK_SPAN`` = 600 s of an
+        unbounded window), sampled every ``CHECK_STEP`` = 0.1 s (at most ``CHECK_SAMPLES``
+        samples).  ``ValueError``, naming the first time concerned, when
+
+        * the position (or a given heading, velocity or yaw rate) is not finite at a sample, or
+          the path does not move (speed below ``MIN_PATH_SPEED`` at every sample: its tangent
+          heading is undefined everywhere; an isolated stop is allowed, and raises only when a
+          window containing it is evaluated);
+        * a position lies beyond ±1e9 m (``PLAUSIBLE_MAGNITUDE``: a unit or typing mistake);
+        * the position, the velocity or a given heading jumps (a step or a kink of the path).
+
+        A jump is found by bisection: sample intervals whose position change disagrees with
+        the trapezoidal integral of the velocity, or whose velocity or heading change departs
+        from its neighbours', are halved ``CHECK_BISECTIONS`` times towards the half with the
+        larger change; a change still above ``JUMP_TOLERANCE`` x max(1, |value|) there is a
+        jump.  A jump is refused rather than warned about: the derivatives come from AD, so
+        the reference velocity and yaw rate miss it entirely (``y = |t − 5|`` gives ``r_R = 0``
+        while the heading turns by 90°), and the controller would track a state that is not a
+        motion at all.  Curvature may jump (``Reference.waypoints`` joins legs and arcs so).
+        """
+        span = min(self.t_end, self.t_start + CHECK_SPAN) - self.t_start
+        count = int(min(CHECK_SAMPLES, max(257, math.ceil(span / CHECK_STEP) + 1)))
+        grid = np.linspace(self.t_start, self.t_start + span, count)
+        states = self._raw(grid)
+        bad = self._defective(states)
+        moving = states[:, self._surge_index]
+        if (
+            self.heading is None
+            and np.all(np.isfinite(states[:, : self._position_dim]))
+            and np.all(~(moving >= MIN_PATH_SPEED))
+        ):
+            kind = "horizontal speed" if self.spatial else "speed"
+            raise ValueError(
+                f"reference {self.name!r} does not move{' horizontally' if self.spatial else ''}: its "
+                f"{kind} is below {MIN_PATH_SPEED:g} m/s at "
+                f"every sampled time of [{self.t_start:g}, {self.t_start + span:g}] s, so its tangent "
+                "heading is undefined; give heading= (or use Reference.hold to keep station)"
+            )
+        # an isolated point where the path stops (its tangent heading undefined) is allowed: only
+        # a window containing it raises, at evaluation; a position or a given heading must be
+        # defined everywhere
+        undefined = ~np.all(np.isfinite(states[:, : self._position_dim]), axis=1)
+        if self.heading is not None:
+            undefined |= bad
+        if np.any(undefined):
+            row = int(np.argmax(undefined))
+            self._raise_defect(grid[row : row + 1])
+        positions = states[:, : self._position_dim]
+        far = np.abs(positions) > check.PLAUSIBLE_MAGNITUDE
+        if np.any(far):
+            row = int(np.argmax(np.any(far, axis=1)))
+            raise ValueError(
+                f"reference {self.name!r}: its position {tuple(float(v) for v in positions[row])} m at "
+                f"t = {grid[row]:g} s lies beyond ±{check.PLAUSIBLE_MAGNITUDE:g} m (a plausibility bound)"
+            )
+        jump = self._find_jump(grid, states)
+        if jump is not None:
+            when, what, size, unit = jump
+            raise ValueError(
+                f"reference {self.name!r} must be continuous in position and velocity (C¹ in time), "
+                f"but its {what} jumps by {size:.3g} {unit} at t = {when:.6g} s; AD derivatives miss a jump, "
+                "so join straight legs with Reference.waypoints (tangent arcs) or smooth the path"
+            )
+
+    def _motion(self, states: np.ndarray) -> dict[str, tuple[np.ndarray, str]]:
+        """Position, world-frame velocity and (if given) heading of ``states``, with their units."""
+        spatial = self.spatial
+        psi = states[:, self.heading_index]
+        surge, sway = states[:, self._surge_index], states[:, self._surge_index + 1]
+        cos_psi, sin_psi = np.cos(psi), np.sin(psi)
+        velocity = [surge * cos_psi - sway * sin_psi, surge * sin_psi + sway * cos_psi]
+        if spatial:
+            velocity.append(states[:, 8])
+        parts = {
+            "position": (states[:, : self._position_dim], "m"),
+            "velocity": (np.stack(velocity, axis=1), "m/s"),
+        }
+        if self.heading is not None:
+            parts["heading"] = (psi[:, None], "rad")
+        return parts
+
+    def _interval_scores(
+        self, start: np.ndarray, end: np.ndarray, start_states: np.ndarray, end_states: np.ndarray
+    ) -> np.ndarray:
+        """Return the changes over each interval ``[start[i], end[i]]`` (m, m/s, rad), one column each.
+
+        Columns: the position change minus the trapezoidal integral of the velocity (O(w³) if
+        smooth), the velocity change (O(w)), and the heading change minus the integral of the
+        yaw rate (a given heading only; else 0).
+        """
+        first, last = self._motion(start_states), self._motion(end_states)
+        width = (end - start)[:, None]
+        position, velocity = first["position"][0], first["velocity"][0]
+        position_end, velocity_end = last["position"][0], last["velocity"][0]
+        residual = position_end - position - 0.5 * width * (velocity + velocity_end)
+        scores = np.zeros((start.size, 3))
+        scores[:, 0] = np.linalg.norm(residual, axis=1)
+        scores[:, 1] = np.linalg.norm(velocity_end - velocity, axis=1)
+        if "heading" in first:
+            psi, psi_end = first["heading"][0][:, 0], last["heading"][0][:, 0]
+            rate, rate_end = start_states[:, self._rate_index], end_states[:, self._rate_index]
+            turned = (psi_end - psi + math.pi) % (2.0 * math.pi) - math.pi
+            scores[:, 2] = np.abs(turned - 0.5 * width[:, 0] * (rate + rate_end))
+        return scores
+
+    def _find_jump(self, grid: np.ndarray, states: np.ndarray) -> tuple[float, str, float, str] | None:
+        """Return ``(time, what, size, unit)`` of a jump of position, velocity or heading, or ``None``."""
+        motion = self._motion(states)
+        # one scale per column over the window (relative to max(1, largest value))
+        scale = np.array(
+            [
+                max(1.0, float(np.max(np.linalg.norm(motion[what][0], axis=1))))
+                for what in ("position", "velocity")
+            ]
+            + [1.0]
+        )
+        scores = self._interval_scores(grid[:-1], grid[1:], states[:-1], states[1:]) / scale
+        # every change of a smooth path varies smoothly from interval to interval; a jump is a
+        # spike (compared with the intervals two away: a jump on a sample splits over two)
+        padded = np.pad(scores, ((2, 2), (0, 0)), mode="edge")
+        typical = np.maximum(padded[:-4], padded[4:])
+        score = np.max(scores - 2.0 * typical, axis=1)
+        suspects = np.flatnonzero(score > JUMP_TOLERANCE)
+        if suspects.size == 0:
+            return None
+        suspects = suspects[np.argsort(-score[suspects])[:CHECK_CANDIDATES]]
+        low, high = grid[suspects].copy(), grid[suspects + 1].copy()
+        low_states, high_states = states[suspects].copy(), states[suspects + 1].copy()
+        count = low.size
+        index = np.arange(count)
+        conclusive = np.ones(count, dtype=bool)
+        for _ in range(CHECK_BISECTIONS):
+            middle = 0.5 * (low + high)
+            mid_states = self._raw(middle)
+            # a stop between samples (undefined tangent heading, NaN yaw rate): that interval
+            # cannot shrink, so it says nothing; evaluation names the stop when a window holds it
+            conclusive &= np.all(np.isfinite(mid_states), axis=1)
+            left = (self._interval_scores(low, middle, low_states, mid_states) / scale).max(axis=1)
+            right = (self._interval_scores(middle, high, mid_states, high_states) / scale).max(axis=1)
+            go_left = (left >= right) | ~conclusive
+            high = np.where(go_left, middle, high)
+            high_states = np.where(go_left[:, None], mid_states, high_states)
+            low = np.where(go_left, low, middle)
+            low_states = np.where(go_left[:, None], low_states, mid_states)
+        parts_low, parts_high = self._motion(low_states), self._motion(high_states)
+        for what, (values, unit) in parts_low.items():
+            other = parts_high[what][0]
+            difference = other - values
+            if what == "heading":
+                difference = (difference + math.pi) % (2.0 * math.pi) - math.pi
+            size = np.linalg.norm(difference, axis=1)
+            scale = np.maximum(1.0, np.maximum(np.linalg.norm(values, axis=1), np.linalg.norm(other, axis=1)))
+            jumped = index[(size > JUMP_TOLERANCE * scale) & conclusive]
+            if jumped.size:
+                first = jumped[np.argmin(low[jumped])]
+                return float(0.5 * (low[first] + high[first])), what, float(size[first]), unit
+        return None
 
     # -------------------------------------------------------------- evaluation
     @property

@@ -304,6 +304,15 @@ def _checked_points(points: object) -> np.ndarray:
     if not np.all(finite):
         row = int(np.argmin(finite))
         raise ValueError(f"points must be finite, got points[{row}] = {_row(array[row])}")
+    # 1e300 passed and gave NaN states (its squares overflow): beyond ±1e9 m a waypoint is a
+    # unit or typing mistake (the plausibility bound of states, uuv_ocp._validation)
+    inside = np.all(np.abs(array) <= check.PLAUSIBLE_MAGNITUDE, axis=1)
+    if not np.all(inside):
+        row = int(np.argmin(inside))
+        raise ValueError(
+            f"points must lie within ±{check.PLAUSIBLE_MAGNITUDE:g} m (a plausibility bound), got "
+            f"points[{row}] = {_row(array[row])}"
+        )
     return array
 
 

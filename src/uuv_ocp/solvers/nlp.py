@@ -308,6 +308,8 @@ class NlpSolver:
                 f"unknown options for solver {self.name!r}: {sorted(options)}; "
                 f"valid: {sorted(self.option_names)}"
             )
+        # an unknown name or a wrong type crashed the first solve with a CasADi traceback
+        check.nlpsol_options("options['plugin_options']", self.plugin, plugin_options)
         self.plugin_options = plugin_options
         # the soft NLP's exact-penalty weight may be the solver's own: only the soft variant
         # changes, the hard NLP and the judge (score) stay those of ``problem``

@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.control.disturbances import Current
 from uuv_ocp.control.mpc import NMPC
@@ -277,7 +278,8 @@ class ComparisonRow:
     success : bool
         The backend's own verdict.
     ratio : float
-        ``cost`` divided by the best feasible cost of the comparison.
+        ``cost`` divided by the best feasible cost of the comparison (:func:`cost_ratio`: 1 for
+        a cost equal to a best cost of 0, ``inf`` for a larger one).
     history : numpy.ndarray or None
         Best fitness per iteration (swarms).
     violations : dict
@@ -318,7 +320,10 @@ def compare(
 ) -> list[ComparisonRow]:
     """Solve one instance of any problem with every named solver; ``ratio`` is cost / best cost.
 
-    Each solver is built (and, for NLPs, run once) before timing, so ``solve_time`` is the
+    ``solvers`` names at least one solver; ``seed`` is an integer >= 0 (``ValueError``
+    otherwise, before anything runs).  A best cost of 0 (the instance starts on a reference it
+    can keep, e.g. a held pose) gives ratios 1 and ``inf`` (:func:`cost_ratio`).  Each solver
+    is built (and, for NLPs, run once) before timing, so ``solve_time`` is the
     steady-state cost of one solve.  Swarms get ``seed``.  The instance is given as in
     :func:`uuv_ocp.solve` (``t0``, ``u_prev``, ``current`` for tracking problems,
     ``parameters`` for an :class:`~uuv_ocp.ocp.Ocp`).
@@ -326,6 +331,11 @@ def compare(
     from uuv_ocp.judge import instance_parameters
     from uuv_ocp.solvers import REGISTRY, get_solver
 
+    if isinstance(solvers, str) or not isinstance(solvers, Sequence) or not solvers:
+        raise ValueError(
+            f"solvers must be a non-empty list of solver names, e.g. ['ipopt'], got {check.shown(solvers)}"
+        )
+    check.positive_int("seed", seed, minimum=0)  # numpy's own error would not name it
     for name in solvers:
         REGISTRY.factory(name)  # unknown names raise before anything runs
     p = instance_parameters(problem, x0, t0, u_prev=u_prev, current=current, parameters=parameters)
@@ -358,7 +368,7 @@ def compare(
             r.solve_time,
             r.evaluations,
             r.success,
-            r.cost / best,
+            cost_ratio(r.cost, best),
             r.history,
             violations=k,
             feasible=ok,
@@ -366,6 +376,17 @@ def compare(
         )
         for i, (r, k, ok) in enumerate(zip(results, kinds, feasible, strict=True))
     ]
+
+
+def cost_ratio(cost: float, best: float) -> float:
+    """``cost / best``; a best cost of 0 gives 1 for a cost of 0 and ``±inf`` for any other.
+
+    A held pose started on the reference costs exactly 0 for every solver that holds it; the
+    plain quotient raised ``ZeroDivisionError`` there (issue 31).  NaN stays NaN.
+    """
+    if best == 0.0:
+        return 1.0 if cost == 0.0 else math.copysign(math.inf, cost) if cost == cost else math.nan
+    return cost / best
 
 
 def format_comparison(rows: Sequence[ComparisonRow]) -> str:

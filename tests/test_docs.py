@@ -159,10 +159,14 @@ def test_surveys():
     # the lawnmower: straight lanes shortened by the turns, joined by semicircles
     length = lanes * width - 2 * (lanes - 1) * radius + (lanes - 1) * np.pi * radius
     lawnmower = out.lawnmower
-    # the survey, then the default hold at the last waypoint (docs/references.md)
+    # the survey, braking over its last turn radius b (2 b / v, b / v longer than at speed), then
+    # the default hold at the last waypoint (docs/references.md)
     hold = WAYPOINT_HOLD
-    assert lawnmower.t_end - lawnmower.t_start == pytest.approx(length / module.SPEED + hold, rel=1e-9)
-    samples = lawnmower.evaluate(np.linspace(lawnmower.t_start, lawnmower.t_end - hold - 1e-6, 400))
+    assert lawnmower.t_end - lawnmower.t_start == pytest.approx(
+        (length + radius) / module.SPEED + hold, rel=1e-9
+    )
+    cruise_end = lawnmower.t_end - hold - 2 * radius / module.SPEED
+    samples = lawnmower.evaluate(np.linspace(lawnmower.t_start, cruise_end - 1e-6, 400))
     np.testing.assert_allclose(samples[:, 3], module.SPEED, rtol=1e-6)  # u_R: constant speed
     assert samples[:, 1].max() == pytest.approx((lanes - 1) * spacing, abs=1e-6)
     assert set(np.round(np.abs(samples[:, 5]), 6)) <= {0.0, round(module.SPEED / radius, 6)}
@@ -170,7 +174,9 @@ def test_surveys():
     square = out.square
     corner_radius = side / 5
     length = 3 * side + (side - 0.5) - 6 * corner_radius + 3 * (np.pi / 2) * corner_radius
-    assert square.t_end - square.t_start == pytest.approx(length / module.SPEED + hold, rel=1e-9)
+    assert square.t_end - square.t_start == pytest.approx(
+        (length + corner_radius) / module.SPEED + hold, rel=1e-9
+    )
     for name, run in out.runs.items():
         assert run.failures == 0, name
         assert out.settled[name] < 0.05, name  # curvature steps at the joints: mm to cm errors

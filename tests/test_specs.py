@@ -81,8 +81,10 @@ def test_waypoint_csv_is_the_straight_line_and_arc_path(tmp_path):
     reference = reference_from_spec(f"waypoints {path}")
     # length of two legs with a quarter-circle corner: 20 + 10 - 2 r + (pi/2) r
     length = 30.0 - 2.0 * CSV_TURN_RADIUS + 0.5 * np.pi * CSV_TURN_RADIUS
-    # the mission, then the default hold at the last waypoint
-    assert reference.t_end == pytest.approx(length / CSV_SPEED + WAYPOINT_HOLD, rel=1e-12)
+    # the mission, braking over the last turn radius (twice its time at speed), then the default
+    # hold at the last waypoint
+    braking = CSV_TURN_RADIUS / CSV_SPEED
+    assert reference.t_end == pytest.approx(length / CSV_SPEED + braking + WAYPOINT_HOLD, rel=1e-12)
     start, end = reference.evaluate([0.0, reference.t_end])
     np.testing.assert_allclose(start[:2], [0.0, 0.0], atol=1e-12)
     np.testing.assert_allclose(end[:2], [20.0, 10.0], atol=1e-9)
@@ -95,7 +97,7 @@ def test_waypoint_and_lawnmower_toml(tmp_path):
         "[reference]\npoints = [[0, 0, 2], [10, 0, 4]]\nspeed = 0.25\nturn_radius = 1.0\nhold = 5.0\n"
     )
     reference = reference_from_spec(["waypoints", str(path)])
-    assert reference.spatial and reference.t_end == pytest.approx(45.0)
+    assert reference.spatial and reference.t_end == pytest.approx(40.0 + 1.0 / 0.25 + 5.0)  # braking 1 m
     np.testing.assert_allclose(reference.evaluate([20.0])[0][:3], [5.0, 0.0, 3.0], atol=1e-12)
     mower = tmp_path / "m.toml"
     mower.write_text("[reference]\nwidth = 20.0\nspacing = 4.0\nlanes = 3\nspeed = 0.5\n")
@@ -103,7 +105,7 @@ def test_waypoint_and_lawnmower_toml(tmp_path):
     # lane ends (0,0) (20,0) (20,4) (0,4) (0,8) (20,8): legs 68 m, four 90° corners of radius 2 m,
     # each replacing 2 r of leg by a quarter circle of (pi/2) r
     assert survey.t_end == pytest.approx(
-        (68.0 - 4 * 2 * 2.0 + 4 * 0.5 * np.pi * 2.0) / 0.5 + WAYPOINT_HOLD, rel=1e-9
+        (68.0 - 4 * 2 * 2.0 + 4 * 0.5 * np.pi * 2.0 + 2.0) / 0.5 + WAYPOINT_HOLD, rel=1e-9
     )
 
 

@@ -616,20 +616,31 @@ def test_a_mission_holds_its_last_waypoint_at_rest(case):
     points, speed, radius, t_start = CASES[case]
     moving = Reference.waypoints(points, speed, radius, t_start=t_start, hold=0.0)
     mission = Reference.waypoints(points, speed, radius, t_start=t_start, hold=7.5)
-    arrival = t_start + total_length(points, radius) / speed
-    assert mission.t_end == pytest.approx(arrival + 7.5, rel=1e-12)
-    # the same path up to the last waypoint (the heading: the path's direction, not the tangent
-    # of the velocity, which agree there)
-    before = np.linspace(t_start, arrival, 3001)[:-1]
+    length = total_length(points, radius)
+    braking = min(radius, length / 2)  # the documented stretch, at speed**2 / (2 braking)
+    cruise_end = t_start + (length - braking) / speed
+    rest = cruise_end + 2 * braking / speed
+    assert mission.t_end == pytest.approx(rest + 7.5, rel=1e-12)
+    # the same path up to the braking stretch (the heading: the path's direction, not the
+    # tangent of the velocity, which agree there)
+    before = np.linspace(t_start, cruise_end, 3001)[:-1]
     np.testing.assert_allclose(mission.evaluate(before), moving.evaluate(before), atol=1e-9)
+    # braking: the path speed falls linearly to 0, checked on finite differences of the
+    # positions (C¹: no jump of the velocity that AD derivatives would miss)
+    t = np.linspace(cruise_end, rest, 401)
+    states = mission.evaluate(t)
+    expected = speed * (1 - (t - cruise_end) / (rest - cruise_end))
+    np.testing.assert_allclose(np.hypot(states[:, 3], states[:, 4]), expected, atol=1e-9)
+    path_speed = np.hypot(*np.diff(states[:, :2], axis=0).T) / np.diff(t)
+    np.testing.assert_allclose(path_speed, 0.5 * (expected[1:] + expected[:-1]), atol=1e-6)
     # then the last waypoint, with the last leg's heading, at rest
-    after = mission.evaluate(np.linspace(arrival + 1e-6, mission.t_end, 50))
+    after = mission.evaluate(np.linspace(rest + 1e-6, mission.t_end, 50))
     np.testing.assert_allclose(after[:, :2], np.tile(points[-1], (50, 1)), atol=1e-9)
     leg = np.asarray(points[-1], dtype=float) - np.asarray(points[-2], dtype=float)
     assert np.allclose(np.cos(after[:, 2]), leg[0] / np.hypot(*leg)) and np.allclose(
         np.sin(after[:, 2]), leg[1] / np.hypot(*leg)
     )
-    np.testing.assert_array_equal(np.abs(after[:, 3:]), 0.0)
+    np.testing.assert_allclose(after[:, 3:], 0.0, atol=1e-12)
 
 
 def test_a_spatial_mission_holds_its_last_waypoint_and_depth():

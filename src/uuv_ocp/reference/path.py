@@ -285,17 +285,20 @@ class Reference:
             Time (s) at the first waypoint; the last is reached at ``t_start + length / speed``.
         hold : float
             Time (s, >= 0) the reference then stays at the last waypoint, at rest with the last
-            leg's heading; ``t_end = t_start + length / speed + hold``.  A closed loop's horizon
-            must stay inside the reference, so it ends ``N dt`` before ``t_end``: with
-            ``hold >= N dt`` (plus the time the vehicle lags behind) the mission reaches its
-            last waypoint.  ``hold=0`` ends the reference on arrival, still moving.
+            leg's heading.  It comes to rest at constant deceleration ``speed² / (2 b)`` over the
+            last ``b = min(turn_radius, length / 2)`` metres (half the centripetal acceleration
+            its turns already ask for), so position and velocity stay continuous:
+            ``t_end = t_start + (length + b) / speed + hold``.  A closed loop's horizon must stay
+            inside the reference, so it ends ``N dt`` before ``t_end``: with ``hold >= N dt``
+            (plus the time the vehicle lags behind) the mission reaches its last waypoint.
+            ``hold=0`` ends the reference on arrival, still moving (no braking).
 
         Returns
         -------
         Reference
             Position C¹ in time (continuous velocity) until the last waypoint, tangent heading,
-            ``u_R = speed``, ``r_R = ±speed / turn_radius`` on arcs and 0 on legs; then (the
-            velocity drops to zero there) the last waypoint at rest.
+            ``u_R = speed``, ``r_R = ±speed / turn_radius`` on arcs and 0 on legs; with
+            ``hold > 0`` the braking stretch, then the last waypoint at rest.
         """
         geometry = WaypointPath(points, turn_radius)
         speed = check.positive_float("speed", speed)
@@ -314,12 +317,22 @@ class Reference:
         t_end = t_start + geometry.length / speed + hold
         heading = None  # the tangent's, from the velocity
         if hold > 0.0:
-            # the arc length stops at the last waypoint; the heading is the path's direction,
-            # which stays defined at rest (the tangent of a vanishing velocity does not)
-            description += f", then {hold:g} s at the last waypoint"
+            # The path speed ramps down to rest at the last waypoint, so the reference stays C¹
+            # (a step to rest would be a jump its AD derivatives miss); the heading is the path's
+            # direction, which stays defined at rest (the tangent of a vanishing velocity does not).
+            braking = min(geometry.turn_radius, 0.5 * geometry.length)
+            deceleration = speed**2 / (2.0 * braking)
+            cruise_end = t_start + (geometry.length - braking) / speed
+            t_end = cruise_end + speed / deceleration + hold
+            description += (
+                f", braking over its last {braking:g} m at {deceleration:.3g} m/s², "
+                f"then {hold:g} s at the last waypoint"
+            )
 
             def arc_length(t: ca.SX) -> ca.SX:
-                return ca.fmin(speed * (t - t_start), geometry.length)
+                braked = ca.fmin(ca.fmax(t - cruise_end, 0.0), speed / deceleration)
+                cruising = ca.fmin(speed * (t - t_start), geometry.length - braking)
+                return cruising + braked * (speed - 0.5 * deceleration * braked)
 
             heading = lambda t: geometry.heading(arc_length(t))  # noqa: E731
         path_x = lambda t: geometry.horizontal(arc_length(t))[0]  # noqa: E731

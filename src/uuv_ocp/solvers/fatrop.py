@@ -6,7 +6,10 @@ from typing import Any
 
 import numpy as np
 
+from uuv_ocp import _validation as check
+from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE
+from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.ipopt import IPOPT_MAX_ITER
 from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import Option, option_names, revise
@@ -15,12 +18,28 @@ from uuv_ocp.transcription.multiple_shooting import NlpData
 FATROP_MAX_ITER = 200
 """Fatrop's iteration limit when ``max_iter`` is ``None``."""
 
-FATROP_OPTIONS: tuple[Option, ...] = revise(
-    NLP_OPTIONS,
-    max_iter={"meaning": f"{FATROP_MAX_ITER} (`fatrop.max_iter`; its IPOPT rescue: {IPOPT_MAX_ITER})"},
-    plugin_options={
-        "description": "merged into the CasADi `nlpsol` options of every fatrop attempt (robust retry too)"
-    },
+FATROP_STALL_TIME = 10.0
+"""Default ``stall_time`` (s): a fatrop iteration takes milliseconds on these NLPs."""
+
+FATROP_OPTIONS: tuple[Option, ...] = (
+    *revise(
+        NLP_OPTIONS,
+        max_iter={
+            "meaning": f"{FATROP_MAX_ITER} (`fatrop.max_iter`, and the watchdog's limit on all "
+            f"iterations, restoration included; its IPOPT rescue: {IPOPT_MAX_ITER})"
+        },
+        plugin_options={
+            "description": "merged into the CasADi `nlpsol` options of every fatrop attempt (robust retry too)"
+        },
+    ),
+    Option(
+        "stall_time",
+        FATROP_STALL_TIME,
+        "float > 0 or `None`",
+        "longest wait for one fatrop iteration before the watchdog stops the attempt as stalled",
+        unit="s",
+        meaning="no limit",
+    ),
 )
 
 
@@ -42,6 +61,29 @@ class FatropSolver(NlpSolver):
     plugin = "fatrop"
     OPTIONS = FATROP_OPTIONS
     option_names = option_names(FATROP_OPTIONS)
+
+    def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
+        options = dict(options or {})
+        stall = options.pop("stall_time", FATROP_STALL_TIME)
+        self._stall_time = None if stall is None else check.positive_float("options['stall_time']", stall)
+        super().__init__(problem, options)
+
+    def watched(self, plugin: str) -> bool:
+        """Fatrop always runs in the watchdog's worker (it can loop for good; see module doc)."""
+        return watchdog.CAN_WATCH and (plugin == "fatrop" or super().watched(plugin))
+
+    def progress_lines(self, plugin: str) -> dict[str, Any]:
+        """``fatrop.print_level = 5`` (the lowest that prints them): one line per iteration, restoration iterations marked ``r``."""
+        return {"fatrop.print_level": 5} if plugin == "fatrop" else {}
+
+    def stall_time(self, plugin: str) -> float | None:
+        """The ``stall_time`` option for fatrop's attempts."""
+        return self._stall_time if plugin == "fatrop" else None
+
+    def iteration_limit(self, plugin: str) -> int | None:
+        """``max_iter`` (or 200) counting restoration iterations, which fatrop's own limit does not."""
+        # fatrop's own stop at max_iter prints one more line (its final iterate, numbered max_iter + 1)
+        return (self.max_iter or FATROP_MAX_ITER) + 1 if plugin == "fatrop" else None
 
     def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
         """Fatrop on the detected stage structure, tolerance 1e-8, ``mu_init = 1e-4``."""

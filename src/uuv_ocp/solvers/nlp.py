@@ -40,7 +40,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import time
 import warnings
 from typing import Any
 
@@ -51,6 +50,7 @@ from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import score_parameters
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names
 from uuv_ocp.solvers.result import Iterate, SolveResult
@@ -65,7 +65,7 @@ _TIME_LIMIT_STATUSES = ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
 
 
 class _DeadlineClock:
-    """The absolute deadline (``time.perf_counter`` time) of the solve that runs.
+    """The absolute deadline (:func:`watchdog.now <uuv_ocp.solvers.watchdog.now>` time) of the solve that runs.
 
     Shared with the iteration callbacks; ``fired`` says whether a callback asked the plugin to
     stop during the current attempt.
@@ -114,11 +114,40 @@ class _DeadlineCallback(ca.Callback):
         return True
 
     def eval_buffer(self, arg: tuple[memoryview, ...], res: tuple[memoryview, ...]) -> int:
-        stop = time.perf_counter() >= self._clock.at
+        stop = watchdog.now() >= self._clock.at
         if stop:
             self._clock.fired = True
         res[0].cast("d")[0] = 1.0 if stop else 0.0  # nonzero: the plugin stops
         return 0
+
+
+# CasADi's unified statuses, for plugins without a return_status of their own (blocksqp)
+_UNIFIED_STATUSES = {
+    "SOLVER_RET_SUCCESS": "Solve_Succeeded",
+    "SOLVER_RET_LIMITED": "Maximum_Iterations_Exceeded",
+    "SOLVER_RET_NAN": "NaN_Detected",
+    "SOLVER_RET_INFEASIBLE": "Infeasible_Problem_Detected",
+    "SOLVER_RET_EXCEPTION": "Exception_Raised",
+    "SOLVER_RET_UNKNOWN": "Unknown_Failure",
+}
+
+
+def plugin_status(plugin: str, stats: dict[str, Any]) -> str:
+    """The status text of a plugin call: its ``return_status``, else CasADi's unified status.
+
+    ``blocksqp`` reports no ``return_status``; its ``unified_return_status`` is translated to
+    IPOPT's wording and the plugin named (``"blocksqp: Maximum_Iterations_Exceeded"``).
+    """
+    status = stats.get("return_status")
+    if status is not None and str(status) != "":
+        return str(status)
+    unified = stats.get("unified_return_status")
+    if unified is not None:
+        return f"{plugin}: {_UNIFIED_STATUSES.get(str(unified), str(unified))}"
+    success = stats.get("success")
+    if success is None:
+        return f"{plugin}: no status reported"
+    return f"{plugin}: {'Solve_Succeeded' if success else 'failed without a status'}"
 
 
 def _transfer(values: np.ndarray | None, mapping: np.ndarray, fill: float = 0.0) -> np.ndarray | None:
@@ -328,6 +357,9 @@ class NlpSolver:
         self._maps: dict[tuple[str, str, str], tuple[np.ndarray, np.ndarray]] = {}
         self._control_box: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._clock = _DeadlineClock()
+        self._plugins: dict[tuple[str, bool | str, bool], str] = {}
+        # attempts of plugins that cannot stop themselves run in this forked worker (see watched)
+        self._worker = watchdog.Worker(self._solvers.__getitem__)
         self._deadline_callbacks: list[_DeadlineCallback] = []  # kept alive for their nlpsols
         self._still_water_slice = problem.still_water_slice
         self._state_dim = built.spec.state_dim
@@ -499,12 +531,39 @@ class NlpSolver:
                 callback = _DeadlineCallback(f"{name}_deadline", sizes, self._clock)
                 self._deadline_callbacks.append(callback)
                 options["iteration_callback"] = callback
+            if self.watched(plugin) and self.progress_lines(plugin):
+                # the watchdog reads the plugin's iteration lines as its progress report
+                options.update(self.progress_lines(plugin))
             if self.compiled:
                 solver = self._compiled_nlpsol(name, plugin, nlp, options)
             else:
                 solver = ca.nlpsol(name, plugin, nlp, options)
             self._solvers[key] = BufferedFunction(solver)
+            self._plugins[key] = plugin
+            if self._worker.alive:  # a worker forked before this build would build it again
+                self._worker.restart()
         return self._solvers[key]
+
+    def watched(self, plugin: str) -> bool:
+        """Whether an attempt of ``plugin`` runs in the watchdog's worker process.
+
+        Plugins that call CasADi's iteration callback stop themselves at the deadline; the
+        others run in the worker when this solver has a ``deadline`` (backends whose plugin can
+        hang without one, fatrop, say so always).  Never where ``os.fork`` is missing.
+        """
+        return watchdog.CAN_WATCH and plugin not in CALLBACK_PLUGINS and self.deadline is not None
+
+    def progress_lines(self, plugin: str) -> dict[str, Any]:
+        """Plugin options that print one line per iteration (the watchdog's progress; ``{}``: none)."""
+        return {}
+
+    def stall_time(self, plugin: str) -> float | None:
+        """Seconds without an iteration line after which a watched attempt is stalled (``None``: never)."""
+        return None
+
+    def iteration_limit(self, plugin: str) -> int | None:
+        """Iterations (restoration included) after which the watchdog stops ``plugin`` (``None``: its own)."""
+        return None
 
     def _compiled_nlpsol(self, name: str, plugin: str, nlp: dict, options: dict) -> ca.Function:
         """NLP functions compiled to C by CasADi's JIT (system compiler); VM if that fails."""
@@ -573,32 +632,62 @@ class NlpSolver:
         solver = self._solver(variant, robust, still_water)
         scale = self.objective_scale
         self._clock.fired = False
-        start = time.perf_counter()
+        start = watchdog.now()
+        key = (variant, robust, still_water)
+        plugin = self._plugins[key]
         # nlpsol inputs in order: x0, p, lbx, ubx, lbg, ubg, lam_x0, lam_g0 (zero = CasADi's default)
-        primal, _, _, lam_x, lam_g, _ = solver(
-            primal, p, data.lbx, data.ubx, data.lbg, data.ubg, lam_x * scale, lam_g * scale
-        )
-        plugin_time = time.perf_counter() - start
-        stats = solver.stats()
-        status = str(stats.get("return_status", "unknown"))
+        args = (primal, p, data.lbx, data.ubx, data.lbg, data.ubg, lam_x * scale, lam_g * scale)
+        watched = self.watched(plugin)
+        killed: watchdog.Stopped | watchdog.CrashedWorker | None = None
+        if watched:
+            try:
+                outputs, stats = self._worker.call(
+                    key,
+                    args,
+                    at=self._clock.at,
+                    max_iter=self.iteration_limit(plugin),
+                    stall=self.stall_time(plugin),
+                )
+            except (watchdog.Stopped, watchdog.CrashedWorker) as error:
+                killed = error
+                outputs, stats = list(args[:1]) + [None, None, args[6], args[7], None], {}
+        else:
+            outputs, stats = solver(*args), None
+        new_primal, _, _, new_lam_x, new_lam_g, _ = outputs
+        plugin_time = watchdog.now() - start
+        if stats is None:
+            stats = solver.stats()
+        status = plugin_status(plugin, stats)
+        iterations = int(stats.get("iter_count", 0) or 0)
         # the deadline callback's stop is reported as a user stop: not a Ctrl-C
         stopped = self._clock.fired or status in _TIME_LIMIT_STATUSES
-        if not self._clock.fired:
+        if isinstance(killed, watchdog.Stopped):
+            stopped = killed.reason == "deadline"
+            status, iterations = str(killed), killed.iterations
+        elif killed is not None:
+            status = f"{plugin} crashed ({killed})"
+        elif not self._clock.fired:
             reraise_interrupt(status)  # Ctrl-C inside the plugin
         if stopped:
             status = f"stopped by the deadline ({status})"
+        success = bool(stats.get("success", False)) and not stopped and killed is None
+        if not (np.all(np.isfinite(new_primal)) and np.all(np.isfinite(new_lam_g))):
+            # a NaN iterate is no plan and no warm start: the attempt's starting point stands
+            status, success = f"{status}; NaN or Inf in the returned iterate", False
+            new_primal, new_lam_x, new_lam_g = args[0], args[6], args[7]
         return {
             "variant": variant,
             "robust": robust,
             "still_water": still_water,
-            "primal": primal,
-            "lam_g": lam_g / scale,
-            "lam_x": lam_x / scale,
-            "success": bool(stats.get("success", False)) and not stopped,
+            "primal": new_primal,
+            "lam_g": new_lam_g / scale,
+            "lam_x": new_lam_x / scale,
+            "success": success,
             "status": status,
-            "iterations": int(stats.get("iter_count", 0) or 0),
+            "iterations": iterations,
             "evaluations": int(stats.get("n_call_nlp_f", 0) or stats.get("n_call_nlp_fg", 0) or 0),
             "plugin_time": plugin_time,
+            "watched": watched,
         }
 
     def relaxed(self, variant: str, primal: np.ndarray) -> bool:
@@ -627,7 +716,7 @@ class NlpSolver:
         attempt it is enforced only if the solver was built with a ``deadline`` (that is what
         installs the plugins' iteration callback), between attempts always.
         """
-        start = time.perf_counter()
+        start = watchdog.now()
         limit = self.deadline if time_limit is None else check.positive_float("time_limit", time_limit)
         self._clock.at = math.inf if limit is None else start + limit
         attempts: list[dict[str, Any]] = []
@@ -636,7 +725,7 @@ class NlpSolver:
         def attempt(variant: str, warm: Iterate | None, robust: bool | str = False) -> bool:
             """Run one attempt unless the deadline has passed (the first one always runs)."""
             nonlocal skipped
-            if attempts and time.perf_counter() >= self._clock.at:
+            if attempts and watchdog.now() >= self._clock.at:
                 skipped += 1
                 return False
             attempts.append(self._attempt(variant, p, warm, robust=robust))
@@ -681,7 +770,7 @@ class NlpSolver:
         self._clock.at = math.inf
         final = attempts[-1]
         relaxed = self.relaxed(final["variant"], final["primal"])
-        elapsed = time.perf_counter() - start
+        elapsed = watchdog.now() - start
         result = self._result(p, final, attempts, relaxed, elapsed)
         if limit is None or elapsed <= limit:
             result.details["deadline_hit"] = False  # the result's own fresh dict: no copy per step

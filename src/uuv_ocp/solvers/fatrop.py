@@ -29,7 +29,8 @@ FATROP_OPTIONS: tuple[Option, ...] = (
             f"iterations, restoration included; its IPOPT rescue: {IPOPT_MAX_ITER})"
         },
         plugin_options={
-            "description": "merged into the CasADi `nlpsol` options of every fatrop attempt (robust retry too)"
+            "description": "merged into the CasADi `nlpsol` options of every fatrop attempt "
+            "(robust retry too)"
         },
     ),
     Option(
@@ -73,11 +74,14 @@ class FatropSolver(NlpSolver):
         return watchdog.CAN_WATCH and (plugin == "fatrop" or super().watched(plugin))
 
     def progress_lines(self, plugin: str) -> dict[str, Any]:
-        """``fatrop.print_level = 5`` (the lowest that prints them): one line per iteration, restoration iterations marked ``r``."""
+        """Return ``fatrop.print_level = 5``, the lowest that prints one line per iteration.
+
+        Restoration iterations are numbered on and marked ``r``.
+        """
         return {"fatrop.print_level": 5} if plugin == "fatrop" else {}
 
     def stall_time(self, plugin: str) -> float | None:
-        """The ``stall_time`` option for fatrop's attempts."""
+        """Return the ``stall_time`` option for fatrop's attempts."""
         return self._stall_time if plugin == "fatrop" else None
 
     def iteration_limit(self, plugin: str) -> int | None:

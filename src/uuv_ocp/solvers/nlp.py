@@ -65,7 +65,7 @@ _TIME_LIMIT_STATUSES = ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
 
 
 class _DeadlineClock:
-    """The absolute deadline (:func:`watchdog.now <uuv_ocp.solvers.watchdog.now>` time) of the solve that runs.
+    """The absolute deadline (a :func:`~uuv_ocp.solvers.watchdog.now` time) of the solve that runs.
 
     Shared with the iteration callbacks; ``fired`` says whether a callback asked the plugin to
     stop during the current attempt.
@@ -133,7 +133,7 @@ _UNIFIED_STATUSES = {
 
 
 def plugin_status(plugin: str, stats: dict[str, Any]) -> str:
-    """The status text of a plugin call: its ``return_status``, else CasADi's unified status.
+    """Return the status text of a plugin call: its ``return_status``, else CasADi's unified status.
 
     ``blocksqp`` reports no ``return_status``; its ``unified_return_status`` is translated to
     IPOPT's wording and the plugin named (``"blocksqp: Maximum_Iterations_Exceeded"``).
@@ -562,7 +562,10 @@ class NlpSolver:
         return None
 
     def iteration_limit(self, plugin: str) -> int | None:
-        """Iterations (restoration included) after which the watchdog stops ``plugin`` (``None``: its own)."""
+        """Return the iterations (restoration included) after which the watchdog stops ``plugin``.
+
+        ``None``: the plugin's own limit only.
+        """
         return None
 
     def _compiled_nlpsol(self, name: str, plugin: str, nlp: dict, options: dict) -> ca.Function:
@@ -774,7 +777,7 @@ class NlpSolver:
         result = self._result(p, final, attempts, relaxed, elapsed)
         if limit is None or elapsed <= limit:
             result.details["deadline_hit"] = False  # the result's own fresh dict: no copy per step
-            return result
+            return result if result.success else self._rolled_out(result, p)
         # not ready in time: a failure, whatever the last attempt reached (see module doc)
         reason = f"{skipped} further attempt(s) not started" if skipped else "no attempt skipped"
         iterate = result.iterate
@@ -783,7 +786,7 @@ class NlpSolver:
             # is always feasible: a hard NLP that never finishes in time would never yield to it
             iterate = dataclasses.replace(iterate, terminal_relaxed=True)
         return dataclasses.replace(
-            result,
+            self._rolled_out(result, p),
             success=False,
             iterate=iterate,
             status=(
@@ -792,6 +795,17 @@ class NlpSolver:
             ),
             details={**result.details, "deadline_hit": True, "attempts_skipped": skipped},
         )
+
+    def _rolled_out(self, result: SolveResult, p: np.ndarray) -> SolveResult:
+        """``result`` with ``states`` the model's rollout of its ``controls`` (a failed solve).
+
+        A failed attempt's NLP states need not satisfy the dynamics (multiple shooting closes
+        the gaps only at convergence); ``SolveResult.states`` promises the states under
+        ``controls``, which the judge's cost is computed on.  The iterate keeps the NLP's own
+        states: it is the warm start of the next solve.
+        """
+        states = self.problem.rollout_scaled(result.iterate.scaled_controls.ravel(), p)
+        return dataclasses.replace(result, states=states)
 
     def _result(
         self,

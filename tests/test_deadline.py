@@ -175,7 +175,7 @@ def test_exact_solver_stops_inside_an_attempt_at_the_deadline(s2_problem, from_r
     free = get_solver(s2_problem, name).solve(from_rest)
     assert free.success and len(free.details["attempts"]) >= 2
     first_free = free.details["attempts"][0][2]
-    tick, reads = 1000.0, 12
+    tick, reads = 1000.0, 5
     backend = get_solver(
         s2_problem,
         name,
@@ -190,7 +190,7 @@ def test_exact_solver_stops_inside_an_attempt_at_the_deadline(s2_problem, from_r
     assert result.details["deadline_hit"] is True
     ((variant, status, iterations),) = result.details["attempts"]  # one attempt, stopped inside
     assert variant == "hard" and "stopped by the deadline" in status
-    assert iterations < reads < first_free
+    assert iterations < reads and iterations < first_free
     assert result.details["attempts_skipped"] >= 1
 
 

@@ -544,6 +544,25 @@ class NlpSolver:
                 self._worker.restart()
         return self._solvers[key]
 
+    def build(self, p: np.ndarray | None = None) -> None:
+        """Build every ``nlpsol`` the fallback chain can use, so that no solve builds one.
+
+        A solve builds what it needs on first use (0.1-0.5 s per plugin, outside its deadline:
+        see "Deadlines"); a real-time loop calls this before its first step instead.  ``p``:
+        build only the NLPs of that instance (still water or not); ``None``: both.
+        """
+        if p is not None:
+            flags = [self._uses_still_water(p)]
+        else:
+            flags = [False] + ([True] if self.still_water and self._still_water_slice is not None else [])
+        for still_water in flags:
+            for variant in self.variants:
+                self._solver(variant, False, still_water)
+                if self.robust_options():
+                    self._solver(variant, True, still_water)
+                if self.rescue_options():
+                    self._solver(variant, "rescue", still_water)
+
     def watched(self, plugin: str) -> bool:
         """Whether an attempt of ``plugin`` runs in the watchdog's worker process.
 
@@ -724,13 +743,23 @@ class NlpSolver:
         self._clock.at = math.inf if limit is None else start + limit
         attempts: list[dict[str, Any]] = []
         skipped = 0
+        build_time = 0.0
 
         def attempt(variant: str, warm: Iterate | None, robust: bool | str = False) -> bool:
             """Run one attempt unless the deadline has passed (the first one always runs)."""
             nonlocal skipped
+            nonlocal build_time
             if attempts and watchdog.now() >= self._clock.at:
                 skipped += 1
                 return False
+            key = (variant, robust, self._uses_still_water(p))
+            if key not in self._solvers:
+                # building a plugin (0.1-0.5 s, once) is no part of the budget: the clock waits
+                built = watchdog.now()
+                self._solver(*key)
+                spent = watchdog.now() - built
+                build_time += spent
+                self._clock.at += spent
             attempts.append(self._attempt(variant, p, warm, robust=robust))
             failed = not attempts[-1]["success"] and robust != "rescue"
             if failed and self.stalled(attempts[-1], p) and self.rescue_options():
@@ -775,6 +804,9 @@ class NlpSolver:
         relaxed = self.relaxed(final["variant"], final["primal"])
         elapsed = watchdog.now() - start
         result = self._result(p, final, attempts, relaxed, elapsed)
+        if build_time:
+            result.details["build_time"] = build_time
+        elapsed -= build_time
         if limit is None or elapsed <= limit:
             result.details["deadline_hit"] = False  # the result's own fresh dict: no copy per step
             return result if result.success else self._rolled_out(result, p)
@@ -797,7 +829,7 @@ class NlpSolver:
         )
 
     def _rolled_out(self, result: SolveResult, p: np.ndarray) -> SolveResult:
-        """``result`` with ``states`` the model's rollout of its ``controls`` (a failed solve).
+        """Return ``result`` with ``states`` the rollout of its ``controls`` (for a failed solve).
 
         A failed attempt's NLP states need not satisfy the dynamics (multiple shooting closes
         the gaps only at convergence); ``SolveResult.states`` promises the states under

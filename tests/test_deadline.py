@@ -442,10 +442,11 @@ def spied_hybrid_solve(hybrid, p, swarm, exact):
 def test_hybrid_gives_its_swarm_a_share_and_the_exact_stage_the_rest(s2_problem, moving, monkeypatch):
     """On a fake clock the swarm stage takes 30 % of the deadline: the exact stage gets the other 70 %.
 
-    The clock stands still inside the exact stage, so it converges and the deadline is met.
+    The clock stands still inside the exact stage, so it converges and the deadline is met.  The
+    deadline is long (1000 s) so that no real-time limit (IPOPT's max_wall_time) can stop it.
     """
     p, u_prev = moving
-    deadline = 0.2
+    deadline = 1000.0
     hybrid = get_solver(s2_problem, "pso+ipopt", {"deadline": deadline, "swarm": {"iterations": 50}})
     clock = FakeClock()
     monkeypatch.setattr(watchdog, "now", clock)

@@ -52,10 +52,14 @@ class FatropSolver(NlpSolver):
     steps of that loop it does not solve (the cold start from rest, one saturated step) are
     solved by the last-resort retry with fatrop's conservative ``mu_init = 1e-3``.
 
-    ``deadline``: CasADi 3.8's fatrop interface has no time limit among its options and calls
-    no iteration callback, so an attempt cannot be stopped once started; the deadline is
-    enforced between the attempts of the fallback chain (see :mod:`~uuv_ocp.solvers.nlp`), and
-    ``max_iter`` bounds the length of one attempt.
+    Watchdog: CasADi 3.8's fatrop interface has no time limit among its options and calls no
+    iteration callback, and fatrop can loop for good inside one iteration (BlueROV2 Heavy with
+    8 thrusters holding station in a 1.5 m/s current: the restoration phase's search direction
+    never returned; ``max_iter`` is checked only between iterations).  So every fatrop attempt
+    runs in the worker process of :mod:`~uuv_ocp.solvers.watchdog`, which reads fatrop's own
+    iteration lines (``print_level`` 5) and kills the attempt at the ``deadline``, past
+    ``max_iter`` iterations counting the restoration phase's, or after ``stall_time`` seconds
+    without an iteration; the fallback chain then goes on (robust retry, IPOPT rescue).
     """
 
     name = "fatrop"

@@ -17,19 +17,22 @@ accelerates from rest.  Every exact backend therefore handles ``terminal="equali
 ``"soft"``
     Always solve the soft NLP.
 
-Deadline (``deadline`` option, seconds of wall time per :meth:`NlpSolver.solve`).  Checked at
-two levels: *between attempts* — after the deadline no new attempt of the fallback chain
-(hard → soft → cold retry → penalty escalations → robust retry → rescue; a backend's rescue
-also right after an attempt that :meth:`~NlpSolver.stalled`) starts — and *inside an
-attempt* where the plugin offers a hook: ``ipopt`` and ``sqpmethod`` call CasADi's
-``iteration_callback`` after every iteration and stop when it reports the deadline passed
-(IPOPT additionally gets ``max_wall_time`` and ``max_cpu_time`` = the deadline).  CasADi 3.8's
-``fatrop`` interface calls no iteration callback and its options hold no time limit (only
-``max_iter``), and ``blocksqp`` (sqp's last resort) calls no callback either: an attempt of
-theirs that starts before the deadline runs to its own iteration limit.  A solve whose wall time
-exceeds the deadline reports ``success=False``, a status starting with ``deadline``, and
-``details["deadline_hit"] = True``: its plan was not ready in time, whatever the last attempt
-reached.
+Deadline (``deadline`` option, seconds of wall time per :meth:`NlpSolver.solve`, read on
+:func:`uuv_ocp.solvers.watchdog.now`).  Checked at two levels: *between attempts* — after the
+deadline no new attempt of the fallback chain (hard → soft → cold retry → penalty escalations →
+robust retry → rescue; a backend's rescue also right after an attempt that
+:meth:`~NlpSolver.stalled`) starts — and *inside every attempt*: ``ipopt`` and ``sqpmethod`` call
+CasADi's ``iteration_callback`` after every iteration and stop when it reports the deadline
+passed (IPOPT additionally gets ``max_wall_time`` and ``max_cpu_time`` = the deadline); plugins
+without a callback or a time limit (CasADi 3.8's ``fatrop``, ``blocksqp``) run in the watchdog's
+worker process (:mod:`~uuv_ocp.solvers.watchdog`), killed at the deadline.  A solve whose wall
+time, less the time spent building plugins, exceeds the deadline reports ``success=False``, a
+status starting with ``deadline``, and ``details["deadline_hit"] = True``: its plan was not ready
+in time, whatever the last attempt reached.  Fatrop's attempts always run in the worker, which
+also stops one that stalls inside an iteration or runs past ``max_iter`` iterations counting the
+restoration phase (see :class:`~uuv_ocp.solvers.fatrop.FatropSolver`).
+
+A failed solve's ``states`` are the rollout of its ``controls`` (see :meth:`NlpSolver._rolled_out`).
 
 The backends themselves live one per module: :mod:`~uuv_ocp.solvers.ipopt`,
 :mod:`~uuv_ocp.solvers.fatrop` and :mod:`~uuv_ocp.solvers.sqp` (their classes stay importable

@@ -198,13 +198,15 @@ class Worker:
                     chunk = os.read(progress_r, 65536)
                     if chunk:
                         *lines, pending = (pending + chunk).split(b"\n")
-                        for line in lines:
+                        for line in lines:  # the clock is read at every iteration line
                             match = _ITERATION_LINE.match(line)
                             if match:
                                 iterations = max(iterations, int(match.group(1)))
                                 last = now()
-                        if max_iter is not None and iterations > max_iter:
-                            raise self._stop("max_iter", iterations, stall)
+                                if last >= at:
+                                    raise self._stop("deadline", iterations, stall)
+                                if max_iter is not None and iterations > max_iter:
+                                    raise self._stop("max_iter", iterations, stall)
                 if answer_r in ready:
                     try:
                         (size,) = _HEADER.unpack(_read_exactly(answer_r, _HEADER.size))

@@ -26,6 +26,7 @@ watched: the plugin runs in the calling process.
 from __future__ import annotations
 
 import contextlib
+import io
 import math
 import os
 import pickle
@@ -33,6 +34,7 @@ import re
 import select
 import signal
 import struct
+import sys
 import time
 import weakref
 from collections.abc import Callable
@@ -130,6 +132,11 @@ class Worker:
                 signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's to handle
                 os.dup2(progress_w, 1)
                 _line_buffered_c_stdout()  # a pipe is fully buffered: progress must come per line
+                # CasADi prints a plugin's output through Python's sys.stdout (which a test
+                # runner may have replaced): make that the pipe too, line by line
+                sys.stdout = io.TextIOWrapper(
+                    io.FileIO(1, "w", closefd=False), line_buffering=True, write_through=True
+                )
                 self._serve(request_r, answer_w)
             except BaseException:  # noqa: BLE001 - a worker reports by dying; the caller sees EOF
                 code = 1
@@ -150,6 +157,7 @@ class Worker:
             function = self._functions(key)
             outputs = function(*args)
             stats = {k: v for k, v in function.stats().items() if isinstance(v, bool | int | float | str)}
+            sys.stdout.flush()
             _flush_c_stdout()
             os.write(1, b"\n")  # end of this call's progress lines
             payload = pickle.dumps((outputs, stats), protocol=pickle.HIGHEST_PROTOCOL)

@@ -244,6 +244,41 @@ def test_a_solve_that_succeeds_after_the_deadline_is_a_miss(s2_problem, feasible
     assert result.status.startswith("deadline") and result.details["attempts_skipped"] == 0
 
 
+def test_building_a_plugin_in_a_solve_is_not_part_of_its_deadline(s2_problem, feasible_start, monkeypatch):
+    """A plugin built on first use "takes" 100× the deadline on the fake clock: no miss, the time reported."""
+    x0, t0 = feasible_start
+    p = instance_parameters(s2_problem, x0, t0)
+    clock = FakeClock()
+    monkeypatch.setattr(watchdog, "now", clock)
+    backend = get_solver(s2_problem, "ipopt", {"deadline": 1.0})
+    build = backend._solver
+
+    def slow_build(*key):
+        fresh = tuple(key) not in backend._solvers
+        solver = build(*key)
+        if fresh:
+            clock.advance(100.0)
+        return solver
+
+    monkeypatch.setattr(backend, "_solver", slow_build)
+    result = backend.solve(p)
+    assert result.success and result.details["deadline_hit"] is False
+    assert result.details["build_time"] == pytest.approx(100.0)
+    again = backend.solve(p)  # built: nothing to exclude
+    assert again.success and "build_time" not in again.details
+
+
+@pytest.mark.parametrize("name", ["ipopt", "fatrop", "sqp"])
+def test_build_ahead_builds_every_plugin_of_the_fallback_chain(s2_problem, name):
+    backend = get_solver(s2_problem, name, {"deadline": 1.0})
+    backend.build(instance_parameters(s2_problem, np.zeros(6), 0.0))
+    built = set(backend._solvers)
+    for variant in backend.variants:
+        assert (variant, False, True) in built
+        assert bool(backend.robust_options()) == ((variant, True, True) in built)
+        assert bool(backend.rescue_options()) == ((variant, "rescue", True) in built)
+
+
 @pytest.mark.parametrize("name", ["ipopt", "fatrop", "sqp"])
 def test_exact_solver_deadline_not_reached_changes_nothing(s2_problem, feasible_start, name):
     x0, t0 = feasible_start

@@ -384,6 +384,19 @@ def test_watchdog_kills_at_the_deadline_read_on_its_clock(monkeypatch):
 
 
 @needs_fork
+def test_watchdog_replaces_an_idle_worker_that_is_gone():
+    """A worker killed between calls (its forking thread ended: PDEATHSIG) is replaced, not an error."""
+    worker = watchdog.Worker(scripted)
+    worker.call((1, False), (np.ones(1),))
+    pid = worker._pid
+    os.kill(pid, 9)
+    os.waitpid(pid, 0)
+    (again,), _ = worker.call((1, False), (np.ones(1),))
+    assert again[0] == 2.0 and worker._pid != pid
+    worker.restart()
+
+
+@needs_fork
 def test_watchdog_reports_a_worker_that_died():
     class Dies(Scripted):
         def __call__(self, x):

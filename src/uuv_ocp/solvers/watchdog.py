@@ -130,6 +130,7 @@ class Worker:
                 for fd in (request_w, answer_r, progress_r):
                     os.close(fd)
                 signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the caller's to handle
+                _die_with_parent()  # a hung plugin must not outlive a caller killed by SIGKILL
                 os.dup2(progress_w, 1)
                 _line_buffered_c_stdout()  # a pipe is fully buffered: progress must come per line
                 # CasADi prints a plugin's output through Python's sys.stdout (which a test
@@ -182,15 +183,20 @@ class Worker:
         CrashedWorker
             The worker died on its own.
         """
+        payload = pickle.dumps((key, args), protocol=pickle.HIGHEST_PROTOCOL)
+        request = _HEADER.pack(len(payload)) + payload
+        if self._pid is not None:
+            try:
+                _write_all(self._fds[0], request)
+            except OSError:  # the idle worker is gone (e.g. its forking thread ended): a new one
+                self.restart()
         if self._pid is None:
             self._fork()
-        assert self._pid is not None
+            _write_all(self._fds[0], request)
         request_w, answer_r, progress_r = self._fds
-        payload = pickle.dumps((key, args), protocol=pickle.HIGHEST_PROTOCOL)
         pending = b""
         iterations = 0
         try:
-            _write_all(request_w, _HEADER.pack(len(payload)) + payload)
             last = now()
             while True:
                 current = now()
@@ -265,6 +271,12 @@ def _line_buffered_c_stdout() -> None:
         libc = _libc()
         stream = ctypes.c_void_p.in_dll(libc, "stdout")
         libc.setvbuf(stream, None, 1, 0)  # _IOLBF
+
+
+def _die_with_parent() -> None:
+    """Linux: ``prctl(PR_SET_PDEATHSIG, SIGKILL)``, so the worker dies with the caller (elsewhere: no-op)."""
+    with contextlib.suppress(OSError, AttributeError):
+        _libc().prctl(1, int(signal.SIGKILL), 0, 0, 0)
 
 
 def _shut(pid: int, fds: tuple[int, ...]) -> None:

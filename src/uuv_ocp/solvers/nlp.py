@@ -558,13 +558,19 @@ class NlpSolver:
             flags = [self._uses_still_water(p)]
         else:
             flags = [False] + ([True] if self.still_water and self._still_water_slice is not None else [])
-        for still_water in flags:
-            for variant in self.variants:
-                self._solver(variant, False, still_water)
-                if self.robust_options():
-                    self._solver(variant, True, still_water)
-                if self.rescue_options():
-                    self._solver(variant, "rescue", still_water)
+        stages: list[bool | str] = [False]
+        if self.robust_options():
+            stages.append(True)
+        if self.rescue_options():
+            stages.append("rescue")
+        for stage in stages:
+            settings = {"rescue": self.rescue_options, True: self.robust_options}.get(stage)
+            plugin = settings().get("plugin", self.plugin) if settings is not None else self.plugin
+            if not ca.has_nlpsol(plugin):  # a backend whose own step is no nlpsol (sqp-rti)
+                continue
+            for still_water in flags:
+                for variant in self.variants:
+                    self._solver(variant, stage, still_water)
 
     def watched(self, plugin: str) -> bool:
         """Whether an attempt of ``plugin`` runs in the watchdog's worker process.

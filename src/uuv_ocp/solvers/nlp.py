@@ -42,6 +42,7 @@ from here).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import warnings
 from typing import Any
@@ -151,6 +152,12 @@ def plugin_status(plugin: str, stats: dict[str, Any]) -> str:
     if success is None:
         return f"{plugin}: no status reported"
     return f"{plugin}: {'Solve_Succeeded' if success else 'failed without a status'}"
+
+
+@functools.cache
+def _is_nlpsol(plugin: str) -> bool:
+    """Whether CasADi has an ``nlpsol`` plugin of this name (cached: a miss tries to load a library)."""
+    return bool(ca.has_nlpsol(plugin))
 
 
 def _transfer(values: np.ndarray | None, mapping: np.ndarray, fill: float = 0.0) -> np.ndarray | None:
@@ -564,13 +571,19 @@ class NlpSolver:
         if self.rescue_options():
             stages.append("rescue")
         for stage in stages:
-            settings = {"rescue": self.rescue_options, True: self.robust_options}.get(stage)
-            plugin = settings().get("plugin", self.plugin) if settings is not None else self.plugin
-            if not ca.has_nlpsol(plugin):  # a backend whose own step is no nlpsol (sqp-rti)
+            if not _is_nlpsol(self._stage_plugin(stage)):  # sqp-rti's own step is no nlpsol
                 continue
             for still_water in flags:
                 for variant in self.variants:
                     self._solver(variant, stage, still_water)
+
+    def _stage_plugin(self, stage: bool | str) -> str:
+        """Return the plugin of an attempt: the backend's, or its robust retry's or rescue's own."""
+        if stage == "rescue":
+            return str(self.rescue_options().get("plugin", self.plugin))
+        if stage:
+            return str(self.robust_options().get("plugin", self.plugin))
+        return self.plugin
 
     def watched(self, plugin: str) -> bool:
         """Whether an attempt of ``plugin`` runs in the watchdog's worker process.
@@ -762,7 +775,7 @@ class NlpSolver:
                 skipped += 1
                 return False
             key = (variant, robust, self._uses_still_water(p))
-            if key not in self._solvers:
+            if key not in self._solvers and _is_nlpsol(self._stage_plugin(robust)):
                 # building a plugin (0.1-0.5 s, once) is no part of the budget: the clock waits
                 built = watchdog.now()
                 self._solver(*key)

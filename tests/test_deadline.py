@@ -279,7 +279,7 @@ def test_build_ahead_builds_every_plugin_of_the_fallback_chain(s2_problem, name)
         assert bool(backend.rescue_options()) == ((variant, "rescue", True) in built)
 
 
-@pytest.mark.parametrize("name", ["ipopt", "fatrop", "sqp"])
+@pytest.mark.parametrize("name", ["ipopt", "fatrop", "sqp", "sqp-rti"])
 def test_exact_solver_deadline_not_reached_changes_nothing(s2_problem, feasible_start, name):
     x0, t0 = feasible_start
     p = instance_parameters(s2_problem, x0, t0)

@@ -650,3 +650,9 @@ def test_bad_time_limit_of_one_solve_raises(s2_problem, from_rest, name):
     backend = get_solver(s2_problem, name)
     with pytest.raises(ValueError, match="time_limit"):
         backend.solve(from_rest, time_limit=-1.0)
+
+
+@pytest.mark.parametrize("bad", [0, -1.0, math.nan, "1", True, [1.0]])
+def test_bad_stall_time_raises_naming_the_option(s2_problem, bad):
+    with pytest.raises(ValueError, match=r"options\['stall_time'\]"):
+        get_solver(s2_problem, "fatrop", {"stall_time": bad})

@@ -70,7 +70,7 @@ class FatropSolver(NlpSolver):
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
         options = dict(options or {})
         stall = options.pop("stall_time", FATROP_STALL_TIME)
-        self._stall_time = None if stall is None else check.positive_float("options['stall_time']", stall)
+        self.stall_time = None if stall is None else check.positive_float("options['stall_time']", stall)
         super().__init__(problem, options)
 
     def watched(self, plugin: str) -> bool:
@@ -84,9 +84,9 @@ class FatropSolver(NlpSolver):
         """
         return {"fatrop.print_level": 5} if plugin == "fatrop" else {}
 
-    def stall_time(self, plugin: str) -> float | None:
+    def stall_limit(self, plugin: str) -> float | None:
         """Return the ``stall_time`` option for fatrop's attempts."""
-        return self._stall_time if plugin == "fatrop" else None
+        return self.stall_time if plugin == "fatrop" else None
 
     def iteration_limit(self, plugin: str) -> int | None:
         """``max_iter`` (or 200) counting restoration iterations, which fatrop's own limit does not."""

@@ -598,7 +598,7 @@ class NlpSolver:
         """Plugin options that print one line per iteration (the watchdog's progress; ``{}``: none)."""
         return {}
 
-    def stall_time(self, plugin: str) -> float | None:
+    def stall_limit(self, plugin: str) -> float | None:
         """Seconds without an iteration line after which a watched attempt is stalled (``None``: never)."""
         return None
 
@@ -690,7 +690,7 @@ class NlpSolver:
                     args,
                     at=self._clock.at,
                     max_iter=self.iteration_limit(plugin),
-                    stall=self.stall_time(plugin),
+                    stall=self.stall_limit(plugin),
                 )
             except (watchdog.Stopped, watchdog.CrashedWorker) as error:
                 killed = error

@@ -1,5 +1,6 @@
 """Exact backends agree with each other; the terminal fallback; failures are reported."""
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -345,3 +346,89 @@ def test_a_current_in_the_model_uses_the_general_nlp(s2_problem, feasible_start,
 def test_still_water_option_is_validated(s2_problem):
     with pytest.raises(ValueError, match="still_water"):
         uo.get_solver(s2_problem, "fatrop", {"still_water": "yes"})
+
+
+# ------------------------------------------------------------------ failures say what happened
+@pytest.mark.parametrize("name", EXACT)
+def test_failed_exact_solve_reports_the_rollout_of_its_controls(s2_problem, name):
+    """A failed solve's states are the model's states under its controls (numpy RK4, not the NLP's).
+
+    From rest with the terminal equality and two iterations per attempt nothing converges; the
+    NLP's states of such an iterate miss the dynamics by 0.35–2.3 (issue 31).
+    """
+    x0 = np.zeros(6)
+    result = uo.solve(s2_problem, name, x0=x0, t0=0.0, options={"max_iter": 2})
+    assert not result.success
+    expected = rk4_rollout(s2_problem.vehicle, x0, result.controls, DT)
+    np.testing.assert_allclose(result.states, expected, rtol=0, atol=1e-9)
+    # the warm start keeps the NLP's own states (shifted into the next solve)
+    assert result.iterate.states.shape == result.states.shape
+
+
+def test_sqp_failure_statuses_name_what_stopped_each_attempt(s2_problem):
+    """``blocksqp`` (sqp's last resort) reports no ``return_status``: its unified status is translated."""
+    result = uo.solve(s2_problem, "sqp", x0=np.zeros(6), t0=0.0, options={"max_iter": 2})
+    statuses = [status for _, status, _ in result.details["attempts"]]
+    assert not result.success and "unknown" not in result.status
+    assert all(status and "unknown" not in status for status in statuses)
+    assert statuses[-1] == "blocksqp: Maximum_Iterations_Exceeded"
+
+
+def test_plugin_status_falls_back_on_casadis_unified_status():
+    from uuv_ocp.solvers.nlp import plugin_status
+
+    assert plugin_status("ipopt", {"return_status": "Solve_Succeeded"}) == "Solve_Succeeded"
+    assert plugin_status("blocksqp", {"unified_return_status": "SOLVER_RET_NAN"}) == "blocksqp: NaN_Detected"
+    assert plugin_status("x", {"success": False}) == "x: failed without a status"
+    assert plugin_status("x", {}) == "x: no status reported"
+
+
+# ------------------------------------------------------------------------ tolerance on an LQR
+def lqr_ocp_and_reference(horizon: int = 20, dt: float = 0.1):
+    """Return an unconstrained discrete LQR as a ``uo.Ocp``, its x0, and its optimum by a dense solve.
+
+    ẋ = A x + B u is linear, so RK4 over ``dt`` is exactly ``x⁺ = A_d x + B_d u`` with the
+    4th-order Taylor polynomials below; condensing ``x = Φ x₀ + Γ u`` gives the normal equations.
+    """
+    a = np.array([[0.0, 1.0], [-2.0, -0.3]])
+    b = np.array([[0.0], [1.0]])
+    q, r, terminal = np.diag([10.0, 1.0]), np.array([[0.1]]), np.diag([50.0, 5.0])
+    ocp = uo.Ocp(horizon=horizon, dt=dt, integrator="rk4", substeps=1)
+    x = ocp.state("x", 2)
+    u = ocp.control("u", 1)
+    ocp.set_der(x, ca.mtimes(ca.DM(a), x) + ca.mtimes(ca.DM(b), u))
+    ocp.add_stage_cost(residual=ca.vertcat(x, u), weight=[10.0, 1.0, 0.1])
+    ocp.add_terminal_cost(residual=x, weight=[50.0, 5.0])
+    x0 = np.array([1.0, -0.5])
+    ha, eye = dt * a, np.eye(2)
+    a_d = eye + ha + ha @ ha / 2 + ha @ ha @ ha / 6 + ha @ ha @ ha @ ha / 24
+    b_d = dt * (eye + ha / 2 + ha @ ha / 6 + ha @ ha @ ha / 24) @ b
+    phi = np.vstack([np.linalg.matrix_power(a_d, k) for k in range(horizon + 1)])
+    gamma = np.zeros((2 * (horizon + 1), horizon))
+    for k in range(horizon + 1):
+        for j in range(k):
+            gamma[2 * k : 2 * k + 2, j : j + 1] = np.linalg.matrix_power(a_d, k - 1 - j) @ b_d
+    weights = np.kron(np.eye(horizon + 1), q)
+    weights[-2:, -2:] = terminal
+    hessian = gamma.T @ weights @ gamma + np.kron(np.eye(horizon), r)
+    optimum = np.linalg.solve(hessian, -gamma.T @ weights @ phi @ x0)
+    return ocp, x0, optimum
+
+
+@pytest.mark.parametrize(
+    ("name", "options", "tolerance"),
+    [
+        ("ipopt", {}, 1e-6),
+        ("fatrop", {}, 1e-6),
+        # sqp's documented default gap (docs/solvers.md, "sqp's tolerance"): 1.3e-3 on this LQR
+        ("sqp", {}, 2e-3),
+        ("sqp", {"levenberg_marquardt": 0.0}, 1e-6),
+        ("sqp", {"plugin_options": {"tol_du": 1e-9}}, 1e-6),
+    ],
+)
+def test_exact_backends_reach_the_lqr_optimum_to_their_documented_tolerance(name, options, tolerance):
+    """Controls of an LQR against its dense solve: 1e-6 for ipopt, fatrop and sqp's tight settings."""
+    ocp, x0, optimum = lqr_ocp_and_reference()
+    result = uo.solve(ocp, name, x0=x0, options=options)
+    assert result.success
+    np.testing.assert_allclose(result.controls.ravel(), optimum, rtol=0, atol=tolerance)

@@ -6,7 +6,10 @@ from typing import Any
 
 import numpy as np
 
+from uuv_ocp import _validation as check
+from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE
+from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.ipopt import IPOPT_MAX_ITER
 from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import Option, option_names, revise
@@ -15,12 +18,29 @@ from uuv_ocp.transcription.multiple_shooting import NlpData
 FATROP_MAX_ITER = 200
 """Fatrop's iteration limit when ``max_iter`` is ``None``."""
 
-FATROP_OPTIONS: tuple[Option, ...] = revise(
-    NLP_OPTIONS,
-    max_iter={"meaning": f"{FATROP_MAX_ITER} (`fatrop.max_iter`; its IPOPT rescue: {IPOPT_MAX_ITER})"},
-    plugin_options={
-        "description": "merged into the CasADi `nlpsol` options of every fatrop attempt (robust retry too)"
-    },
+FATROP_STALL_TIME = 10.0
+"""Default ``stall_time`` (s): a fatrop iteration takes milliseconds on these NLPs."""
+
+FATROP_OPTIONS: tuple[Option, ...] = (
+    *revise(
+        NLP_OPTIONS,
+        max_iter={
+            "meaning": f"{FATROP_MAX_ITER} (`fatrop.max_iter`, and the watchdog's limit on all "
+            f"iterations, restoration included; its IPOPT rescue: {IPOPT_MAX_ITER})"
+        },
+        plugin_options={
+            "description": "merged into the CasADi `nlpsol` options of every fatrop attempt "
+            "(robust retry too)"
+        },
+    ),
+    Option(
+        "stall_time",
+        FATROP_STALL_TIME,
+        "float > 0 or `None`",
+        "longest wait for one fatrop iteration before the watchdog stops the attempt as stalled",
+        unit="s",
+        meaning="no limit",
+    ),
 )
 
 
@@ -32,16 +52,46 @@ class FatropSolver(NlpSolver):
     steps of that loop it does not solve (the cold start from rest, one saturated step) are
     solved by the last-resort retry with fatrop's conservative ``mu_init = 1e-3``.
 
-    ``deadline``: CasADi 3.8's fatrop interface has no time limit among its options and calls
-    no iteration callback, so an attempt cannot be stopped once started; the deadline is
-    enforced between the attempts of the fallback chain (see :mod:`~uuv_ocp.solvers.nlp`), and
-    ``max_iter`` bounds the length of one attempt.
+    Watchdog: CasADi 3.8's fatrop interface has no time limit among its options and calls no
+    iteration callback, and fatrop can loop for good inside one iteration (BlueROV2 Heavy with
+    8 thrusters holding station in a 1.5 m/s current: the restoration phase's search direction
+    never returned; ``max_iter`` is checked only between iterations).  So every fatrop attempt
+    runs in the worker process of :mod:`~uuv_ocp.solvers.watchdog`, which reads fatrop's own
+    iteration lines (``print_level`` 5) and kills the attempt at the ``deadline``, past
+    ``max_iter`` iterations counting the restoration phase's, or after ``stall_time`` seconds
+    without an iteration; the fallback chain then goes on (robust retry, IPOPT rescue).
     """
 
     name = "fatrop"
     plugin = "fatrop"
     OPTIONS = FATROP_OPTIONS
     option_names = option_names(FATROP_OPTIONS)
+
+    def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
+        options = dict(options or {})
+        stall = options.pop("stall_time", FATROP_STALL_TIME)
+        self.stall_time = None if stall is None else check.positive_float("options['stall_time']", stall)
+        super().__init__(problem, options)
+
+    def watched(self, plugin: str) -> bool:
+        """Fatrop always runs in the watchdog's worker (it can loop for good; see module doc)."""
+        return watchdog.CAN_WATCH and (plugin == "fatrop" or super().watched(plugin))
+
+    def progress_lines(self, plugin: str) -> dict[str, Any]:
+        """Return ``fatrop.print_level = 5``, the lowest that prints one line per iteration.
+
+        Restoration iterations are numbered on and marked ``r``.
+        """
+        return {"fatrop.print_level": 5} if plugin == "fatrop" else {}
+
+    def stall_limit(self, plugin: str) -> float | None:
+        """Return the ``stall_time`` option for fatrop's attempts."""
+        return self.stall_time if plugin == "fatrop" else None
+
+    def iteration_limit(self, plugin: str) -> int | None:
+        """``max_iter`` (or 200) counting restoration iterations, which fatrop's own limit does not."""
+        # fatrop's own stop at max_iter prints one more line (its final iterate, numbered max_iter + 1)
+        return (self.max_iter or FATROP_MAX_ITER) + 1 if plugin == "fatrop" else None
 
     def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
         """Fatrop on the detected stage structure, tolerance 1e-8, ``mu_init = 1e-4``."""

@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -54,6 +53,7 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.multistart import best_result, plan_guess
 from uuv_ocp.solvers.options import Option, option_defaults
 from uuv_ocp.solvers.result import Iterate, SolveResult
@@ -130,7 +130,7 @@ class HybridSolver:
         rng: np.random.Generator | None = None,
     ) -> SolveResult:
         """Swarm, then exact solve warm-started on the swarm's plan."""
-        start = time.perf_counter()
+        start = watchdog.now()
         deadline = self.deadline
         if deadline is None:
             swarm = self.first.solve(p, warm_start, rng)
@@ -141,7 +141,7 @@ class HybridSolver:
             """Run the exact stage from ``guess`` in what is left of the deadline (None: nothing left)."""
             if deadline is None:
                 return self.second.solve(p, guess)
-            remaining = deadline - (time.perf_counter() - start)
+            remaining = deadline - (watchdog.now() - start)
             return None if remaining <= 0.0 else self.second.solve(p, guess, time_limit=remaining)
 
         # the exact stage's terminal strategy (sticky soft start after a relaxed step) carries on
@@ -160,7 +160,7 @@ class HybridSolver:
                 swarm,
                 solver=self.name,
                 status=f"deadline: {deadline:g} s used up by the swarm, no exact stage; {swarm.status}",
-                solve_time=time.perf_counter() - start,
+                solve_time=watchdog.now() - start,
                 details={
                     **swarm.details,
                     "deadline_hit": True,
@@ -215,12 +215,12 @@ class HybridSolver:
         details.update({"swarm_fitness": swarm.details.get("fitness"), "swarm_cost": swarm.cost})
         if deadline is not None:
             late = any(r.details.get("deadline_hit", False) for r in results)
-            details["deadline_hit"] = bool(late or time.perf_counter() - start > deadline)
+            details["deadline_hit"] = bool(late or watchdog.now() - start > deadline)
             details["swarm_deadline_hit"] = bool(swarm.details.get("deadline_hit", False))
         return dataclasses.replace(
             exact,
             solver=self.name,
-            solve_time=time.perf_counter() - start,
+            solve_time=watchdog.now() - start,
             iterations=iterations,
             evaluations=evaluations + swarm.evaluations,
             history=swarm.history,

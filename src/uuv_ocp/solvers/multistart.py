@@ -43,7 +43,6 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
-import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -52,6 +51,7 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.options import Option, option_defaults, option_names
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.transcription.condensed import encode
@@ -206,7 +206,7 @@ class MultistartSolver:
         rng: np.random.Generator | None = None,
     ) -> SolveResult:
         """Solve from every start; return the best (feasible first, then cost)."""
-        start = time.perf_counter()
+        start = watchdog.now()
         results: list[SolveResult] = []
         rows: list[dict[str, Any]] = []
         deadline = self.deadline
@@ -215,7 +215,7 @@ class MultistartSolver:
             if deadline is None:
                 result = self.exact.solve(p, guess)
             else:
-                remaining = deadline - (time.perf_counter() - start)
+                remaining = deadline - (watchdog.now() - start)
                 if remaining <= 0.0 and results:  # no start begins after the deadline
                     break
                 result = self.exact.solve(p, guess, time_limit=max(remaining, 1e-9))
@@ -238,12 +238,12 @@ class MultistartSolver:
         if deadline is not None:
             skipped = len(guesses) - len(results)
             stopped = any(r.details.get("deadline_hit", False) for r in results)
-            late = time.perf_counter() - start > deadline
+            late = watchdog.now() - start > deadline
             details.update({"deadline_hit": bool(stopped or skipped or late), "starts_skipped": skipped})
         return dataclasses.replace(
             best,
             solver=self.name,
-            solve_time=time.perf_counter() - start,
+            solve_time=watchdog.now() - start,
             iterations=sum(r.iterations for r in results),
             evaluations=sum(r.evaluations for r in results),
             details=details,

@@ -17,19 +17,22 @@ accelerates from rest.  Every exact backend therefore handles ``terminal="equali
 ``"soft"``
     Always solve the soft NLP.
 
-Deadline (``deadline`` option, seconds of wall time per :meth:`NlpSolver.solve`).  Checked at
-two levels: *between attempts* — after the deadline no new attempt of the fallback chain
-(hard → soft → cold retry → penalty escalations → robust retry → rescue; a backend's rescue
-also right after an attempt that :meth:`~NlpSolver.stalled`) starts — and *inside an
-attempt* where the plugin offers a hook: ``ipopt`` and ``sqpmethod`` call CasADi's
-``iteration_callback`` after every iteration and stop when it reports the deadline passed
-(IPOPT additionally gets ``max_wall_time`` and ``max_cpu_time`` = the deadline).  CasADi 3.8's
-``fatrop`` interface calls no iteration callback and its options hold no time limit (only
-``max_iter``), and ``blocksqp`` (sqp's last resort) calls no callback either: an attempt of
-theirs that starts before the deadline runs to its own iteration limit.  A solve whose wall time
-exceeds the deadline reports ``success=False``, a status starting with ``deadline``, and
-``details["deadline_hit"] = True``: its plan was not ready in time, whatever the last attempt
-reached.
+Deadline (``deadline`` option, seconds of wall time per :meth:`NlpSolver.solve`, read on
+:func:`uuv_ocp.solvers.watchdog.now`).  Checked at two levels: *between attempts* — after the
+deadline no new attempt of the fallback chain (hard → soft → cold retry → penalty escalations →
+robust retry → rescue; a backend's rescue also right after an attempt that
+:meth:`~NlpSolver.stalled`) starts — and *inside every attempt*: ``ipopt`` and ``sqpmethod`` call
+CasADi's ``iteration_callback`` after every iteration and stop when it reports the deadline
+passed (IPOPT additionally gets ``max_wall_time`` and ``max_cpu_time`` = the deadline); plugins
+without a callback or a time limit (CasADi 3.8's ``fatrop``, ``blocksqp``) run in the watchdog's
+worker process (:mod:`~uuv_ocp.solvers.watchdog`), killed at the deadline.  A solve whose wall
+time, less the time spent building plugins, exceeds the deadline reports ``success=False``, a
+status starting with ``deadline``, and ``details["deadline_hit"] = True``: its plan was not ready
+in time, whatever the last attempt reached.  Fatrop's attempts always run in the worker, which
+also stops one that stalls inside an iteration or runs past ``max_iter`` iterations counting the
+restoration phase (see :class:`~uuv_ocp.solvers.fatrop.FatropSolver`).
+
+A failed solve's ``states`` are the rollout of its ``controls`` (see :meth:`NlpSolver._rolled_out`).
 
 The backends themselves live one per module: :mod:`~uuv_ocp.solvers.ipopt`,
 :mod:`~uuv_ocp.solvers.fatrop` and :mod:`~uuv_ocp.solvers.sqp` (their classes stay importable
@@ -39,8 +42,8 @@ from here).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
-import time
 import warnings
 from typing import Any
 
@@ -52,6 +55,7 @@ from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import score_parameters
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names
 from uuv_ocp.solvers.result import Iterate, SolveResult
@@ -66,7 +70,7 @@ _TIME_LIMIT_STATUSES = ("Maximum_WallTime_Exceeded", "Maximum_CpuTime_Exceeded")
 
 
 class _DeadlineClock:
-    """The absolute deadline (``time.perf_counter`` time) of the solve that runs.
+    """The absolute deadline (a :func:`~uuv_ocp.solvers.watchdog.now` time) of the solve that runs.
 
     Shared with the iteration callbacks; ``fired`` says whether a callback asked the plugin to
     stop during the current attempt.
@@ -115,11 +119,46 @@ class _DeadlineCallback(ca.Callback):
         return True
 
     def eval_buffer(self, arg: tuple[memoryview, ...], res: tuple[memoryview, ...]) -> int:
-        stop = time.perf_counter() >= self._clock.at
+        stop = watchdog.now() >= self._clock.at
         if stop:
             self._clock.fired = True
         res[0].cast("d")[0] = 1.0 if stop else 0.0  # nonzero: the plugin stops
         return 0
+
+
+# CasADi's unified statuses, for plugins without a return_status of their own (blocksqp)
+_UNIFIED_STATUSES = {
+    "SOLVER_RET_SUCCESS": "Solve_Succeeded",
+    "SOLVER_RET_LIMITED": "Maximum_Iterations_Exceeded",
+    "SOLVER_RET_NAN": "NaN_Detected",
+    "SOLVER_RET_INFEASIBLE": "Infeasible_Problem_Detected",
+    "SOLVER_RET_EXCEPTION": "Exception_Raised",
+    "SOLVER_RET_UNKNOWN": "Unknown_Failure",
+}
+
+
+def plugin_status(plugin: str, stats: dict[str, Any]) -> str:
+    """Return the status text of a plugin call: its ``return_status``, else CasADi's unified status.
+
+    ``blocksqp`` reports no ``return_status``; its ``unified_return_status`` is translated to
+    IPOPT's wording and the plugin named (``"blocksqp: Maximum_Iterations_Exceeded"``).
+    """
+    status = stats.get("return_status")
+    if status is not None and str(status) != "":
+        return str(status)
+    unified = stats.get("unified_return_status")
+    if unified is not None:
+        return f"{plugin}: {_UNIFIED_STATUSES.get(str(unified), str(unified))}"
+    success = stats.get("success")
+    if success is None:
+        return f"{plugin}: no status reported"
+    return f"{plugin}: {'Solve_Succeeded' if success else 'failed without a status'}"
+
+
+@functools.cache
+def _is_nlpsol(plugin: str) -> bool:
+    """Whether CasADi has an ``nlpsol`` plugin of this name (cached: a miss tries to load a library)."""
+    return bool(ca.has_nlpsol(plugin))
 
 
 def _transfer(values: np.ndarray | None, mapping: np.ndarray, fill: float = 0.0) -> np.ndarray | None:
@@ -331,6 +370,9 @@ class NlpSolver:
         self._maps: dict[tuple[str, str, str], tuple[np.ndarray, np.ndarray]] = {}
         self._control_box: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._clock = _DeadlineClock()
+        self._plugins: dict[tuple[str, bool | str, bool], str] = {}
+        # attempts of plugins that cannot stop themselves run in this forked worker (see watched)
+        self._worker = watchdog.Worker(self._solvers.__getitem__)
         self._deadline_callbacks: list[_DeadlineCallback] = []  # kept alive for their nlpsols
         self._still_water_slice = problem.still_water_slice
         self._state_dim = built.spec.state_dim
@@ -512,12 +554,73 @@ class NlpSolver:
                 callback = _DeadlineCallback(f"{name}_deadline", sizes, self._clock)
                 self._deadline_callbacks.append(callback)
                 options["iteration_callback"] = callback
+            if self.watched(plugin) and self.progress_lines(plugin):
+                # the watchdog reads the plugin's iteration lines as its progress report
+                options.update(self.progress_lines(plugin))
             if self.compiled:
                 solver = self._compiled_nlpsol(name, plugin, nlp, options)
             else:
                 solver = ca.nlpsol(name, plugin, nlp, options)
             self._solvers[key] = BufferedFunction(solver)
+            self._plugins[key] = plugin
+            if self._worker.alive:  # a worker forked before this build would build it again
+                self._worker.restart()
         return self._solvers[key]
+
+    def build(self, p: np.ndarray | None = None) -> None:
+        """Build every ``nlpsol`` the fallback chain can use, so that no solve builds one.
+
+        A solve builds what it needs on first use (0.1-0.5 s per plugin, outside its deadline:
+        see "Deadlines"); a real-time loop calls this before its first step instead.  ``p``:
+        build only the NLPs of that instance (still water or not); ``None``: both.
+        """
+        if p is not None:
+            flags = [self._uses_still_water(p)]
+        else:
+            flags = [False] + ([True] if self.still_water and self._still_water_slice is not None else [])
+        stages: list[bool | str] = [False]
+        if self.robust_options():
+            stages.append(True)
+        if self.rescue_options():
+            stages.append("rescue")
+        for stage in stages:
+            if not _is_nlpsol(self._stage_plugin(stage)):  # sqp-rti's own step is no nlpsol
+                continue
+            for still_water in flags:
+                for variant in self.variants:
+                    self._solver(variant, stage, still_water)
+
+    def _stage_plugin(self, stage: bool | str) -> str:
+        """Return the plugin of an attempt: the backend's, or its robust retry's or rescue's own."""
+        if stage == "rescue":
+            return str(self.rescue_options().get("plugin", self.plugin))
+        if stage:
+            return str(self.robust_options().get("plugin", self.plugin))
+        return self.plugin
+
+    def watched(self, plugin: str) -> bool:
+        """Whether an attempt of ``plugin`` runs in the watchdog's worker process.
+
+        Plugins that call CasADi's iteration callback stop themselves at the deadline; the
+        others run in the worker when this solver has a ``deadline`` (backends whose plugin can
+        hang without one, fatrop, say so always).  Never where ``os.fork`` is missing.
+        """
+        return watchdog.CAN_WATCH and plugin not in CALLBACK_PLUGINS and self.deadline is not None
+
+    def progress_lines(self, plugin: str) -> dict[str, Any]:
+        """Plugin options that print one line per iteration (the watchdog's progress; ``{}``: none)."""
+        return {}
+
+    def stall_limit(self, plugin: str) -> float | None:
+        """Seconds without an iteration line after which a watched attempt is stalled (``None``: never)."""
+        return None
+
+    def iteration_limit(self, plugin: str) -> int | None:
+        """Return the iterations (restoration included) after which the watchdog stops ``plugin``.
+
+        ``None``: the plugin's own limit only.
+        """
+        return None
 
     def _compiled_nlpsol(self, name: str, plugin: str, nlp: dict, options: dict) -> ca.Function:
         """NLP functions compiled to C by CasADi's JIT (system compiler); VM if that fails."""
@@ -586,32 +689,62 @@ class NlpSolver:
         solver = self._solver(variant, robust, still_water)
         scale = self.objective_scale
         self._clock.fired = False
-        start = time.perf_counter()
+        start = watchdog.now()
+        key = (variant, robust, still_water)
+        plugin = self._plugins[key]
         # nlpsol inputs in order: x0, p, lbx, ubx, lbg, ubg, lam_x0, lam_g0 (zero = CasADi's default)
-        primal, _, _, lam_x, lam_g, _ = solver(
-            primal, p, data.lbx, data.ubx, data.lbg, data.ubg, lam_x * scale, lam_g * scale
-        )
-        plugin_time = time.perf_counter() - start
-        stats = solver.stats()
-        status = str(stats.get("return_status", "unknown"))
+        args = (primal, p, data.lbx, data.ubx, data.lbg, data.ubg, lam_x * scale, lam_g * scale)
+        watched = self.watched(plugin)
+        killed: watchdog.Stopped | watchdog.CrashedWorker | None = None
+        if watched:
+            try:
+                outputs, stats = self._worker.call(
+                    key,
+                    args,
+                    at=self._clock.at,
+                    max_iter=self.iteration_limit(plugin),
+                    stall=self.stall_limit(plugin),
+                )
+            except (watchdog.Stopped, watchdog.CrashedWorker) as error:
+                killed = error
+                outputs, stats = list(args[:1]) + [None, None, args[6], args[7], None], {}
+        else:
+            outputs, stats = solver(*args), None
+        new_primal, _, _, new_lam_x, new_lam_g, _ = outputs
+        plugin_time = watchdog.now() - start
+        if stats is None:
+            stats = solver.stats()
+        status = plugin_status(plugin, stats)
+        iterations = int(stats.get("iter_count", 0) or 0)
         # the deadline callback's stop is reported as a user stop: not a Ctrl-C
         stopped = self._clock.fired or status in _TIME_LIMIT_STATUSES
-        if not self._clock.fired:
+        if isinstance(killed, watchdog.Stopped):
+            stopped = killed.reason == "deadline"
+            status, iterations = str(killed), killed.iterations
+        elif killed is not None:
+            status = f"{plugin} crashed ({killed})"
+        elif not self._clock.fired:
             reraise_interrupt(status)  # Ctrl-C inside the plugin
         if stopped:
             status = f"stopped by the deadline ({status})"
+        success = bool(stats.get("success", False)) and not stopped and killed is None
+        if not (np.all(np.isfinite(new_primal)) and np.all(np.isfinite(new_lam_g))):
+            # a NaN iterate is no plan and no warm start: the attempt's starting point stands
+            status, success = f"{status}; NaN or Inf in the returned iterate", False
+            new_primal, new_lam_x, new_lam_g = args[0], args[6], args[7]
         return {
             "variant": variant,
             "robust": robust,
             "still_water": still_water,
-            "primal": primal,
-            "lam_g": lam_g / scale,
-            "lam_x": lam_x / scale,
-            "success": bool(stats.get("success", False)) and not stopped,
+            "primal": new_primal,
+            "lam_g": new_lam_g / scale,
+            "lam_x": new_lam_x / scale,
+            "success": success,
             "status": status,
-            "iterations": int(stats.get("iter_count", 0) or 0),
+            "iterations": iterations,
             "evaluations": int(stats.get("n_call_nlp_f", 0) or stats.get("n_call_nlp_fg", 0) or 0),
             "plugin_time": plugin_time,
+            "watched": watched,
         }
 
     def relaxed(self, variant: str, primal: np.ndarray) -> bool:
@@ -640,18 +773,28 @@ class NlpSolver:
         attempt it is enforced only if the solver was built with a ``deadline`` (that is what
         installs the plugins' iteration callback), between attempts always.
         """
-        start = time.perf_counter()
+        start = watchdog.now()
         limit = self.deadline if time_limit is None else check.positive_float("time_limit", time_limit)
         self._clock.at = math.inf if limit is None else start + limit
         attempts: list[dict[str, Any]] = []
         skipped = 0
+        build_time = 0.0
 
         def attempt(variant: str, warm: Iterate | None, robust: bool | str = False) -> bool:
             """Run one attempt unless the deadline has passed (the first one always runs)."""
             nonlocal skipped
-            if attempts and time.perf_counter() >= self._clock.at:
+            nonlocal build_time
+            if attempts and watchdog.now() >= self._clock.at:
                 skipped += 1
                 return False
+            key = (variant, robust, self._uses_still_water(p))
+            if key not in self._solvers and _is_nlpsol(self._stage_plugin(robust)):
+                # building a plugin (0.1-0.5 s, once) is no part of the budget: the clock waits
+                built = watchdog.now()
+                self._solver(*key)
+                spent = watchdog.now() - built
+                build_time += spent
+                self._clock.at += spent
             attempts.append(self._attempt(variant, p, warm, robust=robust))
             failed = not attempts[-1]["success"] and robust != "rescue"
             if failed and self.stalled(attempts[-1], p) and self.rescue_options():
@@ -694,11 +837,14 @@ class NlpSolver:
         self._clock.at = math.inf
         final = attempts[-1]
         relaxed = self.relaxed(final["variant"], final["primal"])
-        elapsed = time.perf_counter() - start
+        elapsed = watchdog.now() - start
         result = self._result(p, final, attempts, relaxed, elapsed)
+        if build_time:
+            result.details["build_time"] = build_time
+        elapsed -= build_time
         if limit is None or elapsed <= limit:
             result.details["deadline_hit"] = False  # the result's own fresh dict: no copy per step
-            return result
+            return result if result.success else self._rolled_out(result, p)
         # not ready in time: a failure, whatever the last attempt reached (see module doc)
         reason = f"{skipped} further attempt(s) not started" if skipped else "no attempt skipped"
         iterate = result.iterate
@@ -707,7 +853,7 @@ class NlpSolver:
             # is always feasible: a hard NLP that never finishes in time would never yield to it
             iterate = dataclasses.replace(iterate, terminal_relaxed=True)
         return dataclasses.replace(
-            result,
+            self._rolled_out(result, p),
             success=False,
             iterate=iterate,
             status=(
@@ -716,6 +862,17 @@ class NlpSolver:
             ),
             details={**result.details, "deadline_hit": True, "attempts_skipped": skipped},
         )
+
+    def _rolled_out(self, result: SolveResult, p: np.ndarray) -> SolveResult:
+        """Return ``result`` with ``states`` the rollout of its ``controls`` (for a failed solve).
+
+        A failed attempt's NLP states need not satisfy the dynamics (multiple shooting closes
+        the gaps only at convergence); ``SolveResult.states`` promises the states under
+        ``controls``, which the judge's cost is computed on.  The iterate keeps the NLP's own
+        states: it is the warm start of the next solve.
+        """
+        states = self.problem.rollout_scaled(result.iterate.scaled_controls.ravel(), p)
+        return dataclasses.replace(result, states=states)
 
     def _result(
         self,

@@ -78,7 +78,9 @@ class SolveResult:
     controls : numpy.ndarray, shape (N, 3)
         Planned controls (N, N, N·m).
     states : numpy.ndarray, shape (N+1, 6)
-        States predicted by the controller's model under ``controls``.
+        States predicted by the controller's model under ``controls`` (exact solvers: the
+        NLP's states on success, where they satisfy the dynamics to the solver's tolerance;
+        the model's rollout of ``controls`` on a failure, whose NLP states need not).
     cost : float
         Objective from :func:`uuv_ocp.score` (the common judge).
     max_violation : float

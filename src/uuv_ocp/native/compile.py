@@ -618,7 +618,8 @@ def _toolchain(compiler: str) -> tuple[str, ...]:
         identity: tuple[object, ...] = (status.st_size, status.st_mtime_ns)
     except OSError:
         identity = ()
-    return (f"uuv_ocp {__version__}", f"casadi {ca.__version__}", _compiler_version(compiler, identity))
+    casadi_version = str(getattr(ca, "__version__", ""))  # untyped in casadi's stubs
+    return (f"uuv_ocp {__version__}", f"casadi {casadi_version}", _compiler_version(compiler, identity))
 
 
 @functools.lru_cache(maxsize=16)

@@ -55,15 +55,18 @@ PLANTED_C = textwrap.dedent(
 )
 
 
-def _build_in_subprocess(directory: Path) -> dict:
+def _build_in_subprocess(directory: Path, umask: int | None = None) -> dict:
+    """Build (or reuse) FUNCTION's library in ``directory`` in a child process (with ``umask``)."""
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    script = BUILD if umask is None else f"import os\nos.umask({umask:#o})\n{BUILD}"
     completed = subprocess.run(
-        [sys.executable, "-c", BUILD, str(directory)],
+        [sys.executable, "-c", script, str(directory)],
         capture_output=True,
         text=True,
         timeout=120,
         env=env,
     )
+    # a negative status is a signal: -7 is the SIGBUS of a library mapped past its end
     assert completed.returncode == 0, f"exit {completed.returncode}\n{completed.stderr}"
     return json.loads(completed.stdout.strip().splitlines()[-1])
 
@@ -136,6 +139,215 @@ def test_truncated_library_is_detected_and_rebuilt(compiler, tmp_path):
     assert not rebuilt["reused"]
     assert rebuilt["value"] == pytest.approx(_expected_value(), rel=1e-12)
     assert library.stat().st_size == size and library_intact(library)
+
+
+def _rewrite_sidecar(library: Path) -> None:
+    """Record the library's present bytes in its sidecar, as whoever changed it could."""
+    library.with_name(library.name + HASH_SUFFIX).write_text(cg._file_sha256(library) + "\n")
+
+
+def test_truncated_library_with_a_matching_sidecar_is_rebuilt_not_mapped(compiler, tmp_path):
+    """A library cut short whose sidecar matches its bytes killed the next run with SIGBUS.
+
+    The hash cannot tell (the sidecar was written for the cut file, e.g. by a copy that stopped
+    at a full disk and hashed what it had); the ELF headers, which still describe the whole
+    library, can: its segments end past the end of the file.
+    """
+    directory = tmp_path / "cache"
+    library = Path(_build_in_subprocess(directory)["path"])
+    size = library.stat().st_size
+
+    def cut() -> None:
+        with library.open("r+b") as handle:
+            handle.truncate(size // 2)
+        _rewrite_sidecar(library)
+
+    cut()
+    rebuilt = _build_in_subprocess(directory)  # used to die with SIGBUS (exit -7)
+    assert not rebuilt["reused"]
+    assert rebuilt["value"] == pytest.approx(_expected_value(), rel=1e-12)
+    assert library.stat().st_size == size and library_intact(library)
+    cut()
+    assert not library_intact(library)
+    with pytest.raises(IntegrityError, match="truncated"):
+        verify_library(library)
+
+
+def test_elf_check_finds_every_cut_of_a_library(compiler, tmp_path):
+    """Any prefix of a library (down to its first bytes) is refused, the whole file accepted."""
+    library = Path(_build_in_subprocess(tmp_path / "cache")["path"])
+    data = library.read_bytes()
+    assert cg._elf_problem(data) is None
+    for cut in (3, 16, 40, 64, 100, 1000, len(data) // 3, len(data) // 2, len(data) - 1):
+        assert cg._elf_problem(data[:cut]) is not None, f"a library cut at {cut} bytes was accepted"
+    assert "not an ELF file" in cg._elf_problem(b"#!/bin/sh\necho planted\n" * 100)
+    relocatable = bytearray(data)
+    relocatable[16] = 1  # ET_REL: an object file, not a shared library
+    assert "not a shared library" in cg._elf_problem(bytes(relocatable))
+
+
+def test_umask_002_gives_private_files_and_a_group_member_cannot_plant(compiler, tmp_path):
+    """With umask 002 a group member could rewrite a library and its sidecar: now refused.
+
+    The issue's scenario: libraries came out 0775 and sidecars 0664 in a 0755 folder that
+    passed the folder check; a group member rewrote both and the next run loaded the plant.
+    """
+    directory = tmp_path / "cache"
+    library = Path(_build_in_subprocess(directory, umask=0o002)["path"])
+    assert stat.S_IMODE(directory.stat().st_mode) == 0o700
+    written = sorted(directory.iterdir())
+    assert {path.suffix for path in written} == {".c", ".h", ".so", HASH_SUFFIX}
+    for path in written:
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600, f"{path.name} is not private"
+
+    # what a group member could do with a 0755 folder and group-writable files: rewrite both
+    directory.chmod(0o755)  # not group-writable: the folder check passes
+    marker = tmp_path / "marker"
+    library.write_bytes(_planted_library(tmp_path, marker).read_bytes())
+    _rewrite_sidecar(library)
+    library.chmod(0o775)
+    library.with_name(library.name + HASH_SUFFIX).chmod(0o664)
+    with pytest.raises(IntegrityError, match="writable by its group or by others"):
+        verify_library(library)
+    rebuilt = _build_in_subprocess(directory, umask=0o002)
+    assert not marker.exists(), "the planted library's constructor ran"
+    assert not rebuilt["reused"] and rebuilt["value"] == pytest.approx(_expected_value(), rel=1e-12)
+    assert stat.S_IMODE(library.stat().st_mode) == 0o600 and library_intact(library)
+
+
+@pytest.mark.parametrize("linked", ["library", "sidecar"])
+def test_symlinked_library_files_are_refused_and_replaced(compiler, tmp_path, linked):
+    """A link to an intact library elsewhere (its sidecar copied) is not loaded through the link."""
+    elsewhere = Path(_build_in_subprocess(tmp_path / "elsewhere")["path"])
+    directory = secure_directory(tmp_path / "cache")
+    library = directory / elsewhere.name
+    sidecar = library.with_name(library.name + HASH_SUFFIX)
+    original_sidecar = elsewhere.with_name(elsewhere.name + HASH_SUFFIX)
+    if linked == "library":
+        library.symlink_to(elsewhere)
+        sidecar.write_bytes(original_sidecar.read_bytes())
+        sidecar.chmod(0o600)
+    else:
+        library.write_bytes(elsewhere.read_bytes())
+        library.chmod(0o600)
+        sidecar.symlink_to(original_sidecar)
+    assert not library_intact(library)
+    with pytest.raises(IntegrityError, match="symbolic link"):
+        verify_library(library)
+    rebuilt = _build_in_subprocess(directory)
+    assert not rebuilt["reused"] and rebuilt["path"] == str(library)
+    assert not library.is_symlink() and not sidecar.is_symlink() and library_intact(library)
+    assert library_intact(elsewhere)  # replaced the link, not what it pointed to
+
+
+def test_fifo_at_the_library_path_is_refused_without_hanging(tmp_path):
+    """Reading a FIFO blocks until someone writes: the check opens without blocking."""
+    directory = secure_directory(tmp_path / "cache")
+    library = directory / "sec_gen_0123456789abcdef.so"
+    os.mkfifo(library, 0o600)
+    library.with_name(library.name + HASH_SUFFIX).write_text("0" * 64 + "\n")
+    script = (
+        "import sys\nfrom uuv_ocp.native.compile import library_intact\nprint(library_intact(sys.argv[1]))\n"
+    )
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    completed = subprocess.run(
+        [sys.executable, "-c", script, str(library)], capture_output=True, text=True, timeout=60, env=env
+    )
+    assert completed.stdout.strip() == "False", completed.stderr
+
+
+def test_private_file_checks_name_the_reason(tmp_path):
+    path = tmp_path / "file"
+    path.write_bytes(b"data")
+    path.chmod(0o600)
+    assert cg.read_private_file(path) == b"data" and cg.check_private_file(path) == path
+    path.chmod(0o620)
+    with pytest.raises(IntegrityError, match=r"writable by its group or by others \(mode 0620\)"):
+        cg.read_private_file(path)
+    link = tmp_path / "link"
+    link.symlink_to(path)
+    with pytest.raises(IntegrityError, match="symbolic link"):
+        cg.check_private_file(link)
+    with pytest.raises(IntegrityError, match="not a regular file"):
+        cg.check_private_file(tmp_path)
+
+
+@pytest.mark.skipif(not hasattr(os, "geteuid") or os.geteuid() != 0, reason="chown needs root")
+def test_library_owned_by_another_user_is_refused(compiler, tmp_path):
+    library = Path(_build_in_subprocess(tmp_path / "cache")["path"])
+    os.chown(library, 65534, -1)
+    with pytest.raises(IntegrityError, match="owned by uid 65534"):
+        verify_library(library)
+
+
+def test_written_files_are_private_whatever_the_umask(tmp_path):
+    """Sources and headers (compile=False) and sidecars are written 0600 under umask 0."""
+    exec(FUNCTION, globals())
+    previous = os.umask(0)
+    try:
+        generated = compile_functions([f], tmp_path / "out", compile=False)  # noqa: F821
+        cg._write_private(tmp_path / "out" / "note", b"x")
+    finally:
+        os.umask(previous)
+    for path in (generated.source, generated.header, tmp_path / "out" / "note"):
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600, path.name
+    assert stat.S_IMODE((tmp_path / "out").stat().st_mode) == 0o700
+
+
+def test_missing_parents_of_a_cache_are_created_private(tmp_path):
+    previous = os.umask(0o002)
+    try:
+        created = secure_directory(tmp_path / "a" / "b" / "c")
+    finally:
+        os.umask(previous)
+    for folder in (tmp_path / "a", tmp_path / "a" / "b", created):
+        assert stat.S_IMODE(folder.stat().st_mode) == 0o700, folder
+
+
+# -- the cache key: one cache shared by several installations ------------------------------------
+
+
+def test_cache_key_covers_package_casadi_and_compiler_versions(compiler, tmp_path, monkeypatch):
+    """Two checkouts or venvs sharing a cache never reuse each other's library across versions."""
+    wrapper = tmp_path / "cc-wrapper"
+
+    def write_wrapper(version: str) -> None:
+        wrapper.write_text(
+            f'#!/bin/sh\nif [ "$1" = --version ]; then echo "wrapped cc {version}"; exit 0; fi\n'
+            f'exec {compiler} "$@"\n'
+        )
+        wrapper.chmod(0o700)
+
+    write_wrapper("1.0")
+    exec(FUNCTION, globals())
+
+    def digest() -> str:
+        library = compile_functions([f], tmp_path / "cache", name="key_gen", cc=str(wrapper))  # noqa: F821
+        assert library.path is not None and library.path.name == f"key_gen_{library.digest[:16]}.so"
+        return library.digest
+
+    base = digest()
+    assert digest() == base  # reproducible
+    monkeypatch.setattr(uo, "__version__", "0.0.0-other-checkout")
+    other_package = digest()
+    monkeypatch.undo()
+    monkeypatch.setattr(ca, "__version__", "0.0.0-other-casadi")
+    other_casadi = digest()
+    monkeypatch.undo()
+    os.utime(wrapper, ns=(0, 10**18))  # the compiler upgraded in place: a new mtime ...
+    write_wrapper("2.0")  # ... and a new version line
+    other_compiler = digest()
+    assert len({base, other_package, other_casadi, other_compiler}) == 4
+
+
+def test_the_test_suite_uses_a_cache_of_its_own():
+    """The suite's results must not depend on what another checkout built in ~/.cache/uuv_ocp."""
+    cache = codegen.default_cache_directory()
+    checkout = Path(__file__).resolve().parent.parent
+    configured = os.environ.get("UUV_OCP_TEST_CACHE", "").strip()
+    expected = Path(os.path.abspath(configured)) if configured else checkout / "build" / "test-cache"
+    assert cache == expected
+    assert os.environ.get("UUV_OCP_HPIPM") in ("wheel", "auto", "native")
 
 
 def test_native_igwo_refuses_a_library_that_was_not_built_here(compiler, tmp_path):

@@ -172,7 +172,11 @@ def _run_hpipm(args: argparse.Namespace) -> int:
     from uuv_ocp.native import hpipm
 
     if args.action == "status":
-        native = hpipm.installed()
+        try:  # every file checked as for the C step: a refused build is named, never used
+            native = hpipm.installed(strict=True)
+        except hpipm.NativeHpipmError as error:
+            print(f"native HPIPM: refused ({error}); the C step links the CasADi wheel's")
+            return 1
         if native is None:
             print("native HPIPM: none (the C step links the CasADi wheel's, TARGET_GENERIC)")
         else:

@@ -23,8 +23,10 @@ Compiler: ``$CC`` if set, else the first of ``cc``, ``gcc``, ``clang`` on ``PATH
 :class:`CompilerNotFoundError` names what was looked for; the solvers' ``compiled=True`` path
 then warns once and falls back to CasADi's virtual machine.
 
-Trust: a library is loaded only after its bytes matched the SHA-256 its build recorded, and only
-from a folder owned by the current user and not writable by others (see
+Trust: a library is loaded only after its bytes matched the SHA-256 its build recorded and its
+ELF headers were found complete, only if it and its sidecar are files of the current user that
+others cannot write (no symbolic links), and only from a folder owned by the current user and
+not writable by others; every file written gets mode ``0600`` (see
 :mod:`uuv_ocp.native.compile`).  The solvers' cache (:func:`default_cache_directory`) is
 created with mode ``0700``; an unusable cache (unsafe, not writable) is handled like a missing
 compiler by ``compiled=True``: one warning, then the virtual machine.
@@ -407,7 +409,8 @@ def hpipm_link_flags() -> tuple[str, ...]:
     """Compiler and linker arguments for C that calls HPIPM.
 
     The native build for this CPU (:mod:`uuv_ocp.native.hpipm`, static and hidden inside the
-    library) when one is installed, intact and not refused by ``UUV_OCP_HPIPM=wheel``; else the
+    library) when one is installed, intact (every folder and file of it checked, see
+    :func:`uuv_ocp.native.hpipm.installed`) and not refused by ``UUV_OCP_HPIPM=wheel``; else the
     CasADi wheel's own copy: it ships ``libhpipm`` and ``libblasfeo`` next to CasADi's libraries
     and their headers in ``casadi/include``, and the library records that folder as its
     run-time search path (an absolute path, so programs linked to it run from any directory).

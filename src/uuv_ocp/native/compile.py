@@ -25,16 +25,28 @@ Nothing is loaded that this module did not build, and nothing from a folder othe
   constructors) its bytes are hashed and compared with the sidecar.  A library without a
   sidecar or with a different hash (planted, modified or truncated, e.g. by a full disk or a
   killed build) is never loaded: it is rebuilt (see :func:`library_intact`);
+* the library and its sidecar must be regular files (not symbolic links) owned by the current
+  user and not writable by its group or others, and the library's ELF headers must lie inside
+  the file: a library cut short whose sidecar was rewritten to match would otherwise kill the
+  process with ``SIGBUS`` when the loader touches its missing pages;
+* every file this module writes (sources, headers, libraries, sidecars) gets mode ``0600`` and
+  every folder it creates ``0700``, whatever the umask;
 * a build directory must be a directory owned by the current user, writable by it and not
   writable by its group or others (:func:`secure_directory`); a missing one is created with mode
   ``0700``.  Otherwise :class:`BuildDirectoryError` names the folder and the fix;
 * libraries are always loaded by absolute path (a bare file name would make the system loader
   search ``LD_LIBRARY_PATH``).
+
+The cache key of a library covers, besides its source and flags, the versions of uuv_ocp and
+CasADi and the compiler's own ``--version`` line, so a cache shared by several installations
+never hands one of them a library another built from different code or with another compiler.
 """
 
 from __future__ import annotations
 
 import contextlib
+import errno
+import functools
 import hashlib
 import hmac
 import os
@@ -44,6 +56,7 @@ import secrets
 import shlex
 import shutil
 import stat
+import struct
 import subprocess
 import sys
 import tempfile
@@ -67,14 +80,18 @@ __all__ = [
     "CompilationError",
     "CompiledLibrary",
     "CompilerNotFoundError",
+    "FILE_MODE",
+    "FOLDER_MODE",
     "VerificationError",
-    "batched",
-    "compile_functions",
     "IntegrityError",
+    "batched",
+    "check_private_file",
+    "compile_functions",
     "find_c_compiler",
     "jit_workspace",
     "library_intact",
     "load_or_fallback",
+    "read_private_file",
     "secure_directory",
     "verify_library",
 ]
@@ -87,6 +104,12 @@ DEFAULT_FLAGS: tuple[str, ...] = ("-O3", "-fPIC", "-shared")
 
 HASH_SUFFIX = ".sha256"
 """Suffix of the sidecar holding a library's SHA-256: ``{library}.sha256``."""
+
+FILE_MODE = 0o600
+"""Mode of every file this module writes (sources, headers, libraries, sidecars)."""
+
+FOLDER_MODE = 0o700
+"""Mode of every folder this module creates."""
 
 _PARALLELIZATIONS = ("serial", "unroll", "thread", "openmp")
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -154,13 +177,18 @@ def secure_directory(directory: str | os.PathLike[str], *, create: bool = True) 
     """
     path = Path(os.path.abspath(os.fspath(directory)))
     if create and not path.exists():
+        missing = [path]
+        while not os.path.lexists(missing[-1].parent) and missing[-1].parent != missing[-1]:
+            missing.append(missing[-1].parent)
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            try:
-                path.mkdir(mode=0o700)
-                path.chmod(0o700)  # mkdir's mode is reduced by the umask
-            except FileExistsError:
-                pass  # created meanwhile by another process: checked below like any other
+            # every folder created here is private, its parents too: with umask 002 a missing
+            # cache root would otherwise come out 0775 and let the group rename its content
+            for folder in reversed(missing):
+                try:
+                    folder.mkdir(mode=FOLDER_MODE)
+                    folder.chmod(FOLDER_MODE)  # mkdir's mode is reduced by the umask
+                except FileExistsError:
+                    pass  # created meanwhile by another process: checked below like any other
         except OSError as error:
             raise BuildDirectoryError(
                 f"cannot create the build folder {path}: {error.strerror or error}; "
@@ -206,21 +234,182 @@ def _file_sha256(path: Path) -> str:
     return hasher.hexdigest()
 
 
-def library_intact(library: str | os.PathLike[str]) -> bool:
-    """Whether ``library`` exists and its bytes match the SHA-256 recorded by its build.
+class _Refused(Exception):
+    """A file that must not be trusted; ``args[0]`` says why (completes "refusing X: ...")."""
 
-    A library without its sidecar ``{library}.sha256`` (not built here), with a malformed one,
-    or whose bytes hash differently (modified, replaced or truncated) is not intact.  Nothing is
-    loaded: only the bytes are read.
+
+def _unsafe(status: os.stat_result) -> str | None:
+    """Why a file with this ``lstat``/``fstat`` must not be trusted, or ``None``."""
+    if stat.S_ISLNK(status.st_mode):
+        return "it is a symbolic link"
+    if not stat.S_ISREG(status.st_mode):
+        return "it is not a regular file"
+    if hasattr(os, "geteuid") and status.st_uid != os.geteuid():
+        return f"it is owned by uid {status.st_uid}, not by the current user (uid {os.geteuid()})"
+    if status.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+        return (
+            f"it is writable by its group or by others (mode {stat.S_IMODE(status.st_mode):04o}), "
+            "so anyone with that access could have rewritten it"
+        )
+    return None
+
+
+def _read_trusted(path: Path) -> bytes:
+    """Return the bytes of ``path``, read through one descriptor whose file passed :func:`_unsafe`.
+
+    Opened without following a symbolic link and without blocking (a FIFO planted at the path
+    would otherwise hang the open); the checks run on the open descriptor, so the bytes read
+    are those of the file checked.  Raises :class:`_Refused` (or ``OSError``: missing).
     """
-    path = Path(library)
+    flags = os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0)
     try:
-        recorded = _sidecar(path).read_text().strip()
-        if not path.is_file() or len(recorded) != 64:
-            return False
-        return hmac.compare_digest(_file_sha256(path), recorded)
+        descriptor = os.open(path, flags | getattr(os, "O_CLOEXEC", 0))
+    except OSError as error:
+        if error.errno == errno.ELOOP:
+            raise _Refused("it is a symbolic link") from None
+        raise
+    try:
+        reason = _unsafe(os.fstat(descriptor))
+        if reason is not None:
+            raise _Refused(reason)
+        chunks = []
+        while block := os.read(descriptor, 1 << 20):
+            chunks.append(block)
+        return b"".join(chunks)
+    finally:
+        os.close(descriptor)
+
+
+def check_private_file(path: str | os.PathLike[str]) -> Path:
+    """Check that ``path`` is a regular file of the current user that others cannot write.
+
+    Refused: a symbolic link (never followed), anything but a regular file, a file owned by
+    another user, or one writable by its group or by others.
+
+    Returns
+    -------
+    pathlib.Path
+        The absolute path.
+
+    Raises
+    ------
+    IntegrityError
+        The file is refused; the message names it and why.
+    OSError
+        It cannot be examined (e.g. it does not exist).
+    """
+    absolute = Path(os.path.abspath(os.fspath(path)))
+    reason = _unsafe(os.lstat(absolute))
+    if reason is not None:
+        raise IntegrityError(f"refusing {absolute}: {reason}")
+    return absolute
+
+
+def read_private_file(path: str | os.PathLike[str]) -> bytes:
+    """Return the bytes of ``path`` once :func:`check_private_file` accepts it (on the open file).
+
+    Raises
+    ------
+    IntegrityError
+        The file is refused (symbolic link, not a regular file, another owner, writable by its
+        group or others); the message names it and why.
+    OSError
+        It cannot be read.
+    """
+    absolute = Path(os.path.abspath(os.fspath(path)))
+    try:
+        return _read_trusted(absolute)
+    except _Refused as refusal:
+        raise IntegrityError(f"refusing {absolute}: {refusal}") from None
+
+
+_ELF_MAGIC = b"\x7fELF"
+_ET_DYN, _SHT_NOBITS = 3, 8
+#: per ELF class (1: 32-bit, 2: 64-bit): file header after ``e_ident`` (from ``e_type`` to
+#: ``e_shstrndx``), a program header, a section header (field order of <elf.h>)
+_ELF_LAYOUT = {
+    1: ("HHIIIIIHHHHHH", "IIIIIIII", "IIIIIIIIII"),
+    2: ("HHIQQQIHHHHHH", "IIQQQQQQ", "IIQQQQIIQQ"),
+}
+
+
+def _elf_problem(data: bytes) -> str | None:
+    """Why ``data`` is no complete ELF shared library (``None``: it is one, or not an ELF platform).
+
+    The loader maps a library's segments as the program headers say; a file cut short maps
+    pages past its end, and touching them raises ``SIGBUS``.  So the file header, both header
+    tables, every segment and every section that occupies file space must lie inside ``data``.
+    """
+    if sys.platform.startswith(("darwin", "win")):  # Mach-O / PE: not parsed; the hash decides
+        return None
+    if data[:4] != _ELF_MAGIC or len(data) < 16:
+        return "it is not an ELF file"
+    elf_class, encoding = data[4], data[5]
+    if elf_class not in _ELF_LAYOUT or encoding not in (1, 2):
+        return f"its ELF identification is invalid (class {elf_class}, encoding {encoding})"
+    order = "<" if encoding == 1 else ">"
+    header, segment, section = (struct.Struct(order + layout) for layout in _ELF_LAYOUT[elf_class])
+    size = len(data)
+    if size < 16 + header.size:
+        return f"its ELF header is cut short ({size} bytes)"
+    fields = header.unpack_from(data, 16)
+    e_type, phoff, shoff, phentsize, phnum, shentsize, shnum = (fields[i] for i in (0, 4, 5, 8, 9, 10, 11))
+    if e_type != _ET_DYN:
+        return f"it is not a shared library (ELF type {e_type})"
+    if phnum and phentsize != segment.size or shnum and shentsize != section.size:
+        return "its ELF header gives header sizes of another ELF class"
+    end_of_file = f"past the end of the file ({size} bytes): truncated"
+    tables = (("program", phoff, phnum, segment), ("section", shoff, shnum, section))
+    for what, offset, count, entry in tables:
+        if count and offset + count * entry.size > size:
+            return f"its {what} header table ends {end_of_file}"
+    for index in range(phnum):
+        values = segment.unpack_from(data, phoff + index * segment.size)
+        offset, filesz = (values[1], values[4]) if elf_class == 1 else (values[2], values[5])
+        if offset + filesz > size:
+            return f"its segment {index} ends at byte {offset + filesz}, {end_of_file}"
+    for index in range(shnum):
+        values = section.unpack_from(data, shoff + index * section.size)
+        kind, offset, length = values[1], values[4], values[5]
+        if kind != _SHT_NOBITS and offset + length > size:
+            return f"its section {index} ends at byte {offset + length}, {end_of_file}"
+    return None
+
+
+def _library_problem(path: Path) -> str | None:
+    """Why ``path`` must not be loaded (see :func:`library_intact`), or ``None``."""
+    try:
+        recorded = _read_trusted(_sidecar(path)).decode("ascii").strip()
+    except _Refused as refusal:
+        return f"its sidecar {_sidecar(path).name}: {refusal}"
     except (OSError, UnicodeDecodeError):
-        return False
+        return f"it has no readable sidecar {_sidecar(path).name} (not built by uuv_ocp)"
+    if not re.fullmatch(r"[0-9a-f]{64}", recorded):
+        return f"its sidecar {_sidecar(path).name} holds no SHA-256"
+    try:
+        data = _read_trusted(path)
+    except _Refused as refusal:
+        return str(refusal)
+    except OSError as error:
+        return f"it cannot be read ({error.strerror or error})"
+    if not hmac.compare_digest(hashlib.sha256(data).hexdigest(), recorded):
+        return (
+            f"its content does not match the SHA-256 recorded by its build in {_sidecar(path).name} "
+            "(modified, truncated or not built by uuv_ocp)"
+        )
+    return _elf_problem(data)
+
+
+def library_intact(library: str | os.PathLike[str]) -> bool:
+    """Whether ``library`` may be loaded: checked file, matching SHA-256, complete ELF headers.
+
+    Not intact: a library without its sidecar ``{library}.sha256`` (not built here), with a
+    malformed one, or whose bytes hash differently (modified, replaced or truncated); a library
+    or sidecar that is a symbolic link, not a regular file, owned by another user or writable by
+    its group or by others; a library whose ELF headers point past its end (cut short, even with
+    a sidecar rewritten to match).  Nothing is loaded: only the bytes are read.
+    """
+    return _library_problem(Path(os.path.abspath(os.fspath(library)))) is None
 
 
 def verify_library(library: str | os.PathLike[str]) -> Path:
@@ -231,24 +420,39 @@ def verify_library(library: str | os.PathLike[str]) -> Path:
     BuildDirectoryError
         Its folder is not safe (see :func:`secure_directory`).
     IntegrityError
-        Its bytes do not match the SHA-256 recorded by its build (see :func:`library_intact`).
+        The library is not intact (see :func:`library_intact`); the message says why.
     """
     path = secure_directory(Path(library).parent, create=False) / Path(library).name
-    if not library_intact(path):
+    problem = _library_problem(path)
+    if problem is not None:
         raise IntegrityError(
-            f"refusing to load {path}: its content does not match the SHA-256 recorded by its "
-            f"build in {_sidecar(path).name} (modified, truncated or not built by uuv_ocp); "
-            "build it again (generate_c / compile_functions rebuild it)"
+            f"refusing to load {path}: {problem}; build it again (generate_c / compile_functions rebuild it)"
         )
     return path
 
 
+def _write_private(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically with mode ``0600`` (temporary name, then rename)."""
+    temporary = path.with_name(f".{path.name}-{os.getpid()}-{secrets.token_hex(6)}.tmp")
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0)
+    descriptor = os.open(temporary, flags | getattr(os, "O_CLOEXEC", 0), FILE_MODE)
+    try:
+        try:
+            os.fchmod(descriptor, FILE_MODE)  # the open's mode is reduced by the umask
+            view = memoryview(data)
+            while view:
+                view = view[os.write(descriptor, view) :]
+        finally:
+            os.close(descriptor)
+        os.replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+
+
 def _record_hash(built: Path, library: Path) -> None:
     """Write the sidecar of ``library`` (the hash of ``built``, its new content) atomically."""
-    sidecar = _sidecar(library)
-    temporary = sidecar.with_name(f".{sidecar.name}-{os.getpid()}-{secrets.token_hex(6)}.tmp")
-    temporary.write_text(_file_sha256(built) + "\n")
-    os.replace(temporary, sidecar)
+    _write_private(_sidecar(library), (_file_sha256(built) + "\n").encode("ascii"))
 
 
 _CWD_LOCK = threading.Lock()
@@ -275,6 +479,9 @@ def jit_workspace(directory: str | os.PathLike[str]) -> Iterator[str]:
         ``directory`` is not safe (see :func:`secure_directory`).
     """
     folder = secure_directory(directory)
+    # CasADi writes its sources and library here with the umask's modes (0664 with umask 002)
+    # and loads the library at once: a private folder keeps everybody else away from them
+    folder.chmod(FOLDER_MODE)
     with _CWD_LOCK:
         previous = os.open(".", os.O_RDONLY) if hasattr(os, "fchdir") else None
         fallback = os.getcwd() if previous is None else ""
@@ -388,12 +595,45 @@ def find_c_compiler(env: Mapping[str, str] | None = None) -> str:
 
 
 def _digest(source_text: str, compiler: str, command_flags: Sequence[str]) -> str:
-    """SHA-256 of the source text, the compiler and the flags (NUL separated)."""
+    """SHA-256 of the source text, the compiler, the flags and the toolchain (NUL separated).
+
+    The toolchain (:func:`_toolchain`) is part of the key when a compiler is given, so one cache
+    shared by several installations (checkouts, venvs) keeps their libraries apart.
+    """
     hasher = hashlib.sha256()
-    for part in (source_text, compiler, *command_flags):
+    for part in (source_text, compiler, *command_flags, *(_toolchain(compiler) if compiler else ())):
         hasher.update(part.encode("utf-8"))
         hasher.update(b"\0")
     return hasher.hexdigest()
+
+
+def _toolchain(compiler: str) -> tuple[str, ...]:
+    """Return the versions of uuv_ocp and CasADi and the first line of ``compiler --version``.
+
+    The compiler's version is read once per executable (path, size and modification time): an
+    upgrade in place changes the key, so no library of the old compiler is reused.
+    """
+    from uuv_ocp import __version__
+
+    try:
+        status = os.stat(compiler)
+        identity: tuple[object, ...] = (status.st_size, status.st_mtime_ns)
+    except OSError:
+        identity = ()
+    casadi_version = str(getattr(ca, "__version__", ""))  # untyped in casadi's stubs
+    return (f"uuv_ocp {__version__}", f"casadi {casadi_version}", _compiler_version(compiler, identity))
+
+
+@functools.lru_cache(maxsize=16)
+def _compiler_version(compiler: str, identity: tuple[object, ...]) -> str:
+    """First line of ``compiler --version`` (``""`` if it cannot be run); cached per identity."""
+    del identity  # part of the cache key only
+    try:
+        completed = subprocess.run([compiler, "--version"], capture_output=True, text=True, timeout=60)
+    except (OSError, subprocess.SubprocessError):
+        return ""
+    lines = (completed.stdout or completed.stderr).strip().splitlines()
+    return lines[0] if lines else ""
 
 
 def _machine_key(flags: Sequence[str]) -> tuple[str, ...]:
@@ -413,9 +653,15 @@ def _machine_key(flags: Sequence[str]) -> tuple[str, ...]:
 
 
 def _install(temporary: Path, final: Path) -> None:
-    """Move ``temporary`` onto ``final`` atomically, unless ``final`` already has its content."""
-    with contextlib.suppress(OSError):
-        if final.read_bytes() == temporary.read_bytes():
+    """Move ``temporary`` onto ``final`` atomically (mode ``0600``), unless ``final`` has its content.
+
+    An existing ``final`` is kept (its time stamp unchanged) only if it is a file of this user
+    that others cannot write; its mode is then set to ``0600`` as well.
+    """
+    temporary.chmod(FILE_MODE)
+    with contextlib.suppress(OSError, _Refused):
+        if _read_trusted(final) == temporary.read_bytes():
+            final.chmod(FILE_MODE)
             return
     os.replace(temporary, final)
 
@@ -479,6 +725,7 @@ def _compile(command: list[str], temporary: Path, final: Path) -> None:
             f"--- compiler stderr ---\n{completed.stderr.strip()}"
         )
     try:
+        temporary.chmod(FILE_MODE)  # the compiler's output mode follows the umask (0775 with 002)
         os.replace(temporary, final)
         _record_hash(final, final)
     except OSError:
@@ -674,11 +921,12 @@ def compile_functions(
 
     Notes
     -----
-    The library is content addressed: if ``{name}_{digest[:16]}.so`` already exists and its bytes
-    match the SHA-256 in its sidecar it is loaded without recompiling; otherwise (no sidecar,
-    planted, modified or truncated) it is rebuilt before anything is loaded.  The digest covers
-    the source text, the compiler path and the flags, not the compiler's version: after
-    upgrading a compiler in place, clear the directory.
+    The library is content addressed: if ``{name}_{digest[:16]}.so`` already exists and is intact
+    (:func:`library_intact`: its own file, its bytes match the SHA-256 in its sidecar, complete
+    ELF headers) it is loaded without recompiling; otherwise (no sidecar, planted, modified,
+    truncated, a symbolic link, writable by others) it is replaced by a new build before anything
+    is loaded.  The digest covers the source text, the compiler (path and ``--version``), the
+    flags and the versions of uuv_ocp and CasADi.  Every file written gets mode ``0600``.
     """
     functions, external = list(functions), list(external)
     if prefix and not _IDENTIFIER.fullmatch(prefix):

@@ -10,10 +10,18 @@ links the build only when :func:`installed` finds it intact.
 Sources: a directory holding ``blasfeo/`` and ``hpipm/`` checkouts, or, by default, the copies
 vendored in the ``rockit-meco`` source distribution on PyPI (acados' submodules, BSD-2), fetched
 with ``pip download`` and checked against a pinned SHA-256.  The build goes into
-``<cache>/hpipm/<key>/`` (key: the sources' digest, the target and the compiler) with a manifest
-of SHA-256 digests of every library and header; ``<cache>/hpipm/native.json`` names the build
-in use.  Both static libraries are linked into the step's shared library with their symbols
-hidden, so they never meet the wheel's ``libhpipm`` that CasADi itself loads.
+``<cache>/hpipm/<key>/`` (key: 16 hex digits of the digest of the sources, the target and the
+compiler) with a manifest of SHA-256 digests of every library and header;
+``<cache>/hpipm/native.json`` names the build in use.  Both static libraries are linked into the
+step's shared library with their symbols hidden, so they never meet the wheel's ``libhpipm``
+that CasADi itself loads.
+
+Its headers are compiled and its libraries linked into code this process loads, so a build is
+used only after :func:`installed` has checked all of it: the cache, ``hpipm/`` and every folder
+of the build are folders of the current user that others cannot write (symbolic links are
+refused), ``native.json`` is such a file and names a key of 16 hex digits (never a path), the
+build holds exactly the files of its manifest, each one such a file with the recorded SHA-256.
+Everything :func:`build` writes gets mode ``0600`` (folders ``0700``), whatever the umask.
 """
 
 from __future__ import annotations
@@ -50,10 +58,16 @@ HPIPM_TARGET = {"X64_INTEL_HASWELL": "AVX", "X64_INTEL_SANDY_BRIDGE": "AVX"}
 #: ``wheel`` or ``native`` (an error if there is none)
 HPIPM_ENV = "UUV_OCP_HPIPM"
 HPIPM_CHOICES = ("auto", "wheel", "native")
+_KEY = re.compile(r"[0-9a-f]{16}")
+_SHA256 = re.compile(r"[0-9a-f]{64}")
 
 
 class NativeHpipmError(RuntimeError):
-    """The native build failed, or ``UUV_OCP_HPIPM=native`` found no intact build."""
+    """The native build failed, or a build in the cache is refused (the message says why)."""
+
+
+class HpipmChoiceError(NativeHpipmError, ValueError):
+    """``UUV_OCP_HPIPM=native`` but no intact native build: a bad setting, refused up front."""
 
 
 @dataclass(frozen=True)
@@ -183,7 +197,8 @@ def build(
         if missing:
             raise ValueError(f"source must hold blasfeo/ and hpipm/ source trees; {source} lacks {missing}")
     compiler = find_c_compiler()
-    root = secure_directory(_root(cache))
+    root = secure_directory(_root(cache).parent)  # the cache itself: checked (created 0700) first
+    root = secure_directory(root / "hpipm")
     with tempfile.TemporaryDirectory(dir=root, prefix=".build-") as scratch:
         work = Path(scratch)
         if source is None:
@@ -222,6 +237,7 @@ def build(
             },
         }
         (staged / "manifest.json").write_text(json.dumps(manifest, indent=1, sort_keys=True))
+        _make_private(staged)
         final = root / key
         if final.exists():
             shutil.rmtree(final)
@@ -233,35 +249,139 @@ def build(
     return NativeHpipm(final, chosen, digest)
 
 
-def installed(cache: str | os.PathLike[str] | None = None) -> NativeHpipm | None:
-    """Return the build in use, checked file by file against its manifest (``None``: there is none).
+def installed(cache: str | os.PathLike[str] | None = None, *, strict: bool = False) -> NativeHpipm | None:
+    """Return the build in use, checked file by file (``None``: there is none, or it is refused).
 
-    A build that fails its check (a library or header changed, a manifest that is not the one
-    recorded) is not used: one ``RuntimeWarning`` names the file, and ``None`` is returned.
+    Checked before anything of it is used (see the module doc): the folders (the cache,
+    ``hpipm/``, the build's), ``native.json`` and its key, the manifest's SHA-256 and every file
+    the manifest lists (no more, no fewer) with its own SHA-256, owner and mode.
+
+    Parameters
+    ----------
+    cache : path-like, optional
+        The cache folder; default :func:`uuv_ocp.codegen.default_cache_directory`.
+    strict : bool, default False
+        Raise :class:`NativeHpipmError` for a refused build instead of warning.
+
+    Returns
+    -------
+    NativeHpipm or None
+        ``None`` when nothing is built (silently) or when the build is refused (one
+        ``RuntimeWarning`` naming the file and the reason, unless ``strict``).
+
+    Raises
+    ------
+    NativeHpipmError
+        ``strict`` and the build is refused.
     """
-    root = _root(cache)
-    pointer_path = root / "native.json"
-    if not pointer_path.is_file():
-        return None
     try:
-        pointer = json.loads(pointer_path.read_text())
-        directory = root / str(pointer["key"])
-        digest = _file_digest(directory / "manifest.json")
-        if digest != pointer["manifest_sha256"]:
-            raise ValueError(f"{directory / 'manifest.json'} does not match {pointer_path}")
-        manifest = json.loads((directory / "manifest.json").read_text())
-        for name, expected in manifest["files"].items():
-            if _file_digest(directory / name) != expected:
-                raise ValueError(f"{directory / name} does not match its SHA-256 in the manifest")
-        target = str(manifest["target"])
-    except (OSError, ValueError, KeyError, TypeError) as error:
+        return _checked_build(_root(cache))
+    except NativeHpipmError as error:
+        if strict:
+            raise
         warnings.warn(
             f"native HPIPM build not used ({error}); rebuild it with `uuv-ocp hpipm build`",
             RuntimeWarning,
             stacklevel=2,
         )
         return None
-    return NativeHpipm(directory, target, digest)
+
+
+def _checked_build(root: Path) -> NativeHpipm | None:
+    """Return the build ``root/native.json`` names, checked (``None``: no ``native.json``)."""
+    from uuv_ocp.native.compile import (
+        BuildDirectoryError,
+        IntegrityError,
+        read_private_file,
+        secure_directory,
+    )
+
+    pointer_path = root / "native.json"
+    if not os.path.lexists(pointer_path):
+        return None
+    try:
+        secure_directory(root.parent, create=False)
+        secure_directory(root, create=False)
+        pointer = json.loads(read_private_file(pointer_path))
+        if not isinstance(pointer, dict):
+            raise ValueError(f"{pointer_path} holds no JSON object")
+        key, recorded = pointer.get("key"), pointer.get("manifest_sha256")
+        if not isinstance(key, str) or not _KEY.fullmatch(key):
+            # never a path: an absolute or ../ key would point the C step at anybody's headers
+            raise ValueError(f"{pointer_path}: key must be 16 hex digits, got {key!r}")
+        if not isinstance(recorded, str) or not _SHA256.fullmatch(recorded):
+            raise ValueError(f"{pointer_path}: manifest_sha256 must be 64 hex digits, got {recorded!r}")
+        directory = root / key
+        found = _private_tree(directory)
+        manifest_bytes = read_private_file(directory / "manifest.json")
+        if hashlib.sha256(manifest_bytes).hexdigest() != recorded:
+            raise ValueError(f"{directory / 'manifest.json'} does not match {pointer_path}")
+        manifest = json.loads(manifest_bytes)
+        files = manifest["files"]
+        if not isinstance(files, dict) or not all(isinstance(v, str) for v in files.values()):
+            raise ValueError(f"{directory / 'manifest.json'}: files must map names to SHA-256 digests")
+        listed = set(files) | {"manifest.json"}
+        if found != listed:
+            extra, missing = sorted(found - listed), sorted(listed - found)
+            raise ValueError(
+                f"{directory} does not hold exactly the files of its manifest "
+                f"(not listed: {extra[:5]}, missing: {missing[:5]})"
+            )
+        for name, expected in files.items():
+            if hashlib.sha256(read_private_file(directory / name)).hexdigest() != expected:
+                raise ValueError(f"{directory / name} does not match its SHA-256 in the manifest")
+        target = str(manifest["target"])
+        if target not in TARGETS:
+            raise ValueError(f"{directory / 'manifest.json'}: unknown target {target!r}")
+    except (BuildDirectoryError, IntegrityError, OSError, ValueError, KeyError, TypeError) as error:
+        raise NativeHpipmError(str(error)) from error
+    return NativeHpipm(directory, target, recorded)
+
+
+def _private_tree(directory: Path) -> set[str]:
+    """Relative names of the files under ``directory``, after checking every entry of it.
+
+    Every folder (``directory`` included) and every file must belong to the current user and
+    not be writable by its group or others; a symbolic link or anything but a folder or a
+    regular file is refused (``IntegrityError``, ``BuildDirectoryError``).
+    """
+    from uuv_ocp.native.compile import BuildDirectoryError, check_private_file, secure_directory
+
+    if os.path.islink(directory):
+        raise BuildDirectoryError(f"build folder {directory} is a symbolic link")
+    found: set[str] = set()
+    pending = [directory]
+    while pending:
+        folder = pending.pop()
+        secure_directory(folder, create=False)
+        with os.scandir(folder) as entries:
+            for entry in entries:
+                path = Path(entry.path)
+                if entry.is_dir(follow_symlinks=False):
+                    pending.append(path)
+                else:
+                    check_private_file(path)  # refuses symbolic links, FIFOs, others' files
+                    found.add(path.relative_to(directory).as_posix())
+    return found
+
+
+def _make_private(tree: Path) -> None:
+    """Give every folder of ``tree`` mode ``0700`` and every file ``0600`` (umask aside).
+
+    ``make`` and the copies create files with the umask's modes (0664 with umask 002): the
+    group could then rewrite a header or library after its digest was recorded.
+    """
+    from uuv_ocp.native.compile import FILE_MODE, FOLDER_MODE
+
+    for folder, folders, files in os.walk(tree):
+        os.chmod(folder, FOLDER_MODE)
+        for name in files:
+            path = os.path.join(folder, name)
+            if not os.path.islink(path):
+                os.chmod(path, FILE_MODE)
+        for name in folders:
+            if os.path.islink(os.path.join(folder, name)):
+                raise NativeHpipmError(f"{os.path.join(folder, name)}: symbolic link in a build")
 
 
 def selected(cache: str | os.PathLike[str] | None = None) -> NativeHpipm | None:
@@ -271,18 +391,70 @@ def selected(cache: str | os.PathLike[str] | None = None) -> NativeHpipm | None:
     ------
     ValueError
         ``UUV_OCP_HPIPM`` is not one of :data:`HPIPM_CHOICES`.
-    NativeHpipmError
-        ``UUV_OCP_HPIPM=native`` and no intact build is installed.
+    HpipmChoiceError
+        ``UUV_OCP_HPIPM=native`` and no intact build is installed (a ``ValueError`` and a
+        :class:`NativeHpipmError`).
     """
-    choice = os.environ.get(HPIPM_ENV, "auto").strip().lower() or "auto"
-    if choice not in HPIPM_CHOICES:
-        raise ValueError(f"{HPIPM_ENV} must be one of {HPIPM_CHOICES}, got {choice!r}")
+    choice = hpipm_choice()
     if choice == "wheel":
         return None
-    build_in_use = installed(cache)
-    if build_in_use is None and choice == "native":
-        raise NativeHpipmError(f"{HPIPM_ENV}=native but no intact build: run `uuv-ocp hpipm build`")
+    if choice == "auto":
+        return installed(cache)
+    try:
+        build_in_use = installed(cache, strict=True)
+    except NativeHpipmError as error:
+        raise HpipmChoiceError(
+            f"{HPIPM_ENV}=native but the native build is refused ({error}): run `uuv-ocp hpipm "
+            f"build`, or set {HPIPM_ENV} to 'auto' or 'wheel'"
+        ) from error
+    if build_in_use is None:
+        raise HpipmChoiceError(
+            f"{HPIPM_ENV}=native but no native HPIPM is built in {_root(cache)}: run `uuv-ocp "
+            f"hpipm build`, or set {HPIPM_ENV} to 'auto' or 'wheel'"
+        )
     return build_in_use
+
+
+def hpipm_choice() -> str:
+    """Return the checked ``UUV_OCP_HPIPM`` (unset or empty: ``"auto"``; case-insensitive).
+
+    Raises
+    ------
+    ValueError
+        It is not one of :data:`HPIPM_CHOICES`.
+    """
+    raw = os.environ.get(HPIPM_ENV, "")
+    choice = raw.strip().lower() or "auto"
+    if choice not in HPIPM_CHOICES:
+        raise ValueError(f"{HPIPM_ENV} must be one of {', '.join(HPIPM_CHOICES)}, got {raw!r}")
+    return choice
+
+
+def check_choice(native_needed: bool = True, cache: str | os.PathLike[str] | None = None) -> None:
+    """Refuse a bad ``UUV_OCP_HPIPM`` up front, when a backend that reads it is built.
+
+    The C step reads the setting only when it is built (at its first warm solve); a bad value
+    found there would fail every step into the closed loop's fallback.  Called by the ``sqp-rti``
+    backend's constructor.
+
+    Parameters
+    ----------
+    native_needed : bool, default True
+        Whether the backend builds the C step (``qpsol="hpipm-ocp"``): then
+        ``UUV_OCP_HPIPM=native`` also needs an intact native build.  Otherwise only the value is
+        checked.
+    cache : path-like, optional
+        The cache folder; default :func:`uuv_ocp.codegen.default_cache_directory`.
+
+    Raises
+    ------
+    ValueError
+        ``UUV_OCP_HPIPM`` is not one of :data:`HPIPM_CHOICES`, or it is ``native`` (and the C
+        step is built) but no intact native build is installed (:class:`HpipmChoiceError`, also a
+        :class:`NativeHpipmError`).
+    """
+    if hpipm_choice() == "native" and native_needed:
+        selected(cache)
 
 
 def old_partial_condensing(include: Path) -> bool:
@@ -299,7 +471,7 @@ def old_partial_condensing(include: Path) -> bool:
 def _root(cache: str | os.PathLike[str] | None) -> Path:
     from uuv_ocp.codegen import default_cache_directory
 
-    return Path(cache if cache is not None else default_cache_directory()) / "hpipm"
+    return Path(os.path.abspath(cache if cache is not None else default_cache_directory())) / "hpipm"
 
 
 def _make(folder: Path, jobs: int, arguments: list[str]) -> None:
@@ -326,7 +498,6 @@ def _tree_digest(folder: Path) -> str:
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    handle, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
-    with os.fdopen(handle, "w") as stream:
-        stream.write(text)
-    os.replace(name, path)
+    from uuv_ocp.native.compile import _write_private
+
+    _write_private(path, text.encode())

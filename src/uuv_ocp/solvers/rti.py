@@ -77,6 +77,7 @@ from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import BUILD_LOCK, serialised
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.native.hpipm import check_choice
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import AUTO, Option, one_of, option_defaults, option_names, revise
@@ -360,6 +361,9 @@ class RtiSolver(NlpSolver):
                 self.mode == "converged",
                 problem.spec().horizon,
             )
+        # UUV_OCP_HPIPM is read when the C step is built, inside the first warm step: a bad
+        # value found there would send every step to the closed loop's fallback instead
+        check_choice(native_needed=self.qpsol == "hpipm-ocp")
         self.qp_tolerance = check.positive_float(
             "options['qp_tolerance']", options.pop("qp_tolerance", default["qp_tolerance"])
         )

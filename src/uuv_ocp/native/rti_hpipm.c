@@ -69,7 +69,6 @@ typedef struct {
   int eq_first;           /* try rti_eq_solve before HPIPM */
   int qp_status;          /* HPIPM's status of the last QP (0 when rti_eq_solve solved it) */
   rti_eq eq;
-  int cond_lhs;           /* pqp's matrices are those of the loaded QP (only bounds moved) */
   struct d_ocp_qp_dim pdim;
   struct d_ocp_qp pqp;
   struct d_ocp_qp_sol psol;
@@ -288,7 +287,6 @@ static void rti_load(rti_memory* m) {
     }
   }
   if (rti_nbx[0]) memcpy(m->lbx0, data + rti_off[0][O_LBX], sizeof(double) * RTI_NBX0);
-  m->cond_lhs = 0;
 }
 
 /* Linearise at (w, p) and load the QP; the measured state of p is remembered. */
@@ -299,13 +297,6 @@ int uuv_rti_prepare(void* memory, const double* w, const double* p) {
   m->prepared = 0;
   if (rti_evaluate(m, w, p)) return 1;
   rti_load(m);
-#ifndef UUV_HPIPM_OLD_PART_COND /* there the feedback condenses all of it (see rti_solve_qp) */
-  if (m->cond_n) {
-    rti_set_bounds0(m);
-    d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
-    m->cond_lhs = 1;
-  }
-#endif
   for (i = 0; i < RTI_NX0; ++i) m->x0[i] = p[rti_x0_param[i]];
   m->prepared = 1;
   m->prepare_time = rti_now() - start;
@@ -730,18 +721,14 @@ static int rti_ipm_run(rti_memory* m, struct d_ocp_qp_ipm_arg* arg, struct d_ocp
 static int rti_hpipm_solve(rti_memory* m) {
   int k, iterations;
   if (m->cond_n) {
-    /* the preparation condenses the matrices; a new state changes only the right-hand side */
-#ifdef UUV_HPIPM_OLD_PART_COND
-    /* that version's right-hand-side condensing alone gave a feedback 17 N off a fresh step's
-     * (tests/test_rti.py::test_prepare_then_feedback_equals_step): condense all of it again */
-    m->cond_lhs = 0;
-#endif
-    if (m->cond_lhs) {
-      d_part_cond_qp_cond_rhs(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
-    } else {
-      d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
-      m->cond_lhs = 1;
-    }
+    /* the whole QP, in the feedback: condensing only the right-hand side there (the matrices
+     * condensed in the preparation) rounds differently from condensing all of it, and a step
+     * from a preparation must equal the same step without one, bit for bit (3e-8 N apart on an
+     * s2 control with the wheel's HPIPM, tests/test_rti.py's resident steps); with HPIPM 0.1.2
+     * the right-hand side alone gave a feedback 17 N off a fresh step's
+     * (tests/test_rti.py::test_prepare_then_feedback_equals_step).  Steps that rti_eq_solve
+     * solves condense nothing. */
+    d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
   }
   iterations = m->loose ? rti_ipm_run(m, &m->first_arg, &m->first_ws) : rti_ipm_run(m, &m->arg, &m->ws);
   if (m->qp_status != 0 && (m->loose ? m->first_rescue : m->rescue)) {

@@ -473,7 +473,14 @@ def test_soft_terminal_qp_in_c_equals_casadis(problem, instance):
 #: 1.2e-4 of the yaw moment's range off the QP's solution (min_step and 3.8e-5 with the native one)
 STALLING_QP = (
     34.462682885875914,
-    [17.24312474641494, -1.9246098258941204, -0.08061197718395235, 0.4898463481028088, -0.07125450716216322, 0.9804150132088314],
+    [
+        17.24312474641494,
+        -1.9246098258941204,
+        -0.08061197718395235,
+        0.4898463481028088,
+        -0.07125450716216322,
+        0.9804150132088314,
+    ],
     [-726.9131713982279, -374.80870579765747, 302.28498569569206],
 )
 
@@ -486,9 +493,14 @@ def exact_qp_step(data, w: np.ndarray, p: np.ndarray) -> np.ndarray:
     hessian, gradient, a, g = gauss_newton_qp(data, w, p)
     n, m = a.shape[1], a.shape[0]
     solver = ca.conic(
-        "exact", "qpoases", {"h": ca.Sparsity.dense(n, n), "a": ca.Sparsity.dense(m, n)}, {"printLevel": "none"}
+        "exact",
+        "qpoases",
+        {"h": ca.Sparsity.dense(n, n), "a": ca.Sparsity.dense(m, n)},
+        {"printLevel": "none"},
     )
-    solution = solver(h=hessian, g=gradient, a=a, lbx=data.lbx - w, ubx=data.ubx - w, lba=data.lbg - g, uba=data.ubg - g)
+    solution = solver(
+        h=hessian, g=gradient, a=a, lbx=data.lbx - w, ubx=data.ubx - w, lba=data.lbg - g, uba=data.ubg - g
+    )
     assert solver.stats()["success"]
     return np.array(solution["x"]).ravel()
 

@@ -11,6 +11,7 @@ import pytest
 import uuv_ocp as uo
 from helpers_c import build_and_run
 from uuv_ocp import codegen
+from uuv_ocp.native.hpipm import HPIPM_ENV
 from uuv_ocp.solvers.result import Iterate
 from uuv_ocp.solvers.rti import nmpc_step_function
 
@@ -18,18 +19,25 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples" / "c"
 
 
 @pytest.mark.slow
-def test_generated_nmpc_closed_loop_equals_python(tmp_path):
-    """The C closed loop (examples/c/nmpc_loop.c) = the Python sqp-rti loop, step by step."""
+def test_generated_nmpc_closed_loop_equals_python(tmp_path, monkeypatch):
+    """The C closed loop (examples/c/nmpc_loop.c) = the Python sqp-rti loop, step by step.
+
+    On the CasADi wheel's HPIPM, which a fresh machine links: the build's check against the
+    conic HPIPM path failed there (1.2e-4 > 1e-4, a QP HPIPM's speed mode did not solve) and
+    passed once the suite's native HPIPM test had built a native HPIPM into the shared cache.
+    """
     try:
         codegen.find_c_compiler()
     except codegen.CompilerNotFoundError:
         pytest.skip("no C compiler")
+    monkeypatch.setenv(HPIPM_ENV, "wheel")  # not whatever native build the cache holds
     problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1)
     generated = codegen.generate_c(problem, tmp_path / "build", functions=("model_step", "nmpc_step"))
     # the build's own check: 100 random states against the Python backend
     assert generated.max_error["nmpc_step"] <= 1e-9
-    # and against the same step on CasADi's conic HPIPM interface (a second QP solver)
-    assert generated.max_error["nmpc_step_conic"] <= 1e-4
+    # and against the same step on CasADi's conic HPIPM interface (a second QP solver); measured
+    # 7.6e-8, it was 1.2e-4 before a QP HPIPM did not solve was solved again in robust mode
+    assert generated.max_error["nmpc_step_conic"] <= codegen.NMPC_CONIC_TOLERANCE
     _, backend = nmpc_step_function(problem)
     variant = "soft" if "soft" in backend.variants else "hard"
     spec = problem.spec()

@@ -470,6 +470,80 @@ def test_soft_terminal_qp_in_c_equals_casadis(problem, instance):
     np.testing.assert_allclose(b.iterate.primal, a.iterate.primal, rtol=0, atol=1e-8)
 
 
+#: s2 at t0 (s), the state and the last control (N, N, N m) of the 35th instance of the generated
+#: ``nmpc_step``'s verification (``codegen.check_nmpc_step``, seed 0): on its cold exact-penalty QP
+#: HPIPM in ``speed`` mode stopped at its 50 iterations (status max_iter) with the wheel's BLASFEO,
+#: 1.2e-4 of the yaw moment's range off the QP's solution (min_step and 3.8e-5 with the native one)
+STALLING_QP = (
+    34.462682885875914,
+    [
+        17.24312474641494,
+        -1.9246098258941204,
+        -0.08061197718395235,
+        0.4898463481028088,
+        -0.07125450716216322,
+        0.9804150132088314,
+    ],
+    [-726.9131713982279, -374.80870579765747, 302.28498569569206],
+)
+
+
+def exact_qp_step(data, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+    """Return the step of the Gauss–Newton QP at ``w`` by qpOASES (an active-set solver: exact).
+
+    Independent of HPIPM and of the C step's stage mapping: the dense QP of :func:`gauss_newton_qp`.
+    """
+    hessian, gradient, a, g = gauss_newton_qp(data, w, p)
+    n, m = a.shape[1], a.shape[0]
+    solver = ca.conic(
+        "exact",
+        "qpoases",
+        {"h": ca.Sparsity.dense(n, n), "a": ca.Sparsity.dense(m, n)},
+        {"printLevel": "none"},
+    )
+    solution = solver(
+        h=hessian, g=gradient, a=a, lbx=data.lbx - w, ubx=data.ubx - w, lba=data.lbg - g, uba=data.ubg - g
+    )
+    assert solver.stats()["success"]
+    return np.array(solution["x"]).ravel()
+
+
+@pytest.mark.parametrize("library", ["wheel", "native"])
+def test_a_qp_hpipm_does_not_solve_is_rescued_in_robust_mode(problem, monkeypatch, library):
+    """A QP that HPIPM's ``speed`` mode does not solve is solved again in ``robust`` mode.
+
+    Its last ``speed`` iterate was taken as the QP's solution: the generated ``nmpc_step`` then
+    failed its verification against CasADi's conic HPIPM (robust mode) on this instance with
+    the wheel's HPIPM, and passed with a native build, which the suite's native HPIPM test
+    installs into the shared cache after the codegen test has run.  Both libraries now give
+    the QP's solution, checked against qpOASES on the dense QP.
+    """
+    from uuv_ocp.judge import instance_parameters
+    from uuv_ocp.native import hpipm
+    from uuv_ocp.solvers.rti import nmpc_step_function
+
+    needs_compiler("hpipm-ocp")
+    if library == "native" and hpipm.installed() is None:
+        pytest.skip("no native HPIPM built (uuv-ocp hpipm build)")
+    monkeypatch.setenv(hpipm.HPIPM_ENV, library)  # read when the C step is built, at its first solve
+    t0, x0, u_prev = (np.asarray(v, dtype=float) for v in STALLING_QP)
+    _, backend = nmpc_step_function(problem)  # a new backend: the verification's, built now
+    p = instance_parameters(problem, x0, float(t0), u_prev=u_prev)
+    result = backend.solve(p, None)
+    assert result.success and result.iterate.variant == "soft"
+    info = backend.ocp_step("soft", False).info
+    assert info[9] == 1 and info[5] == 0  # speed mode failed, the robust solve succeeded
+    data = backend.variants["soft"]
+    states, controls = problem.initial_guess(p)
+    w = backend.compose_primal("soft", states, controls, problem.previous_scaled(p))
+    exact = w + exact_qp_step(data, w, p)
+    spec = problem.spec()
+    expected = spec.physical(exact[np.asarray(data.control_index[0], dtype=int)])
+    # measured 1.4e-10 of the range (the unrescued speed iterate: 1.2e-4, 3.8e-5 native)
+    error = np.abs(result.controls[0] - expected) / (spec.upper - spec.lower)
+    assert np.max(error) <= 1e-8
+
+
 def test_automatic_qp_path(problem, monkeypatch):
     """``qpsol="auto"``: the C step with a compiler, CasADi's path under UUV_OCP_COMPILED=0."""
     monkeypatch.setenv("UUV_OCP_COMPILED", "0")

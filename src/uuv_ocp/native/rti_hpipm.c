@@ -57,12 +57,18 @@ typedef struct {
   void *first_arg_mem, *first_ws_mem;
   int loose_first;
   int loose;              /* the QP solved next is the loose first one */
+  /* the rescue of a QP HPIPM did not solve (status != 0): the same settings in ROBUST mode from
+   * a cold start, for the solver's settings and the loose first ones (absent where the mode
+   * already is ROBUST); rescued counts the rescues of one uuv_rti_iterate call */
+  struct d_ocp_qp_ipm_arg rescue_arg, first_rescue_arg;
+  struct d_ocp_qp_ipm_ws rescue_ws, first_rescue_ws;
+  void *rescue_arg_mem, *rescue_ws_mem, *first_rescue_arg_mem, *first_rescue_ws_mem;
+  int rescue, first_rescue, rescued;
   /* partial condensing to cond_n stages (0: none): the IPM runs on pqp */
   int cond_n;
   int eq_first;           /* try rti_eq_solve before HPIPM */
   int qp_status;          /* HPIPM's status of the last QP (0 when rti_eq_solve solved it) */
   rti_eq eq;
-  int cond_lhs;           /* pqp's matrices are those of the loaded QP (only bounds moved) */
   struct d_ocp_qp_dim pdim;
   struct d_ocp_qp pqp;
   struct d_ocp_qp_sol psol;
@@ -104,6 +110,10 @@ void uuv_rti_free(void* memory) {
   free(m->arg_mem);
   free(m->first_ws_mem);
   free(m->first_arg_mem);
+  free(m->rescue_ws_mem);
+  free(m->rescue_arg_mem);
+  free(m->first_rescue_ws_mem);
+  free(m->first_rescue_arg_mem);
   free(m->sol_mem);
   free(m->qp_mem);
   free(m->dim_mem);
@@ -138,6 +148,20 @@ static int rti_ipm_create(const double* settings, struct d_ocp_qp_dim* dim, stru
   if (!*ws_mem) return 1;
   d_ocp_qp_ipm_ws_create(dim, arg, ws, *ws_mem);
   return 0;
+}
+
+/* rti_ipm_create's rescue of a QP solved with settings: ROBUST mode (HPIPM's LQ factorisation
+ * and iterative refinement), a cold start, the rest of settings.  *made: whether one was made
+ * (not for settings already in ROBUST mode: the same solve again).  Returns 1 when out of memory. */
+static int rti_rescue_create(const double* settings, struct d_ocp_qp_dim* dim, struct d_ocp_qp_ipm_arg* arg,
+                             struct d_ocp_qp_ipm_ws* ws, void** arg_mem, void** ws_mem, int* made) {
+  double robust[7];
+  memcpy(robust, settings, sizeof(robust));
+  *made = ((int)settings[0] & 3) != 3;
+  if (!*made) return 0;
+  robust[0] = 3.0;
+  robust[6] = 0.0;
+  return rti_ipm_create(robust, dim, arg, ws, arg_mem, ws_mem);
 }
 
 static int rti_eq_applies(void);
@@ -190,10 +214,15 @@ void* uuv_rti_create(const double* options) {
   }
   ipm_dim = m->cond_n ? &m->pdim : &m->dim;
   if (rti_ipm_create(options, ipm_dim, &m->arg, &m->ws, &m->arg_mem, &m->ws_mem)) goto fail;
+  if (rti_rescue_create(options, ipm_dim, &m->rescue_arg, &m->rescue_ws, &m->rescue_arg_mem, &m->rescue_ws_mem,
+                        &m->rescue))
+    goto fail;
   m->loose_first = options[8] != 0.0;
   m->eq_first = options[16] != 0.0 && rti_eq_applies(); /* the structure is fixed per build */
   if (m->loose_first &&
-      rti_ipm_create(options + 9, ipm_dim, &m->first_arg, &m->first_ws, &m->first_arg_mem, &m->first_ws_mem))
+      (rti_ipm_create(options + 9, ipm_dim, &m->first_arg, &m->first_ws, &m->first_arg_mem, &m->first_ws_mem) ||
+       rti_rescue_create(options + 9, ipm_dim, &m->first_rescue_arg, &m->first_rescue_ws, &m->first_rescue_arg_mem,
+                         &m->first_rescue_ws_mem, &m->first_rescue)))
     goto fail;
   for (k = 0; k <= RTI_N; ++k) {
     if (rti_nbx[k]) d_ocp_qp_set_idxbx(k, (int*)(rti_idxbx + rti_obx[k]), &m->qp);
@@ -258,7 +287,6 @@ static void rti_load(rti_memory* m) {
     }
   }
   if (rti_nbx[0]) memcpy(m->lbx0, data + rti_off[0][O_LBX], sizeof(double) * RTI_NBX0);
-  m->cond_lhs = 0;
 }
 
 /* Linearise at (w, p) and load the QP; the measured state of p is remembered. */
@@ -269,13 +297,6 @@ int uuv_rti_prepare(void* memory, const double* w, const double* p) {
   m->prepared = 0;
   if (rti_evaluate(m, w, p)) return 1;
   rti_load(m);
-#ifndef UUV_HPIPM_OLD_PART_COND /* there the feedback condenses all of it (see rti_solve_qp) */
-  if (m->cond_n) {
-    rti_set_bounds0(m);
-    d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
-    m->cond_lhs = 1;
-  }
-#endif
   for (i = 0; i < RTI_NX0; ++i) m->x0[i] = p[rti_x0_param[i]];
   m->prepared = 1;
   m->prepare_time = rti_now() - start;
@@ -678,38 +699,50 @@ static int rti_eq_solve(rti_memory* m) {
   return 1;
 }
 
-/* The IPM workspace of the QP solved next (and last): the loose first one's or the solver's. */
-static inline struct d_ocp_qp_ipm_ws* rti_ws(rti_memory* m) { return m->loose ? &m->first_ws : &m->ws; }
+/* One HPIPM solve of the loaded QP (the condensed one with partial condensing) with arg and ws;
+ * m->qp_status gets its status.  Returns its iterations. */
+static int rti_ipm_run(rti_memory* m, struct d_ocp_qp_ipm_arg* arg, struct d_ocp_qp_ipm_ws* ws) {
+  int iterations;
+  if (m->cond_n) d_ocp_qp_ipm_solve(&m->pqp, &m->psol, arg, ws);
+  else d_ocp_qp_ipm_solve(&m->qp, &m->sol, arg, ws);
+  d_ocp_qp_ipm_get_iter(ws, &iterations);
+  d_ocp_qp_ipm_get_status(ws, &m->qp_status);
+  return iterations;
+}
 
-/* Solve the loaded QP with HPIPM (condensed or not) into m->ux, m->pi, m->lam; its iterations. */
+/* Solve the loaded QP with HPIPM (condensed or not) into m->ux, m->pi, m->lam; its iterations
+ * (those of the rescue included).
+ *
+ * A QP HPIPM does not solve (max_iter, min_step: in SPEED mode its Newton steps without
+ * iterative refinement stall on the ill-conditioned cold QPs of the generated nmpc_step, 67 of
+ * 100 on s2 with partial condensing) is solved again in ROBUST mode: its last iterate is no
+ * solution, only a feasible point, and was up to 1.2e-4 of a control's range off the QP's
+ * solution (tests/test_rti.py::test_a_qp_hpipm_does_not_solve_is_rescued_in_robust_mode). */
 static int rti_hpipm_solve(rti_memory* m) {
-  struct d_ocp_qp_ipm_arg* arg = m->loose ? &m->first_arg : &m->arg;
-  struct d_ocp_qp_ipm_ws* ws = rti_ws(m);
   int k, iterations;
   if (m->cond_n) {
-    /* the preparation condenses the matrices; a new state changes only the right-hand side */
-#ifdef UUV_HPIPM_OLD_PART_COND
-    /* that version's right-hand-side condensing alone gave a feedback 17 N off a fresh step's
-     * (tests/test_rti.py::test_prepare_then_feedback_equals_step): condense all of it again */
-    m->cond_lhs = 0;
-#endif
-    if (m->cond_lhs) {
-      d_part_cond_qp_cond_rhs(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
-    } else {
-      d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
-      m->cond_lhs = 1;
-    }
-    d_ocp_qp_ipm_solve(&m->pqp, &m->psol, arg, ws);
+    /* the whole QP, in the feedback: condensing only the right-hand side there (the matrices
+     * condensed in the preparation) rounds differently from condensing all of it, and a step
+     * from a preparation must equal the same step without one, bit for bit (3e-8 N apart on an
+     * s2 control with the wheel's HPIPM, tests/test_rti.py's resident steps); with HPIPM 0.1.2
+     * the right-hand side alone gave a feedback 17 N off a fresh step's
+     * (tests/test_rti.py::test_prepare_then_feedback_equals_step).  Steps that rti_eq_solve
+     * solves condense nothing. */
+    d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
+  }
+  iterations = m->loose ? rti_ipm_run(m, &m->first_arg, &m->first_ws) : rti_ipm_run(m, &m->arg, &m->ws);
+  if (m->qp_status != 0 && (m->loose ? m->first_rescue : m->rescue)) {
+    iterations += m->loose ? rti_ipm_run(m, &m->first_rescue_arg, &m->first_rescue_ws)
+                           : rti_ipm_run(m, &m->rescue_arg, &m->rescue_ws);
+    m->rescued++;
+  }
+  if (m->cond_n) {
 #ifdef UUV_HPIPM_OLD_PART_COND /* HPIPM <= 0.1.2 (acados' copy) also reads the condensed QP */
     d_part_cond_qp_expand_sol(&m->qp, &m->pqp, &m->psol, &m->sol, &m->cond_arg, &m->cond_ws);
 #else
     d_part_cond_qp_expand_sol(&m->qp, &m->psol, &m->sol, &m->cond_arg, &m->cond_ws);
 #endif
-  } else {
-    d_ocp_qp_ipm_solve(&m->qp, &m->sol, arg, ws);
   }
-  d_ocp_qp_ipm_get_iter(ws, &iterations);
-  d_ocp_qp_ipm_get_status(ws, &m->qp_status);
   for (k = 0; k <= RTI_N; ++k) {
     double *u = m->ux + rti_oux[k], *x = u + rti_nu[k], *lam = m->lam + rti_olam[k];
     const int nbk = rti_nbu[k] + rti_nbx[k], ng = rti_ng[k];
@@ -780,8 +813,8 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
     *qp_iter = 0;
     m->qp_status = 0;
   } else {
-    /* HPIPM's status (max_iter, min_step) is no verdict on the step: like the Python path,
-     * the solution is judged by the violation of the linearised constraints computed below */
+    /* after the rescue, HPIPM's status (max_iter, min_step) is no verdict on the step: like the
+     * Python path, the solution is judged by the violation of the linearised constraints below */
     *qp_iter = rti_hpipm_solve(m);
   }
   for (k = 0; k <= RTI_N; ++k) {
@@ -824,7 +857,7 @@ static double rti_solve_qp(rti_memory* m, int* qp_iter) {
  * (checked before each further iteration).  info: [iterations, violation, last |d|_inf,
  * stop (0 max_iter, 1 converged, 2 infeasible QP, 3 deadline, 4 evaluation failed), QP
  * iterations of the last QP, HPIPM status, seconds linearising, seconds in QPs, seconds of
- * the preparation used (0: none)]. */
+ * the preparation used (0: none), QPs of the call re-solved in ROBUST mode (rti_hpipm_solve)]. */
 int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int max_iter, double tol,
                     double qp_tol, double budget, double* lam_x, double* lam_g, double* info) {
   rti_memory* m = (rti_memory*)memory;
@@ -840,6 +873,7 @@ int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int 
     rti_patch_state(m, p);
   }
   m->prepared = 0;
+  m->rescued = 0;
   /* a loose step cannot end the iteration: not where one step may be all there is */
   m->loose = m->loose_first && max_iter > 1 && isinf(budget);
   for (;;) {
@@ -875,6 +909,7 @@ done:
   info[6] = t_lin;
   info[7] = t_qp;
   info[8] = used_preparation;
+  info[9] = m->rescued;
   return 0;
 }
 

@@ -88,6 +88,8 @@ OCP_QP_CONVERGED: dict[str, Any] = {
 #: solution; the tight QPs after it decide convergence (same iterations, a third less time in
 #: C on s2 and the BlueROV2: ``python -m benchmarks.bench_rti --loose-first-qp``)
 LOOSE_SETTINGS = ("mode", "tol_stat", "tol_eq", "tol_ineq", "tol_comp")
+#: entries of ``uuv_rti_iterate``'s ``info`` (see :meth:`OcpQpStep.iterate`)
+INFO_SIZE = 10
 #: stop codes of ``uuv_rti_iterate``
 STOP_MAX_ITER, STOP_CONVERGED, STOP_INFEASIBLE, STOP_DEADLINE, STOP_EVALUATION = range(5)
 
@@ -572,7 +574,7 @@ class OcpQpStep:
         weakref.finalize(self, free, self.memory)
         # preallocated buffers: a call copies its inputs in and hands C their addresses
         self.w, self.p = np.zeros(nw), np.zeros(np_)
-        self.lam_x, self.lam_g, self.info = np.zeros(nw), np.zeros(ng), np.zeros(9)
+        self.lam_x, self.lam_g, self.info = np.zeros(nw), np.zeros(ng), np.zeros(INFO_SIZE)
         self._pointers = [a.ctypes.data for a in (self.w, self.p, self.lam_x, self.lam_g, self.info)]
 
     def __reduce__(self) -> tuple[type[OcpQpStep], tuple[Any, ...]]:
@@ -602,7 +604,9 @@ class OcpQpStep:
 
         ``info``: iterations, linearised violation, last ``‖d‖∞``, stop code (``STOP_*``), QP
         iterations of the last QP, HPIPM's status, seconds linearising and in QPs, seconds of the
-        preparation used (0: none), all on the C step's own clock.
+        preparation used (0: none), all on the C step's own clock, and the number of QPs of the
+        call that HPIPM did not solve in its mode and solved again in ``robust`` mode (its
+        iterations counted in the QP iterations).
         ``budget`` in seconds (``inf``: none).
         """
         self.w[:] = w
@@ -787,7 +791,7 @@ def nmpc_step_source(
 _NMPC_WRAPPER = r"""
 static void* nmpc_memory = 0;
 static double nmpc_p[NMPC_NP > 0 ? NMPC_NP : 1], nmpc_w[RTI_NW], nmpc_lam_x[RTI_NW];
-static double nmpc_lam_g[RTI_NG > 0 ? RTI_NG : 1], nmpc_info[9];
+static double nmpc_lam_g[RTI_NG > 0 ? RTI_NG : 1], nmpc_info[10];
 
 int nmpc_step(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w, int mem) {
   int i;

@@ -283,3 +283,12 @@ def test_a_c_compile_runs_inside_a_slow_notice(tmp_path, monkeypatch):
     assert texts == [f"uuv_ocp: compiling notice_probe (first use; cached in {tmp_path})"]
     native.compile_functions([function], tmp_path, name="notice_probe")  # from the cache: silent
     assert len(texts) == 1
+
+
+def test_warm_up_builds_the_whole_fallback_chain(s2_problem):
+    """The robust retry and the IPOPT rescue are built by warm_up, not by the step that needs them."""
+    controller = uo.NMPC(s2_problem.replace(), "fatrop")
+    x0 = s2_problem.reference.initial_state(0.0)
+    controller.warm_up(x0, 0.0)
+    stages = {stage for (_, stage, _) in controller.backend._solvers}
+    assert {False, True, "rescue"} <= stages, stages

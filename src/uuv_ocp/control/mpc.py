@@ -237,6 +237,11 @@ class NMPC:
         A failed step here is no error (the loop will report its own).
         """
         # a C compile inside says so on standard error (uuv_ocp.native.compile, SlowNotice)
+        build = getattr(self.backend, "build", None)
+        if callable(build):  # the whole fallback chain (robust retry, rescue), not just the used path
+            build(
+                instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
+            )
         output = self.step(x, t, u_prev, current, parameters)
         self.step(x, t, output.control, current, parameters)
         self.reset()

@@ -54,6 +54,7 @@ import numpy.typing as npt
 
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import serialised
+from uuv_ocp.model.damping import steady_speed
 from uuv_ocp.model.thrusters import GENERALISED_FORCE_NAMES, ThrusterConfiguration
 
 STATE_NAMES = ("x", "y", "z", "phi", "theta", "psi", "u", "v", "w", "p", "q", "r")
@@ -552,12 +553,7 @@ class Vehicle6DOF:
         numpy.ndarray, shape (6,)
             ``(u, v, w)`` in m/s and ``(p, q, r)`` in rad/s.
         """
-        d_lin = np.asarray(self.linear_damping)
-        d_quad = np.asarray(self.quadratic_damping)
-        tau = np.asarray(self.max_thrust)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            speed = 2.0 * tau / (d_lin + np.sqrt(d_lin**2 + 4.0 * d_quad * tau))
-        return np.where(np.isfinite(speed), speed, np.inf)
+        return steady_speed(self.linear_damping, self.quadratic_damping, self.max_thrust)
 
     def max_horizontal_speed(self, resolution: int = 9001) -> tuple[float, float]:
         """Top speed over ground at constant depth in still water, crabbing allowed: ``(m/s, rad)``.

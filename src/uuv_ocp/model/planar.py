@@ -29,6 +29,7 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import serialised
+from uuv_ocp.model.damping import steady_speed
 
 STATE_NAMES = ("x", "y", "psi", "u", "v", "r")
 STATE_UNITS = ("m", "m", "rad", "m/s", "m/s", "rad/s")
@@ -167,12 +168,7 @@ class Vehicle:
         linear damping dominates; ``tau_max / d_lin`` without quadratic damping; ``inf``
         without any damping).
         """
-        d_lin = np.asarray(self.linear_damping)
-        d_quad = np.asarray(self.quadratic_damping)
-        tau = np.asarray(self.max_thrust)
-        with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            speed = 2.0 * tau / (d_lin + np.sqrt(d_lin**2 + 4.0 * d_quad * tau))
-        return np.where(np.isfinite(speed), speed, np.inf)
+        return steady_speed(self.linear_damping, self.quadratic_damping, self.max_thrust)
 
     def max_horizontal_speed(self, resolution: int = 9001) -> tuple[float, float]:
         """Top speed over ground in still water, crabbing allowed: ``(speed m/s, crab angle rad)``.

@@ -125,7 +125,9 @@ def test_compiled_swarm_falls_back_to_the_virtual_machine_with_one_warning(
     monkeypatch, s2_problem, feasible_start
 ):
     monkeypatch.setenv("CC", "/nonexistent/cc")
-    problem = s2_problem.replace()  # a fresh problem: nothing compiled or cached yet
+    # builds and backends are cached by content, and this one is built without a compiler:
+    # a problem no other test uses keeps its VM fallback out of their caches
+    problem = s2_problem.replace(horizon=s2_problem.horizon - 1)
     with pytest.warns(RuntimeWarning, match="virtual machine") as record:
         solver = uo.get_solver(problem, "igwo", {"compiled": True})
         uo.get_solver(problem, "gwo", {"compiled": True, "population": 20})

@@ -134,13 +134,13 @@ def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
 ):
     x0, t0 = feasible_start
     p = s2_problem.parameters(x0, t0)
-    native = uo.get_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": bool(rng_thread)})
+    native = uo.new_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": bool(rng_thread)})
     # test modes of the C step: 2 never uses the worker's blocks, 3 uses only its even ones
     monkeypatch.setattr(native, "rng_thread", rng_thread)
     runs = []
     run = native.native.run
     monkeypatch.setattr(native.native, "run", lambda *args, **kw: runs.append(run(*args, **kw)) or runs[-1])
-    python = uo.get_solver(s2_problem, "igwo", {"compiled": True})
+    python = uo.new_solver(s2_problem, "igwo", {"compiled": True})
     python.native = None  # the Python loop over the same compiled kernel
     for seed in (1, 2):
         in_c, in_python = np.random.default_rng(seed), np.random.default_rng(seed)

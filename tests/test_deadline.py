@@ -23,7 +23,7 @@ from conftest import needs_compiler
 from uuv_ocp.control.simulation import ClosedLoopResult
 from uuv_ocp.judge import instance_parameters
 from uuv_ocp.optimize import minimize
-from uuv_ocp.solvers import get_solver, watchdog
+from uuv_ocp.solvers import get_solver, new_solver, watchdog
 from uuv_ocp.solvers.hybrid import SWARM_SHARE
 
 SWARMS = ["igwo", "gwo", "ssa", "pso"]
@@ -250,7 +250,7 @@ def test_building_a_plugin_in_a_solve_is_not_part_of_its_deadline(s2_problem, fe
     p = instance_parameters(s2_problem, x0, t0)
     clock = FakeClock()
     monkeypatch.setattr(watchdog, "now", clock)
-    backend = get_solver(s2_problem, "ipopt", {"deadline": 1.0})
+    backend = new_solver(s2_problem, "ipopt", {"deadline": 1.0})  # unbuilt: not the thread's cached one
     build = backend._solver
 
     def slow_build(*key):

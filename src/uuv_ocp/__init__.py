@@ -25,6 +25,7 @@ from uuv_ocp.solvers import (
     available_solvers,
     get_solver,
     minimize,
+    new_solver,
     register_solver,
     solve,
 )
@@ -59,6 +60,7 @@ __all__ = [
     "format_comparison",
     "generate_c",
     "get_solver",
+    "new_solver",
     "minimize",
     "register_solver",
     "rk4_step",

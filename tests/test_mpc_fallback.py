@@ -6,6 +6,7 @@ import pytest
 import uuv_ocp as uo
 from conftest import needs_compiler
 from uuv_ocp.control.simulation import _vehicle_plant
+from uuv_ocp.judge import FEASIBILITY_TOLERANCE
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.solvers import REGISTRY
 from uuv_ocp.solvers.result import Iterate, SolveResult
@@ -292,3 +293,65 @@ def test_warm_up_builds_the_whole_fallback_chain(s2_problem):
     controller.warm_up(x0, 0.0)
     stages = {stage for (_, stage, _) in controller.backend._solvers}
     assert {False, True, "rescue"} <= stages, stages
+
+
+def test_real_time_iteration_plans_applied_on_obstacles_hold_them(monkeypatch):
+    """sqp-rti on the obstacle tutorial: every fresh plan applied passes the judge (1e-6).
+
+    One QP holds the obstacles linearised at the warm start; the plans it gives that the judge
+    refuses (the linearisation error, mm) are iterated further before they may be applied.
+    """
+    rock = uo.Obstacle.circle((5.0, 0.2), 0.6, margin=0.5, name="rock")
+    line = uo.Reference.from_xy(lambda t: 0.5 * t, lambda t: 0 * t, name="line")
+    problem = uo.TrackingProblem(
+        uo.Vehicle.rexrov(), line, horizon=25, dt=0.2, terminal="cost", obstacles=(rock,)
+    )
+    controller = uo.NMPC(problem, "sqp-rti")
+    applied, refined = [], []
+    step, solve = controller.step, controller.backend.solve
+
+    def recording_step(x, t, u_prev=None, current=None, parameters=None):
+        output = step(x, t, u_prev, current, parameters)
+        if not output.fallback:
+            applied.append((np.array(x), t, u_prev, output.result.controls))
+        return output
+
+    def counting_solve(*args, **kwargs):
+        refined.append(args)
+        return solve(*args, **kwargs)
+
+    monkeypatch.setattr(controller, "step", recording_step)
+    monkeypatch.setattr(controller.backend, "solve", counting_solve)
+    run = uo.simulate(controller, line.initial_state(0.0), 16.0)
+    # the refused plans that further steps did not mend fell back (judged plans too)
+    assert len(applied) > 0.75 * run.controls.shape[0] and run.states[-1, 0] > 6.0
+    worst = max(uo.score(problem, plan, x, t, u_prev=u_prev)[1] for x, t, u_prev, plan in applied)
+    assert worst <= FEASIBILITY_TOLERANCE
+    # the refinement ran: the rock bends the path, and some one-QP plans broke its constraint
+    assert refined
+
+
+def test_the_c_fast_paths_apply_only_plans_that_hold_the_obstacles():
+    """step_control (resident step, C feedback) on the rock: every plan applied passes the judge.
+
+    The fast paths run only with a native HPIPM; elsewhere step_control is feedback(), and the
+    same holds.
+    """
+    rock = uo.Obstacle.circle((5.0, 0.2), 0.6, margin=0.5, name="rock")
+    line = uo.Reference.from_xy(lambda t: 0.5 * t, lambda t: 0 * t, name="line")
+    problem = uo.TrackingProblem(
+        uo.Vehicle.rexrov(), line, horizon=25, dt=0.2, terminal="cost", obstacles=(rock,)
+    )
+    controller = uo.NMPC(problem, "sqp-rti")
+    plant, _ = _vehicle_plant(problem, None, problem.dt, 10)
+    x, u, worst = line.initial_state(0.0), np.zeros(3), 0.0
+    for k in range(60):
+        t = k * problem.dt
+        applied = controller.step_control(x, t, u)
+        output = controller.last_output  # None after a fast path: its plan was applied
+        if output is None or not output.fallback:
+            worst = max(worst, uo.score(problem, controller.plan, x, t, u_prev=u)[1])
+        u = applied
+        x = np.array(plant(x, u, np.zeros(2)))[:, -1]
+    assert worst <= FEASIBILITY_TOLERANCE
+    assert x[0] > 5.5  # past the rock

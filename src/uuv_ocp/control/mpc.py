@@ -10,8 +10,14 @@ reports ``success``, its controls are finite and, on a problem with hard path co
 (obstacles, state bounds: every hard constraint but the terminal equality), the judge
 (:func:`uuv_ocp.judge.score_terms`) finds them violated by at most
 :data:`~uuv_ocp.judge.FEASIBILITY_TOLERANCE` along the plan's rollout from the measured state.
-The last test matters for the swarms, which hold path constraints only by a penalty; a
-real-time iteration (``sqp-rti``) is exempt, its one QP holds the linearised constraints.
+The last test matters for the swarms, which hold path constraints only by a penalty, and for
+a real-time iteration (``sqp-rti``), whose one QP holds the constraints linearised at the
+warm start: a plan of it that the judge refuses is iterated further from that plan, on the
+same instance (up to :data:`RTI_REFINEMENTS` calls of the backend's ``solve``, judged after
+each, within the rest of the deadline), before the step gives up on it.  On such problems the
+C fast paths of :meth:`NMPC.feedback_control` and :meth:`NMPC.step_control` judge their plans
+too; a refused one is solved again on :meth:`NMPC.feedback`'s path, so every plan applied is
+judged.
 Otherwise the step takes the *fallback*, the first admissible plan of
 
 1. the shifted previous plan (the last applied plan, one interval on, last control repeated);
@@ -83,6 +89,11 @@ STEADY_ITERATIONS = 3
 #: Weight of the scaled controls' squares in the steady control's least squares: it only
 #: breaks ties (more thrusters than driven rows), far below the residuals' (m/s², rad/s²) scale.
 STEADY_REGULARISATION = 1e-10
+#: Further ``solve`` calls (each the backend's ``iterations`` SQP steps) a real-time iteration's
+#: plan gets when it breaks a path constraint, before the step falls back (module doc).
+RTI_REFINEMENTS = 10
+#: How :meth:`NMPC._refusal` starts the message of a plan the judge refuses.
+PATH_VIOLATION = "path constraint violated"
 
 
 @dataclass(frozen=True)
@@ -350,6 +361,7 @@ class NMPC:
 
     def _solve_step(self, p: np.ndarray, u_prev: object | None) -> StepOutput:
         """Solve instance ``p`` and pick the control: the fresh plan's, or the fallback's."""
+        start = time.perf_counter()
         warm = self._iterate if self.use_warm_start else None
         feedback = getattr(self.backend, "feedback", None)
         try:
@@ -368,6 +380,8 @@ class NMPC:
                     f"{type(result).__name__} from solve(); a backend must return a uuv_ocp SolveResult"
                 )
             failure_reason = self._refusal(result, p)
+            if failure_reason.startswith(PATH_VIOLATION) and feedback is not None:
+                result, failure_reason = self._refine(result, p, start)
         late = result is not None and bool(result.details.get("deadline_hit", False))
         if not failure_reason:
             assert result is not None
@@ -396,15 +410,49 @@ class NMPC:
             )
         if not np.all(np.isfinite(controls)):
             return f"non-finite controls (the backend reported {result.status!r})"
-        if self.path_constrained and getattr(self.backend, "feedback", None) is None:
+        if self.path_constrained:
             # judged here, whatever the backend reports (a plug-in's details included)
             violation = self._violations(controls, p)["constraint"]
             if not violation <= FEASIBILITY_TOLERANCE:
                 return (
-                    f"path constraint violated by {violation:.3g} > {FEASIBILITY_TOLERANCE:g} "
+                    f"{PATH_VIOLATION} by {violation:.3g} > {FEASIBILITY_TOLERANCE:g} "
                     f"(the backend reported {result.status!r})"
                 )
         return ""
+
+    def _refine(self, result: SolveResult, p: np.ndarray, start: float) -> tuple[SolveResult, str]:
+        """Iterate a real-time iteration's plan that breaks a path constraint until it holds.
+
+        One QP holds the constraints linearised at the shifted warm start; the plan's rollout
+        can leave them by the linearisation error (mm on the obstacle tutorial).  Further SQP
+        steps from the plan, on the same instance, judged after each call, remove that error:
+        at most :data:`RTI_REFINEMENTS` calls of the backend's ``solve`` (its ``iterations``
+        steps each), within what is left of its deadline (from ``start``, ``perf_counter`` s).
+        """
+        reason = self._refusal(result, p)
+        deadline = getattr(self.backend, "deadline", None)
+        for _ in range(RTI_REFINEMENTS):
+            time_limit = None if deadline is None else deadline - (time.perf_counter() - start)
+            if time_limit is not None and time_limit <= 0:
+                break
+            try:
+                refined = self.backend.solve(p, result.iterate, time_limit=time_limit)
+            except Exception as error:  # the fallback handles it
+                reraise_interrupt(error)
+                break
+            if not isinstance(refined, SolveResult):
+                break
+            result, reason = refined, self._refusal(refined, p)
+            if not reason.startswith(PATH_VIOLATION):
+                break
+        return result, reason
+
+    def _holds_path_constraints(self, iterate: Iterate, p: np.ndarray) -> bool:
+        """Whether a C fast path's plan passes the judge's path-constraint test (module doc)."""
+        if not self.path_constrained:
+            return True
+        controls = self.problem.controls_from_scaled(iterate.scaled_controls)
+        return bool(self._violations(controls, p)["constraint"] <= FEASIBILITY_TOLERANCE)
 
     @property
     def path_constrained(self) -> bool:
@@ -445,6 +493,9 @@ class NMPC:
             prepared, primal, lam_x, lam_g, _ = step
             variant, backend = prepared.variant, self.backend
             iterate = backend.c_iterate(variant, primal, lam_x, lam_g, backend.relaxed(variant, primal))
+            if not self._holds_path_constraints(iterate, p):
+                self.last_output = self._solve_step(p, u_prev)  # solved again, refined, judged
+                return self.last_output.control
             self.last_output = None
             return self._accept(self.problem.controls_from_scaled(iterate.scaled_controls), iterate, u_prev)
         self.last_output = self._solve_step(p, u_prev)
@@ -504,8 +555,8 @@ class NMPC:
         except Exception as error:  # the general path solves it again and reports it
             reraise_interrupt(error)
             plan = None
-        if plan is None:
-            self._materialize()
+        if plan is None or not self._holds_path_constraints(self.backend.resident_iterate(plan), p):
+            self._materialize()  # the last resident plan: the general path starts from it
             return None
         self._resident, self._iterate = plan, None
         return plan, p

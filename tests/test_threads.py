@@ -15,13 +15,21 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from conftest import needs_compiler
 from uuv_ocp.native.buffered import BufferedFunction
 
-SOLVERS = ("sqp-rti", "ipopt", "igwo")
 THREADS = 4
 STEPS = 4
 HORIZON = 6
 SWARM = {"population": 8, "iterations": 6}
+#: name -> (solver, options).  sqp-rti runs its C step (hpipm-ocp) where a compiler exists;
+#: "igwo-compiled" the all-C IGWO step with its random-number worker thread.
+SOLVERS = {
+    "sqp-rti": ("sqp-rti", None),
+    "ipopt": ("ipopt", None),
+    "igwo": ("igwo", SWARM),
+    "igwo-compiled": ("igwo", {**SWARM, "compiled": True, "rng_thread": True}),
+}
 
 
 def make_problem(reference=None):
@@ -37,8 +45,10 @@ def plant():
 
 def closed_loop(problem, solver, index, plant, sync=lambda: None):
     """Run loop ``index`` (own start state and seed); ``sync()`` before each step; its controls."""
-    options = SWARM if solver == "igwo" else None
-    controller = uo.NMPC(problem, solver, options=options, seed=index)
+    name, options = SOLVERS[solver]
+    controller = uo.NMPC(problem, name, options=options, seed=index)
+    if (options or {}).get("compiled"):
+        assert controller.backend.native is not None  # the all-C step, not the VM fallback
     state = problem.reference.initial_state(0.0) + 0.05 * (index + 1) * np.array([1, -1, 0.2, 0.1, 0, 0])
     control, controls = np.zeros(3), []
     for k in range(STEPS):
@@ -81,9 +91,11 @@ def run_loops(solver, plant, *, threaded, problems):
     return results
 
 
-@pytest.fixture(scope="module", params=SOLVERS)
+@pytest.fixture(scope="module", params=list(SOLVERS))
 def sequential(request, plant):
     """(solver, controls of the loops run one after another on one problem)."""
+    if (SOLVERS[request.param][1] or {}).get("compiled") and needs_compiler.args[0]:
+        pytest.skip("no C compiler on this machine")
     shared = make_problem()
     return request.param, run_loops(request.param, plant, threaded=False, problems=lambda i: shared)
 

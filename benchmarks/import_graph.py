@@ -72,7 +72,7 @@ def _walk(node: ast.AST, where: str) -> Iterator[tuple[ast.Import | ast.ImportFr
 
 
 def _resolve(module: str, is_package: bool, node: ast.ImportFrom) -> str:
-    """The absolute module a ``from ... import`` names (relative levels resolved)."""
+    """Return the absolute module a ``from ... import`` names (relative levels resolved)."""
     if not node.level:
         return node.module or ""
     base = module.split(".")

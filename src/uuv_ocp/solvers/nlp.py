@@ -55,6 +55,8 @@ from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import score_parameters
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
+from uuv_ocp.native.runtime import jit_directory
 from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names
@@ -624,8 +626,6 @@ class NlpSolver:
 
     def _compiled_nlpsol(self, name: str, plugin: str, nlp: dict, options: dict) -> ca.Function:
         """NLP functions compiled to C by CasADi's JIT (system compiler); VM if that fails."""
-        from uuv_ocp.codegen import CompilerNotFoundError, find_c_compiler, jit_directory
-
         try:
             compiler = find_c_compiler()
             jit: dict[str, Any] = {

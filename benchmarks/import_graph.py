@@ -10,9 +10,12 @@ module would otherwise sit in one loop through ``uuv_ocp/__init__.py``'s re-expo
 
 A deferred import that closes a cycle hides it from Python but not from this graph: the strongly
 connected components (Tarjan) of the graph with deferred edges are the loops of the design.
+A *dynamic* import of a package module (``importlib.import_module("uuv_ocp...")`` or
+``__import__``, e.g. in a module ``__getattr__``) cannot be resolved statically; such calls are
+listed so that none hides a loop.
 
 Run: ``python -m benchmarks.import_graph [--check] [--verbose] [--root src/uuv_ocp]``.
-``--check`` exits 1 when a cycle exists.
+``--check`` exits 1 when a cycle or a dynamic import of a package module exists.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "src" / "uuv_ocp"
 PACKAGE = "uuv_ocp"
+DYNAMIC = "<dynamic uuv_ocp import>"
 
 
 @dataclass(frozen=True)
@@ -82,6 +86,22 @@ def _resolve(module: str, is_package: bool, node: ast.ImportFrom) -> str:
     return ".".join([*base, node.module] if node.module else base)
 
 
+def _dynamic(tree: ast.AST) -> Iterator[int]:
+    """Lines of ``import_module(...)`` / ``__import__(...)`` calls whose name starts with the package."""
+    for node in ast.walk(tree):
+        if not (isinstance(node, ast.Call) and node.args):
+            continue
+        function = node.func
+        name = function.attr if isinstance(function, ast.Attribute) else getattr(function, "id", "")
+        if name not in ("import_module", "__import__"):
+            continue
+        first = node.args[0]
+        if isinstance(first, ast.JoinedStr) and first.values:
+            first = first.values[0]
+        if isinstance(first, ast.Constant) and str(first.value).startswith(PACKAGE):
+            yield node.lineno
+
+
 def imports(root: Path = ROOT) -> tuple[list[Import], list[tuple[str, int, str]]]:
     """Every ``uuv_ocp`` import inside the package, and every deferred import of any module.
 
@@ -91,7 +111,8 @@ def imports(root: Path = ROOT) -> tuple[list[Import], list[tuple[str, int, str]]
         The imports of package modules (edges), with where they stand.
     deferred
         ``(module, line, imported name)`` of every import inside a function, of any package
-        (``matplotlib``, ``dask``, ... included), for the count.
+        (``matplotlib``, ``dask``, ... included), for the count; dynamic imports of package
+        modules (:func:`_dynamic`) appear here with the name ``"<dynamic uuv_ocp import>"``.
     """
     names = module_names(root)
     internal: list[Import] = []
@@ -99,6 +120,7 @@ def imports(root: Path = ROOT) -> tuple[list[Import], list[tuple[str, int, str]]
     for module, path in names.items():
         tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
         is_package = path.name == "__init__.py"
+        deferred.extend((module, line, DYNAMIC) for line in _dynamic(tree))
         for node, where in _walk(tree, "module"):
             if isinstance(node, ast.Import):
                 targets = [alias.name for alias in node.names]
@@ -186,6 +208,11 @@ class Graph:
         """Imports of package modules inside functions."""
         return [item for item in self.internal if item.where == "function"]
 
+    @property
+    def dynamic(self) -> list[tuple[str, int]]:
+        """``(module, line)`` of every ``import_module``/``__import__`` of a package module."""
+        return [(module, line) for module, line, target in self.deferred if target == DYNAMIC]
+
 
 def graph(root: Path = ROOT) -> Graph:
     """Parse the package under ``root`` and find its cycles (deferred imports counted as edges)."""
@@ -202,20 +229,21 @@ def main(argv: list[str] | None = None) -> int:
     """Print the counts and the cycles; with ``--check``, exit 1 when a cycle exists."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--root", type=Path, default=ROOT, help="the package directory")
-    parser.add_argument("--check", action="store_true", help="exit 1 if the graph has a cycle")
+    parser.add_argument("--check", action="store_true", help="exit 1 on a cycle or a dynamic import")
     parser.add_argument("--verbose", action="store_true", help="list every deferred import")
     args = parser.parse_args(argv)
     result = graph(args.root)
     print(f"modules: {len(result.modules)}")
     print(f"imports inside functions (any package): {len(result.deferred)}")
     print(f"imports inside functions of uuv_ocp modules: {len(result.deferred_internal)}")
+    print(f"dynamic imports of uuv_ocp modules (importlib): {len(result.dynamic)}")
     if args.verbose:
         for module, line, target in result.deferred:
             print(f"  {module}:{line} -> {target}")
     print(f"strongly connected components (cycles): {len(result.cycles)}")
     for component in result.cycles:
         print(f"  {len(component)} modules: {', '.join(component)}")
-    return 1 if args.check and result.cycles else 0
+    return 1 if args.check and (result.cycles or result.dynamic) else 0
 
 
 if __name__ == "__main__":

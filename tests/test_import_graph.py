@@ -47,6 +47,11 @@ def test_the_package_has_no_import_cycle():
     )
 
 
+def test_no_module_imports_a_package_module_by_a_computed_name():
+    # importlib.import_module("uuv_ocp...") (the old nlp.__getattr__ shim) escapes the graph
+    assert import_graph.graph(PACKAGE_ROOT).dynamic == []
+
+
 def test_nothing_in_the_package_imports_the_codegen_facade():
     users = [
         f"{item.source}:{item.line}"
@@ -83,6 +88,24 @@ def test_a_cycle_hidden_in_a_function_is_found(tmp_path):
     assert [(i.source, i.target) for i in result.deferred_internal] == [("uuv_ocp.b", "uuv_ocp.a")]
     assert import_graph.main(["--root", str(root), "--check"]) == 1
     assert import_graph.main(["--root", str(root)]) == 0
+
+
+def test_a_dynamic_import_of_a_package_module_is_reported(tmp_path):
+    root = _package(
+        tmp_path,
+        {
+            "a.py": (
+                "import importlib\n"
+                "def __getattr__(name):\n"
+                "    return importlib.import_module(f'uuv_ocp.{name}')\n"
+                "def other():\n"
+                "    return importlib.import_module('json')\n"
+            ),
+        },
+    )
+    result = import_graph.graph(root)
+    assert result.dynamic == [("uuv_ocp.a", 3)]
+    assert import_graph.main(["--root", str(root), "--check"]) == 1
 
 
 def test_relative_submodule_and_typing_imports_are_resolved(tmp_path):

@@ -35,8 +35,8 @@ restoration phase (see :class:`~uuv_ocp.solvers.fatrop.FatropSolver`).
 A failed solve's ``states`` are the rollout of its ``controls`` (see :meth:`NlpSolver._rolled_out`).
 
 The backends themselves live one per module: :mod:`~uuv_ocp.solvers.ipopt`,
-:mod:`~uuv_ocp.solvers.fatrop` and :mod:`~uuv_ocp.solvers.sqp` (their classes stay importable
-from here).
+:mod:`~uuv_ocp.solvers.fatrop` and :mod:`~uuv_ocp.solvers.sqp`, above this one (import them from
+there or from :mod:`uuv_ocp.solvers`).
 """
 
 from __future__ import annotations
@@ -914,19 +914,3 @@ class NlpSolver:
                 "still_water": final["still_water"],
             },
         )
-
-
-_MOVED = {"IpoptSolver": "ipopt", "FatropSolver": "fatrop", "SqpSolver": "sqp"}
-
-
-def __getattr__(name: str) -> Any:
-    """Import the backends from their own modules on first access (``from ...nlp import IpoptSolver``).
-
-    Lazily, because those modules import :class:`NlpSolver` from here: an import at the top
-    of this module would be circular.
-    """
-    if name in _MOVED:
-        import importlib
-
-        return getattr(importlib.import_module(f"uuv_ocp.solvers.{_MOVED[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

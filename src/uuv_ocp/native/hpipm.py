@@ -185,7 +185,7 @@ def build(
     target : str
         A key of :data:`TARGETS`, or ``"auto"`` (:func:`cpu_target`).
     cache : path-like, optional
-        Default :func:`uuv_ocp.codegen.default_cache_directory`.
+        Default :func:`uuv_ocp.native.compile.default_cache_directory`.
     jobs : int
         Parallel ``make`` jobs.
     log : callable
@@ -270,7 +270,7 @@ def installed(cache: str | os.PathLike[str] | None = None, *, strict: bool = Fal
     Parameters
     ----------
     cache : path-like, optional
-        The cache folder; default :func:`uuv_ocp.codegen.default_cache_directory`.
+        The cache folder; default :func:`uuv_ocp.native.compile.default_cache_directory`.
     strict : bool, default False
         Raise :class:`NativeHpipmError` for a refused build instead of warning.
 
@@ -444,7 +444,7 @@ def check_choice(native_needed: bool = True, cache: str | os.PathLike[str] | Non
         ``UUV_OCP_HPIPM=native`` also needs an intact native build.  Otherwise only the value is
         checked.
     cache : path-like, optional
-        The cache folder; default :func:`uuv_ocp.codegen.default_cache_directory`.
+        The cache folder; default :func:`uuv_ocp.native.compile.default_cache_directory`.
 
     Raises
     ------

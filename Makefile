@@ -52,7 +52,8 @@ reproduce-quick: $(STAMP)
 	$(PY) -m uuv_ocp.cli reproduce --out docs/reproduction --quick
 
 # ruff, mypy and the stubs they need come from the `lint` extra (versions in pyproject.toml).
-# All three checks run (so one run reports everything); the target fails if any of them does.
+# All four checks run (so one run reports everything); the target fails if any of them does.
+# The last is the layer rule: no import cycle in src/uuv_ocp, counting imports inside functions.
 LINT_PATHS := src tests benchmarks examples $(wildcard docs/tutorials/*.py)
 LINT_STAMP := $(VENV)/.lint-installed
 
@@ -65,6 +66,7 @@ lint: $(LINT_STAMP)
 	$(VENV)/bin/ruff check $(LINT_PATHS) || status=1; \
 	$(VENV)/bin/ruff format --check $(LINT_PATHS) || status=1; \
 	$(VENV)/bin/mypy src/uuv_ocp || status=1; \
+	$(PY) -m benchmarks.import_graph --check || status=1; \
 	exit $$status
 
 # The documentation site (mkdocs.yml) into build/site.  --strict: a broken link or anchor, a

@@ -22,6 +22,7 @@ import pytest
 
 import uuv_ocp as uo
 from conftest import needs_compiler
+from uuv_ocp import _version as uuv_version
 from uuv_ocp import codegen
 from uuv_ocp.native import compile as cg
 from uuv_ocp.native.compile import (
@@ -328,7 +329,7 @@ def test_cache_key_covers_package_casadi_and_compiler_versions(compiler, tmp_pat
 
     base = digest()
     assert digest() == base  # reproducible
-    monkeypatch.setattr(uo, "__version__", "0.0.0-other-checkout")
+    monkeypatch.setattr(uuv_version, "__version__", "0.0.0-other-checkout")  # the one source of it
     other_package = digest()
     monkeypatch.undo()
     monkeypatch.setattr(ca, "__version__", "0.0.0-other-casadi")

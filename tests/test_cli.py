@@ -130,7 +130,7 @@ def test_solver_names_are_case_insensitive():
 
 
 def test_solvers_name_prints_that_backends_declared_options(capsys):
-    from uuv_ocp.solvers.options import declared_options
+    from uuv_ocp.solvers.catalog import declared_options
 
     assert cli.main(["solvers", "Fatrop"]) == 0
     rows = [line for line in capsys.readouterr().out.splitlines() if line.startswith("| `")]

@@ -10,6 +10,7 @@ import uuv_ocp as uo
 from conftest import needs_compiler
 from uuv_ocp import codegen
 from uuv_ocp.native import compile as codegen_core
+from uuv_ocp.native import runtime
 from uuv_ocp.native.simd import UnsupportedOperation, batch_kernel_source
 
 POPULATION = 5  # not a multiple of the lane count: the last group is padded
@@ -120,7 +121,7 @@ def test_c_pcg64_draws_numpys_numbers_and_advances_the_same(tmp_path, s2_problem
     generator = np.random.default_rng(count)
     state = generator.bit_generator.state["state"]
     out = np.empty(count)
-    words = (*codegen._split(state["state"]), *codegen._split(state["inc"]))
+    words = (*runtime._split(state["state"]), *runtime._split(state["inc"]))
     native.random(*words, out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), count)
     np.testing.assert_array_equal(out, generator.random(count))
 

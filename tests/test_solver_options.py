@@ -17,9 +17,10 @@ import pytest
 
 import uuv_ocp as uo
 from uuv_ocp.solvers import REGISTRY
+from uuv_ocp.solvers.catalog import declared_options, options_table
 from uuv_ocp.solvers.hybrid import HYBRID_OPTIONS, hybrid_factory
 from uuv_ocp.solvers.multistart import MULTISTART_OPTIONS, multistart_factory
-from uuv_ocp.solvers.options import AUTO, Option, declared_options, option_defaults, options_table
+from uuv_ocp.solvers.options import AUTO, Option, option_defaults
 from uuv_ocp.solvers.swarm import SwarmSolver
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -1,6 +1,6 @@
 """mkdocs hook: ``<!-- solver-options: NAME [NAME ...] -->`` becomes the options table of those solvers.
 
-The table is :func:`uuv_ocp.solvers.options.options_table` of the names, rendered from the
+The table is :func:`uuv_ocp.solvers.catalog.options_table` of the names, rendered from the
 backends' declarations in the code, so the documented options and defaults cannot drift from
 the ones the constructors use.  Several names (the four swarms) share one table.  An unknown
 name, or a backend that declares no options, fails the build.  Registered in mkdocs.yml under
@@ -19,7 +19,7 @@ MARKER = re.compile(r"<!--\s*solver-options:\s*(?P<names>[^>]*?)\s*-->")
 
 def render(markdown: str) -> str:
     """Return ``markdown`` with every solver-options marker replaced by its table."""
-    from uuv_ocp.solvers.options import options_table
+    from uuv_ocp.solvers.catalog import options_table
 
     def table(match: re.Match[str]) -> str:
         names = match["names"].split()

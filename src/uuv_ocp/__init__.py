@@ -6,7 +6,7 @@ one scorer (:func:`score`), and run in closed loop (:class:`NMPC`, :func:`simula
 Importing the package has no side effects: nothing is built, compiled or plotted.
 """
 
-from uuv_ocp.codegen import GeneratedCode, generate_c
+from uuv_ocp._version import __version__ as __version__
 from uuv_ocp.control.disturbances import Current, GaussMarkov, MeasurementNoise
 from uuv_ocp.control.mpc import NMPC, StepOutput
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
@@ -15,6 +15,7 @@ from uuv_ocp.judge import score
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.model.thrusters import ThrusterConfiguration
+from uuv_ocp.native.runtime import GeneratedCode
 from uuv_ocp.obstacles import Obstacle
 from uuv_ocp.ocp import Ocp
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
@@ -29,10 +30,9 @@ from uuv_ocp.solvers import (
     register_solver,
     solve,
 )
+from uuv_ocp.solvers.rti_export import generate_c
 from uuv_ocp.studies.compare import compare, format_comparison
 from uuv_ocp.tracking import TrackingProblem, Weights
-
-__version__ = "0.1.0"
 
 __all__ = [
     "PAPER_REFERENCES",

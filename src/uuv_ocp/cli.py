@@ -328,7 +328,8 @@ def _run_compare(args: argparse.Namespace) -> int:
 
 
 def _run_codegen(args: argparse.Namespace) -> int:
-    from uuv_ocp.codegen import MIN_IGWO_POPULATION, BuildDirectoryError, generate_c
+    from uuv_ocp.native.runtime import MIN_IGWO_POPULATION, BuildDirectoryError
+    from uuv_ocp.solvers.rti_export import generate_c
 
     _horizon(args.horizon)
     if args.population < MIN_IGWO_POPULATION:
@@ -502,7 +503,7 @@ def _dispatch(args: argparse.Namespace) -> int:
         if args.name is None:
             print("\n".join(REGISTRY.names()))
             return 0
-        from uuv_ocp.solvers.options import options_table
+        from uuv_ocp.solvers.catalog import options_table
 
         print(options_table(_solver("NAME", args.name)))
         return 0

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.ocp import Ocp
 
 if TYPE_CHECKING:
     from uuv_ocp.build import Transcribed
@@ -27,8 +28,6 @@ def instance_parameters(
     parameters: Mapping[str, object] | None = None,
 ) -> np.ndarray:
     """Parameter vector of one instance of any problem (an ``Ocp`` or a tracking preset)."""
-    from uuv_ocp.ocp import Ocp
-
     if isinstance(problem, Ocp):
         if current is not None:
             raise ValueError("current is a TrackingProblem argument; an Ocp takes its data in parameters=")

@@ -69,6 +69,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from uuv_ocp import _version
 from uuv_ocp.progress import SlowNotice
 
 __all__ = [
@@ -145,6 +146,18 @@ class BuildDirectoryError(CodegenError):
 
 class IntegrityError(CodegenError):
     """A library's bytes do not match the SHA-256 its build recorded (or none was recorded)."""
+
+
+def default_cache_directory() -> Path:
+    """``$UUV_OCP_CACHE`` or ``~/.cache/uuv_ocp``: where solver builds are kept (absolute).
+
+    An empty ``UUV_OCP_CACHE`` counts as unset; a relative one is taken relative to the current
+    directory at the time of the call.  The folder is created with mode ``0700`` by the first
+    build and must stay owned by the user and not writable by others.
+    """
+    configured = os.environ.get("UUV_OCP_CACHE", "").strip()
+    folder = Path(configured) if configured else Path.home() / ".cache" / "uuv_ocp"
+    return Path(os.path.abspath(folder))
 
 
 def secure_directory(directory: str | os.PathLike[str], *, create: bool = True) -> Path:
@@ -613,15 +626,14 @@ def _toolchain(compiler: str) -> tuple[str, ...]:
     The compiler's version is read once per executable (path, size and modification time): an
     upgrade in place changes the key, so no library of the old compiler is reused.
     """
-    from uuv_ocp import __version__
-
     try:
         status = os.stat(compiler)
         identity: tuple[object, ...] = (status.st_size, status.st_mtime_ns)
     except OSError:
         identity = ()
     casadi_version = str(getattr(ca, "__version__", ""))  # untyped in casadi's stubs
-    return (f"uuv_ocp {__version__}", f"casadi {casadi_version}", _compiler_version(compiler, identity))
+    package = f"uuv_ocp {_version.__version__}"  # read per call: a test changes it
+    return (package, f"casadi {casadi_version}", _compiler_version(compiler, identity))
 
 
 @functools.lru_cache(maxsize=16)

@@ -41,6 +41,19 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from uuv_ocp.native.compile import (
+    FILE_MODE,
+    FOLDER_MODE,
+    BuildDirectoryError,
+    IntegrityError,
+    _write_private,
+    check_private_file,
+    default_cache_directory,
+    find_c_compiler,
+    read_private_file,
+    secure_directory,
+)
+
 #: the source distribution whose vendored BLASFEO and HPIPM are built by default
 SDIST_NAME, SDIST_VERSION = "rockit-meco", "0.2.8"
 SDIST_SHA256 = "722725589402c3761f302e39901507ae2d1ff9af95966774ed0709680f4dfa07"
@@ -172,7 +185,7 @@ def build(
     target : str
         A key of :data:`TARGETS`, or ``"auto"`` (:func:`cpu_target`).
     cache : path-like, optional
-        Default :func:`uuv_ocp.codegen.default_cache_directory`.
+        Default :func:`uuv_ocp.native.compile.default_cache_directory`.
     jobs : int
         Parallel ``make`` jobs.
     log : callable
@@ -185,8 +198,6 @@ def build(
     NativeHpipmError
         The download or a ``make`` failed (its last output lines are in the message).
     """
-    from uuv_ocp.native.compile import find_c_compiler, secure_directory
-
     chosen = cpu_target() if target == "auto" else target
     if chosen not in TARGETS:
         raise ValueError(f"target must be 'auto' or one of {list(TARGETS)}, got {target!r}")
@@ -259,7 +270,7 @@ def installed(cache: str | os.PathLike[str] | None = None, *, strict: bool = Fal
     Parameters
     ----------
     cache : path-like, optional
-        The cache folder; default :func:`uuv_ocp.codegen.default_cache_directory`.
+        The cache folder; default :func:`uuv_ocp.native.compile.default_cache_directory`.
     strict : bool, default False
         Raise :class:`NativeHpipmError` for a refused build instead of warning.
 
@@ -289,13 +300,6 @@ def installed(cache: str | os.PathLike[str] | None = None, *, strict: bool = Fal
 
 def _checked_build(root: Path) -> NativeHpipm | None:
     """Return the build ``root/native.json`` names, checked (``None``: no ``native.json``)."""
-    from uuv_ocp.native.compile import (
-        BuildDirectoryError,
-        IntegrityError,
-        read_private_file,
-        secure_directory,
-    )
-
     pointer_path = root / "native.json"
     if not os.path.lexists(pointer_path):
         return None
@@ -345,8 +349,6 @@ def _private_tree(directory: Path) -> set[str]:
     not be writable by its group or others; a symbolic link or anything but a folder or a
     regular file is refused (``IntegrityError``, ``BuildDirectoryError``).
     """
-    from uuv_ocp.native.compile import BuildDirectoryError, check_private_file, secure_directory
-
     if os.path.islink(directory):
         raise BuildDirectoryError(f"build folder {directory} is a symbolic link")
     found: set[str] = set()
@@ -371,8 +373,6 @@ def _make_private(tree: Path) -> None:
     ``make`` and the copies create files with the umask's modes (0664 with umask 002): the
     group could then rewrite a header or library after its digest was recorded.
     """
-    from uuv_ocp.native.compile import FILE_MODE, FOLDER_MODE
-
     for folder, folders, files in os.walk(tree):
         os.chmod(folder, FOLDER_MODE)
         for name in files:
@@ -444,7 +444,7 @@ def check_choice(native_needed: bool = True, cache: str | os.PathLike[str] | Non
         ``UUV_OCP_HPIPM=native`` also needs an intact native build.  Otherwise only the value is
         checked.
     cache : path-like, optional
-        The cache folder; default :func:`uuv_ocp.codegen.default_cache_directory`.
+        The cache folder; default :func:`uuv_ocp.native.compile.default_cache_directory`.
 
     Raises
     ------
@@ -469,8 +469,6 @@ def old_partial_condensing(include: Path) -> bool:
 
 
 def _root(cache: str | os.PathLike[str] | None) -> Path:
-    from uuv_ocp.codegen import default_cache_directory
-
     return Path(os.path.abspath(cache if cache is not None else default_cache_directory())) / "hpipm"
 
 
@@ -498,6 +496,4 @@ def _tree_digest(folder: Path) -> str:
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    from uuv_ocp.native.compile import _write_private
-
     _write_private(path, text.encode())

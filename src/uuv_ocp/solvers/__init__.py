@@ -30,7 +30,9 @@ from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import instance_parameters
 from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
 from uuv_ocp.solvers.fatrop import FatropSolver
+from uuv_ocp.solvers.hybrid import hybrid_factory
 from uuv_ocp.solvers.ipopt import IpoptSolver
+from uuv_ocp.solvers.multistart import multistart_factory
 from uuv_ocp.solvers.nlp import NlpSolver
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.solvers.rti import RtiSolver
@@ -135,12 +137,8 @@ class SolverRegistry:
         if name in self._factories:
             return self._factories[name][0]
         if "+" in name:
-            from uuv_ocp.solvers.hybrid import hybrid_factory
-
             first, _, second = name.partition("+")
             return hybrid_factory(name, self._factories[first][0], self._factories[second][0])
-        from uuv_ocp.solvers.multistart import multistart_factory
-
         return multistart_factory(name, self._factories[name[len("multistart-") :]][0])
 
 

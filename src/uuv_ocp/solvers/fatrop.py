@@ -10,7 +10,7 @@ from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE
 from uuv_ocp.solvers import watchdog
-from uuv_ocp.solvers.ipopt import IPOPT_MAX_ITER
+from uuv_ocp.solvers.ipopt import IPOPT_MAX_ITER, ipopt_options
 from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import Option, option_names, revise
 from uuv_ocp.transcription.multiple_shooting import NlpData
@@ -130,6 +130,4 @@ class FatropSolver(NlpSolver):
         ``examples/obstacles.py``, cost equal to IPOPT's to 3e-9); IPOPT warm-started there
         converges in a few iterations.
         """
-        from uuv_ocp.solvers.ipopt import ipopt_options
-
         return {"plugin": "ipopt", **ipopt_options(self.max_iter, self.deadline)}

@@ -35,8 +35,8 @@ restoration phase (see :class:`~uuv_ocp.solvers.fatrop.FatropSolver`).
 A failed solve's ``states`` are the rollout of its ``controls`` (see :meth:`NlpSolver._rolled_out`).
 
 The backends themselves live one per module: :mod:`~uuv_ocp.solvers.ipopt`,
-:mod:`~uuv_ocp.solvers.fatrop` and :mod:`~uuv_ocp.solvers.sqp` (their classes stay importable
-from here).
+:mod:`~uuv_ocp.solvers.fatrop` and :mod:`~uuv_ocp.solvers.sqp`, above this one (import them from
+there or from :mod:`uuv_ocp.solvers`).
 """
 
 from __future__ import annotations
@@ -55,6 +55,8 @@ from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import score_parameters
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
+from uuv_ocp.native.runtime import jit_directory
 from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names
@@ -624,8 +626,6 @@ class NlpSolver:
 
     def _compiled_nlpsol(self, name: str, plugin: str, nlp: dict, options: dict) -> ca.Function:
         """NLP functions compiled to C by CasADi's JIT (system compiler); VM if that fails."""
-        from uuv_ocp.codegen import CompilerNotFoundError, find_c_compiler, jit_directory
-
         try:
             compiler = find_c_compiler()
             jit: dict[str, Any] = {
@@ -914,19 +914,3 @@ class NlpSolver:
                 "still_water": final["still_water"],
             },
         )
-
-
-_MOVED = {"IpoptSolver": "ipopt", "FatropSolver": "fatrop", "SqpSolver": "sqp"}
-
-
-def __getattr__(name: str) -> Any:
-    """Import the backends from their own modules on first access (``from ...nlp import IpoptSolver``).
-
-    Lazily, because those modules import :class:`NlpSolver` from here: an import at the top
-    of this module would be circular.
-    """
-    if name in _MOVED:
-        import importlib
-
-        return getattr(importlib.import_module(f"uuv_ocp.solvers.{_MOVED[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

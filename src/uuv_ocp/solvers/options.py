@@ -3,8 +3,10 @@
 Every backend declares the options its constructor accepts as a tuple of :class:`Option`
 (name, default, accepted values, unit, one-line description), kept next to its code, and its
 constructor reads every default from that tuple.  The tables of ``docs/solvers.md`` are
-rendered from the same tuples (:func:`options_table`, called by the mkdocs hook
-``docs/hooks/solver_options.py``), so the documented default *is* the one used.
+rendered from the same tuples (:func:`uuv_ocp.solvers.catalog.options_table`, called by the
+mkdocs hook ``docs/hooks/solver_options.py``), so the documented default *is* the one used.
+This module is below the registry (every backend imports it); what reads a declaration by a
+registered name lives above it, in :mod:`uuv_ocp.solvers.catalog`.
 
 How a backend declares its options (e.g. a new exact backend on :class:`NlpSolver`)::
 
@@ -20,7 +22,7 @@ How a backend declares its options (e.g. a new exact backend on :class:`NlpSolve
 
 
     class RtiSolver(NlpSolver):
-        OPTIONS = RTI_OPTIONS  # what declared_options() and the docs read
+        OPTIONS = RTI_OPTIONS  # what catalog.declared_options() and the docs read
         option_names = option_names(RTI_OPTIONS)  # the keys the unknown-option error lists
 
         def __init__(self, problem, options=None):
@@ -58,12 +60,10 @@ from typing import Any
 __all__ = [
     "AUTO",
     "Option",
-    "declared_options",
     "format_value",
     "one_of",
     "option_defaults",
     "option_names",
-    "options_table",
     "revise",
 ]
 
@@ -173,26 +173,6 @@ def revise(options: Sequence[Option], **changes: Mapping[str, Any]) -> tuple[Opt
     return tuple(dataclasses.replace(o, **changes[o.name]) if o.name in changes else o for o in options)
 
 
-def declared_options(name: str) -> tuple[Option, ...]:
-    """Return the declaration of the backend registered as ``name`` (its factory's ``OPTIONS``).
-
-    Raises
-    ------
-    ValueError
-        Unknown solver name (the registry's message), or a backend that declares no options.
-    """
-    from uuv_ocp.solvers import REGISTRY
-
-    resolved = REGISTRY.resolve(name)
-    options = getattr(REGISTRY.factory(resolved), "OPTIONS", None)
-    if options is None:
-        raise ValueError(
-            f"solver {resolved!r} declares no options: give its factory an OPTIONS tuple of "
-            "uuv_ocp.solvers.options.Option (see that module's docstring)"
-        )
-    return tuple(options)
-
-
 # ------------------------------------------------------------------------------ rendering
 
 
@@ -229,48 +209,3 @@ def default_cell(option: Option) -> str:
     """Markdown of an option's default: the value in code, then what it means."""
     text = "auto" if option.default is AUTO else f"`{format_value(option.default)}`"
     return f"{text}: {option.meaning}" if option.meaning else text
-
-
-def _cell(text: str) -> str:
-    """Return a table cell: ``|`` escaped, empty as a dash."""
-    return text.replace("|", "\\|") if text else "—"
-
-
-def options_table(names: str | Sequence[str]) -> str:
-    """Markdown table of the options of one backend, or of several that share one declaration.
-
-    One row per declared option, in declaration order.  With several names (e.g. the four
-    swarms) their declarations must list the same options in the same order; a default that
-    differs between them reads "per solver" and a second table gives it for each name (one
-    row per name, one column per such option).
-    """
-    group = [names] if isinstance(names, str) else list(names)
-    if not group:
-        raise ValueError("options_table needs at least one solver name, got none")
-    declarations = [declared_options(name) for name in group]
-    first = declarations[0]
-    for name, options in zip(group[1:], declarations[1:], strict=True):
-        if [o.name for o in options] != [o.name for o in first]:
-            raise ValueError(
-                f"options_table: {group[0]!r} and {name!r} declare different options "
-                f"({[o.name for o in first]} vs {[o.name for o in options]}); render them separately"
-            )
-    header = ["option", "default", "values", "unit", "description"]
-    lines = [_row(header), _row(["---"] * len(header))]
-    differing: list[int] = []
-    for row, option in enumerate(first):
-        shown = {default_cell(options[row]) for options in declarations}
-        if len(shown) > 1:
-            differing.append(row)
-        default = "per solver, see below" if len(shown) > 1 else default_cell(option)
-        lines.append(_row([f"`{option.name}`", default, option.kind, option.unit, option.description]))
-    if differing:
-        lines += ["", _row(["solver", *(f"`{first[row].name}`" for row in differing)])]
-        lines.append(_row(["---"] * (len(differing) + 1)))
-        for name, options in zip(group, declarations, strict=True):
-            lines.append(_row([f"`{name}`", *(default_cell(options[row]) for row in differing)]))
-    return "\n".join(lines) + "\n"
-
-
-def _row(cells: Sequence[str]) -> str:
-    return "| " + " | ".join(_cell(cell) for cell in cells) + " |"

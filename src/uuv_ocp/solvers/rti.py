@@ -77,8 +77,17 @@ from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import BUILD_LOCK, serialised
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.native.compile import (
+    CodegenError,
+    CompilerNotFoundError,
+    default_cache_directory,
+    find_c_compiler,
+    load_or_fallback,
+)
 from uuv_ocp.native.hpipm import check_choice
+from uuv_ocp.native.runtime import COMPILED_ENV
 from uuv_ocp.solvers.base import reraise_interrupt
+from uuv_ocp.solvers.ipopt import ipopt_options
 from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import AUTO, Option, one_of, option_defaults, option_names, revise
 from uuv_ocp.solvers.result import Iterate, SolveResult
@@ -89,6 +98,8 @@ from uuv_ocp.solvers.rti_ocp import (
     STOP_EVALUATION,
     STOP_INFEASIBLE,
     OcpQpStep,
+    UnsupportedStructure,
+    build_step,
     ocp_qp_options,
 )
 from uuv_ocp.transcription.multiple_shooting import NlpData
@@ -435,10 +446,6 @@ class RtiSolver(NlpSolver):
             return None
         key = (variant, still_water)
         if key not in self._ocp_steps:
-            from uuv_ocp.codegen import default_cache_directory
-            from uuv_ocp.native.compile import CodegenError
-            from uuv_ocp.solvers.rti_ocp import UnsupportedStructure, build_step
-
             spec = self.problem.spec()
             together = [variant] + [
                 v
@@ -480,9 +487,6 @@ class RtiSolver(NlpSolver):
         On CasADi's virtual machine the judge took 80 µs of a 0.6 ms step; the compiled twin is
         verified against it (1e-12 relative) by :func:`~uuv_ocp.native.compile.compile_functions`.
         """
-        from uuv_ocp.codegen import default_cache_directory
-        from uuv_ocp.native.compile import load_or_fallback
-
         terms = self.problem.build().score_terms
         loaded, _ = load_or_fallback([terms], default_cache_directory(), name="uuv_ocp_rti_judge")
         return BufferedFunction(loaded[terms.name()])
@@ -490,9 +494,6 @@ class RtiSolver(NlpSolver):
     @serialised
     def _compiled(self, function: ca.Function) -> ca.Function:
         """Compile ``function`` to C in the solvers' cache (CasADi's VM if unavailable)."""
-        from uuv_ocp.codegen import default_cache_directory
-        from uuv_ocp.native.compile import load_or_fallback
-
         loaded, library = load_or_fallback([function], default_cache_directory(), name="uuv_ocp_rti")
         if library is None:
             self.compiled = False
@@ -794,8 +795,6 @@ class RtiSolver(NlpSolver):
 
     def robust_options(self) -> dict[str, Any]:
         """IPOPT on the same NLP variant: the cold start and the last resort (see module doc)."""
-        from uuv_ocp.solvers.ipopt import ipopt_options
-
         return {"plugin": "ipopt", **ipopt_options(self.max_iter, self.deadline)}
 
     def _attempt(
@@ -972,9 +971,6 @@ def _automatic_qpsol() -> str:
     ``UUV_OCP_COMPILED=0`` (the test suite's setting, as for the swarms) keeps CasADi's path
     without a build; without a C compiler one ``RuntimeWarning`` says so.
     """
-    from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
-    from uuv_ocp.solvers.swarm import COMPILED_ENV
-
     if os.environ.get(COMPILED_ENV, "auto").strip().lower() in ("0", "false", "no"):
         return "hpipm"
     try:

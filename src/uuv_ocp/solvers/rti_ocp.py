@@ -48,6 +48,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from uuv_ocp.native.compile import compile_functions, verify_library
+from uuv_ocp.native.runtime import hpipm_link_flags
 from uuv_ocp.transcription.multiple_shooting import NlpData
 
 _TEMPLATE = Path(__file__).resolve().parents[1] / "native" / "rti_hpipm.c"
@@ -542,8 +544,6 @@ class OcpQpStep:
     def __init__(
         self, library: Path, sizes: tuple[int, int, int], options: dict[str, Any], prefix: str = ""
     ) -> None:
-        from uuv_ocp.native.compile import verify_library
-
         self._args = (library, sizes, dict(options), prefix)
         self.library = ctypes.CDLL(str(verify_library(library)))
         nw, ng, np_ = sizes
@@ -670,9 +670,6 @@ def build_step(
     uuv_ocp.native.compile.CodegenError
         No compiler, a failed build, or a library that does not match its checksum.
     """
-    from uuv_ocp.codegen import hpipm_link_flags
-    from uuv_ocp.native.compile import compile_functions
-
     layout = ocp_qp_layout(data, state_dim)
     function, offsets = stage_data_function(data, layout, objective_scale, still_water_slice, f"{name}_data")
     source = c_source(layout, function, offsets, x0_param, data)

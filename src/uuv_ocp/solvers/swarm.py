@@ -40,7 +40,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -49,13 +49,15 @@ from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE, score_terms
 from uuv_ocp.native.buffered import BufferedFunction
-from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
+from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
+from uuv_ocp.native.runtime import COMPILED_ENV, NativeIgwo, compiled_build, uses_pcg64
+from uuv_ocp.optimize import ALGORITHMS, ImprovedGreyWolf, MinimizeResult, minimize
 from uuv_ocp.solvers.options import AUTO, Option, format_value, one_of, option_defaults, option_names
 from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.transcription.condensed import encode
-
-if TYPE_CHECKING:
-    from uuv_ocp.codegen import NativeIgwo
+from uuv_ocp.transcription.condensed import batched_fitness, encode
+from uuv_ocp.transcription.condensed import (
+    candidate_fitness as candidate_fitness,  # re-exported: its old home
+)
 
 SEARCH_MODES = ("deviation", "absolute")
 
@@ -65,9 +67,6 @@ def _usable_cpus() -> int:
     if hasattr(os, "sched_getaffinity"):
         return len(os.sched_getaffinity(0))
     return os.cpu_count() or 1
-
-
-COMPILED_ENV = "UUV_OCP_COMPILED"
 
 
 def _compiled_default(value: object) -> bool:
@@ -81,8 +80,6 @@ def _compiled_default(value: object) -> bool:
         setting = os.environ.get(COMPILED_ENV, "auto").strip().lower()
         if setting in ("0", "false", "no"):
             return False
-        from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
-
         try:
             find_c_compiler()
         except CompilerNotFoundError as error:
@@ -207,24 +204,6 @@ def swarm_options(method: str) -> tuple[Option, ...]:
             meaning=per_metric,
         ),
     )
-
-
-def candidate_fitness(problem: Transcribed) -> ca.Function:
-    """``fitness(W[nu N], p) -> objective + penalty`` of one candidate, as an SX Function.
-
-    ``W`` are the search coordinates of :func:`uuv_ocp.transcription.condensed.decode`: every
-    ``W`` in ``[-1, 1]^{nu N}`` maps to controls that hold the box and the rate bound.
-    """
-    built = problem.build()
-    coordinates = ca.SX.sym("W", problem.control_dim)
-    p = ca.SX.sym("p", problem.parameter_dim)
-    objective, penalty = built.cost(built.decode(coordinates, p), p)
-    return ca.Function("fitness", [coordinates, p], [objective + penalty], ["W", "p"], ["fitness"])
-
-
-def batched_fitness(problem: Transcribed, population: int, parallelization: str = "serial") -> ca.Function:
-    """``fitness(U[3N × population], p) -> (1 × population)``: objective + penalty, mapped."""
-    return candidate_fitness(problem).map("fitness_batch", parallelization, population, [1], [])
 
 
 class BufferedFitness:
@@ -412,8 +391,6 @@ class SwarmSolver:
 
     def _fitness_function(self) -> ca.Function:
         if self.compiled:
-            from uuv_ocp.codegen import NativeIgwo, compiled_build
-
             build = compiled_build(self.problem, self.population)  # warns once if no compiler
             if build is not None:
                 if self.method == "igwo" and self._native_compatible():
@@ -589,9 +566,6 @@ class SwarmSolver:
 
     def _native_minimize(self, p, offset, lower, upper, seeds, rng) -> MinimizeResult:
         """Run the all-C IGWO step with exactly the random draws the Python loop would use."""
-        from uuv_ocp.codegen import uses_pcg64
-        from uuv_ocp.optimize import ImprovedGreyWolf
-
         generator = rng if rng is not None else np.random.default_rng(self.seed)
         algorithm = ImprovedGreyWolf(lower, upper, self.population, self.iterations, self.algorithm_options)
         seeds = np.empty((0, lower.size)) if seeds is None else seeds

@@ -37,17 +37,19 @@ from typing import Any
 
 import numpy as np
 
-import uuv_ocp
 from uuv_ocp import _validation as check
+from uuv_ocp._version import __version__
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
 from uuv_ocp.interrupts import check_interrupt, remember_interrupts
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.reference.path import Reference
+from uuv_ocp.solvers import REGISTRY
 from uuv_ocp.specs import reference_from_spec, vehicle_from_spec
 from uuv_ocp.studies.executors import (
     EXECUTORS,
+    MAX_TRIES,
     SchedulerUnreachable,
     TaskRunner,
     WorkerCrashed,
@@ -163,8 +165,6 @@ class CampaignConfig:
 
     def __post_init__(self) -> None:
         """Validate the fields (``ValueError`` names the first bad one)."""
-        from uuv_ocp.solvers import REGISTRY
-
         for name in ("reference", "solver", "vehicle"):
             if not isinstance(getattr(self, name), str):
                 raise ValueError(f"{name} must be a string, got {getattr(self, name)!r}")
@@ -257,7 +257,7 @@ class CampaignConfig:
                 problem.reference, problem.reference.t_start + duration + self.horizon * self.dt
             ),
             run_duration=duration,
-            version=uuv_ocp.__version__,
+            version=__version__,
         )
         return values
 
@@ -512,8 +512,6 @@ def run_campaigns(
                     bar.update(1)
                     check_interrupt()
     if crashed:
-        from uuv_ocp.studies.executors import MAX_TRIES
-
         raise WorkerCrashed(
             f"{', '.join(crashed)}: the worker process died each of the {MAX_TRIES} times it ran "
             "(killed, out of memory, or a crash in native code); no record written for "
@@ -541,9 +539,60 @@ def run_campaigns(
 
 def _config_toml(config: CampaignConfig) -> str:
     """Return the configuration as a campaign file (:mod:`uuv_ocp.studies.campaign_file`) of one solver."""
-    from uuv_ocp.studies.campaign_file import to_toml
-
     return to_toml([config])
+
+
+#: keys of a campaign file's ``[campaign]`` and ``[disturbance]`` tables (CampaignConfig fields,
+#: plus ``solvers``): read by :mod:`uuv_ocp.studies.campaign_file`, written by :func:`to_toml`
+CAMPAIGN_KEYS = (
+    "vehicle",
+    "controller_model",
+    "reference",
+    "solver",
+    "solvers",
+    "trials",
+    "duration",
+    "horizon",
+    "dt",
+    "seed",
+)
+DISTURBANCE_KEYS = ("max_current", "current_noise", "current_decay", "current_known", "noise_std", "mismatch")
+
+
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{_toml_value(str(k))} = {_toml_value(v)}" for k, v in value.items()) + "}"
+    return repr(value)
+
+
+def to_toml(configs: Sequence[CampaignConfig]) -> str:
+    """Return a campaign file that :func:`~uuv_ocp.studies.campaign_file.load_campaign_file` reads back.
+
+    The file's format is :mod:`uuv_ocp.studies.campaign_file`'s; it reads back to ``configs``,
+    which must differ only in their solver (and its options).
+    """
+    first = configs[0]
+    lines = ["[campaign]"]
+    for key in CAMPAIGN_KEYS:
+        if key == "solver":
+            continue
+        if key == "solvers":
+            lines.append(f"solvers = {_toml_value([c.solver for c in configs])}")
+        elif getattr(first, key) is not None:
+            lines.append(f"{key} = {_toml_value(getattr(first, key))}")
+    lines.append("\n[disturbance]")
+    lines += [f"{key} = {_toml_value(getattr(first, key))}" for key in DISTURBANCE_KEYS]
+    for config in configs:
+        if config.solver_options:
+            lines.append(f'\n[solver_options."{config.solver}"]')
+            lines += [f"{key} = {_toml_value(value)}" for key, value in config.solver_options.items()]
+    return "\n".join(lines) + "\n"
 
 
 def summarise(trials: Sequence[dict], faults: Sequence[str | None] | None = None) -> dict:

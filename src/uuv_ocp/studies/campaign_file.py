@@ -41,23 +41,21 @@ import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
-from uuv_ocp.studies.campaign import CampaignConfig
+# the keys and the writer live with the configuration (below this module): a run writes its
+# config.toml without importing the file reader
+from uuv_ocp.studies.campaign import CAMPAIGN_KEYS, DISTURBANCE_KEYS, CampaignConfig, to_toml
 
-CAMPAIGN_KEYS = (
-    "vehicle",
-    "controller_model",
-    "reference",
-    "solver",
-    "solvers",
-    "trials",
-    "duration",
-    "horizon",
-    "dt",
-    "seed",
-)
-DISTURBANCE_KEYS = ("max_current", "current_noise", "current_decay", "current_known", "noise_std", "mismatch")
+__all__ = [
+    "CAMPAIGN_KEYS",
+    "DISTURBANCE_KEYS",
+    "RUN_KEYS",
+    "TABLES",
+    "CampaignFile",
+    "load_campaign_file",
+    "to_toml",
+]
+
 RUN_KEYS = ("executor", "workers", "scheduler", "out")
 TABLES = ("campaign", "disturbance", "run", "solver_options")
 
@@ -143,38 +141,3 @@ def load_campaign_file(path: str | Path) -> CampaignFile:
         except (ValueError, TypeError) as error:
             raise ValueError(f"{source}: {error}") from None
     return CampaignFile(tuple(configs), run, text, path)
-
-
-def _toml_value(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(item) for item in value) + "]"
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{_toml_value(str(k))} = {_toml_value(v)}" for k, v in value.items()) + "}"
-    return repr(value)
-
-
-def to_toml(configs: Sequence[CampaignConfig]) -> str:
-    """Return a campaign file (module doc) that :func:`load_campaign_file` reads back to ``configs``.
-
-    The configurations must differ only in their solver (and its options).
-    """
-    first = configs[0]
-    lines = ["[campaign]"]
-    for key in CAMPAIGN_KEYS:
-        if key == "solver":
-            continue
-        if key == "solvers":
-            lines.append(f"solvers = {_toml_value([c.solver for c in configs])}")
-        elif getattr(first, key) is not None:
-            lines.append(f"{key} = {_toml_value(getattr(first, key))}")
-    lines.append("\n[disturbance]")
-    lines += [f"{key} = {_toml_value(getattr(first, key))}" for key in DISTURBANCE_KEYS]
-    for config in configs:
-        if config.solver_options:
-            lines.append(f'\n[solver_options."{config.solver}"]')
-            lines += [f"{key} = {_toml_value(value)}" for key, value in config.solver_options.items()]
-    return "\n".join(lines) + "\n"

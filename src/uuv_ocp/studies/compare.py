@@ -21,16 +21,18 @@ from pathlib import Path
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._version import __version__
 from uuv_ocp.build import Transcribed
 from uuv_ocp.control.disturbances import Current
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import SimulationInterrupted, simulate
 from uuv_ocp.interrupts import check_interrupt, remember_interrupts
-from uuv_ocp.judge import FEASIBILITY_TOLERANCE, score_terms
+from uuv_ocp.judge import FEASIBILITY_TOLERANCE, instance_parameters, score_terms
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.plotting import save_tracking_figures
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
+from uuv_ocp.solvers import REGISTRY, get_solver
 from uuv_ocp.studies.records import config_key, read_record, write_record
 from uuv_ocp.tracking import ReferenceSpeedWarning, TrackingProblem
 
@@ -107,8 +109,6 @@ def run_settings(
     A ``current`` enters only when given, so that the keys of runs in still water stay those
     that earlier versions wrote.
     """
-    import uuv_ocp
-
     reference = problem.reference
     times = np.linspace(t0, t0 + duration + problem.horizon * problem.dt, 257)
     samples = np.ascontiguousarray(reference.evaluate(np.minimum(times, reference.t_end)), dtype=float)
@@ -123,7 +123,7 @@ def run_settings(
         "terminal": problem.terminal,
         "t0": t0,
         "duration": duration,
-        "version": uuv_ocp.__version__,
+        "version": __version__,
         **({"current": current} if current is not None else {}),
     }
 
@@ -328,9 +328,6 @@ def compare(
     :func:`uuv_ocp.solve` (``t0``, ``u_prev``, ``current`` for tracking problems,
     ``parameters`` for an :class:`~uuv_ocp.ocp.Ocp`).
     """
-    from uuv_ocp.judge import instance_parameters
-    from uuv_ocp.solvers import REGISTRY, get_solver
-
     if isinstance(solvers, str) or not isinstance(solvers, Sequence) or not solvers:
         raise ValueError(
             f"solvers must be a non-empty list of solver names, e.g. ['ipopt'], got {check.shown(solvers)}"

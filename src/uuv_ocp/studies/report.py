@@ -25,21 +25,37 @@ magnitude is comparable, never the third digit.
 
 from __future__ import annotations
 
+import inspect
 import json
 import math
 import platform
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from uuv_ocp.control.simulation import ClosedLoopResult
+from uuv_ocp.control.simulation import ClosedLoopResult, simulate
+from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.optimize.schedules import convergence_factor
+from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
 from uuv_ocp.studies import paper_data
+from uuv_ocp.studies import paper_figures as pf
 from uuv_ocp.studies.campaign import CampaignResult
+from uuv_ocp.studies.reproduction import (
+    COMPARISON_REFERENCE,
+    PRIMARY_BAND,
+    TABLE_SOLVER,
+    TIGHT_BAND,
+    ReproductionResult,
+    load_trials,
+    speed_limit,
+    time_to_band,
+)
+from uuv_ocp.tracking import TrackingProblem
 
 __all__ = ["AGREEMENT_FACTOR", "HOLDS", "NOT_COMPARABLE", "NOT_HOLD", "Verdict", "fmt", "write_report"]
 
@@ -126,8 +142,6 @@ class _Stats:
 
 
 def _stats(result: CampaignResult) -> _Stats:
-    from uuv_ocp.studies.reproduce import PRIMARY_BAND, TIGHT_BAND, load_trials, time_to_band
-
     runs = tuple(load_trials(result))
     return _Stats(
         summary=dict(result.summary),
@@ -414,8 +428,6 @@ def _time_verdicts(stats: Mapping[str, _Stats], primary: float) -> list[Verdict]
 
 
 def _level_verdicts(igwo: Mapping[str, _Stats]) -> list[Verdict]:
-    from uuv_ocp.studies.reproduce import time_to_band
-
     verdicts = []
     for reference, (when, level) in paper_data.STABLE_LEVEL.items():
         claim = (
@@ -488,11 +500,6 @@ def _universal_verdicts(
 
 # -------------------------------------------------------------------------------- report
 def _settings_rows(settings: Any) -> list[dict]:
-    import inspect
-
-    from uuv_ocp.control.simulation import simulate
-    from uuv_ocp.tracking import TrackingProblem
-
     config = settings.campaign
     dt = float(TrackingProblem.dt)  # the default: the campaign builds its problems without dt
     substeps = inspect.signature(simulate).parameters["plant_substeps"].default
@@ -563,15 +570,6 @@ def write_report(
     -------
     ReproductionResult
     """
-    from uuv_ocp.studies.reproduce import (
-        COMPARISON_REFERENCE,
-        PRIMARY_BAND,
-        TABLE_SOLVER,
-        TIGHT_BAND,
-        ReproductionResult,
-        speed_limit,
-    )
-
     stats = {pair: _stats(result) for pair, result in campaigns.items()}
     igwo = {ref: stats[ref, TABLE_SOLVER] for ref in settings.references if (ref, TABLE_SOLVER) in stats}
     comparison = {
@@ -705,9 +703,6 @@ def _write_figures(
     pooled: Mapping[str, np.ndarray],
     limits: Mapping[str, Any],
 ) -> dict[str, Path]:
-    from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
-    from uuv_ocp.studies import paper_figures as pf
-
     def unreachable(ref: str) -> float | None:
         return limits[ref].exceeds_crab_at if ref in limits else None
 
@@ -780,10 +775,6 @@ def _render(
     elapsed: Mapping[tuple[str, str], float],
     out_dir: Path,
 ) -> str:
-    from importlib import metadata
-
-    from uuv_ocp.studies.reproduce import PRIMARY_BAND, TIGHT_BAND
-
     try:
         version = metadata.version("uuv_ocp")
     except metadata.PackageNotFoundError:
@@ -793,8 +784,6 @@ def _render(
     paired = ["paper x", "ours x", "ours/paper x", "paper y", "ours y", "ours/paper y"]
     s8, s9 = limits["s8"], limits["s9"]
     total = sum(elapsed.values())
-    from uuv_ocp.model.planar import Vehicle
-
     surge_thrust = Vehicle.rexrov().max_thrust[0]
     extrapolated = total * paper_data.TRIALS / settings.trials
     out: list[str] = [

@@ -30,6 +30,7 @@ import numpy as np
 from uuv_ocp.transcription.multiple_shooting import parameter_blocks, violation
 
 if TYPE_CHECKING:
+    from uuv_ocp.build import Transcribed
     from uuv_ocp.ocp import OcpSpec
 
 SCORE_OUTPUTS = ("objective", "terminal_residual", "rate_excess", "bound_excess", "constraint_violation")
@@ -165,3 +166,21 @@ def condense(spec: OcpSpec, step: ca.Function) -> tuple[ca.Function, ca.Function
         list(SCORE_OUTPUTS),
     )
     return cost, rollout, score_terms
+
+
+def candidate_fitness(problem: Transcribed) -> ca.Function:
+    """``fitness(W[nu N], p) -> objective + penalty`` of one candidate, as an SX Function.
+
+    ``W`` are the search coordinates of :func:`uuv_ocp.transcription.condensed.decode`: every
+    ``W`` in ``[-1, 1]^{nu N}`` maps to controls that hold the box and the rate bound.
+    """
+    built = problem.build()
+    coordinates = ca.SX.sym("W", problem.control_dim)
+    p = ca.SX.sym("p", problem.parameter_dim)
+    objective, penalty = built.cost(built.decode(coordinates, p), p)
+    return ca.Function("fitness", [coordinates, p], [objective + penalty], ["W", "p"], ["fitness"])
+
+
+def batched_fitness(problem: Transcribed, population: int, parallelization: str = "serial") -> ca.Function:
+    """``fitness(U[3N × population], p) -> (1 × population)``: objective + penalty, mapped."""
+    return candidate_fitness(problem).map("fitness_batch", parallelization, population, [1], [])

@@ -248,6 +248,117 @@ def _on_reference(problem, t0=0.0):
     return problem.reference_window(t0)[0].copy()
 
 
+def _rollout(x0, controls, dt=0.1):
+    """States of the vessel under ``controls`` held per interval: numpy RK4, one step per interval."""
+    f = Vessel4DOF().model_function()
+    states = [np.asarray(x0, dtype=float)]
+    for tau in controls:
+
+        def rate(state, tau=tau):
+            return np.asarray(f(state, tau, np.zeros(2))).ravel()
+
+        x = states[-1]
+        k1 = rate(x)
+        k2 = rate(x + 0.5 * dt * k1)
+        k3 = rate(x + 0.5 * dt * k2)
+        k4 = rate(x + dt * k3)
+        states.append(x + dt / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4))
+    return np.array(states)
+
+
+def test_user_vessel_cost_wraps_its_angles_only():
+    """The judge's cost of a plan equals the formulation's, computed here from the layout.
+
+    ``ℓ = Σ w_i e_i²`` with ``e_i = 2 sin(e_i/2)`` for the layout's angles (ψ and φ) and the
+    plain error for the rest; a roll 2π away and a 2 m/s surge error tell the two apart.
+    """
+    problem = _vessel_problem(horizon=6)
+    weights = problem.weights
+    x0 = _on_reference(problem)
+    x0[3] += 2.0 * math.pi + 0.3  # heeled 0.3 rad, one turn away
+    x0[4] += 2.0  # 2 m/s too fast
+    rng = np.random.default_rng(11)
+    bound = np.asarray(Vessel4DOF().control_bound)
+    controls = rng.uniform(-0.05, 0.05, size=(6, 3)) * bound  # small: inside the rate bound
+    states = _rollout(x0, controls)
+    reference = problem.reference_window(0.0, heading=x0[2])
+    error = states - reference
+    for i in VESSEL_LAYOUT.angles:
+        error[:, i] = 2.0 * np.sin(error[:, i] / 2.0)
+    scaled = controls / bound
+    previous = np.vstack([np.zeros((1, 3)), scaled[:-1]])
+    expected = float(np.sum(np.asarray(weights.rate) * (scaled - previous) ** 2))
+    node = np.concatenate([weights.pose, weights.velocity])
+    expected += float(np.sum(node * error[1:-1] ** 2)) + float(
+        np.sum(np.asarray(weights.terminal) * error[-1] ** 2)
+    )
+    cost, violation = uo.score(problem, controls, x0=x0, t0=0.0)
+    assert violation == 0.0
+    assert cost == pytest.approx(expected, rel=1e-8)
+
+
+def test_user_vessel_heading_reference_follows_its_branch():
+    """A vessel one turn (2π) ahead gets the heading reference on its branch; nothing else moves."""
+    problem = _vessel_problem(horizon=6)
+    x0 = _on_reference(problem)
+    plain = problem.parameter_parts(problem.parameters(x0, 0.0))[1]
+    x0[2] += 2.0 * math.pi
+    turned = problem.parameter_parts(problem.parameters(x0, 0.0))[1]
+    np.testing.assert_allclose(turned[:, 2], plain[:, 2] + 2.0 * math.pi, rtol=0, atol=1e-12)
+    others = [i for i in range(8) if i != 2]
+    np.testing.assert_array_equal(turned[:, others], plain[:, others])
+
+
+ORDER = [2, 0, 1, 3, 4, 5, 6, 7]  # the permuted state is [ψ, x, y, φ, u, v, r, p]
+
+
+@dataclass(frozen=True)
+class PermutedVessel(Vessel4DOF):
+    """The same vessel with its state in another order: the layout, not the order, says what is what."""
+
+    @property
+    def layout(self) -> uo.VehicleLayout:
+        return dataclasses.replace(
+            VESSEL_LAYOUT,
+            state_names=tuple(VESSEL_LAYOUT.state_names[i] for i in ORDER),
+            state_units=tuple(VESSEL_LAYOUT.state_units[i] for i in ORDER),
+            positions=(1, 2),
+            angles=(0, 3),
+            heading=0,
+        )
+
+    def model_function(self) -> ca.Function:
+        x, tau, current = ca.SX.sym("x", 8), ca.SX.sym("tau", 3), ca.SX.sym("current", 2)
+        standard = ca.vertcat(*[x[ORDER.index(i)] for i in range(8)])
+        xdot = Vessel4DOF.model_function(self)(standard, tau, current)
+        return ca.Function("permuted", [x, tau, current], [xdot[ORDER]])
+
+
+def test_a_permuted_state_gives_the_same_problem():
+    """Tube, obstacles, wrapped angles, heading and reference found by the layout, not by position."""
+    obstacle = uo.Obstacle.circle((0.5, 0.2), 0.3)  # on the vessel's way: violated
+    problems = [
+        uo.TrackingProblem(
+            vessel,
+            uo.Reference.paper("s2"),
+            horizon=8,
+            terminal="cost",
+            position_tube=0.1,
+            obstacles=(obstacle,),
+        )
+        for vessel in (Vessel4DOF(), PermutedVessel())
+    ]
+    x0 = _on_reference(problems[0])
+    x0[:4] += (0.3, -0.2, 2.0 * math.pi + 0.2, 0.1)  # off the tube, a turn away, heeled
+    controls = np.random.default_rng(5).uniform(-0.05, 0.05, size=(8, 3)) * np.asarray(
+        Vessel4DOF().control_bound
+    )
+    standard = uo.score(problems[0], controls, x0=x0, t0=0.0)
+    permuted = uo.score(problems[1], controls, x0=x0[ORDER], t0=0.0)
+    assert standard[0] > 100.0 and standard[1] > 0.01  # tube penalty, errors and the obstacle count
+    assert permuted == pytest.approx(standard, rel=1e-10, abs=1e-12)
+
+
 def test_user_vessel_is_tracked_by_ipopt():
     problem = _vessel_problem()
     assert problem.state_dim == 8 and problem.control_dim == 3 * problem.horizon
@@ -261,19 +372,7 @@ def test_user_vessel_is_tracked_by_ipopt():
     assert result.states.shape == (problem.horizon + 1, 8) and result.controls.shape == (problem.horizon, 3)
     assert np.all(np.abs(result.controls) <= np.asarray(Vessel4DOF().control_bound) + 1e-6)
     # an independent rollout (numpy RK4 on the vessel's Function) gives the solver's states
-    f = Vessel4DOF().model_function()
-    x = x0.copy()
-    for k, tau in enumerate(result.controls):
-
-        def rate(state, tau=tau):
-            return np.asarray(f(state, tau, np.zeros(2))).ravel()
-
-        k1 = rate(x)
-        k2 = rate(x + 0.05 * k1)
-        k3 = rate(x + 0.05 * k2)
-        k4 = rate(x + 0.1 * k3)
-        x = x + 0.1 / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
-        np.testing.assert_allclose(result.states[k + 1], x, rtol=1e-6, atol=1e-6)
+    np.testing.assert_allclose(result.states, _rollout(x0, result.controls), rtol=1e-6, atol=1e-6)
     # started on the path and moving with it, it stays on it: every predicted position within
     # 1 cm of the reference (1.3e-4 m when written)
     assert np.max(np.abs(result.states[:, :2] - window[:, :2])) < 0.01

@@ -392,6 +392,10 @@ def test_user_vessel_closed_loop_error_decreases():
     assert error[-1] < 0.02 * error[0]
     assert np.max(error[15:]) < 0.2 * error[0]
     assert np.max(np.abs(run.states[15:, 3])) < 0.05  # the heel decays and stays small
+    assert uo.ClosedLoopResult.from_arrays(run.arrays()).state_names == run.state_names  # saved and read
+    metrics = run.metrics()  # the horizontal errors, by the layout's names
+    assert metrics["max_abs_ex"] == pytest.approx(np.max(np.abs(run.states[:, 0] - run.reference[:, 0])))
+    assert "max_abs_ez" not in metrics
     assert run.failures == 0
     # the figures read the run through the layout's names: ψ, u, v, r panels (no z, no w)
     pytest.importorskip("matplotlib")

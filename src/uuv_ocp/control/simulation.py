@@ -149,8 +149,10 @@ class ClosedLoopResult:
         The plant sub-steps only when recorded, so that runs without them keep their files.
         """
         recorded = {"substep_t": self.substep_t, "substep_states": self.substep_states}
+        named = {"state_names": np.array(self.state_names, dtype=str)} if self.state_names else {}
         return dict(
             **(recorded if self.substep_t.size else {}),
+            **named,
             t=self.t,
             states=self.states,
             controls=self.controls,
@@ -199,6 +201,7 @@ class ClosedLoopResult:
             fault=(str(data["fault"]) or None) if "fault" in data else None,
             substep_t=data["substep_t"] if "substep_t" in data else np.zeros(0),
             substep_states=data["substep_states"] if "substep_states" in data else np.zeros((0, 0)),
+            state_names=tuple(str(name) for name in data["state_names"]) if "state_names" in data else (),
         )
 
 

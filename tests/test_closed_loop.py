@@ -311,15 +311,14 @@ def test_a_nan_measurement_ends_the_run_with_its_reason_and_keeps_what_came_befo
 class _UnstablePlant:
     """A 3-DOF-shaped plant ẋ = λ x (λ = 50 1/s): it blows up whatever the controls."""
 
-    state_dim, control_dim, current_dim, thrusters = 6, 3, 2, None
-    rate = 50.0
+    # the VehicleModel protocol, with the 3-DOF vehicle's layout and bounds
+    name, rate = "unstable", 50.0
+    layout = uo.Vehicle.rexrov().layout
+    control_bound = control_rate_bound = (1.0, 1.0, 1.0)
 
-    def __init__(self):
+    def model_function(self):
         x, u, c = ca.SX.sym("x", 6), ca.SX.sym("u", 3), ca.SX.sym("c", 2)
-        self.dynamics = ca.Function("unstable", [x, u, c], [self.rate * x])
-
-    def rhs(self, x, u, c):
-        return self.rate * x
+        return ca.Function("unstable", [x, u, c], [self.rate * x])
 
 
 def test_a_plant_that_blows_up_ends_the_run_at_the_last_finite_state():

@@ -12,6 +12,7 @@ from uuv_ocp.control.mpc import NMPC, StepOutput
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.judge import score
+from uuv_ocp.model.base import VehicleLayout, VehicleModel
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.model.thrusters import ThrusterConfiguration
@@ -54,6 +55,8 @@ __all__ = [
     "TrackingProblem",
     "Vehicle",
     "Vehicle6DOF",
+    "VehicleLayout",
+    "VehicleModel",
     "Weights",
     "available_solvers",
     "compare",

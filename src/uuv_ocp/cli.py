@@ -235,14 +235,13 @@ def _vehicle(spec: str):
 
 def _references(words: Sequence[str], vehicle, *, single: bool = False) -> list:
     """Build the references the ``--reference`` words name (6-DOF: paper ones at a depth)."""
-    from uuv_ocp.model.fossen6dof import Vehicle6DOF
     from uuv_ocp.specs import reference_from_spec, split_reference_specs
 
     groups = split_reference_specs(words)
     if single and len(groups) != 1:
         raise _UsageError(f"--reference takes one reference here, got {len(groups)}: {' '.join(words)}")
     try:
-        return [reference_from_spec(group, spatial=isinstance(vehicle, Vehicle6DOF)) for group in groups]
+        return [reference_from_spec(group, spatial=vehicle.layout.reference == "spatial") for group in groups]
     except ValueError as error:
         raise _flag_error("--reference", "reference", error) from None
 

@@ -185,10 +185,23 @@ def _shade_unreachable(axes: Sequence[Axes], unreachable_from: float | None, end
 
 
 def _layout(runs: Sequence[ClosedLoopResult]) -> dict[str, int]:
-    """Return the indices of the named states of a 3-DOF (6 states) or 6-DOF (12) vehicle."""
+    """Return the indices of the named states (x, y, z, psi, u, v, w, r) the runs have.
+
+    By the runs' ``state_names`` (the vehicle's layout, recorded by ``simulate``); a run built
+    by hand without names is read as a 3-DOF (6 states) or 6-DOF (12) vehicle's.
+    """
     nx = runs[0].states.shape[1]
     if any(run.states.shape[1] != nx for run in runs):
         raise ValueError("runs must all have the same state dimension")
+    names = tuple(getattr(runs[0], "state_names", ()))
+    if names:
+        if any(tuple(getattr(run, "state_names", ())) not in ((), names) for run in runs):
+            raise ValueError("runs must all have the same state names")
+        known = ("x", "y", "z", "psi", "u", "v", "w", "r")
+        layout = {name: names.index(name) for name in known if name in names}
+        if {"x", "y"} <= set(layout):
+            return layout
+        raise ValueError(f"this figure needs states named x and y, got {names}; plot run.states yourself")
     if nx == 6:
         return {"x": 0, "y": 1, "psi": 2, "u": 3, "v": 4, "r": 5}
     if nx == 12:
@@ -448,14 +461,12 @@ def _control_labels(
 ) -> tuple[list[str], list[str]]:
     """Names and units of ``nu`` controls: given, from the vehicle, or by dimension."""
     from uuv_ocp.model.fossen6dof import FORCE_NAMES, FORCE_UNITS
-    from uuv_ocp.model.planar import CONTROL_NAMES, CONTROL_UNITS, Vehicle
+    from uuv_ocp.model.planar import CONTROL_NAMES, CONTROL_UNITS
 
-    # the models own their labels; by dimension: the 3-DOF or the 6-DOF generalised force
+    # the models own their labels (their layout); by dimension: the 3-DOF or 6-DOF generalised force
     by_dimension = {3: (CONTROL_NAMES, CONTROL_UNITS), 6: (FORCE_NAMES, FORCE_UNITS)}
     if vehicle is not None:
-        planar = isinstance(vehicle, Vehicle)
-        default_names = CONTROL_NAMES if planar else vehicle.control_names
-        default_units = CONTROL_UNITS if planar else vehicle.control_units
+        default_names, default_units = vehicle.layout.control_names, vehicle.layout.control_units
     else:
         default_names, default_units = by_dimension.get(nu, (None, None))
     if names is None:
@@ -491,7 +502,7 @@ def thrust_figure(
         Figure title (default ``"Applied thrust"``).
     labels : sequence of str, optional
         Legend label per run (default: solver names, numbered when they repeat).
-    vehicle : Vehicle or Vehicle6DOF, optional
+    vehicle : VehicleModel, optional
         Gives the control names, units and symmetric bounds (``max_thrust`` or the thrusters'
         bounds).
     bounds : (array_like, array_like), optional
@@ -515,10 +526,7 @@ def thrust_figure(
         raise ValueError("runs must all have the same control dimension")
     names, units = _control_labels(nu, vehicle, names, units)
     if bounds is None and vehicle is not None:
-        limit = np.asarray(
-            vehicle.max_thrust if not hasattr(vehicle, "control_bound") else vehicle.control_bound,
-            dtype=float,
-        )
+        limit = np.asarray(vehicle.control_bound, dtype=float)
         bounds = (-limit, limit)
     lower = upper = None
     if bounds is not None:

@@ -14,10 +14,12 @@ mode).  Its :attr:`TrackingProblem.ocp` declares (DESIGN §4):
 * an optional soft position tube ``|e_x|, |e_y| ≤ tube`` (exact L1, ``Weights.tube_penalty``)
   on nodes 1..N.
 
-Any vehicle with the model protocol works: :class:`~uuv_ocp.model.planar.Vehicle` (3-DOF,
-planar references) and :class:`~uuv_ocp.model.fossen6dof.Vehicle6DOF` (6-DOF, references
-from ``Reference.from_xyz`` / ``waypoints`` / ``hold``; depth tracked, roll and pitch
-regulated to the reference's zero).
+Any vehicle of the :class:`~uuv_ocp.model.base.VehicleModel` protocol works, and only through
+it (its layout, bounds and dynamics Function): :class:`~uuv_ocp.model.planar.Vehicle` (3-DOF,
+planar references), :class:`~uuv_ocp.model.fossen6dof.Vehicle6DOF` (6-DOF, references from
+``Reference.from_xyz`` / ``waypoints`` / ``hold``; depth tracked, roll and pitch regulated to
+the reference's zero) or a class of your own (states without a reference of their name, such
+as a 4-DOF vessel's roll, are regulated to zero).
 """
 
 from __future__ import annotations
@@ -34,8 +36,7 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
-from uuv_ocp.model.fossen6dof import Vehicle6DOF
-from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.model.base import VehicleLayout, check_vehicle, model_function
 from uuv_ocp.obstacles import Obstacle, check_obstacles
 from uuv_ocp.ocp import Ocp, OcpSpec
 from uuv_ocp.reference.path import UNWRAP_STEP, Reference
@@ -45,30 +46,19 @@ SAMPLE_BLOCK = 64  # sampling intervals per cached block of reference samples
 
 
 def vehicle_dimensions(vehicle: Any) -> tuple[int, int, int]:
-    """``(state_dim, control_dim, current_dim)`` of a vehicle model."""
-    if isinstance(vehicle, Vehicle):
-        return 6, 3, 2
-    return int(vehicle.state_dim), int(vehicle.control_dim), int(vehicle.current_dim)
+    """``(state_dim, control_dim, current_dim)`` of a vehicle model (from its layout)."""
+    layout: VehicleLayout = vehicle.layout
+    return layout.state_dim, layout.control_dim, layout.current_dim
 
 
 def vehicle_rhs(vehicle: Any, state: ca.SX, control: ca.SX, current: ca.SX) -> ca.SX:
-    """Continuous-time right-hand side of any supported vehicle model."""
-    if isinstance(vehicle, Vehicle):
-        return vehicle.dynamics(state, control, current)
-    if getattr(vehicle, "thrusters", None) is not None:
-        control = ca.DM(vehicle.allocation) @ control  # thruster forces -> τ = T f
-    return vehicle.rhs(state, control, current)
+    """Continuous-time right-hand side of a vehicle model: its dynamics Function on the symbols."""
+    return model_function("vehicle", vehicle)(state, control, current)
 
 
 def control_limits(vehicle: Any) -> tuple[np.ndarray, np.ndarray]:
     """Symmetric control bound and rate bound (per second) of a vehicle model."""
-    if isinstance(vehicle, Vehicle):
-        return np.asarray(vehicle.max_thrust, dtype=float), np.asarray(vehicle.max_thrust_rate, dtype=float)
     return np.asarray(vehicle.control_bound, dtype=float), np.asarray(vehicle.control_rate_bound, dtype=float)
-
-
-def _angle_indices(state_dim: int) -> tuple[int, ...]:
-    return (2,) if state_dim == 6 else (3, 4, 5)
 
 
 @dataclass(frozen=True)
@@ -78,10 +68,11 @@ class Weights:
     Parameters
     ----------
     pose : tuple of floats
-        Weights on the pose error: 3-DOF ``(q_x, q_y, q_ψ)``, 6-DOF ``(q_x, q_y, q_z, q_φ,
-        q_θ, q_ψ)``; position errors (1/m²), angle errors wrap-safe as
-        ``2(1 − cos(ψ − ψ_R))`` (1/rad²).  Its length (3 or 6) fixes the lengths of
-        ``velocity`` (the same) and ``terminal`` (twice).
+        Weights on the pose error, one per pose state of the vehicle's layout: 3-DOF
+        ``(q_x, q_y, q_ψ)``, 6-DOF ``(q_x, q_y, q_z, q_φ, q_θ, q_ψ)``; position errors
+        (1/m²), angle errors wrap-safe as ``2(1 − cos(ψ − ψ_R))`` (1/rad²).  At least 3
+        (x, y, heading); its length fixes the lengths of ``velocity`` (the same) and
+        ``terminal`` (twice).
     velocity : tuple of floats
         Weights on the body-velocity errors (s²/m², s²/rad²), one per degree of freedom.
         Every weight is finite and >= 0; ``pose``, ``velocity`` and ``terminal`` are not all
@@ -123,6 +114,26 @@ class Weights:
             terminal=(1e4, 1e4, 1e4, 1e3, 1e3, 1e3) + (100.0,) * 6,
         )
 
+    @classmethod
+    def for_layout(cls, layout: VehicleLayout) -> Weights:
+        """Return the default weights of a vehicle layout.
+
+        Positions 1e4 (1/m²), angles 1e3 (1/rad²), other pose states 0, velocities 10, rates
+        0.1 and terminal weights the pose's then 100 on velocities: :meth:`Weights` of the
+        3-DOF vehicle and :meth:`spatial` of the 6-DOF one, the same numbers.
+        """
+        pose = tuple(
+            1e4 if i in layout.positions else 1e3 if i in layout.angles else 0.0
+            for i in range(layout.pose_dim)
+        )
+        velocities = len(layout.velocities)
+        return cls(
+            pose=pose,
+            velocity=(10.0,) * velocities,
+            rate=(0.1,) * layout.control_dim,
+            terminal=pose + (100.0,) * velocities,
+        )
+
     def __post_init__(self) -> None:
         """Check every weight and store the vectors as tuples of floats."""
         set_field = object.__setattr__
@@ -134,13 +145,13 @@ class Weights:
             set_field(self, name, check.vector(f"weights.{name}", value, length, nonnegative=True))
         for name in ("terminal_penalty", "rate_penalty", "tube_penalty"):
             set_field(self, name, check.positive_float(f"weights.{name}", getattr(self, name)))
-        # the lengths fit one vehicle class on their own: a pose of 2 weights was accepted here
-        # and refused only by a TrackingProblem (a 3-DOF vehicle has 3 pose weights, 6-DOF 6)
+        # the lengths fit a vehicle on their own: a pose of 2 weights was accepted here and
+        # refused only by a TrackingProblem (every layout has x, y and a heading in its pose)
         dof = len(self.pose)
-        if dof not in (3, 6):
+        if dof < 3:
             raise ValueError(
-                f"weights.pose must have 3 entries (3-DOF: x, y, psi) or 6 (6-DOF), got {dof}: "
-                f"{check.shown(self.pose)}"
+                f"weights.pose must have 3 entries or more (one per pose state: 3-DOF x, y, psi; "
+                f"6-DOF 6; your vehicle's layout.pose_dim), got {dof}: {check.shown(self.pose)}"
             )
         if len(self.velocity) != dof:
             raise ValueError(
@@ -165,11 +176,11 @@ class ReferenceSpeedWarning(RuntimeWarning):
 
 def _speed_columns(reference: Reference, vehicle: Any) -> tuple[int, int] | None:
     """Columns ``(u_R, v_R)`` of the reference state, or ``None`` where no top speed applies."""
-    if isinstance(vehicle, Vehicle) and not reference.spatial:
-        return 3, 4
-    if isinstance(vehicle, Vehicle6DOF) and reference.spatial:
-        return 6, 7
-    return None
+    if not hasattr(vehicle, "max_horizontal_speed"):  # optional: not part of the VehicleModel protocol
+        return None
+    if reference.spatial != (vehicle.layout.reference == "spatial"):
+        return None
+    return (6, 7) if reference.spatial else (3, 4)
 
 
 def warn_if_reference_too_fast(
@@ -183,8 +194,9 @@ def warn_if_reference_too_fast(
     <uuv_ocp.model.planar.Vehicle.max_horizontal_speed>` for a 3-DOF vehicle on a planar
     reference, :meth:`Vehicle6DOF.max_horizontal_speed
     <uuv_ocp.model.fossen6dof.Vehicle6DOF.max_horizontal_speed>` (level, at constant depth) for
-    a 6-DOF vehicle on a spatial one.  The path speed is ``hypot(u_R, v_R)`` of the reference
-    state.  Other pairings are not checked.
+    a 6-DOF vehicle on a spatial one, or any vehicle with a ``max_horizontal_speed()`` on its
+    kind of reference.  The path speed is ``hypot(u_R, v_R)`` of the reference state.  Other
+    pairings, and vehicles without ``max_horizontal_speed``, are not checked.
 
     Returns
     -------
@@ -218,10 +230,13 @@ class TrackingProblem(Transcribed):
 
     Parameters
     ----------
-    vehicle : Vehicle or Vehicle6DOF
-        The controller's model of the vehicle.
+    vehicle : VehicleModel
+        The controller's model of the vehicle: a Vehicle, Vehicle6DOF or any class of the
+        :class:`~uuv_ocp.model.base.VehicleModel` protocol.
     reference : Reference
-        Path to track (planar for a 3-DOF vehicle, spatial for a 6-DOF one).
+        Path to track, of the kind ``vehicle.layout.reference`` names (planar for a 3-DOF
+        vehicle, spatial for a 6-DOF one); mapped to the vehicle's states by
+        :meth:`VehicleLayout.reference_state <uuv_ocp.model.base.VehicleLayout.reference_state>`.
     horizon : int
         Number of shooting intervals N, 1 <= N <= 10 000.
     dt : float
@@ -230,7 +245,8 @@ class TrackingProblem(Transcribed):
         Terminal condition: hard ``x_N = x_R,N`` (paper, with an exact-penalty fallback when
         infeasible), a weighted terminal cost, or nothing.
     weights : Weights, optional
-        Cost weights; default ``Weights()`` (3-DOF) or ``Weights.spatial()`` (6-DOF).
+        Cost weights; default ``Weights.for_layout(vehicle.layout)`` (``Weights()`` for 3-DOF,
+        ``Weights.spatial()`` for 6-DOF).
     substeps : int
         RK4 steps per interval in the prediction model, >= 1.
     rate_limits : bool
@@ -258,19 +274,16 @@ class TrackingProblem(Transcribed):
 
     def __post_init__(self) -> None:
         """Check the fields against each other and the vehicle; fill in the default weights."""
-        if not (isinstance(self.vehicle, Vehicle) or hasattr(self.vehicle, "rhs")):
-            raise ValueError(
-                f"vehicle must be a uuv_ocp.Vehicle or Vehicle6DOF, got {type(self.vehicle).__name__}"
-            )
+        layout = check_vehicle("vehicle", self.vehicle).layout
         if not isinstance(self.reference, Reference):
             raise ValueError(f"reference must be a uuv_ocp.Reference, got {type(self.reference).__name__}")
-        nx, nu, _ = vehicle_dimensions(self.vehicle)
-        reference_dim = getattr(self.reference, "state_dim", 6)
-        if reference_dim != nx:
+        nx, nu = layout.state_dim, layout.control_dim
+        reference_dim = self.reference.state_dim
+        if reference_dim != layout.reference_dim:
+            kind = "planar" if layout.reference == "planar" else "spatial: Reference.from_xyz/waypoints/hold"
             raise ValueError(
-                f"reference must give {nx} states for this vehicle (a "
-                f"{'planar' if nx == 6 else 'spatial: Reference.from_xyz/waypoints/hold'} reference), "
-                f"got a reference of {reference_dim} states"
+                f"reference must give {layout.reference_dim} states for this vehicle (a {kind} "
+                f"reference), got a reference of {reference_dim} states"
             )
         object.__setattr__(self, "horizon", check.positive_int("horizon", self.horizon))
         if self.horizon > 10_000:
@@ -278,11 +291,11 @@ class TrackingProblem(Transcribed):
         object.__setattr__(self, "dt", check.positive_float("dt", self.dt))
         check.choice("terminal", self.terminal, TERMINAL_MODES)
         if self.weights is None:
-            object.__setattr__(self, "weights", Weights() if nx == 6 else Weights.spatial(nu))
+            object.__setattr__(self, "weights", Weights.for_layout(layout))
         if not isinstance(self.weights, Weights):
             raise ValueError(f"weights must be a uuv_ocp.Weights, got {self.weights!r}")
-        dof = nx // 2
-        for name, expected in (("pose", dof), ("velocity", dof), ("rate", nu), ("terminal", nx)):
+        pose, velocity = layout.pose_dim, len(layout.velocities)
+        for name, expected in (("pose", pose), ("velocity", velocity), ("rate", nu), ("terminal", nx)):
             if len(getattr(self.weights, name)) != expected:
                 raise ValueError(
                     f"weights.{name} must have {expected} entries for this vehicle, got "
@@ -327,7 +340,8 @@ class TrackingProblem(Transcribed):
     def _declare(self) -> Ocp:
         vehicle, weights = self.vehicle, self.weights
         assert weights is not None
-        nx, nu, nc = vehicle_dimensions(vehicle)
+        layout: VehicleLayout = vehicle.layout
+        nx, nu, nc = layout.state_dim, layout.control_dim, layout.current_dim
         ocp = Ocp(
             self.horizon,
             self.dt,
@@ -345,7 +359,7 @@ class TrackingProblem(Transcribed):
         current = ocp.parameter("current", nc, stagewise=True)
         ocp.set_der(state, vehicle_rhs(vehicle, state, tau, current))
         error = state - ref
-        angles = _angle_indices(nx)
+        angles = layout.angles
         wrapped = ca.vertcat(*[2.0 * ca.sin(error[i] / 2.0) if i in angles else error[i] for i in range(nx)])
         increment = (tau - ocp.previous(tau)) / ca.DM(max_thrust)
         ocp.add_stage_cost(residual=increment, weight=weights.rate)
@@ -357,11 +371,12 @@ class TrackingProblem(Transcribed):
             ocp.add_terminal_cost(residual=wrapped, weight=weights.terminal)
         else:
             ocp.subject_to(state == ref, at="terminal")
+        horizontal = list(layout.positions[:2])  # (x, y)
         if self.position_tube is not None:
-            ocp.bounded(-self.position_tube, error[:2], self.position_tube, soft=weights.tube_penalty)
+            ocp.bounded(-self.position_tube, error[horizontal], self.position_tube, soft=weights.tube_penalty)
         for i, obstacle in enumerate(self.obstacles):
             centre = ocp.parameter(f"obstacle{i}", 2, stagewise=True) if obstacle.is_moving else None
-            ocp.subject_to(obstacle.clearance(state[:2], centre) >= 0)
+            ocp.subject_to(obstacle.clearance(state[horizontal], centre) >= 0)
         return ocp
 
     # ------------------------------------------------------------- dimensions
@@ -378,7 +393,8 @@ class TrackingProblem(Transcribed):
 
     @property
     def _heading_index(self) -> int:
-        return 2 if self.state_dim == 6 else 5
+        """Column of the heading in the vehicle's (reference) state."""
+        return int(self.vehicle.layout.heading)
 
     @property
     def still_water_slice(self) -> slice | None:
@@ -433,6 +449,8 @@ class TrackingProblem(Transcribed):
                 window = self.reference.evaluate_grid(times)
             else:
                 window = self.reference.evaluate(times)
+        # the reference's states -> the vehicle's (the same array when they are the same states)
+        window = self.vehicle.layout.reference_state(window)
         if heading is None:  # the first heading in [-π, π], as the reference gives it
             heading = math.remainder(window[0, self._heading_index], 2.0 * math.pi)
         _move_heading_branch(window, heading, self._heading_index)
@@ -460,7 +478,8 @@ class TrackingProblem(Transcribed):
             if parts:
                 # neighbouring blocks share their boundary sample: drop it, and move this
                 # block's heading to the branch of the previous one
-                _move_heading_branch(part, parts[-1][-1, self._heading_index], self._heading_index)
+                column = self.reference.heading_index  # raw reference samples, before the mapping
+                _move_heading_branch(part, parts[-1][-1, column], column)
                 part = part[1:]
             parts.append(part)
         window = parts[0] if len(parts) == 1 else np.concatenate(parts)

@@ -35,11 +35,18 @@ def position_errors(run: ClosedLoopResult) -> np.ndarray:
     Returns
     -------
     numpy.ndarray, shape (n+1, 2) or (n+1, 3)
-        Plant position minus reference position at each sample time; the depth column
-        ``z − z_R`` (z down) only for a run with the 12 states of a 6-DOF vehicle.
+        Plant position minus reference position at each sample time, found by the state
+        names ``x``, ``y``, ``z`` the run records (the vehicle's layout); the depth column
+        ``z − z_R`` (z down) only for a vehicle with a ``z`` state.  A run without names is
+        read by its width (12 states: 6-DOF).
     """
-    columns = 3 if run.states.shape[1] == SPATIAL_STATES else 2
-    return run.states[:, :columns] - run.reference[:, :columns]
+    names = tuple(getattr(run, "state_names", ()))
+    if names and {"x", "y"} <= set(names):  # the vehicle's layout, recorded by simulate
+        columns = [names.index(name) for name in ("x", "y", "z") if name in names]
+        return run.states[:, columns] - run.reference[:, columns]
+    # a run built by hand without names: a 3-DOF or 6-DOF vehicle's state, by its length
+    width = 3 if run.states.shape[1] == SPATIAL_STATES else 2
+    return run.states[:, :width] - run.reference[:, :width]
 
 
 def tracking_metrics(run: ClosedLoopResult, settle_time: float = 5.0) -> dict[str, float | int]:

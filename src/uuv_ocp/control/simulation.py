@@ -31,7 +31,7 @@ from uuv_ocp.control.metrics import tracking_metrics
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.integrators import rk4_path
 from uuv_ocp.interrupts import check_interrupt, interrupt_handled, remember_interrupts
-from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.model.base import check_vehicle, model_function
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions, warn_if_reference_too_fast
@@ -96,6 +96,9 @@ class ClosedLoopResult:
     substep_states : numpy.ndarray, shape (n·s+1, nx), optional
         Plant states at ``substep_t``: what the vehicle did between control instants (collision
         checks, :func:`uuv_ocp.obstacles.closest_approach`); ``substep_states[::s]`` equals ``states``.
+    state_names : tuple of str, optional
+        Names of the state columns (the vehicle's ``layout.state_names`` for a tracking run;
+        empty for an Ocp's run): plots find x, y, ψ, u, ... by name.
     """
 
     t: np.ndarray
@@ -114,6 +117,7 @@ class ClosedLoopResult:
     fault: str | None = None
     substep_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     substep_states: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    state_names: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         """Fill ``deadline_steps`` (all False) when omitted."""
@@ -145,8 +149,10 @@ class ClosedLoopResult:
         The plant sub-steps only when recorded, so that runs without them keep their files.
         """
         recorded = {"substep_t": self.substep_t, "substep_states": self.substep_states}
+        named = {"state_names": np.array(self.state_names, dtype=str)} if self.state_names else {}
         return dict(
             **(recorded if self.substep_t.size else {}),
+            **named,
             t=self.t,
             states=self.states,
             controls=self.controls,
@@ -195,6 +201,7 @@ class ClosedLoopResult:
             fault=(str(data["fault"]) or None) if "fault" in data else None,
             substep_t=data["substep_t"] if "substep_t" in data else np.zeros(0),
             substep_states=data["substep_states"] if "substep_states" in data else np.zeros((0, 0)),
+            state_names=tuple(str(name) for name in data["state_names"]) if "state_names" in data else (),
         )
 
 
@@ -236,10 +243,10 @@ def simulate(
         Whether the controller's model is told the current measured at each step.
     noise : MeasurementNoise, optional
         Noise on the state the controller sees (one standard deviation per state).
-    plant : Vehicle, Vehicle6DOF or casadi.Function, optional
-        Tracking problems: plant vehicle of the same state (default: the controller's own model,
-        i.e. no mismatch).  An :class:`~uuv_ocp.ocp.Ocp`: a Function ``f(x, u) -> xdot``
-        (default: the Ocp's own dynamics with ``parameters``).
+    plant : VehicleModel or casadi.Function, optional
+        Tracking problems: plant vehicle (a ``VehicleModel``) of the same state (default:
+        the controller's own model, i.e. no mismatch).  An :class:`~uuv_ocp.ocp.Ocp`: a Function
+        ``f(x, u) -> xdot`` (default: the Ocp's own dynamics with ``parameters``).
     plant_substeps : int
         RK4 steps of the plant per control interval, >= 1.
     seed : int, optional
@@ -415,7 +422,7 @@ def simulate(
         states=states[: n + 1],
         controls=controls[:n],
         reference=(
-            problem.reference.evaluate(times[: n + 1])
+            problem.vehicle.layout.reference_state(problem.reference.evaluate(times[: n + 1]))
             if isinstance(problem, TrackingProblem)
             else np.full((n + 1, nx), np.nan)
         ),
@@ -429,6 +436,7 @@ def simulate(
         interrupted=interrupted,
         deadline_steps=deadline_steps[:n],
         fault=fault,
+        state_names=tuple(problem.vehicle.layout.state_names) if isinstance(problem, TrackingProblem) else (),
         **(
             {
                 # built from the control instants, so that substep_t[::s] is t exactly
@@ -449,20 +457,13 @@ def simulate(
 def _vehicle_plant(problem: TrackingProblem, plant: Any, dt: float, substeps: int) -> tuple[ca.Function, int]:
     """RK4 plant path ``(x, u, current) -> (nx, substeps)`` of a vehicle with the problem's state."""
     vehicle = problem.vehicle if plant is None else plant
-    if not (isinstance(vehicle, Vehicle) or hasattr(vehicle, "rhs")):
-        raise ValueError(f"plant must be a uuv_ocp.Vehicle, Vehicle6DOF or None, got {type(plant).__name__}")
+    check_vehicle("plant", vehicle)
     if vehicle_dimensions(vehicle) != vehicle_dimensions(problem.vehicle):
         raise ValueError(
             f"plant must have the controller model's dimensions {vehicle_dimensions(problem.vehicle)} "
             f"(states, controls, current), got {vehicle_dimensions(vehicle)}"
         )
-    dynamics = (
-        vehicle.dynamics_function()
-        if isinstance(vehicle, Vehicle)
-        else (
-            vehicle.thruster_dynamics if getattr(vehicle, "thrusters", None) is not None else vehicle.dynamics
-        )
-    )
+    dynamics = model_function("plant", vehicle)
     return rk4_path(dynamics, dt, substeps, name="plant_step"), vehicle_dimensions(vehicle)[2]
 
 

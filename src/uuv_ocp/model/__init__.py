@@ -1,11 +1,21 @@
-"""Vehicle models: the 3-DOF planar :class:`Vehicle` and the 6-DOF :class:`Vehicle6DOF`.
+"""Vehicle models: the :class:`VehicleModel` protocol, :class:`Vehicle` (3-DOF), :class:`Vehicle6DOF`.
 
-A model provides ``state_dim``, ``control_dim``, ``current_dim``, its symmetric control and
-rate bounds, and a continuous-time right-hand side on CasADi symbols; presets cite sources.
+A model provides a :class:`VehicleLayout` (state and control names and units; positions, angles,
+heading, velocity block; current size; kind of reference), symmetric control and rate bounds,
+and its continuous-time dynamics as a CasADi Function (:mod:`uuv_ocp.model.base`); presets cite
+sources.
 """
 
+from uuv_ocp.model.base import VehicleLayout, VehicleModel
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.model.thrusters import ThrusterConfiguration
 
-__all__ = ["ThrusterConfiguration", "Vehicle", "Vehicle6DOF"]
+__all__ = [
+    "BUILT_IN_VEHICLES",
+    "ThrusterConfiguration",
+    "Vehicle",
+    "Vehicle6DOF",
+    "VehicleLayout",
+    "VehicleModel",
+]

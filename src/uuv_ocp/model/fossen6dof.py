@@ -54,6 +54,7 @@ import numpy.typing as npt
 
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import serialised
+from uuv_ocp.model.base import VehicleLayout
 from uuv_ocp.model.damping import steady_speed
 from uuv_ocp.model.thrusters import GENERALISED_FORCE_NAMES, ThrusterConfiguration
 
@@ -478,6 +479,26 @@ class Vehicle6DOF:
         if self.thrusters is None:
             return FORCE_UNITS
         return ("N",) * self.thrusters.count
+
+    @property
+    def layout(self) -> VehicleLayout:
+        """State ``[x, y, z, φ, θ, ψ, u, v, w, p, q, r]``, the control's names, spatial references."""
+        return VehicleLayout(
+            state_names=STATE_NAMES,
+            state_units=STATE_UNITS,
+            control_names=self.control_names,
+            control_units=self.control_units,
+            positions=(0, 1, 2),
+            angles=(3, 4, 5),
+            heading=5,
+            velocities=tuple(range(6, 12)),
+            current_dim=CURRENT_DIM,
+            reference="spatial",
+        )
+
+    def model_function(self) -> ca.Function:
+        """Return the dynamics in the vehicle's controls (thruster forces with thrusters, else τ)."""
+        return self.thruster_dynamics if self.thrusters is not None else self.dynamics
 
     @property
     def control_bound(self) -> tuple[float, ...]:

@@ -29,6 +29,7 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import serialised
+from uuv_ocp.model.base import VehicleLayout
 from uuv_ocp.model.damping import steady_speed
 
 STATE_NAMES = ("x", "y", "psi", "u", "v", "r")
@@ -38,6 +39,18 @@ CONTROL_UNITS = ("N", "N", "N·m")
 STATE_DIM = 6
 CONTROL_DIM = 3
 CURRENT_DIM = 2
+LAYOUT = VehicleLayout(
+    state_names=STATE_NAMES,
+    state_units=STATE_UNITS,
+    control_names=CONTROL_NAMES,
+    control_units=CONTROL_UNITS,
+    positions=(0, 1),
+    angles=(2,),
+    heading=2,
+    velocities=(3, 4, 5),
+    current_dim=CURRENT_DIM,
+    reference="planar",
+)
 
 
 @dataclass(frozen=True)
@@ -152,6 +165,26 @@ class Vehicle:
             quadratic_damping=(700.0, 900.0, 500.0),
             name="rexrov-controller-model",
         )
+
+    # ------------------------------------------------- the VehicleModel protocol
+    @property
+    def layout(self) -> VehicleLayout:
+        """State ``[x, y, ψ, u, v, r]``, control ``[F_u, F_v, F_r]``, planar references."""
+        return LAYOUT
+
+    @property
+    def control_bound(self) -> tuple[float, ...]:
+        """Symmetric control bound: ``max_thrust`` (N, N, N·m)."""
+        return tuple(self.max_thrust)
+
+    @property
+    def control_rate_bound(self) -> tuple[float, ...]:
+        """Control rate bound: ``max_thrust_rate`` (N/s, N/s, N·m/s)."""
+        return tuple(self.max_thrust_rate)
+
+    def model_function(self) -> ca.Function:
+        """Return the dynamics as a CasADi Function (:meth:`dynamics_function`)."""
+        return self.dynamics_function()
 
     # --------------------------------------------------------------- properties
     @property

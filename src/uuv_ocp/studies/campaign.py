@@ -222,7 +222,7 @@ class CampaignConfig:
                 f"controller_model must have the plant's dimensions {vehicle_dimensions(self.plant())}, "
                 f"got {self.model_spec!r} with {vehicle_dimensions(model)}"
             )
-        reference = reference_from_spec(self.reference, spatial=vehicle_dimensions(model)[0] == 12)
+        reference = reference_from_spec(self.reference, spatial=model.layout.reference == "spatial")
         return TrackingProblem(model, reference, horizon=self.horizon, dt=self.dt)
 
     def run_duration(self, problem: TrackingProblem | None = None) -> float:

@@ -83,7 +83,8 @@ def _reach(
     states = reference.evaluate(times)
     columns = (6, 7) if reference.spatial else (3, 4)  # body-frame horizontal velocity (u_R, v_R)
     speed = np.hypot(states[:, columns[0]], states[:, columns[1]])
-    if reference.spatial != isinstance(vehicle, Vehicle6DOF):  # a pairing that has no top speed
+    kind = "spatial" if reference.spatial else "planar"
+    if kind != vehicle.layout.reference or not hasattr(vehicle, "max_horizontal_speed"):  # no top speed
         return float(speed.max()), None, ""
     top, crab = vehicle.max_horizontal_speed()
     over = times[speed > top]

@@ -571,3 +571,28 @@ def test_a_missing_index_is_rebuilt_from_every_campaigns_records_silently(two_ca
         len(query_trials(two_campaigns)) == 5
         and len(query_trials(two_campaigns, campaign=small(seed=9).name)) == 2
     )
+
+
+def test_an_index_a_read_only_connection_cannot_recover_is_recovered_not_refused(two_campaigns, monkeypatch):
+    """A campaign killed mid-write can leave a WAL whose recovery needs a writer.
+
+    Seen once in ~30 SIGKILL runs (``test_campaign_processes.py``): the read-only check got
+    SQLITE_READONLY_RECOVERY ("attempt to write a readonly database") and the resume stopped.
+    The read-only connection is made to fail the same way here; the check must then recover
+    the index with a writer's connection and resume, keeping every row.
+    """
+    inspect = records_module._inspect
+
+    def read_only_cannot_recover(uri):
+        if "mode=ro" in uri:
+            error = sqlite3.OperationalError("attempt to write a readonly database")
+            error.sqlite_errorcode = 776  # SQLITE_READONLY_RECOVERY
+            raise error
+        return inspect(uri)
+
+    monkeypatch.setattr(records_module, "_inspect", read_only_cannot_recover)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", IndexWarning)  # recovered, not set aside as damaged
+        result = run_campaign(small(), two_campaigns, workers=1, progress=False)
+    assert result.resumed == 3 and not result.recomputed
+    assert len(query_trials(two_campaigns)) == 5

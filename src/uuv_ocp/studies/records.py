@@ -413,6 +413,7 @@ def _is_regular(path: Path) -> bool:
 
 _SQLITE_CORRUPT, _SQLITE_NOTADB = 11, 26  # primary result codes: the file is not a sound database
 _SQLITE_BUSY, _SQLITE_LOCKED, _SQLITE_FULL, _SQLITE_CANTOPEN = 5, 6, 13, 14
+_SQLITE_READONLY = 8  # on a read-only connection: e.g. a WAL left by a killed writer needs recovery
 _COLUMNS = (
     "path campaign trial key checksum vehicle reference solver seed steps fault max_abs_ex max_abs_ey "
     "var_ex var_ey metrics config written"
@@ -492,6 +493,18 @@ def _index(folder: Path, *, create: bool = True) -> Iterator[sqlite3.Connection]
         raise _index_failure(error, path) from None
 
 
+def _inspect(uri: str) -> tuple[list[str], int, str]:
+    """Return the index's ``trials`` columns, its table count and SQLite's ``quick_check`` verdict."""
+    connection = sqlite3.connect(uri, uri=True, timeout=BUSY_TIMEOUT)
+    try:
+        columns = [row[1] for row in connection.execute("PRAGMA table_info(trials)")]
+        tables = connection.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
+        verdict = connection.execute("PRAGMA quick_check").fetchone()[0]
+    finally:
+        connection.close()
+    return columns, tables, verdict
+
+
 def _damage(path: Path) -> str:
     """Return why the index at ``path`` cannot be used ("" if it is sound, or missing: SQLite makes one)."""
     try:
@@ -501,13 +514,14 @@ def _damage(path: Path) -> str:
     if not stat.S_ISREG(mode):  # SQLite would block on a FIFO, fail on a directory
         return _kind(mode)
     try:  # read-only: a damaged file is kept as it was found
-        connection = sqlite3.connect(f"{path.resolve().as_uri()}?mode=ro", uri=True, timeout=BUSY_TIMEOUT)
         try:
-            columns = [row[1] for row in connection.execute("PRAGMA table_info(trials)")]
-            tables = connection.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
-            verdict = connection.execute("PRAGMA quick_check").fetchone()[0]
-        finally:
-            connection.close()
+            columns, tables, verdict = _inspect(f"{path.resolve().as_uri()}?mode=ro")
+        except sqlite3.Error as error:
+            if _code(error) != _SQLITE_READONLY:
+                raise
+            # the write-ahead log of a writer killed mid-run needs SQLite's crash recovery, which
+            # a read-only connection cannot run; any writer runs it on opening (not a damage)
+            columns, tables, verdict = _inspect(path.resolve().as_uri())
     except sqlite3.Error as error:
         if _code(error) in (_SQLITE_CORRUPT, _SQLITE_NOTADB):
             return str(error)

@@ -573,11 +573,14 @@ def test_a_missing_index_is_rebuilt_from_every_campaigns_records_silently(two_ca
     )
 
 
-def test_an_index_a_read_only_connection_cannot_recover_is_recovered_not_refused(two_campaigns, monkeypatch):
+@pytest.mark.parametrize("code", [264, 776])  # SQLITE_READONLY_RECOVERY, SQLITE_READONLY_ROLLBACK
+def test_an_index_a_read_only_connection_cannot_recover_is_recovered_not_refused(
+    two_campaigns, monkeypatch, code
+):
     """A campaign killed mid-write can leave a WAL whose recovery needs a writer.
 
     Seen once in ~30 SIGKILL runs (``test_campaign_processes.py``): the read-only check got
-    SQLITE_READONLY_RECOVERY ("attempt to write a readonly database") and the resume stopped.
+    "attempt to write a readonly database" (a SQLITE_READONLY code) and the resume stopped.
     The read-only connection is made to fail the same way here; the check must then recover
     the index with a writer's connection and resume, keeping every row.
     """
@@ -586,7 +589,7 @@ def test_an_index_a_read_only_connection_cannot_recover_is_recovered_not_refused
     def read_only_cannot_recover(uri):
         if "mode=ro" in uri:
             error = sqlite3.OperationalError("attempt to write a readonly database")
-            error.sqlite_errorcode = 776  # SQLITE_READONLY_RECOVERY
+            error.sqlite_errorcode = code
             raise error
         return inspect(uri)
 

@@ -374,7 +374,7 @@ def test_user_vessel_is_tracked_by_ipopt():
     # an independent rollout (numpy RK4 on the vessel's Function) gives the solver's states
     np.testing.assert_allclose(result.states, _rollout(x0, result.controls), rtol=1e-6, atol=1e-6)
     # started on the path and moving with it, it stays on it: every predicted position within
-    # 1 cm of the reference (1.3e-4 m when written)
+    # 1 cm of the reference
     assert np.max(np.abs(result.states[:, :2] - window[:, :2])) < 0.01
 
 
@@ -388,7 +388,7 @@ def test_user_vessel_closed_loop_error_decreases():
     assert run.state_names == VESSEL_LAYOUT.state_names
     error = np.hypot(*(run.states[:, :2] - run.reference[:, :2]).T)
     assert error[0] == pytest.approx(0.5)
-    # the error closes (3e-4 m at 3 s when written) and does not come back
+    # the error closes and does not come back
     assert error[-1] < 0.02 * error[0]
     assert np.max(error[15:]) < 0.2 * error[0]
     assert np.max(np.abs(run.states[15:, 3])) < 0.05  # the heel decays and stays small

@@ -422,10 +422,12 @@ def error_figure(
     names = run_labels(runs, labels)
     layout = _layout(runs)
     for run, name in zip(runs, names, strict=True):
-        if not np.any(np.isfinite(run.reference[:, :2])):
+        if not np.any(np.isfinite(run.reference[:, [layout["x"], layout["y"]]])):
             raise ValueError(f"run {name!r} has no reference (an Ocp run): there is no tracking error")
     directions = [("x", "m"), ("y", "m")] + ([("z", "m")] if "z" in layout else [])
     if heading:
+        if "psi" not in layout:  # plots find states by the layout's conventional names
+            raise ValueError(f"heading=True needs a state named 'psi' in the runs, got {sorted(layout)}")
         directions.append(("psi", "rad"))
     figure, axes = _subplots(len(directions), 1, sharex=True, figsize=(6.4, 1.8 + 1.5 * len(directions)))
     drawn: set[str] = set()

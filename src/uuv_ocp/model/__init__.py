@@ -12,7 +12,6 @@ from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.model.thrusters import ThrusterConfiguration
 
 __all__ = [
-    "BUILT_IN_VEHICLES",
     "ThrusterConfiguration",
     "Vehicle",
     "Vehicle6DOF",

@@ -29,6 +29,8 @@ from typing import Protocol, runtime_checkable
 import casadi as ca
 import numpy as np
 
+from uuv_ocp._concurrency import BUILD_LOCK
+
 REFERENCE_KINDS = ("planar", "spatial")
 # the states a Reference gives (Reference.evaluate), by kind; a vehicle state of the same name
 # takes that column of the reference, any other state is referenced to zero
@@ -268,7 +270,8 @@ def model_function(name: str, vehicle: VehicleModel) -> ca.Function:
     ValueError
         Naming ``name`` and the expected and actual sizes.
     """
-    function = vehicle.model_function()
+    with BUILD_LOCK:  # a user's class builds CasADi graphs here, which threads must not do at once
+        function = vehicle.model_function()
     layout = vehicle.layout
     expected = ((layout.state_dim, 1), (layout.control_dim, 1), (layout.current_dim, 1))
     if not isinstance(function, ca.Function) or function.n_in() != 3 or function.n_out() != 1:

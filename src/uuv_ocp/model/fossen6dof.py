@@ -480,7 +480,7 @@ class Vehicle6DOF:
             return FORCE_UNITS
         return ("N",) * self.thrusters.count
 
-    @property
+    @cached_property  # read on every parameters() call of a closed loop: built once
     def layout(self) -> VehicleLayout:
         """State ``[x, y, z, φ, θ, ψ, u, v, w, p, q, r]``, the control's names, spatial references."""
         return VehicleLayout(

@@ -413,7 +413,10 @@ def _is_regular(path: Path) -> bool:
 
 _SQLITE_CORRUPT, _SQLITE_NOTADB = 11, 26  # primary result codes: the file is not a sound database
 _SQLITE_BUSY, _SQLITE_LOCKED, _SQLITE_FULL, _SQLITE_CANTOPEN = 5, 6, 13, 14
-_SQLITE_READONLY = 8  # on a read-only connection: e.g. a WAL left by a killed writer needs recovery
+#: Extended codes of a read-only connection meeting what a writer killed mid-run left: a WAL to
+#: recover (RECOVERY, CANTLOCK, CANTINIT) or a hot journal to roll back (ROLLBACK).  SQLite's
+#: crash recovery, which any writer runs on opening, restores the last committed state.
+_SQLITE_READONLY_CRASH = {264: "RECOVERY", 520: "CANTLOCK", 776: "ROLLBACK", 1288: "CANTINIT"}
 _COLUMNS = (
     "path campaign trial key checksum vehicle reference solver seed steps fault max_abs_ex max_abs_ey "
     "var_ex var_ey metrics config written"
@@ -517,10 +520,10 @@ def _damage(path: Path) -> str:
         try:
             columns, tables, verdict = _inspect(f"{path.resolve().as_uri()}?mode=ro")
         except sqlite3.Error as error:
-            if _code(error) != _SQLITE_READONLY:
+            if getattr(error, "sqlite_errorcode", None) not in _SQLITE_READONLY_CRASH:
                 raise
-            # the write-ahead log of a writer killed mid-run needs SQLite's crash recovery, which
-            # a read-only connection cannot run; any writer runs it on opening (not a damage)
+            # what a writer killed mid-run left needs SQLite's crash recovery, which a read-only
+            # connection cannot run; any writer runs it on opening (it is no damage)
             columns, tables, verdict = _inspect(path.resolve().as_uri())
     except sqlite3.Error as error:
         if _code(error) in (_SQLITE_CORRUPT, _SQLITE_NOTADB):

@@ -194,16 +194,29 @@ class TaskRunner:
         alone: collections.deque[tuple[Any, tuple]] = collections.deque()  # suspects, one at a time
         tries: collections.Counter[Any] = collections.Counter()
         running: dict[concurrent.futures.Future, tuple[Any, tuple]] = {}
+
+        def submit(queue: collections.deque[tuple[Any, tuple]]) -> bool:
+            """Submit the next task of ``queue``; ``False`` (task kept) if the pool broke meanwhile."""
+            assert self._pool is not None
+            try:
+                future = self._pool.submit(function, *queue[0][1])
+            except BrokenProcessPool:  # a worker died since the last wait: its future says so next
+                return False
+            running[future] = queue.popleft()
+            return True
+
         while todo or alone or running:
             assert self._pool is not None
             if alone:
                 if not running:
-                    task = alone.popleft()
-                    running[self._pool.submit(function, *task[1])] = task
+                    submit(alone)
             else:
-                while todo and len(running) < self.workers:
-                    task = todo.popleft()
-                    running[self._pool.submit(function, *task[1])] = task
+                while todo and len(running) < self.workers and submit(todo):
+                    pass
+            if not running:  # broken with nothing in flight to blame: a fresh pool, no one charged
+                self._pool.shutdown(wait=True, cancel_futures=True)
+                self._pool = self._new_pool()
+                continue
             done, _ = concurrent.futures.wait(running, return_when=concurrent.futures.FIRST_COMPLETED)
             lost = []
             for future in done:

@@ -78,7 +78,8 @@ class Vehicle:
     name : str
         Label used in tables and plots.
 
-
+    Notes
+    -----
     Every number is at most 1e9 in magnitude (``uuv_ocp._validation.PLAUSIBLE_MAGNITUDE``).
     """
 

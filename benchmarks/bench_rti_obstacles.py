@@ -16,7 +16,7 @@ import time
 import numpy as np
 
 import uuv_ocp as uo
-from uuv_ocp.control.simulation import _vehicle_plant
+from uuv_ocp.control.scenario import vehicle_plant
 
 
 def main(steps: int = 60, unjudged: bool = False) -> dict[str, float]:
@@ -37,7 +37,7 @@ def main(steps: int = 60, unjudged: bool = False) -> dict[str, float]:
     solve = controller.backend.solve
     # only NMPC's refinement passes time_limit (the backend's own feedback does not)
     controller.backend.solve = lambda *a, **k: ("time_limit" in k and refined.append(1)) or solve(*a, **k)
-    plant, _ = _vehicle_plant(problem, None, problem.dt, 10)
+    plant, _ = vehicle_plant(problem, None, problem.dt, 10)
     x, u = line.initial_state(0.0), np.zeros(3)
     controller.warm_up(x, 0.0, u)
     worst, fast, fallbacks, times = 0.0, 0, 0, []

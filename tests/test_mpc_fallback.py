@@ -5,7 +5,7 @@ import pytest
 
 import uuv_ocp as uo
 from conftest import needs_compiler
-from uuv_ocp.control.simulation import _vehicle_plant
+from uuv_ocp.control.scenario import vehicle_plant
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.solvers import REGISTRY
@@ -68,7 +68,7 @@ def _zero_thrust_drift(problem, run):
     old fallback (zero control held) gave.
     """
     spec = problem.spec()
-    plant, _ = _vehicle_plant(problem, None, spec.dt, 10)
+    plant, _ = vehicle_plant(problem, None, spec.dt, 10)
     state = run.states[0]
     for k in range(run.controls.shape[0]):
         state = np.array(plant(state, np.zeros(spec.control_size), run.currents[k]))[:, -1]
@@ -347,7 +347,7 @@ def test_the_c_fast_paths_apply_only_plans_that_hold_the_obstacles():
         uo.Vehicle.rexrov(), line, horizon=25, dt=0.2, terminal="cost", obstacles=(rock,)
     )
     controller = uo.NMPC(problem, "sqp-rti")
-    plant, _ = _vehicle_plant(problem, None, problem.dt, 10)
+    plant, _ = vehicle_plant(problem, None, problem.dt, 10)
     x, u, worst = line.initial_state(0.0), np.zeros(3), 0.0
     for k in range(60):
         t = k * problem.dt

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -98,6 +99,18 @@ class Transcribed:
 
     def spec(self) -> OcpSpec:
         """Return the frozen description of the problem."""
+        raise NotImplementedError
+
+    def instance_parameters(
+        self,
+        x0: object,
+        t0: float = 0.0,
+        *,
+        u_prev: object | None = None,
+        current: object | None = None,
+        parameters: Mapping[str, object] | None = None,
+    ) -> np.ndarray:
+        """Parameter vector ``p`` of one instance (each problem says which arguments it takes)."""
         raise NotImplementedError
 
     @property

@@ -8,7 +8,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from uuv_ocp.native.buffered import BufferedFunction
-from uuv_ocp.ocp import Ocp
 
 if TYPE_CHECKING:
     from uuv_ocp.build import Transcribed
@@ -27,18 +26,8 @@ def instance_parameters(
     current: object | None = None,
     parameters: Mapping[str, object] | None = None,
 ) -> np.ndarray:
-    """Parameter vector of one instance of any problem (an ``Ocp`` or a tracking preset)."""
-    if isinstance(problem, Ocp):
-        if current is not None:
-            raise ValueError("current is a TrackingProblem argument; an Ocp takes its data in parameters=")
-        if t0 != 0.0:
-            raise ValueError("t0 is a TrackingProblem argument; an Ocp is time-invariant (use parameters=)")
-        return problem.parameters(x0, parameters, u_prev)
-    if parameters is not None:
-        raise ValueError(
-            f"parameters= is for an Ocp; a {type(problem).__name__} takes x0, t0, u_prev and current"
-        )
-    return problem.parameters(x0, t0, u_prev, current)  # type: ignore[attr-defined]
+    """Parameter vector of one instance of any problem (its ``instance_parameters``)."""
+    return problem.instance_parameters(x0, t0, u_prev=u_prev, current=current, parameters=parameters)
 
 
 def score(

@@ -432,6 +432,26 @@ class Ocp(Transcribed):
 
     freeze = spec
 
+    def instance_parameters(
+        self,
+        x0: object,
+        t0: float = 0.0,
+        *,
+        u_prev: object | None = None,
+        current: object | None = None,
+        parameters: Mapping[str, object] | None = None,
+    ) -> np.ndarray:
+        """Parameter vector of one instance, in the signature every problem shares.
+
+        An Ocp is time-invariant and has no current of its own: ``t0`` must be 0 and
+        ``current`` ``None`` (its data go in ``parameters``); see :meth:`parameters`.
+        """
+        if current is not None:
+            raise ValueError("current is a TrackingProblem argument; an Ocp takes its data in parameters=")
+        if t0 != 0.0:
+            raise ValueError("t0 is a TrackingProblem argument; an Ocp is time-invariant (use parameters=)")
+        return self.parameters(x0, parameters, u_prev)
+
     def parameters(
         self, x0: object, parameters: Mapping[str, object] | None = None, u_prev: object | None = None
     ) -> np.ndarray:

@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import warnings
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -498,6 +499,26 @@ class TrackingProblem(Transcribed):
             except (IndexError, ValueError):  # empty, or the speed vanishes inside the block
                 blocks[block] = None
         return blocks[block]
+
+    def instance_parameters(
+        self,
+        x0: object,
+        t0: float = 0.0,
+        *,
+        u_prev: object | None = None,
+        current: object | None = None,
+        parameters: Mapping[str, object] | None = None,
+    ) -> np.ndarray:
+        """Parameter vector of one instance, in the signature every problem shares.
+
+        A tracking problem takes its data from the reference (``t0``) and ``current``; it
+        refuses ``parameters`` (an Ocp's argument); see :meth:`parameters`.
+        """
+        if parameters is not None:
+            raise ValueError(
+                f"parameters= is for an Ocp; a {type(self).__name__} takes x0, t0, u_prev and current"
+            )
+        return self.parameters(x0, t0, u_prev, current)
 
     def parameters(
         self,

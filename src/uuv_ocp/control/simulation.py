@@ -17,25 +17,19 @@ then holds the run up to the last finite state and says why in ``fault``.
 from __future__ import annotations
 
 import time
-import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
-import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
-from uuv_ocp._concurrency import serialised
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.metrics import tracking_metrics
 from uuv_ocp.control.mpc import NMPC
-from uuv_ocp.integrators import rk4_path
+from uuv_ocp.control.scenario import scenario
 from uuv_ocp.interrupts import check_interrupt, interrupt_handled, remember_interrupts
-from uuv_ocp.model.base import check_vehicle, model_function
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.solvers.base import reraise_interrupt
-from uuv_ocp.tracking import TrackingProblem, vehicle_dimensions, warn_if_reference_too_fast
-from uuv_ocp.transcription.multiple_shooting import parameter_blocks
 
 #: A plant state entry larger than this in magnitude (SI units) counts as a blow-up fault; below the
 #: plausibility bound (``_validation.PLAUSIBLE_MAGNITUDE``) past which the controller refuses a state.
@@ -279,7 +273,6 @@ def simulate(
     problem = controller.problem
     spec = problem.spec()
     nx, nu = spec.state_dim, spec.control_size
-    tracking = isinstance(problem, TrackingProblem)
     x0 = check.finite_array("x0", x0, (nx,))
     duration = check.positive_float("duration", duration)
     plant_substeps = check.positive_int("plant_substeps", plant_substeps)
@@ -293,45 +286,29 @@ def simulate(
     if noise is not None and not isinstance(noise, MeasurementNoise):
         raise ValueError(f"noise must be a uuv_ocp.MeasurementNoise or None, got {noise!r}")
     dt = spec.dt
-    if isinstance(problem, TrackingProblem):  # `tracking`, spelt so that type checkers narrow
-        if parameters is not None:  # it was ignored without a word
-            raise ValueError(
-                "parameters is for an Ocp; a TrackingProblem takes its parameters from the reference "
-                f"(t0) and current=, got parameters={check.shown(parameters)}"
-            )
-        reference = problem.reference
-        t0 = reference.t_start if t0 is None else problem.check_time(t0)
-        available = problem.latest_start() - t0
-        if duration > available + 1e-9:
-            warnings.warn(
-                f"duration shortened from {duration} s to {available:.6g} s: the horizon must stay inside "
-                f"the reference window [{reference.t_start}, {reference.t_end}] s",
-                RuntimeWarning,
-                stacklevel=2,
-            )
-        steps = int(np.floor(min(duration, available) / dt + 1e-9))
-        if steps < 1:
-            raise ValueError(
-                f"duration {duration} s from t0 = {t0} s leaves no full control interval inside "
-                f"the reference window [{reference.t_start}, {reference.t_end}] s"
-            )
-        plant_step, nc = _vehicle_plant(problem, plant, dt, plant_substeps)
-        window = np.minimum(t0 + dt * np.arange(steps + problem.horizon + 1), reference.t_end)
-        warn_if_reference_too_fast(reference, problem.vehicle if plant is None else plant, window)
-    else:
-        if current is not None:
-            raise ValueError("current is for tracking problems; an Ocp's plant is a Function f(x, u)")
-        t0 = 0.0 if t0 is None else check.finite_float("t0", t0)
-        steps = max(1, int(np.floor(duration / dt + 1e-9)))
-        plant_step, nc = _ocp_plant(problem, plant, parameters, dt, plant_substeps), 0
+    run = scenario(
+        problem,
+        t0=t0,
+        duration=duration,
+        plant=plant,
+        parameters=parameters,
+        current=current,
+        substeps=plant_substeps,
+    )
+    steps, nc = run.steps, run.current_dim
     if noise is not None and len(noise.std) != nx:
         raise ValueError(f"noise.std must have {nx} entries (one per state), got {len(noise.std)}")
     rng = np.random.default_rng(seed)
     currents = np.zeros((steps + 1, nc))
-    if tracking and nc:
+    if nc:
         sampled = (current or Current()).sample(steps, dt, rng)
         currents[:, : sampled.shape[1]] = sampled
-    times = t0 + dt * np.arange(steps + 1)
+    times = run.t0 + dt * np.arange(steps + 1)
+    # what the controller's model is told: the measured current, or none (the instance's
+    # current is then zero); a time-invariant problem is always asked at t = 0
+    told = currents if current_known else np.zeros_like(currents)
+    clock = times if run.time_varying else np.zeros_like(times)
+    known = {"parameters": parameters} if parameters is not None else {}
 
     states = np.empty((steps + 1, nx))
     states[0] = x0
@@ -349,9 +326,8 @@ def simulate(
     completed = 0
     interrupted = False
     fault: str | None = None
-    name = problem.reference.name if isinstance(problem, TrackingProblem) else spec.name
     with (
-        ProgressBar(steps, label or f"{name}/{controller.solver_name}", progress) as bar,
+        ProgressBar(steps, label or f"{run.name}/{controller.solver_name}", progress) as bar,
         remember_interrupts(),
     ):
         try:
@@ -359,10 +335,8 @@ def simulate(
             # not in the first timed steps (once per controller: builds stay with its backend)
             if controller.warmed_up:
                 controller.reset()
-            elif tracking:
-                controller.warm_up(x0, t0, u_prev, currents[0] if current_known else np.zeros(nc))
             else:
-                controller.warm_up(x0, 0.0, u_prev, parameters=parameters)
+                controller.warm_up(x0, clock[0], u_prev, told[0] if nc else None, **known)
             for k in range(steps):
                 check_interrupt()  # a Ctrl-C CasADi swallowed (uuv_ocp.interrupts) stops here
                 measured = states[k] + (noise.sample(rng) if noise is not None else 0.0)
@@ -370,11 +344,7 @@ def simulate(
                     fault = f"non-finite measurement at t = {times[k]:.6g} s (step {k})"
                     break
                 start = time.perf_counter()
-                if tracking:
-                    model_current = currents[k] if current_known else np.zeros(nc)
-                    output = controller.step(measured, times[k], u_prev, model_current)
-                else:
-                    output = controller.step(measured, 0.0, u_prev, parameters=parameters)
+                output = controller.step(measured, clock[k], u_prev, told[k] if nc else None, **known)
                 solve_times[k] = time.perf_counter() - start
                 result = output.result
                 controls[k] = output.control
@@ -388,10 +358,7 @@ def simulate(
                     (output.message or "fallback") if output.fallback or result is None else result.status
                 )
                 try:
-                    if tracking:
-                        path = plant_step(states[k], controls[k], currents[k])
-                    else:
-                        path = plant_step(states[k], controls[k])
+                    path = run.plant_step(states[k], controls[k], currents[k])
                 except Exception as error:  # CasADi's evaluation errors: a fault, not a lost run
                     # ... except Ctrl-C, which CasADi reports from inside a call as a RuntimeError
                     reraise_interrupt(error)
@@ -417,15 +384,11 @@ def simulate(
             interrupted = True
             interrupt_handled()
     n = completed
-    run = ClosedLoopResult(
+    closed_loop = ClosedLoopResult(
         t=times[: n + 1],
         states=states[: n + 1],
         controls=controls[:n],
-        reference=(
-            problem.vehicle.layout.reference_state(problem.reference.evaluate(times[: n + 1]))
-            if isinstance(problem, TrackingProblem)
-            else np.full((n + 1, nx), np.nan)
-        ),
+        reference=run.reference(times[: n + 1]),
         solve_times=solve_times[:n],
         iterations=iterations[:n],
         fallback_steps=fallback[:n],
@@ -436,7 +399,7 @@ def simulate(
         interrupted=interrupted,
         deadline_steps=deadline_steps[:n],
         fault=fault,
-        state_names=tuple(problem.vehicle.layout.state_names) if isinstance(problem, TrackingProblem) else (),
+        state_names=run.state_names,
         **(
             {
                 # built from the control instants, so that substep_t[::s] is t exactly
@@ -450,32 +413,5 @@ def simulate(
         ),
     )
     if interrupted:
-        raise SimulationInterrupted(run)
-    return run
-
-
-def _vehicle_plant(problem: TrackingProblem, plant: Any, dt: float, substeps: int) -> tuple[ca.Function, int]:
-    """RK4 plant path ``(x, u, current) -> (nx, substeps)`` of a vehicle with the problem's state."""
-    vehicle = problem.vehicle if plant is None else plant
-    check_vehicle("plant", vehicle)
-    if vehicle_dimensions(vehicle) != vehicle_dimensions(problem.vehicle):
-        raise ValueError(
-            f"plant must have the controller model's dimensions {vehicle_dimensions(problem.vehicle)} "
-            f"(states, controls, current), got {vehicle_dimensions(vehicle)}"
-        )
-    dynamics = model_function("plant", vehicle)
-    return rk4_path(dynamics, dt, substeps, name="plant_step"), vehicle_dimensions(vehicle)[2]
-
-
-@serialised
-def _ocp_plant(problem: Any, plant: Any, parameters: Any, dt: float, substeps: int) -> ca.Function:
-    """RK4 plant path ``(x, u) -> (nx, substeps)``: ``plant`` or the Ocp's dynamics at ``parameters``."""
-    spec = problem.spec()
-    if plant is None:
-        p = problem.parameters(np.zeros(spec.state_dim), parameters, None)
-        x, u = ca.SX.sym("x", spec.state_dim), ca.SX.sym("u", spec.control_size)
-        _, _, pg, nodes = parameter_blocks(spec, ca.SX(ca.DM(p)))
-        plant = ca.Function("plant", [x, u], [spec.dynamics(x, u, nodes[0], pg)], ["x", "u"], ["xdot"])
-    if not isinstance(plant, ca.Function) or plant.n_in() != 2:
-        raise ValueError(f"plant must be a casadi.Function f(x, u) -> xdot for an Ocp, got {plant!r}")
-    return rk4_path(plant, dt, substeps, name="plant_step")
+        raise SimulationInterrupted(closed_loop)
+    return closed_loop

@@ -397,14 +397,15 @@ def test_user_vessel_closed_loop_error_decreases():
     assert metrics["max_abs_ex"] == pytest.approx(np.max(np.abs(run.states[:, 0] - run.reference[:, 0])))
     assert "max_abs_ez" not in metrics
     assert run.failures == 0
-    # the figures read the run through the layout's names: ψ, u, v, r panels (no z, no w)
+    assert run.state_roles == ("x", "y", "psi", "", "velocity", "velocity", "velocity", "velocity")
+    # the figures read the run through the layout's roles: ψ, then u, v, r, p (no z, no w)
     pytest.importorskip("matplotlib")
     from uuv_ocp import plotting
 
     figure = plotting.state_figure(run)
     visible = [axis for axis in figure.axes if axis.get_visible()]
-    assert len(visible) == 4
-    for axis, column in zip(visible, (2, 4, 5, 6), strict=True):
+    assert [axis.get_ylabel() for axis in visible][-1] == "p (rad/s)"  # the layout's unit
+    for axis, column in zip(visible, (2, 4, 5, 6, 7), strict=True):
         reference, state = axis.get_lines()[:2]
         np.testing.assert_array_equal(reference.get_ydata(), run.reference[:, column])
         np.testing.assert_array_equal(state.get_ydata(), run.states[:, column])

@@ -199,6 +199,45 @@ def test_state_figure_heading_and_velocities(nx, expected):
         plotting.state_figure(fake_run(nx=4))
 
 
+def test_figures_and_metrics_find_states_by_role_not_by_name_or_place():
+    """A vehicle that names and orders its states its own way: the recorded roles place them."""
+    standard = fake_run(nx=6)
+    order = [3, 2, 0, 5, 1, 4]  # surge, heading, north, yaw rate, east, sway
+    renamed = dataclasses.replace(
+        standard,
+        states=standard.states[:, order],
+        reference=standard.reference[:, order],
+        state_names=("surge", "yaw", "north", "yaw_rate", "east", "sway"),
+        state_units=("m/s", "rad", "m", "rad/s", "m", "m/s"),
+        state_roles=("velocity", "psi", "x", "velocity", "y", "velocity"),
+    )
+    np.testing.assert_array_equal(renamed.errors, standard.errors)
+    renamed_metrics, standard_metrics = renamed.metrics(settle_time=1.0), standard.metrics(settle_time=1.0)
+    assert renamed_metrics.keys() == standard_metrics.keys()
+    assert all(
+        renamed_metrics[key] == pytest.approx(standard_metrics[key], nan_ok=True) for key in renamed_metrics
+    )
+    # the standard run is read by its width (no names, no roles): the same panels, the same lines
+    for renamed_axis, standard_axis in zip(
+        visible_axes(plotting.error_figure(renamed, heading=True)),
+        visible_axes(plotting.error_figure(standard, heading=True)),
+        strict=True,
+    ):
+        assert renamed_axis.get_ylabel() == standard_axis.get_ylabel()
+        np.testing.assert_array_equal(
+            renamed_axis.get_lines()[0].get_ydata(), standard_axis.get_lines()[0].get_ydata()
+        )
+    states = plotting.state_figure(renamed)
+    assert [axis.get_ylabel() for axis in visible_axes(states)] == [
+        "ψ (rad)",
+        "surge (m/s)",
+        "yaw_rate (rad/s)",
+        "sway (m/s)",
+    ]
+    for axis, column in zip(visible_axes(states), (1, 0, 3, 5), strict=True):
+        np.testing.assert_array_equal(axis.get_lines()[1].get_ydata(), renamed.states[:, column])
+
+
 def comparison_rows():
     def row(solver, cost, violation, time, feasible, rank):
         return ComparisonRow(solver, cost, violation, time, 10, True, cost / 11.5, None, {}, feasible, rank)

@@ -185,14 +185,23 @@ def _shade_unreachable(axes: Sequence[Axes], unreachable_from: float | None, end
 
 
 def _layout(runs: Sequence[ClosedLoopResult]) -> dict[str, int]:
-    """Return the indices of the named states (x, y, z, psi, u, v, w, r) the runs have.
+    """Return the indices of the positions (x, y, z), heading (psi) and velocities the runs have.
 
-    By the runs' ``state_names`` (the vehicle's layout, recorded by ``simulate``); a run built
-    by hand without names is read as a 3-DOF (6 states) or 6-DOF (12) vehicle's.
+    By the runs' ``state_roles`` (the vehicle's layout, recorded by ``simulate``; velocities
+    keyed by their state names), else by the names x, y, z, psi, u, v, w, r; a run built by
+    hand without either is read as a 3-DOF (6 states) or 6-DOF (12) vehicle's.
     """
     nx = runs[0].states.shape[1]
     if any(run.states.shape[1] != nx for run in runs):
         raise ValueError("runs must all have the same state dimension")
+    roles = tuple(getattr(runs[0], "state_roles", ()))
+    if {"x", "y"} <= set(roles):
+        if any(tuple(getattr(run, "state_roles", ())) != roles for run in runs):
+            raise ValueError("runs must all have the same state roles (the same vehicle layout)")
+        names = tuple(runs[0].state_names)
+        by_role = {role: index for index, role in enumerate(roles) if role in ("x", "y", "z", "psi")}
+        velocities = {names[index]: index for index, role in enumerate(roles) if role == "velocity"}
+        return {**by_role, **velocities}
     names = tuple(getattr(runs[0], "state_names", ()))
     if names:
         if any(tuple(getattr(run, "state_names", ())) not in ((), names) for run in runs):
@@ -426,8 +435,8 @@ def error_figure(
             raise ValueError(f"run {name!r} has no reference (an Ocp run): there is no tracking error")
     directions = [("x", "m"), ("y", "m")] + ([("z", "m")] if "z" in layout else [])
     if heading:
-        if "psi" not in layout:  # plots find states by the layout's conventional names
-            raise ValueError(f"heading=True needs a state named 'psi' in the runs, got {sorted(layout)}")
+        if "psi" not in layout:
+            raise ValueError(f"heading=True needs a heading state in the runs, got {sorted(layout)}")
         directions.append(("psi", "rad"))
     figure, axes = _subplots(len(directions), 1, sharex=True, figsize=(6.4, 1.8 + 1.5 * len(directions)))
     drawn: set[str] = set()
@@ -587,12 +596,12 @@ def state_figure(
     labels: Sequence[str] | None = None,
     unreachable_from: float | None = None,
 ) -> Figure:
-    """Heading and body-frame velocities (and depth for a 6-DOF vehicle) with the reference.
+    """Heading and body-frame velocities (and depth for a vehicle with one) with the reference.
 
     Parameters
     ----------
     runs : ClosedLoopResult or sequence of ClosedLoopResult
-        Runs of a 3-DOF (6 states) or 6-DOF (12 states) vehicle.
+        Runs of one vehicle (its layout's roles find the heading, depth and velocities).
     title : str
         Figure title (default ``"Heading and velocities"``).
     labels : sequence of str, optional
@@ -603,13 +612,16 @@ def state_figure(
     Returns
     -------
     matplotlib.figure.Figure
-        3-DOF: ψ (rad), u, v (m/s), r (rad/s); 6-DOF: ψ, z (m), u, v, w, r; against ``t (s)``;
-        the first run's reference dashed.
+        ψ (rad), the depth z (m) when the vehicle has one, then every body velocity (3-DOF:
+        u, v (m/s), r (rad/s); 6-DOF: u, v, w, p, q, r); against ``t (s)``; the first run's
+        reference dashed.
     """
     runs = _as_runs(runs)
     names = run_labels(runs, labels)
     layout = _layout(runs)
-    panels = [key for key in ("psi", "z", "u", "v", "w", "r") if key in layout]
+    panels = [key for key in ("psi", "z") if key in layout]
+    panels += [key for key in layout if key not in ("x", "y", "z", "psi")]
+    units = dict(zip(getattr(runs[0], "state_names", ()), getattr(runs[0], "state_units", ()), strict=False))
     columns = 2
     rows = math.ceil(len(panels) / columns)
     figure, grid = _subplots(rows, columns, sharex=True, squeeze=False, figsize=(10.0, 1.2 + 1.8 * rows))
@@ -623,8 +635,9 @@ def state_figure(
         for run, name, colour in zip(runs, names, _colours(len(runs)), strict=True):
             axis.plot(run.t, run.states[:, index], lw=1.1, color=colour, label=name)
             drawn |= _mark_steps(axis, run, run.t, run.states[:, index], colour)
-        axis.set_ylabel(_STATE_PANELS[key][0])
-        axis.set_title(_STATE_PANELS[key][1], fontsize="medium")
+        label, panel_title = _STATE_PANELS.get(key, (f"{key} ({units.get(key) or '-'})", key))
+        axis.set_ylabel(label)
+        axis.set_title(panel_title, fontsize="medium")
         axis.grid(True, alpha=0.3)
     _shade_unreachable(axes[: len(panels)], unreachable_from, max(float(run.t[-1]) for run in runs))
     for spare in axes[len(panels) :]:

@@ -36,12 +36,16 @@ def position_errors(run: ClosedLoopResult) -> np.ndarray:
     -------
     numpy.ndarray, shape (n+1, 2) or (n+1, 3)
         Plant position minus reference position at each sample time, found by the state
-        names ``x``, ``y``, ``z`` the run records (the vehicle's layout); the depth column
-        ``z − z_R`` (z down) only for a vehicle with a ``z`` state.  A run without names is
-        read by its width (12 states: 6-DOF).
+        roles the run records (the vehicle's layout's positions), else by the state names
+        ``x``, ``y``, ``z``; the depth column ``z − z_R`` (z down) only for a vehicle with a
+        third position.  A run without roles or names is read by its width (12 states: 6-DOF).
     """
+    roles = tuple(getattr(run, "state_roles", ()))
+    if {"x", "y"} <= set(roles):  # the vehicle's layout, recorded by simulate
+        columns = [roles.index(role) for role in ("x", "y", "z") if role in roles]
+        return run.states[:, columns] - run.reference[:, columns]
     names = tuple(getattr(run, "state_names", ()))
-    if names and {"x", "y"} <= set(names):  # the vehicle's layout, recorded by simulate
+    if names and {"x", "y"} <= set(names):  # a run saved before roles were recorded
         columns = [names.index(name) for name in ("x", "y", "z") if name in names]
         return run.states[:, columns] - run.reference[:, columns]
     # a run built by hand without names: a 3-DOF or 6-DOF vehicle's state, by its length

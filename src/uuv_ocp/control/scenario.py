@@ -50,6 +50,11 @@ class Scenario:
         Label of the run (progress bar).
     state_names : tuple of str
         Names of the states, in order.
+    state_units : tuple of str
+        Their units (empty strings where unknown).
+    state_roles : tuple of str
+        Their roles (:attr:`VehicleLayout.state_roles <uuv_ocp.model.base.VehicleLayout.state_roles>`;
+        empty strings for an Ocp's states).
     reference : callable
         ``reference(times) -> (len(times), nx)`` reference states (NaN where there is none).
     """
@@ -61,6 +66,8 @@ class Scenario:
     time_varying: bool
     name: str
     state_names: tuple[str, ...]
+    state_units: tuple[str, ...]
+    state_roles: tuple[str, ...]
     reference: Callable[[np.ndarray], np.ndarray]
 
 
@@ -144,6 +151,8 @@ def _tracking(
         time_varying=True,
         name=reference.name,
         state_names=tuple(layout.state_names),
+        state_units=tuple(layout.state_units),
+        state_roles=layout.state_roles,
         reference=lambda times: layout.reference_state(reference.evaluate(times)),
     )
 
@@ -171,6 +180,8 @@ def _ocp(
         time_varying=False,
         name=spec.name,
         state_names=problem.state_names,
+        state_units=("",) * nx,
+        state_roles=("",) * nx,
         reference=lambda times: np.full((len(times), nx), np.nan),
     )
 

@@ -24,7 +24,7 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
-from uuv_ocp.control.metrics import tracking_metrics
+from uuv_ocp.control.metrics import position_errors, tracking_metrics
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.scenario import scenario
 from uuv_ocp.interrupts import check_interrupt, interrupt_handled, remember_interrupts
@@ -92,7 +92,14 @@ class ClosedLoopResult:
         checks, :func:`uuv_ocp.obstacles.closest_approach`); ``substep_states[::s]`` equals ``states``.
     state_names : tuple of str, optional
         Names of the state columns (the vehicle's ``layout.state_names`` for a tracking run;
-        empty for an Ocp's run): plots find x, y, ψ, u, ... by name.
+        the Ocp's declared names for an Ocp's run).
+    state_units : tuple of str, optional
+        Units of the state columns (the vehicle's ``layout.state_units``; empty strings for
+        an Ocp's run).
+    state_roles : tuple of str, optional
+        Role of each state column (``"x"``, ``"y"``, ``"z"``, ``"psi"``, ``"velocity"`` or
+        ``""``; the vehicle's ``layout.state_roles``): plots and metrics find the positions,
+        the heading and the velocities by role, whatever the vehicle names them.
     """
 
     t: np.ndarray
@@ -112,6 +119,8 @@ class ClosedLoopResult:
     substep_t: np.ndarray = field(default_factory=lambda: np.zeros(0))
     substep_states: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     state_names: tuple[str, ...] = ()
+    state_units: tuple[str, ...] = ()
+    state_roles: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         """Fill ``deadline_steps`` (all False) when omitted."""
@@ -130,8 +139,8 @@ class ClosedLoopResult:
 
     @property
     def errors(self) -> np.ndarray:
-        """Position errors ``[x − x_R, y − y_R]`` (m), shape (n+1, 2)."""
-        return self.states[:, :2] - self.reference[:, :2]
+        """Horizontal position errors ``[x − x_R, y − y_R]`` (m), shape (n+1, 2)."""
+        return position_errors(self)[:, :2]
 
     def metrics(self, settle_time: float = 5.0) -> dict[str, float | int]:
         """Tracking and timing metrics (see :func:`uuv_ocp.control.metrics.tracking_metrics`)."""
@@ -143,7 +152,11 @@ class ClosedLoopResult:
         The plant sub-steps only when recorded, so that runs without them keep their files.
         """
         recorded = {"substep_t": self.substep_t, "substep_states": self.substep_states}
-        named = {"state_names": np.array(self.state_names, dtype=str)} if self.state_names else {}
+        named = {
+            key: np.array(getattr(self, key), dtype=str)
+            for key in ("state_names", "state_units", "state_roles")
+            if getattr(self, key)
+        }
         return dict(
             **(recorded if self.substep_t.size else {}),
             **named,
@@ -195,7 +208,11 @@ class ClosedLoopResult:
             fault=(str(data["fault"]) or None) if "fault" in data else None,
             substep_t=data["substep_t"] if "substep_t" in data else np.zeros(0),
             substep_states=data["substep_states"] if "substep_states" in data else np.zeros((0, 0)),
-            state_names=tuple(str(name) for name in data["state_names"]) if "state_names" in data else (),
+            **{
+                key: tuple(str(name) for name in data[key])
+                for key in ("state_names", "state_units", "state_roles")
+                if key in data
+            },
         )
 
 
@@ -400,6 +417,8 @@ def simulate(
         deadline_steps=deadline_steps[:n],
         fault=fault,
         state_names=run.state_names,
+        state_units=run.state_units,
+        state_roles=run.state_roles,
         **(
             {
                 # built from the control instants, so that substep_t[::s] is t exactly

@@ -177,6 +177,21 @@ class VehicleLayout:
         """Length of the reference state the vehicle's kind of reference gives (6 or 12)."""
         return len(REFERENCE_STATE_NAMES[self.reference])
 
+    @property
+    def state_roles(self) -> tuple[str, ...]:
+        """Role of each state, for plots and metrics that do not know the vehicle.
+
+        ``"x"``, ``"y"``, ``"z"`` for the positions (in order), ``"psi"`` for the heading,
+        ``"velocity"`` for a body velocity, ``""`` for any other state.
+        """
+        roles = [""] * self.state_dim
+        for role, index in zip(("x", "y", "z"), self.positions, strict=False):
+            roles[index] = role
+        roles[self.heading] = "psi"
+        for index in self.velocities:
+            roles[index] = "velocity"
+        return tuple(roles)
+
     def reference_state(self, samples: np.ndarray) -> np.ndarray:
         """Map reference samples (Reference.evaluate) to reference states of this vehicle.
 

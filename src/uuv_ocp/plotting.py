@@ -619,7 +619,7 @@ def state_figure(
     runs = _as_runs(runs)
     names = run_labels(runs, labels)
     layout = _layout(runs)
-    panels = [key for key in ("psi", "z") if key in layout]
+    panels: list[str] = [key for key in ("psi", "z") if key in layout]
     panels += [key for key in layout if key not in ("x", "y", "z", "psi")]
     units = dict(zip(getattr(runs[0], "state_names", ()), getattr(runs[0], "state_units", ()), strict=False))
     columns = 2

@@ -1,5 +1,8 @@
 """Command line and the resumable reproduction job."""
 
+import pytest
+
+import uuv_ocp as uo
 from uuv_ocp import cli
 from uuv_ocp.studies.compare import track_references
 
@@ -254,3 +257,59 @@ def test_track_reports_a_storage_error_in_one_line(tmp_path, capsys, monkeypatch
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
     assert len(err) == 1 and "no space left on device" in err[0] and "--out" not in err[0], err
+
+
+USER_VEHICLE = "examples/vehicles/vessel4dof.py:Vessel4DOF"
+
+
+def test_track_a_users_vehicle_class_from_its_file(tmp_path, capsys):
+    """``--vehicle FILE.py:CLASS``: the saved run is that 8-state vessel flying the path."""
+    from pathlib import Path
+
+    import numpy as np
+    from scipy.integrate import solve_ivp
+
+    from uuv_ocp.control.simulation import ClosedLoopResult
+    from uuv_ocp.specs import vehicle_from_spec
+
+    spec = str(Path(__file__).resolve().parents[1] / USER_VEHICLE)
+    argv = ["track", "--vehicle", spec, "-r", "s2", "-s", "ipopt", "--duration", "0.5", "--horizon", "5"]
+    assert cli.main([*argv, "--out", str(tmp_path), "--quiet"]) == 0
+    assert "vessel4dof" in capsys.readouterr().out
+    (saved,) = (tmp_path / "runs").glob("s2*.npz")
+    run = ClosedLoopResult.load(str(saved))
+    assert run.states.shape == (6, 8) and run.state_roles[:3] == ("x", "y", "psi")
+    # starts on the path's pose at rest, as the vessel's layout maps it: roll zero too
+    vessel = vehicle_from_spec(spec)
+    pose = uo.Reference.paper("s2").evaluate(np.array([0.0]))[0, :3]
+    np.testing.assert_array_equal(run.states[0], [*pose, 0.0, 0.0, 0.0, 0.0, 0.0])
+    # the plant was the file's vessel: scipy's RK45 through its model_function() gives the run
+    rhs = vessel.model_function()
+    state = run.states[0]
+    for k, control in enumerate(run.controls):
+        step = solve_ivp(
+            lambda _, x, u=control: np.asarray(rhs(x, u, np.zeros(2))).ravel(),
+            (run.t[k], run.t[k + 1]),
+            state,
+            rtol=1e-10,
+            atol=1e-10,
+        )
+        state = step.y[:, -1]
+    np.testing.assert_allclose(state, run.states[-1], atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("spec", "message"),
+    [
+        ("missing.py:Vessel", "does not exist"),
+        ("examples/vehicles/vessel4dof.py:Nothing", "has no class 'Nothing'"),
+        ("examples/vehicles/vessel4dof.py:dataclass", "must implement uuv_ocp.VehicleModel"),
+    ],
+)
+def test_a_bad_vehicle_class_is_one_line_and_exit_2(spec, message, capsys, monkeypatch):
+    from pathlib import Path
+
+    monkeypatch.chdir(Path(__file__).resolve().parents[1])
+    assert cli.main(["track", "--vehicle", spec, "-r", "s2", "--duration", "0.5"]) == 2
+    error = capsys.readouterr().err.strip()
+    assert message in error and len(error.splitlines()) == 1

@@ -146,6 +146,15 @@ def test_bluerov2_depth_example(capsys):
     assert np.all(np.abs(run.controls) <= np.asarray(out.problem.max_thrust))
 
 
+def test_user_vehicle_example_runs_as_a_script(capsys):
+    import runpy
+
+    runpy.run_path(str(EXAMPLES / "vehicles" / "vessel4dof.py"), run_name="__main__")
+    printed = capsys.readouterr().out
+    error = float(printed.split("position error ")[1].split(" m")[0])
+    assert error < 0.01  # from 0.5 m: the 4-DOF vessel is brought onto the path in 3 s
+
+
 def test_readme_ten_line_example_runs():
     import re
 

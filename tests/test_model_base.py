@@ -1,13 +1,14 @@
-"""The vehicle protocol (``uuv_ocp.model.base``) and a user's own vehicle in this one file.
+"""The vehicle protocol (``uuv_ocp.model.base``) and a user's own vehicle from its own file.
 
 Built-ins conform, layouts agree with the dynamics, and the user's vehicle is tracked,
 simulated and plotted.
 
-The user's vehicle is a small 4-DOF surface vessel (surge, sway, roll, yaw) after the structure
-of Fossen's 4-DOF manoeuvring model (Fossen 2011, §7.3): diagonal mass with added mass, linear
-damping, a roll restoring moment ``W GM_T sin φ cos φ`` and the sway force acting ``z_t`` below
-the centre of gravity (so steering heels the vessel).  Its state is ``[x, y, ψ, φ, u, v, r, p]``
-(8 states) and its controls the generalised forces ``[X, Y, N]`` (roll is not actuated).
+The user's vehicle (``examples/vehicles/vessel4dof.py``) is a small 4-DOF surface vessel (surge,
+sway, roll, yaw) after the structure of Fossen's 4-DOF manoeuvring model (Fossen 2011, §7.3):
+diagonal mass with added mass, linear damping, a roll restoring moment ``W GM_T sin φ cos φ``
+and the sway force acting ``z_t`` below the centre of gravity (so steering heels the vessel).
+Its state is ``[x, y, ψ, φ, u, v, r, p]`` (8 states) and its controls the generalised forces
+``[X, Y, N]`` (roll is not actuated).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import casadi as ca
 import numpy as np
@@ -22,70 +24,13 @@ import pytest
 
 import uuv_ocp as uo
 from uuv_ocp.model.base import REFERENCE_STATE_NAMES, check_vehicle, model_function
-from uuv_ocp.specs import VEHICLE_PRESETS
+from uuv_ocp.specs import VEHICLE_PRESETS, vehicle_from_class
 
-# ---------------------------------------------------------------- a user's vehicle, in one file
-VESSEL_LAYOUT = uo.VehicleLayout(
-    state_names=("x", "y", "psi", "phi", "u", "v", "r", "p"),
-    state_units=("m", "m", "rad", "rad", "m/s", "m/s", "rad/s", "rad/s"),
-    control_names=("X", "Y", "N"),
-    control_units=("N", "N", "N·m"),
-    positions=(0, 1),
-    angles=(2, 3),
-    heading=2,
-    velocities=(4, 5, 6, 7),
-    current_dim=2,
-    reference="planar",
-)
-
-
-@dataclass(frozen=True)
-class Vessel4DOF:
-    """A small 4-DOF vessel: surge, sway, yaw and roll (SI units; magnitudes of derivatives)."""
-
-    mass: float = 100.0  # kg
-    roll_inertia: float = 10.0  # I_x, kg·m²
-    yaw_inertia: float = 20.0  # I_z, kg·m²
-    added_mass: tuple[float, float, float, float] = (10.0, 50.0, 10.0, 2.0)  # X_u̇, Y_v̇, N_ṙ, K_ṗ
-    damping: tuple[float, float, float, float] = (20.0, 60.0, 20.0, 60.0)  # X_u, Y_v, N_r, K_p
-    restoring: float = 490.5  # W GM_T = m g GM_T with GM_T = 0.5 m, N·m/rad
-    sway_arm: float = 0.1  # z_t: the sway force acts this far below the centre of gravity, m
-    control_bound: tuple[float, ...] = (200.0, 200.0, 80.0)  # N, N, N·m
-    control_rate_bound: tuple[float, ...] = (400.0, 400.0, 160.0)  # per second
-    name: str = "vessel4dof"
-
-    @property
-    def layout(self) -> uo.VehicleLayout:
-        return VESSEL_LAYOUT
-
-    def model_function(self) -> ca.Function:
-        x = ca.SX.sym("x", 8)
-        tau = ca.SX.sym("tau", 3)
-        current = ca.SX.sym("current", 2)
-        psi, phi, u, v, r, p = x[2], x[3], x[4], x[5], x[6], x[7]
-        # damping on the velocity relative to the water (horizontal current, inertial frame)
-        u_r = u - (ca.cos(psi) * current[0] + ca.sin(psi) * current[1])
-        v_r = v - (-ca.sin(psi) * current[0] + ca.cos(psi) * current[1])
-        m_u = self.mass + self.added_mass[0]
-        m_v = self.mass + self.added_mass[1]
-        m_r = self.yaw_inertia + self.added_mass[2]
-        m_p = self.roll_inertia + self.added_mass[3]
-        d_u, d_v, d_r, d_p = self.damping
-        u_dot = (m_v * v * r - d_u * u_r + tau[0]) / m_u
-        v_dot = (-m_u * u * r - d_v * v_r + tau[1]) / m_v
-        r_dot = (-d_r * r + tau[2]) / m_r
-        p_dot = (-d_p * p - self.restoring * ca.sin(phi) * ca.cos(phi) - self.sway_arm * tau[1]) / m_p
-        xdot = ca.vertcat(
-            u * ca.cos(psi) - v * ca.cos(phi) * ca.sin(psi),
-            u * ca.sin(psi) + v * ca.cos(phi) * ca.cos(psi),
-            r * ca.cos(phi),
-            p,
-            u_dot,
-            v_dot,
-            r_dot,
-            p_dot,
-        )
-        return ca.Function("vessel", [x, tau, current], [xdot], ["x", "tau", "current"], ["xdot"])
+# ------------------------------------------------- a user's vehicle, in one file of examples/
+# loaded from its file as the CLI loads it (--vehicle FILE.py:CLASS), not imported as a package
+USER_VEHICLE_FILE = Path(__file__).resolve().parents[1] / "examples" / "vehicles" / "vessel4dof.py"
+Vessel4DOF = type(vehicle_from_class(USER_VEHICLE_FILE, "Vessel4DOF"))
+VESSEL_LAYOUT = Vessel4DOF().layout
 
 
 def built_in_vehicles():

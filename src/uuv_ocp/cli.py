@@ -31,7 +31,7 @@ from uuv_ocp.studies.executors import SchedulerUnreachable, WorkerCrashed
 from uuv_ocp.studies.records import StorageError, write_text
 
 DEMO_HINT = "start with `uuv-ocp demo` (all ten paper references, NMPC + IPOPT, 30 s each)"
-_VEHICLE_HELP = f"{' | '.join(VEHICLE_PRESETS)} | FILE.toml (docs/vehicles.md)"
+_VEHICLE_HELP = f"{' | '.join(VEHICLE_PRESETS)} | FILE.toml | FILE.py:CLASS (docs/vehicles.md)"
 _REFERENCE_HELP = (
     f"{PAPER_REFERENCES[0]}..{PAPER_REFERENCES[-1]} | waypoints FILE | lawnmower FILE | hold X,Y,PSI | "
     "FILE.toml (docs/references.md)"

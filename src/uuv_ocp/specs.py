@@ -1,6 +1,7 @@
 """Vehicles and references named by a short text: the vocabulary of the CLI and config files.
 
-A *vehicle spec* is a preset name or a TOML file; a *reference spec* is a paper reference name,
+A *vehicle spec* is a preset name, a TOML file or ``FILE.py:CLASS`` (a class of yours that
+implements the vehicle protocol, called without arguments); a *reference spec* is a paper reference name,
 ``waypoints FILE``, ``lawnmower FILE``, ``hold X,Y,PSI`` or a TOML file.  Both turn into the same
 objects the Python API takes (:class:`~uuv_ocp.model.planar.Vehicle`,
 :class:`~uuv_ocp.model.fossen6dof.Vehicle6DOF`, :class:`~uuv_ocp.reference.path.Reference`), so a
@@ -33,7 +34,10 @@ waypoint file may also be CSV: one ``x, y[, z]`` row per waypoint (m), ``#`` com
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import importlib.util
 import math
+import sys
 import tomllib
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -42,6 +46,7 @@ from typing import Any
 import numpy as np
 
 from uuv_ocp._validation import shown
+from uuv_ocp.model.base import check_vehicle
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
@@ -140,12 +145,60 @@ def vehicle_from_spec(spec: str | Path) -> AnyVehicle:
     text = str(spec)
     if text in VEHICLE_PRESETS:
         return VEHICLE_PRESETS[text]()
+    file, _, class_name = text.rpartition(":")
+    if file.lower().endswith(".py") and class_name:
+        return vehicle_from_class(Path(file), class_name)
     path = Path(text)
     if path.suffix.lower() != ".toml" or not path.is_file():
         raise ValueError(
-            f"vehicle must be one of {list(VEHICLE_PRESETS)} or an existing .toml file, got {text!r}"
+            f"vehicle must be one of {list(VEHICLE_PRESETS)}, an existing .toml file or "
+            f"FILE.py:CLASS, got {text!r}"
         )
     return vehicle_from_table(_read_table(path, "vehicle"), str(path))
+
+
+def vehicle_from_class(path: Path, class_name: str) -> Any:
+    """Build a user's vehicle: ``class_name()`` of the Python file ``path`` (``FILE.py:CLASS``).
+
+    The file is run as a module of its own (its ``if __name__ == "__main__"`` block is not);
+    the class is called without arguments and its product checked against the vehicle
+    protocol (:func:`uuv_ocp.model.base.check_vehicle`).
+
+    Raises
+    ------
+    ValueError
+        No such file, an error while running it, no such class, or not a vehicle.
+    """
+    if not path.is_file():
+        raise ValueError(f"vehicle file {str(path)!r} does not exist (FILE.py:CLASS)")
+    # a module name of its own per file, so that two files with one stem do not collide
+    module_name = "uuv_ocp_user_vehicle_" + hashlib.sha256(str(path.resolve()).encode()).hexdigest()[:16]
+    module_spec = importlib.util.spec_from_file_location(module_name, path)
+    if module_spec is None or module_spec.loader is None:
+        raise ValueError(f"vehicle file {str(path)!r} cannot be loaded as Python")
+    module = importlib.util.module_from_spec(module_spec)
+    # registered as a module, as an import does: dataclasses and pickling (campaign workers)
+    # look the class's module up in sys.modules
+    sys.modules[module_name] = module
+    try:
+        module_spec.loader.exec_module(module)
+    except KeyboardInterrupt:
+        del sys.modules[module_name]
+        raise
+    except Exception as error:  # the user's code: its error, named, as a bad --vehicle
+        del sys.modules[module_name]
+        raise ValueError(f"vehicle file {str(path)!r} raised {type(error).__name__}: {error}") from error
+    factory = getattr(module, class_name, None)
+    if not callable(factory):
+        found = sorted(name for name, value in vars(module).items() if isinstance(value, type))
+        raise ValueError(f"vehicle file {str(path)!r} has no class {class_name!r}; its classes: {found}")
+    try:
+        vehicle = factory()
+    except KeyboardInterrupt:
+        raise
+    except Exception as error:
+        raise ValueError(f"{class_name}() of {str(path)!r} raised {type(error).__name__}: {error}") from error
+    return check_vehicle(f"vehicle {class_name} of {path}", vehicle)
 
 
 def _waypoints_csv(path: Path) -> np.ndarray:

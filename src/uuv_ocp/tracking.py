@@ -431,6 +431,17 @@ class TrackingProblem(Transcribed):
             )
         return t0
 
+    def initial_state(self, t0: float | None = None) -> np.ndarray:
+        """Return the vehicle's state on the reference pose at ``t0`` (s; the start by default), at rest.
+
+        :meth:`Reference.initial_state <uuv_ocp.reference.path.Reference.initial_state>`
+        mapped to the vehicle's layout (``layout.reference_state``): states the reference does
+        not name (a roll, say) are zero.
+        """
+        at_rest = self.reference.initial_state(t0)[None, :]
+        state: np.ndarray = self.vehicle.layout.reference_state(at_rest)[0]
+        return state.copy()
+
     def reference_window(self, t0: float, heading: float | None = None) -> np.ndarray:
         """Return the reference states at ``t0 + k dt``, k = 0..N, shape (N+1, nx).
 

@@ -322,13 +322,12 @@ def trial_task(config: CampaignConfig, index: int) -> ClosedLoopResult:
     ``KeyboardInterrupt`` without a result.
     """
     problem = config.problem()
-    reference = problem.reference
     current, noise, simulation_seed = _trial_setup(config, index)
     controller = NMPC(problem, config.solver, options=config.solver_options or None, seed=simulation_seed)
     try:
         return simulate(
             controller,
-            reference.initial_state(reference.t_start),
+            problem.initial_state(),
             config.run_duration(problem),
             current=current,
             current_known=config.current_known,

@@ -183,7 +183,7 @@ def track_references(
                     try:
                         run = simulate(
                             controller,
-                            reference.initial_state(t0),
+                            problem.initial_state(t0),
                             run_duration,
                             current=current,
                             progress=progress,

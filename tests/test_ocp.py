@@ -181,7 +181,7 @@ def test_terminal_equality_holds_and_the_swarm_sees_it_as_a_penalty():
 
 def test_build_is_explicit_cached_and_the_problem_immutable_after():
     ocp = double_integrator(True)
-    assert "spec" not in ocp._store  # declaring builds nothing
+    assert ocp._spec is None  # declaring builds nothing
     built = ocp.build()
     assert ocp.build() is built
     with pytest.raises(ValueError, match="immutable"):

@@ -22,7 +22,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
@@ -93,9 +93,7 @@ def build_spec(spec: OcpSpec) -> Built:
 
 
 class Transcribed:
-    """What solvers use of a problem; subclasses provide :meth:`spec` and ``_store``."""
-
-    _store: dict[Any, Any]
+    """What solvers use of a problem; subclasses provide :meth:`spec` and :meth:`instance_parameters`."""
 
     def spec(self) -> OcpSpec:
         """Return the frozen description of the problem."""
@@ -112,11 +110,6 @@ class Transcribed:
     ) -> np.ndarray:
         """Parameter vector ``p`` of one instance (each problem says which arguments it takes)."""
         raise NotImplementedError
-
-    @property
-    def _cache(self) -> dict[Any, Any]:
-        """Alias of the problem's store of derived data (the name before the redesign)."""
-        return self._store
 
     # ---------------------------------------------------------------- building
     def build(self) -> Built:

@@ -165,7 +165,10 @@ class Ocp(Transcribed):
         self._terminal_costs: list[CostTerm] = []
         self._constraints: list[Constraint] = []
         self._frozen = False
-        self._store: dict[Any, Any] = {}
+        # derived from the declaration once it is frozen: the description, and the slack box
+        # of u_prev (no builds, no backends: those live in the package's cache and their owners)
+        self._spec: OcpSpec | None = None
+        self._previous_bounds: tuple[list[float], list[float]] | None = None
 
     # ------------------------------------------------------------ declarations
     def _declare(self, kind: str, name: object, size: object, **extra: Any) -> Declared:
@@ -422,13 +425,12 @@ class Ocp(Transcribed):
     # ------------------------------------------------------------------ build
     def spec(self) -> OcpSpec:
         """Check the declaration, make the Ocp immutable and return its frozen description."""
-        if "spec" not in self._store:
+        if self._spec is None:
             with BUILD_LOCK:  # CasADi Functions are built here (uuv_ocp._concurrency)
-                if "spec" not in self._store:
-                    self._store["spec"] = _freeze(self)
+                if self._spec is None:
+                    self._spec = _freeze(self)
                     self._frozen = True
-        spec: OcpSpec = self._store["spec"]
-        return spec
+        return self._spec
 
     freeze = spec
 
@@ -518,7 +520,7 @@ class Ocp(Transcribed):
         # the closed loop's hot path: one comparison with the slack box (its infinite ends made
         # the largest float, so that NaN and ±inf fail it) accepts a good value; anything else
         # takes the checks below for the error
-        bounds = self._store.get("previous_bounds")
+        bounds = self._previous_bounds
         if bounds is None:
             slack = 1e-6 * np.maximum(1.0, np.abs(spec.lower)), 1e-6 * np.maximum(1.0, np.abs(spec.upper))
             largest = np.finfo(float).max
@@ -526,7 +528,7 @@ class Ocp(Transcribed):
                 np.maximum(spec.lower - slack[0], -largest).tolist(),
                 np.minimum(spec.upper + slack[1], largest).tolist(),
             )
-            self._store["previous_bounds"] = bounds
+            self._previous_bounds = bounds
         try:
             value = np.array(u_prev, dtype=float)
         except (TypeError, ValueError):

@@ -25,10 +25,11 @@ as a 4-DOF vessel's roll, are regulated to zero).
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
@@ -271,7 +272,6 @@ class TrackingProblem(Transcribed):
     rate_limits: bool = True
     position_tube: float | None = None
     obstacles: tuple[Obstacle, ...] = ()
-    _store: dict = field(default_factory=dict, init=False, repr=False, compare=False, hash=False)
 
     def __post_init__(self) -> None:
         """Check the fields against each other and the vehicle; fill in the default weights."""
@@ -327,11 +327,15 @@ class TrackingProblem(Transcribed):
     @property
     def ocp(self) -> Ocp:
         """The :class:`~uuv_ocp.ocp.Ocp` this preset declares (built once, immutable)."""
-        if "ocp" not in self._store:
+        ocp: Ocp | None = self.__dict__.get("_declared_ocp")
+        if ocp is None:
             with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
-                if "ocp" not in self._store:
-                    self._store["ocp"] = self._declare()
-        ocp: Ocp = self._store["ocp"]
+                ocp = self.__dict__.get("_declared_ocp")
+                if ocp is None:
+                    ocp = self._declare()
+                    # a value derived from the frozen fields, kept beside them (not a field:
+                    # replace() and == see only the description)
+                    object.__setattr__(self, "_declared_ocp", ocp)
         return ocp
 
     def spec(self) -> OcpSpec:
@@ -497,9 +501,17 @@ class TrackingProblem(Transcribed):
         window = parts[0] if len(parts) == 1 else np.concatenate(parts)
         return window if window.shape[0] == horizon + 1 else None
 
+    @functools.cached_property
+    def sample_blocks(self) -> dict[int, tuple[int, np.ndarray] | None]:
+        """Reference samples already taken, by block of :data:`SAMPLE_BLOCK` intervals (a memo).
+
+        Filled by :meth:`reference_window`; a ``None`` block is one the direct evaluation serves.
+        """
+        return {}
+
     def _sample_block(self, block: int) -> tuple[int, np.ndarray] | None:
         """Return the samples at ``i dt`` for ``i`` in block ``block`` (its first index, states)."""
-        blocks = self._store.setdefault("sample_blocks", {})
+        blocks = self.sample_blocks
         if block not in blocks:
             dt, reference = self.dt, self.reference
             indices = block * SAMPLE_BLOCK + np.arange(SAMPLE_BLOCK + 1)
@@ -553,7 +565,7 @@ class TrackingProblem(Transcribed):
         """
         x0 = self.check_state(x0)
         t0 = self.check_time(t0)
-        layout, nc, heading_index = self._parameter_layout()
+        layout, nc, heading_index = self._parameter_layout
         n = self.horizon
         if current is not None:
             try:
@@ -596,20 +608,17 @@ class TrackingProblem(Transcribed):
         which is moved here the same way.  ``x0`` is checked as there.
         """
         x0 = self.check_state(x0)
-        layout, _, heading_index = self._parameter_layout()
+        layout, _, heading_index = self._parameter_layout
         new = p.copy()
         new[layout.x0] = x0
         window = new[layout.entries["reference"][0]].reshape(self.horizon + 1, -1)  # a view into new
         _move_heading_branch(window, x0[heading_index], heading_index)
         return new
 
+    @functools.cached_property
     def _parameter_layout(self) -> tuple[Any, int, int]:
-        """Return the layout of ``p``, the current's size and the heading's column (cached)."""
-        cached = self._store.get("parameter_layout")
-        if cached is None:
-            cached = (self.spec().layout, vehicle_dimensions(self.vehicle)[2], self._heading_index)
-            self._store["parameter_layout"] = cached
-        return cached
+        """The layout of ``p``, the current's size and the heading's column (the hot path's memo)."""
+        return (self.spec().layout, vehicle_dimensions(self.vehicle)[2], self._heading_index)
 
     def parameter_parts(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Numeric ``p`` -> (x0 (nx,), reference (N+1, nx), u_prev (nu,), current (N, nc))."""

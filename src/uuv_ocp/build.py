@@ -31,6 +31,7 @@ from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import BUILD_LOCK, BuildCache
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.transcription.collocation import implicit_step
 from uuv_ocp.transcription.condensed import condense, decode
 from uuv_ocp.transcription.multiple_shooting import NlpData, transcribe
 
@@ -77,8 +78,15 @@ _THREAD = threading.local()  # .callers: this thread's BufferedFunctions by (spe
 
 
 def build_spec(spec: OcpSpec) -> Built:
-    """Transcribe ``spec`` (multiple shooting + condensed, one RK4 Function for both)."""
-    step = rk4_step(spec.dynamics, spec.dt, spec.substeps, name="model_step")
+    """Transcribe ``spec``: the NLP and the condensed Functions on one step Function.
+
+    The step is RK4 for multiple shooting and the implicit Radau IIA step for collocation
+    (the condensed form's solve of the NLP's collocation equations).
+    """
+    if spec.transcription == "collocation":
+        step = implicit_step(spec.dynamics, spec.dt, spec.degree, name="model_step")
+    else:
+        step = rk4_step(spec.dynamics, spec.dt, spec.substeps, name="model_step")
     hard = transcribe(spec, step, False, spec.terminal_penalty)
     cost, rollout, score_terms = condense(spec, step)
     return Built(

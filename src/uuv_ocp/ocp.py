@@ -40,8 +40,11 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
+from uuv_ocp.transcription.collocation import COLLOCATION_DEGREES
 
 INTEGRATORS = ("rk4",)
+#: Transcriptions of the dynamics an Ocp may choose (module :mod:`uuv_ocp.transcription`).
+TRANSCRIPTIONS = ("multiple_shooting", "collocation")
 PLACES = ("path", "initial", "terminal")
 MAX_HORIZON = 10_000  # larger horizons exhaust memory while building the NLP (documented bound)
 #: Largest number of entries of one declared state, control or parameter.  The NLP holds
@@ -97,6 +100,34 @@ class Constraint:
         return self.lower == self.upper
 
 
+def check_transcription(transcription: object, degree: object, substeps: int) -> tuple[str, int]:
+    """Validate an Ocp's ``transcription`` and ``degree``; return them (degree 0: multiple shooting).
+
+    Raises
+    ------
+    ValueError
+        An unknown transcription, a degree outside 1..5, a degree with multiple shooting, or
+        ``substeps`` other than 1 with collocation.
+    """
+    transcription = check.choice("transcription", transcription, TRANSCRIPTIONS)
+    if transcription == "multiple_shooting":
+        if degree is not None:
+            raise ValueError(
+                f"degree is for transcription='collocation', got degree={check.shown(degree)} "
+                "with multiple shooting"
+            )
+        return transcription, 0
+    if degree is None:
+        degree = 3
+    if isinstance(degree, bool) or degree not in COLLOCATION_DEGREES:
+        raise ValueError(f"degree must be one of {list(COLLOCATION_DEGREES)}, got {check.shown(degree)}")
+    if substeps != 1:
+        raise ValueError(
+            f"substeps must be 1 with transcription='collocation' (raise degree instead), got {substeps}"
+        )
+    return transcription, int(degree)
+
+
 class Ocp(Transcribed):
     """A finite-horizon optimal-control problem declared symbolically.
 
@@ -107,9 +138,18 @@ class Ocp(Transcribed):
     dt : float
         Interval length (s), > 0.
     integrator : {"rk4"}
-        Discretisation of the dynamics on each interval.
+        Multiple shooting's integrator on each interval.
     substeps : int
-        Integrator steps per interval, >= 1.
+        Integrator steps per interval, >= 1 (multiple shooting; collocation takes 1).
+    transcription : {"multiple_shooting", "collocation"}
+        How the dynamics become constraints: ``"multiple_shooting"`` (the state at each node
+        is a variable, ``x_{k+1} = F(x_k, u_k)`` by ``integrator``) or ``"collocation"``
+        (direct Radau IIA collocation: the exact solvers also carry ``degree`` collocation
+        states per interval and the collocation equations; rollouts, the swarms and the judge
+        solve those equations per interval, :mod:`uuv_ocp.transcription.collocation`).
+    degree : int, optional
+        Collocation points per interval, 1..5 (Radau IIA of order ``2 degree − 1``); 3 by
+        default with ``transcription="collocation"``; only with it.
     terminal_penalty : float
         Exact L1 weight of terminal-equality residuals in the exact solvers' soft fallback and
         in the derivative-free solvers' cost.
@@ -139,6 +179,8 @@ class Ocp(Transcribed):
         integrator: str = "rk4",
         substeps: int = 1,
         *,
+        transcription: str = "multiple_shooting",
+        degree: int | None = None,
         terminal_penalty: float = 1e4,
         constraint_penalty: float = 1e4,
         rate_penalty: float = 1e4,
@@ -150,6 +192,7 @@ class Ocp(Transcribed):
         self.dt = check.positive_float("dt", dt)
         self.integrator = check.choice("integrator", integrator, INTEGRATORS)
         self.substeps = check.positive_int("substeps", substeps)
+        self.transcription, self.degree = check_transcription(transcription, degree, self.substeps)
         self.terminal_penalty = check.positive_float("terminal_penalty", terminal_penalty)
         self.constraint_penalty = check.positive_float("constraint_penalty", constraint_penalty)
         self.rate_penalty = check.positive_float("rate_penalty", rate_penalty)
@@ -581,6 +624,8 @@ class OcpSpec:
     horizon: int
     dt: float
     substeps: int
+    transcription: str
+    degree: int  # collocation points per interval; 0 for multiple shooting
     state_dim: int
     control_size: int
     global_dim: int
@@ -711,6 +756,8 @@ def _freeze(ocp: Ocp) -> OcpSpec:
         horizon=ocp.horizon,
         dt=ocp.dt,
         substeps=ocp.substeps,
+        transcription=ocp.transcription,
+        degree=ocp.degree,
         state_dim=int(x.numel()),
         control_size=int(u.numel()),
         global_dim=int(pg.numel()),

@@ -40,7 +40,7 @@ from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.model.base import VehicleLayout, check_vehicle, model_function
 from uuv_ocp.obstacles import Obstacle, check_obstacles
-from uuv_ocp.ocp import Ocp, OcpSpec
+from uuv_ocp.ocp import Ocp, OcpSpec, check_transcription
 from uuv_ocp.reference.path import UNWRAP_STEP, Reference
 
 TERMINAL_MODES = ("equality", "cost", "none")
@@ -250,7 +250,12 @@ class TrackingProblem(Transcribed):
         Cost weights; default ``Weights.for_layout(vehicle.layout)`` (``Weights()`` for 3-DOF,
         ``Weights.spatial()`` for 6-DOF).
     substeps : int
-        RK4 steps per interval in the prediction model, >= 1.
+        RK4 steps per interval in the prediction model, >= 1 (multiple shooting).
+    transcription : {"multiple_shooting", "collocation"}
+        The Ocp's transcription (:class:`~uuv_ocp.ocp.Ocp`): RK4 multiple shooting, or direct
+        Radau collocation of ``degree``.
+    degree : int, optional
+        Collocation points per interval (1..5, default 3), with ``transcription="collocation"``.
     rate_limits : bool
         Enforce ``|Δτ| ≤ τ̇_max dt``.
     position_tube : float or None
@@ -269,6 +274,8 @@ class TrackingProblem(Transcribed):
     terminal: str = "equality"
     weights: Weights | None = None
     substeps: int = 1
+    transcription: str = "multiple_shooting"
+    degree: int | None = None
     rate_limits: bool = True
     position_tube: float | None = None
     obstacles: tuple[Obstacle, ...] = ()
@@ -312,6 +319,7 @@ class TrackingProblem(Transcribed):
                 "the reference"
             )
         object.__setattr__(self, "substeps", check.positive_int("substeps", self.substeps))
+        check_transcription(self.transcription, self.degree, self.substeps)
         check.boolean("rate_limits", self.rate_limits)
         if self.position_tube is not None:
             tube = check.positive_float("position_tube", self.position_tube)
@@ -351,6 +359,8 @@ class TrackingProblem(Transcribed):
             self.horizon,
             self.dt,
             substeps=self.substeps,
+            transcription=self.transcription,
+            degree=self.degree,
             terminal_penalty=weights.terminal_penalty,
             constraint_penalty=weights.terminal_penalty,
             rate_penalty=weights.rate_penalty,

@@ -245,6 +245,8 @@ class _Emitter:
                     value = f"uuv_bcast({value})"
                 body.outputs.append((output, nz, value))
                 continue
+            if op == ca.OP_CALL:  # e.g. collocation's Newton solve: CasADi's own C evaluates it
+                raise UnsupportedOperation("a call to another Function has no SIMD C form here")
             (slot,) = f.instruction_output(k)
             if op == _CONST:
                 name = f"s{k}"

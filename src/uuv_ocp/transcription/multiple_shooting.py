@@ -21,6 +21,8 @@ from typing import TYPE_CHECKING
 import casadi as ca
 import numpy as np
 
+from uuv_ocp.transcription.collocation import collocation_residual
+
 if TYPE_CHECKING:
     from uuv_ocp.ocp import OcpSpec
 
@@ -46,6 +48,7 @@ class NlpData:
     control_index: np.ndarray
     lifted_index: np.ndarray
     terminal_slack_index: np.ndarray
+    collocation_index: np.ndarray  # (N, degree·nx) positions of the collocation states; (N, 0) without
     primal_shift: np.ndarray = field(repr=False)
     constraint_shift: np.ndarray = field(repr=False)
 
@@ -125,6 +128,8 @@ def transcribe(spec: OcpSpec, step: ca.Function, soft_terminal: bool, terminal_p
         path.append((f"{kind}_lower", stage, values + slack, lower, np.inf))
         linear += soft * ca.sum1(slack)
 
+    collocated = spec.transcription == "collocation"
+    collocation = collocation_residual(spec.dynamics, spec.dt, spec.degree) if collocated else None
     lifted = add_variables("X", 0, lifted_dim, -np.inf, np.inf)
     for k in range(n):
         state = lifted[:nx]
@@ -151,7 +156,15 @@ def transcribe(spec: OcpSpec, step: ca.Function, soft_terminal: bool, terminal_p
             on_node = constraint.place == "node" and k > 0
             if constraint.place == "stage" or on_node or (constraint.place == "initial" and k == 0):
                 constrain(f"c{j}", k, function(*args), constraint.lower, constraint.upper, constraint.soft)
-        next_state = step(state, control, stage_p, pg)
+        if collocation is not None:
+            # direct collocation: the interval's collocation states are variables of stage k
+            # (between z_k and X_{k+1}, where fatrop and the OCP-QP map take stage inputs) and
+            # their equations rows of this stage; the end state is the last point's
+            points = add_variables("K", k, spec.degree * nx, -np.inf, np.inf)
+            path.append(("collocation", k, collocation(points, state, control, stage_p, pg), 0.0, 0.0))
+            next_state = points[(spec.degree - 1) * nx :]
+        else:
+            next_state = step(state, control, stage_p, pg)
         if k == n - 1:
             # node-N constraints that need slacks are written on F(x_{N-1}, u_{N-1}) in this
             # stage: fatrop's last stage has no controls to hold them
@@ -219,6 +232,7 @@ def transcribe(spec: OcpSpec, step: ca.Function, soft_terminal: bool, terminal_p
         state_index=positions("X", range(n + 1), nx),
         control_index=positions("z", range(n), nu),
         lifted_index=positions("X", range(n + 1), lifted_dim),
+        collocation_index=positions("K", range(n), spec.degree * nx).reshape(n, spec.degree * nx),
         terminal_slack_index=np.array(
             [i for i, key in enumerate(variable_keys) if key[0] == "terminal_slack"], dtype=int
         ),

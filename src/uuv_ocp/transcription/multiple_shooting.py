@@ -16,7 +16,7 @@ Every variable and constraint entry has a structured key ``(kind, stage, index)`
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -79,160 +79,222 @@ def violation(values: ca.SX, lower: np.ndarray, upper: np.ndarray) -> ca.SX:
     return terms
 
 
-def transcribe(spec: OcpSpec, step: ca.Function, soft_terminal: bool, terminal_penalty: float) -> NlpData:
-    """Build the hard NLP (``soft_terminal=False``) or its exact-penalty terminal relaxation."""
-    n, nx, nu = spec.horizon, spec.state_dim, spec.control_size
-    p = ca.SX.sym("p", spec.layout.size)
-    x0, u_prev, pg, nodes = parameter_blocks(spec, p)
-    z_lower, z_upper = spec.scaled_lower, spec.scaled_upper
-    rate_bound = spec.rate_step_bound
-    rated = np.flatnonzero(np.isfinite(rate_bound))
-    lifted_dim = nx + nu if spec.lifted else nx
-    no_previous = ca.DM.zeros(nu)
-    variables: list[tuple[Key, ca.SX, float, float]] = []
-    constraints: list[tuple[Key, ca.SX, float, float, bool]] = []
+class _Rows:
+    """The NLP's variables and constraint rows in the order they are added, and its cost terms."""
 
-    def add_variables(kind: str, stage: int | None, size: int, lower: object, upper: object) -> ca.SX:
+    def __init__(self) -> None:
+        self.variables: list[tuple[Key, ca.SX, float, float]] = []
+        self.constraints: list[tuple[Key, ca.SX, float, float, bool]] = []
+        self.residuals: list[ca.SX] = []
+        self.linear = ca.SX(0)  # exact-penalty slack terms
+        self.other = ca.SX(0)  # expression (non-least-squares) costs
+
+    def variable(self, kind: str, stage: int | None, size: int, lower: object, upper: object) -> ca.SX:
         symbol = ca.SX.sym(f"{kind}_{stage}" if stage is not None else kind, size)
         low = np.broadcast_to(np.asarray(lower, dtype=float), (size,))
         high = np.broadcast_to(np.asarray(upper, dtype=float), (size,))
         for i in range(size):
-            variables.append(((kind, stage, i), symbol[i], float(low[i]), float(high[i])))
+            self.variables.append(((kind, stage, i), symbol[i], float(low[i]), float(high[i])))
         return symbol
 
-    def add_constraints(
-        kind: str, stage: int | None, expression: ca.SX, lower: object, upper: object
-    ) -> None:
+    def rows(self, kind: str, stage: int | None, expression: ca.SX, lower: object, upper: object) -> None:
         size = expression.numel()
         low = np.broadcast_to(np.asarray(lower, dtype=float), (size,))
         high = np.broadcast_to(np.asarray(upper, dtype=float), (size,))
         for i in range(size):
-            constraints.append(
-                ((kind, stage, i), expression[i], float(low[i]), float(high[i]), low[i] == high[i])
+            self.constraints.append(
+                ((kind, stage, i), expression[i], float(low[i]), float(high[i]), bool(low[i] == high[i]))
             )
 
-    linear = ca.SX(0)
-    other = ca.SX(0)
-    residuals: list[ca.SX] = []
-    path: list[tuple[str, int | None, ca.SX, object, object]] = []
-
-    def constrain(
-        kind: str, stage: int | None, values: ca.SX, lower: np.ndarray, upper: np.ndarray, soft
+    def relaxed(
+        self,
+        path: list,
+        kind: str,
+        stage: int | None,
+        values: ca.SX,
+        bounds: tuple,
+        weight: float,
+        slack_kind: str | None = None,
     ) -> None:
-        nonlocal linear
-        if soft is None:
-            path.append((kind, stage, values, lower, upper))
-            return
-        slack = add_variables(f"{kind}_slack", stage, values.numel(), 0.0, np.inf)
+        """Queue ``lower <= values <= upper`` relaxed by slacks ``s >= 0`` with the L1 cost ``weight Σ s``."""
+        lower, upper = bounds
+        slack = self.variable(slack_kind or f"{kind}_slack", stage, values.numel(), 0.0, np.inf)
         path.append((f"{kind}_upper", stage, values - slack, -np.inf, upper))
         path.append((f"{kind}_lower", stage, values + slack, lower, np.inf))
-        linear += soft * ca.sum1(slack)
+        self.linear += weight * ca.sum1(slack)
 
+
+@dataclass(frozen=True)
+class _Instance:
+    """What every stage reads: the problem, the step, the parameter blocks and the variant."""
+
+    spec: OcpSpec
+    step: ca.Function
+    collocation: ca.Function | None
+    x0: ca.SX
+    u_prev: ca.SX
+    pg: ca.SX
+    nodes: list[ca.SX]
+    soft_terminal: bool
+    terminal_penalty: float
+
+
+def transcribe(spec: OcpSpec, step: ca.Function, soft_terminal: bool, terminal_penalty: float) -> NlpData:
+    """Build the hard NLP (``soft_terminal=False``) or its exact-penalty terminal relaxation."""
+    p = ca.SX.sym("p", spec.layout.size)
+    x0, u_prev, pg, nodes = parameter_blocks(spec, p)
     collocated = spec.transcription == "collocation"
-    collocation = collocation_residual(spec.dynamics, spec.dt, spec.degree) if collocated else None
-    lifted = add_variables("X", 0, lifted_dim, -np.inf, np.inf)
-    for k in range(n):
-        state = lifted[:nx]
-        previous = spec.physical(lifted[nx:]) if spec.lifted else no_previous
-        scaled = add_variables("z", k, nu, z_lower, z_upper)
-        control = spec.physical(scaled)
-        stage_p = nodes[k]
-        path = []
-        if k == 0:
-            initial = ca.vertcat(x0, spec.scaled(u_prev)) if spec.lifted else x0
-            path.append(("initial", None, lifted - initial, 0.0, 0.0))
-        args = (state, control, previous, pg, stage_p)
-        for start, function in spec.stage_residual:
-            if k >= start:
-                residuals.append(function(*args))
-        for start, function in spec.stage_expression:
-            if k >= start:
-                other += function(*args)
-        if spec.lifted and rated.size:
-            increment = scaled - lifted[nx:]
-            for i in rated:
-                path.append((f"rate{i}", k, increment[int(i)], -rate_bound[i], rate_bound[i]))
-        for j, (constraint, function) in enumerate(spec.constraints):
-            on_node = constraint.place == "node" and k > 0
-            if constraint.place == "stage" or on_node or (constraint.place == "initial" and k == 0):
-                constrain(f"c{j}", k, function(*args), constraint.lower, constraint.upper, constraint.soft)
-        if collocation is not None:
-            # direct collocation: the interval's collocation states are variables of stage k
-            # (between z_k and X_{k+1}, where fatrop and the OCP-QP map take stage inputs) and
-            # their equations rows of this stage; the end state is the last point's
-            points = add_variables("K", k, spec.degree * nx, -np.inf, np.inf)
-            path.append(("collocation", k, collocation(points, state, control, stage_p, pg), 0.0, 0.0))
-            next_state = points[(spec.degree - 1) * nx :]
-        else:
-            next_state = step(state, control, stage_p, pg)
-        if k == n - 1:
-            # node-N constraints that need slacks are written on F(x_{N-1}, u_{N-1}) in this
-            # stage: fatrop's last stage has no controls to hold them
-            final_args = (next_state, control, no_previous, pg, nodes[n])
-            for j, (constraint, function) in enumerate(spec.constraints):
-                relaxed = soft_terminal and constraint.soft is None and bool(np.all(constraint.equality))
-                if constraint.place == "terminal" and relaxed:
-                    values = function(next_state, pg, nodes[n])
-                    slack = add_variables("terminal_slack", None, values.numel(), 0.0, np.inf)
-                    path.append((f"terminal{j}_upper", None, values - slack, -np.inf, 0.0))
-                    path.append((f"terminal{j}_lower", None, values + slack, 0.0, np.inf))
-                    linear += terminal_penalty * ca.sum1(slack)
-                elif constraint.soft is not None and constraint.place in ("node", "terminal"):
-                    values = (
-                        function(next_state, pg, nodes[n])
-                        if constraint.place == "terminal"
-                        else function(*final_args)
-                    )
-                    constrain(f"c{j}", n, values, constraint.lower, constraint.upper, constraint.soft)
-        following = add_variables("X", k + 1, lifted_dim, -np.inf, np.inf)
-        target = ca.vertcat(next_state, scaled) if spec.lifted else next_state
-        add_constraints("dynamics", k, following - target, 0.0, 0.0)
-        for kind, stage, values, lower, upper in path:
-            add_constraints(kind, stage, values, lower, upper)
-        lifted = following
-    final_state = lifted[:nx]
+    instance = _Instance(
+        spec=spec,
+        step=step,
+        collocation=collocation_residual(spec.dynamics, spec.dt, spec.degree) if collocated else None,
+        x0=x0,
+        u_prev=u_prev,
+        pg=pg,
+        nodes=nodes,
+        soft_terminal=soft_terminal,
+        terminal_penalty=terminal_penalty,
+    )
+    rows = _Rows()
+    lifted_dim = spec.state_dim + spec.control_size if spec.lifted else spec.state_dim
+    lifted = rows.variable("X", 0, lifted_dim, -np.inf, np.inf)
+    for k in range(spec.horizon):
+        lifted = _stage(instance, rows, k, lifted)
+    _terminal(instance, rows, lifted[: spec.state_dim])
+    return _nlp_data(spec, p, rows)
+
+
+def _constrain(rows: _Rows, path: list, kind: str, stage: int | None, values: ca.SX, constraint: Any) -> None:
+    """Queue a declared constraint's rows: as they are, or relaxed when it is soft."""
+    if constraint.soft is None:
+        path.append((kind, stage, values, constraint.lower, constraint.upper))
+    else:
+        rows.relaxed(path, kind, stage, values, (constraint.lower, constraint.upper), constraint.soft)
+
+
+def _stage(instance: _Instance, rows: _Rows, k: int, lifted: ca.SX) -> ca.SX:
+    """Add stage ``k`` (its control, slacks, collocation states, costs and rows); return ``X_{k+1}``.
+
+    Rows come in fatrop's order: the gap ``X_{k+1} − [F(x_k, u_k); z_k]`` first, then the
+    stage's path rows.
+    """
+    spec, pg = instance.spec, instance.pg
+    n, nx = spec.horizon, spec.state_dim
+    state = lifted[:nx]
+    no_previous = ca.DM.zeros(spec.control_size)
+    previous = spec.physical(lifted[nx:]) if spec.lifted else no_previous
+    scaled = rows.variable("z", k, spec.control_size, spec.scaled_lower, spec.scaled_upper)
+    control = spec.physical(scaled)
+    stage_p = instance.nodes[k]
+    path: list[tuple[str, int | None, ca.SX, object, object]] = []
+    if k == 0:
+        initial = ca.vertcat(instance.x0, spec.scaled(instance.u_prev)) if spec.lifted else instance.x0
+        path.append(("initial", None, lifted - initial, 0.0, 0.0))
+    args = (state, control, previous, pg, stage_p)
+    rows.residuals += [function(*args) for start, function in spec.stage_residual if k >= start]
+    for start, function in spec.stage_expression:
+        if k >= start:
+            rows.other += function(*args)
+    rate_bound = spec.rate_step_bound
+    if spec.lifted:
+        increment = scaled - lifted[nx:]
+        for i in np.flatnonzero(np.isfinite(rate_bound)):
+            path.append((f"rate{i}", k, increment[int(i)], -rate_bound[i], rate_bound[i]))
+    for j, (constraint, function) in enumerate(spec.constraints):
+        on_node = constraint.place == "node" and k > 0
+        if constraint.place == "stage" or on_node or (constraint.place == "initial" and k == 0):
+            _constrain(rows, path, f"c{j}", k, function(*args), constraint)
+    if instance.collocation is not None:
+        # direct collocation: the interval's collocation states are variables of stage k
+        # (between z_k and X_{k+1}, where fatrop and the OCP-QP map take stage inputs) and
+        # their equations rows of this stage; the end state is the last point's
+        points = rows.variable("K", k, spec.degree * nx, -np.inf, np.inf)
+        path.append(("collocation", k, instance.collocation(points, state, control, stage_p, pg), 0.0, 0.0))
+        next_state = points[(spec.degree - 1) * nx :]
+    else:
+        next_state = instance.step(state, control, stage_p, pg)
+    if k == n - 1:
+        _last_stage_rows(instance, rows, path, next_state, control)
+    following = rows.variable("X", k + 1, lifted.numel(), -np.inf, np.inf)
+    target = ca.vertcat(next_state, scaled) if spec.lifted else next_state
+    rows.rows("dynamics", k, following - target, 0.0, 0.0)
+    for kind, stage, values, lower, upper in path:
+        rows.rows(kind, stage, values, lower, upper)
+    return following
+
+
+def _last_stage_rows(instance: _Instance, rows: _Rows, path: list, next_state: ca.SX, control: ca.SX) -> None:
+    """Node-N rows that need slacks, written on ``F(x_{N−1}, u_{N−1})`` in stage N−1.
+
+    fatrop's last stage has no controls to hold slacks.
+    """
+    spec, pg, final_p = instance.spec, instance.pg, instance.nodes[instance.spec.horizon]
+    no_previous = ca.DM.zeros(spec.control_size)
+    for j, (constraint, function) in enumerate(spec.constraints):
+        relaxed = instance.soft_terminal and constraint.soft is None and bool(np.all(constraint.equality))
+        if constraint.place == "terminal" and relaxed:
+            values = function(next_state, pg, final_p)
+            # one kind for every terminal slack: NlpData.terminal_slack_index finds them by it
+            penalty = instance.terminal_penalty
+            rows.relaxed(path, f"terminal{j}", None, values, (0.0, 0.0), penalty, "terminal_slack")
+        elif constraint.soft is not None and constraint.place in ("node", "terminal"):
+            if constraint.place == "terminal":
+                values = function(next_state, pg, final_p)
+            else:
+                values = function(next_state, control, no_previous, pg, final_p)
+            _constrain(rows, path, f"c{j}", spec.horizon, values, constraint)
+
+
+def _terminal(instance: _Instance, rows: _Rows, final_state: ca.SX) -> None:
+    """Terminal costs and the hard node-N and terminal rows (on ``X_N`` itself)."""
+    spec, pg, final_p = instance.spec, instance.pg, instance.nodes[instance.spec.horizon]
     if spec.terminal_residual is not None:
-        residuals.append(spec.terminal_residual(final_state, pg, nodes[n]))
+        rows.residuals.append(spec.terminal_residual(final_state, pg, final_p))
     if spec.terminal_expression is not None:
-        other += spec.terminal_expression(final_state, pg, nodes[n])
-    final_args = (final_state, no_previous, no_previous, pg, nodes[n])
+        rows.other += spec.terminal_expression(final_state, pg, final_p)
+    no_previous = ca.DM.zeros(spec.control_size)
+    final_args = (final_state, no_previous, no_previous, pg, final_p)
     for j, (constraint, function) in enumerate(spec.constraints):
         if constraint.soft is not None:
             continue
         if constraint.place == "node":
-            add_constraints(f"c{j}", n, function(*final_args), constraint.lower, constraint.upper)
-        elif constraint.place == "terminal":
-            if soft_terminal and np.all(constraint.equality):
-                continue  # relaxed above
-            add_constraints(
-                f"terminal{j}", None, function(final_state, pg, nodes[n]), constraint.lower, constraint.upper
-            )
-    residual = ca.vertcat(*residuals) if residuals else ca.SX(0, 1)
-    objective = ca.sumsqr(residual) + linear + other
-    w = ca.vertcat(*[entry[1] for entry in variables])
-    g = ca.vertcat(*[entry[1] for entry in constraints]) if constraints else ca.SX(0, 1)
-    variable_keys = tuple(entry[0] for entry in variables)
-    constraint_keys = tuple(entry[0] for entry in constraints)
+            rows.rows(f"c{j}", spec.horizon, function(*final_args), constraint.lower, constraint.upper)
+        elif constraint.place == "terminal" and not (instance.soft_terminal and np.all(constraint.equality)):
+            values = function(final_state, pg, final_p)  # (relaxed in the last stage otherwise)
+            rows.rows(f"terminal{j}", None, values, constraint.lower, constraint.upper)
+
+
+def _nlp_data(spec: OcpSpec, p: ca.SX, rows: _Rows) -> NlpData:
+    """Return the NLP of ``rows`` for ``casadi.nlpsol``, with its index maps."""
+    n, nx = spec.horizon, spec.state_dim
+    residual = ca.vertcat(*rows.residuals) if rows.residuals else ca.SX(0, 1)
+    objective = ca.sumsqr(residual) + rows.linear + rows.other
+    w = ca.vertcat(*[entry[1] for entry in rows.variables])
+    g = ca.vertcat(*[entry[1] for entry in rows.constraints]) if rows.constraints else ca.SX(0, 1)
+    variable_keys = tuple(entry[0] for entry in rows.variables)
+    constraint_keys = tuple(entry[0] for entry in rows.constraints)
     position = {key: i for i, key in enumerate(variable_keys)}
 
-    def positions(kind: str, stages: range, size: int, first: int = 0) -> np.ndarray:
-        return np.array([[position[(kind, k, first + i)] for i in range(size)] for k in stages], dtype=int)
+    def positions(kind: str, stages: range, size: int) -> np.ndarray:
+        indices = [[position[(kind, k, i)] for i in range(size)] for k in stages]
+        return np.array(indices, dtype=int).reshape(len(stages), size)
 
+    lifted_dim = nx + spec.control_size if spec.lifted else nx
     return NlpData(
         nlp={"x": w, "p": p, "f": objective, "g": g},
         residual=residual,
-        other_objective=other + linear,
-        lbx=np.array([entry[2] for entry in variables], dtype=float),
-        ubx=np.array([entry[3] for entry in variables], dtype=float),
-        lbg=np.array([entry[2] for entry in constraints], dtype=float),
-        ubg=np.array([entry[3] for entry in constraints], dtype=float),
-        equality=[bool(entry[4]) for entry in constraints],
+        other_objective=rows.other + rows.linear,
+        lbx=np.array([entry[2] for entry in rows.variables], dtype=float),
+        ubx=np.array([entry[3] for entry in rows.variables], dtype=float),
+        lbg=np.array([entry[2] for entry in rows.constraints], dtype=float),
+        ubg=np.array([entry[3] for entry in rows.constraints], dtype=float),
+        equality=[bool(entry[4]) for entry in rows.constraints],
         variable_keys=variable_keys,
         constraint_keys=constraint_keys,
         state_index=positions("X", range(n + 1), nx),
-        control_index=positions("z", range(n), nu),
+        control_index=positions("z", range(n), spec.control_size),
         lifted_index=positions("X", range(n + 1), lifted_dim),
-        collocation_index=positions("K", range(n), spec.degree * nx).reshape(n, spec.degree * nx),
+        collocation_index=positions("K", range(n), spec.degree * nx),
         terminal_slack_index=np.array(
             [i for i, key in enumerate(variable_keys) if key[0] == "terminal_slack"], dtype=int
         ),

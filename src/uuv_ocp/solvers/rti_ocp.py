@@ -186,7 +186,45 @@ def ocp_qp_layout(data: NlpData, state_dim: int) -> OcpQpLayout:
         Variables before ``X_0``, a dynamics row that is not ``X_{k+1} − F(X_k, u_k)``, a row
         or a Hessian entry coupling two stages, or bounds on ``X_0`` besides the initial rows.
     """
-    keys = data.variable_keys
+    stage_of, xvar, uvar = _stage_variables(data.variable_keys)
+    n = len(xvar) - 1
+    jacobian = ca.jacobian(data.nlp["g"], data.nlp["x"])
+    columns_of_row = _columns_of_rows(jacobian.sparsity())
+    _check_cost_is_stagewise(data, stage_of)
+    dynrow, genrow, initial, initial_key = _classify_rows(
+        data, jacobian, columns_of_row, stage_of, xvar, uvar
+    )
+    for k in range(n):
+        if len(dynrow[k]) != len(xvar[k + 1]):
+            raise UnsupportedStructure(
+                f"stage {k}: {len(dynrow[k])} dynamics rows for {len(xvar[k + 1])} states"
+            )
+        block = jacobian[dynrow[k], xvar[k + 1]]
+        if not block.is_constant() or not np.array_equal(np.array(ca.DM(block)), np.eye(len(dynrow[k]))):
+            raise UnsupportedStructure(f"stage {k}: the gap is not X_(k+1) − F(X_k, u_k)")
+    if any(i not in initial_key for i in range(state_dim)):
+        raise UnsupportedStructure("the initial-state rows do not fix the measured state")
+    boxes = _boxes(data, xvar, uvar, genrow, initial)
+    positions = sorted(initial)
+    x0_box = np.array(
+        [positions.index(xvar[0].index(columns_of_row[initial_key[i]][0])) for i in range(state_dim)]
+    )
+
+    def as_int(group: list[list[int]]) -> tuple[np.ndarray, ...]:
+        return tuple(np.array(v, dtype=np.int32) for v in group)
+
+    return OcpQpLayout(
+        xvar=as_int(xvar),
+        uvar=as_int(uvar),
+        dynrow=as_int(dynrow),
+        genrow=as_int(genrow),
+        **{name: tuple(values) for name, values in boxes.items()},
+        x0_box=x0_box.astype(np.int32),
+    )
+
+
+def _stage_variables(keys: tuple) -> tuple[np.ndarray, list[list[int]], list[list[int]]]:
+    """Each variable's stage, and per stage the lifted state's and the inputs' NLP indices."""
     if not keys or keys[0][0] != "X":
         raise UnsupportedStructure("the NLP does not start with the lifted state X_0")
     stage_of = np.empty(len(keys), dtype=int)
@@ -203,16 +241,22 @@ def ocp_qp_layout(data: NlpData, state_dim: int) -> OcpQpLayout:
         else:
             uvar[-1].append(i)
         stage_of[i] = len(xvar) - 1
-    n = len(xvar) - 1
-    w, g = data.nlp["x"], data.nlp["g"]
-    jacobian = ca.jacobian(g, w)
-    sparsity = jacobian.sparsity()
-    rows_of_column = sparsity.row()
-    colind = sparsity.colind()
-    columns_of_row: list[list[int]] = [[] for _ in range(g.numel())]
-    for column in range(w.numel()):
+    return stage_of, xvar, uvar
+
+
+def _columns_of_rows(sparsity: ca.Sparsity) -> list[list[int]]:
+    """Return the variables each constraint row reads (the nonzero columns of its Jacobian row)."""
+    rows_of_column, colind = sparsity.row(), sparsity.colind()
+    columns_of_row: list[list[int]] = [[] for _ in range(sparsity.size1())]
+    for column in range(sparsity.size2()):
         for entry in range(colind[column], colind[column + 1]):
             columns_of_row[rows_of_column[entry]].append(column)
+    return columns_of_row
+
+
+def _check_cost_is_stagewise(data: NlpData, stage_of: np.ndarray) -> None:
+    """Refuse a Gauss–Newton or exact cost Hessian entry that couples two stages."""
+    w = data.nlp["x"]
     residual_jacobian = ca.jacobian(data.residual, w)
     product = ca.mtimes(residual_jacobian.T, residual_jacobian).sparsity()
     other_hessian, _ = ca.hessian(data.other_objective, w)
@@ -220,6 +264,22 @@ def ocp_qp_layout(data: NlpData, state_dim: int) -> OcpQpLayout:
         rows, columns = structure.get_triplet()
         if np.any(stage_of[np.asarray(rows, dtype=int)] != stage_of[np.asarray(columns, dtype=int)]):
             raise UnsupportedStructure("the cost Hessian couples two stages")
+
+
+def _classify_rows(
+    data: NlpData,
+    jacobian: ca.SX,
+    columns_of_row: list[list[int]],
+    stage_of: np.ndarray,
+    xvar: list[list[int]],
+    uvar: list[list[int]],
+) -> tuple[list[list[int]], list[list[int]], dict[int, int], dict[int, int]]:
+    """Sort the rows: dynamics per stage, general rows per stage, initial-state rows.
+
+    Returns the dynamics rows and the general rows per stage, the initial rows by position in
+    ``X_0`` and by key index.
+    """
+    n = len(xvar) - 1
     dynrow: list[list[int]] = [[] for _ in range(n)]
     genrow: list[list[int]] = [[] for _ in range(n + 1)]
     initial: dict[int, int] = {}  # position in X_0 -> row
@@ -235,82 +295,64 @@ def ocp_qp_layout(data: NlpData, state_dim: int) -> OcpQpLayout:
             continue
         if kind == "initial":
             single = len(columns) == 1 and stage_of[columns[0]] == 0
-            if single and _constant(jacobian[row, columns[0]]) == 1.0:
-                if data.lbg[row] == data.ubg[row] == 0.0:
-                    initial[xvar[0].index(columns[0])] = row
-                    initial_key[index] = row
-                    continue
-            raise UnsupportedStructure(f"initial-state row {row} is not X_0[i] − x0_i = 0")
+            fixed = single and _constant(jacobian[row, columns[0]]) == 1.0
+            if not (fixed and data.lbg[row] == data.ubg[row] == 0.0):
+                raise UnsupportedStructure(f"initial-state row {row} is not X_0[i] − x0_i = 0")
+            initial[xvar[0].index(columns[0])] = row
+            initial_key[index] = row
+            continue
         stages = {int(stage_of[c]) for c in columns}
         if len(stages) > 1:
             raise UnsupportedStructure(f"constraint row {row} ({kind}) couples stages {sorted(stages)}")
         genrow[stages.pop() if stages else 0].append(row)
-    for k in range(n):
-        if len(dynrow[k]) != len(xvar[k + 1]):
-            raise UnsupportedStructure(
-                f"stage {k}: {len(dynrow[k])} dynamics rows for {len(xvar[k + 1])} states"
-            )
-        block = jacobian[dynrow[k], xvar[k + 1]]
-        if not block.is_constant() or not np.array_equal(np.array(ca.DM(block)), np.eye(len(dynrow[k]))):
-            raise UnsupportedStructure(f"stage {k}: the gap is not X_(k+1) − F(X_k, u_k)")
-    if any(i not in initial_key for i in range(state_dim)):
-        raise UnsupportedStructure("the initial-state rows do not fix the measured state")
+    return dynrow, genrow, initial, initial_key
+
+
+def _boxes(
+    data: NlpData,
+    xvar: list[list[int]],
+    uvar: list[list[int]],
+    genrow: list[list[int]],
+    initial: dict[int, int],
+) -> dict[str, list[np.ndarray]]:
+    """Per stage: the box positions, their NLP variables (or initial rows) and finite-side masks."""
 
     def finite(values: np.ndarray) -> np.ndarray:
         return np.isfinite(values).astype(float)
 
-    idxbx, idxbu, bx_target, bu_target = [], [], [], []
-    lbx_mask, ubx_mask, lbu_mask, ubu_mask, lg_mask, ug_mask = [], [], [], [], [], []
-    for k in range(n + 1):
-        x_bounded = [j for j, v in enumerate(xvar[k]) if np.isfinite(data.lbx[v]) or np.isfinite(data.ubx[v])]
+    def bounded(variables: list[int]) -> list[int]:
+        return [j for j, v in enumerate(variables) if np.isfinite(data.lbx[v]) or np.isfinite(data.ubx[v])]
+
+    names = ("idxbx", "idxbu", "bx_target", "bu_target", "lbx_mask", "ubx_mask")
+    boxes: dict[str, list[np.ndarray]] = {
+        name: [] for name in (*names, "lbu_mask", "ubu_mask", "lg_mask", "ug_mask")
+    }
+    for k in range(len(xvar)):
+        x_bounded = bounded(xvar[k])
         if k == 0:
             if x_bounded:
                 raise UnsupportedStructure("X_0 has bounds besides the initial-state rows")
             positions = sorted(initial)
-            idxbx.append(np.array(positions, dtype=np.int32))
-            bx_target.append(np.array([-1 - initial[j] for j in positions], dtype=np.int32))
-            lbx_mask.append(np.ones(len(positions)))
-            ubx_mask.append(np.ones(len(positions)))
+            boxes["idxbx"].append(np.array(positions, dtype=np.int32))
+            boxes["bx_target"].append(np.array([-1 - initial[j] for j in positions], dtype=np.int32))
+            boxes["lbx_mask"].append(np.ones(len(positions)))
+            boxes["ubx_mask"].append(np.ones(len(positions)))
         else:
-            idxbx.append(np.array(x_bounded, dtype=np.int32))
+            boxes["idxbx"].append(np.array(x_bounded, dtype=np.int32))
             variables = np.array([xvar[k][j] for j in x_bounded], dtype=int)
-            bx_target.append(variables.astype(np.int32))
-            lbx_mask.append(finite(data.lbx[variables]))
-            ubx_mask.append(finite(data.ubx[variables]))
-        u_bounded = [j for j, v in enumerate(uvar[k]) if np.isfinite(data.lbx[v]) or np.isfinite(data.ubx[v])]
+            boxes["bx_target"].append(variables.astype(np.int32))
+            boxes["lbx_mask"].append(finite(data.lbx[variables]))
+            boxes["ubx_mask"].append(finite(data.ubx[variables]))
+        u_bounded = bounded(uvar[k])
         variables = np.array([uvar[k][j] for j in u_bounded], dtype=int)
-        idxbu.append(np.array(u_bounded, dtype=np.int32))
-        bu_target.append(variables.astype(np.int32))
-        lbu_mask.append(finite(data.lbx[variables]))
-        ubu_mask.append(finite(data.ubx[variables]))
+        boxes["idxbu"].append(np.array(u_bounded, dtype=np.int32))
+        boxes["bu_target"].append(variables.astype(np.int32))
+        boxes["lbu_mask"].append(finite(data.lbx[variables]))
+        boxes["ubu_mask"].append(finite(data.ubx[variables]))
         general = np.array(genrow[k], dtype=int)
-        lg_mask.append(finite(data.lbg[general]))
-        ug_mask.append(finite(data.ubg[general]))
-    positions = sorted(initial)
-    x0_box = np.array(
-        [positions.index(xvar[0].index(columns_of_row[initial_key[i]][0])) for i in range(state_dim)]
-    )
-
-    def as_int(group: list[list[int]]) -> tuple[np.ndarray, ...]:
-        return tuple(np.array(v, dtype=np.int32) for v in group)
-
-    return OcpQpLayout(
-        xvar=as_int(xvar),
-        uvar=as_int(uvar),
-        dynrow=as_int(dynrow),
-        genrow=as_int(genrow),
-        idxbx=tuple(idxbx),
-        idxbu=tuple(idxbu),
-        bx_target=tuple(bx_target),
-        bu_target=tuple(bu_target),
-        lbx_mask=tuple(lbx_mask),
-        ubx_mask=tuple(ubx_mask),
-        lbu_mask=tuple(lbu_mask),
-        ubu_mask=tuple(ubu_mask),
-        lg_mask=tuple(lg_mask),
-        ug_mask=tuple(ug_mask),
-        x0_box=x0_box.astype(np.int32),
-    )
+        boxes["lg_mask"].append(finite(data.lbg[general]))
+        boxes["ug_mask"].append(finite(data.ubg[general]))
+    return boxes
 
 
 def _constant(value: ca.SX) -> float:

@@ -285,36 +285,25 @@ def simulate(
     SimulationInterrupted
         On Ctrl-C, carrying the run up to the interrupt.
     """
-    if not isinstance(controller, NMPC):
-        raise ValueError(f"controller must be a uuv_ocp.NMPC, got {type(controller).__name__}")
+    _check_arguments(controller, current, noise, seed, current_known, progress, record_substeps)
     problem = controller.problem
     spec = problem.spec()
-    nx, nu = spec.state_dim, spec.control_size
-    x0 = check.finite_array("x0", x0, (nx,))
-    duration = check.positive_float("duration", duration)
+    x0 = check.finite_array("x0", x0, (spec.state_dim,))
     plant_substeps = check.positive_int("plant_substeps", plant_substeps)
-    check.boolean("current_known", current_known)
-    check.boolean("progress", progress)
-    check.boolean("record_substeps", record_substeps)
-    if seed is not None:
-        seed = check.positive_int("seed", seed, minimum=0)
-    if current is not None and not isinstance(current, Current):
-        raise ValueError(f"current must be a uuv_ocp.Current or None, got {current!r}")
-    if noise is not None and not isinstance(noise, MeasurementNoise):
-        raise ValueError(f"noise must be a uuv_ocp.MeasurementNoise or None, got {noise!r}")
-    dt = spec.dt
     run = scenario(
         problem,
         t0=t0,
-        duration=duration,
+        duration=check.positive_float("duration", duration),
         plant=plant,
         parameters=parameters,
         current=current,
         substeps=plant_substeps,
     )
-    steps, nc = run.steps, run.current_dim
-    if noise is not None and len(noise.std) != nx:
-        raise ValueError(f"noise.std must have {nx} entries (one per state), got {len(noise.std)}")
+    steps, nc, dt = run.steps, run.current_dim, spec.dt
+    if noise is not None and len(noise.std) != spec.state_dim:
+        raise ValueError(
+            f"noise.std must have {spec.state_dim} entries (one per state), got {len(noise.std)}"
+        )
     rng = np.random.default_rng(seed)
     currents = np.zeros((steps + 1, nc))
     if nc:
@@ -326,23 +315,9 @@ def simulate(
     told = currents if current_known else np.zeros_like(currents)
     clock = times if run.time_varying else np.zeros_like(times)
     known = {"parameters": parameters} if parameters is not None else {}
-
-    states = np.empty((steps + 1, nx))
-    states[0] = x0
-    controls = np.zeros((steps, nu))
-    solve_times = np.zeros(steps)
-    iterations = np.zeros(steps, dtype=int)
-    substeps = np.empty((steps * plant_substeps + 1, nx) if record_substeps else (0, nx))
-    if record_substeps:
-        substeps[0] = x0
-    fallback = np.zeros(steps, dtype=bool)
-    relaxed = np.zeros(steps, dtype=bool)
-    deadline_steps = np.zeros(steps, dtype=bool)
-    statuses: list[str] = []
-    u_prev = np.clip(np.zeros(nu), spec.lower, spec.upper)
-    completed = 0
+    log = _Log(x0, steps, spec.control_size, plant_substeps if record_substeps else 0, dt)
+    u_prev = np.clip(np.zeros(spec.control_size), spec.lower, spec.upper)
     interrupted = False
-    fault: str | None = None
     with (
         ProgressBar(steps, label or f"{run.name}/{controller.solver_name}", progress) as bar,
         remember_interrupts(),
@@ -356,81 +331,140 @@ def simulate(
                 controller.warm_up(x0, clock[0], u_prev, told[0] if nc else None, **known)
             for k in range(steps):
                 check_interrupt()  # a Ctrl-C CasADi swallowed (uuv_ocp.interrupts) stops here
-                measured = states[k] + (noise.sample(rng) if noise is not None else 0.0)
+                measured = log.states[k] + (noise.sample(rng) if noise is not None else 0.0)
                 if not np.all(np.isfinite(measured)):  # the controller would fail on it: stop here
-                    fault = f"non-finite measurement at t = {times[k]:.6g} s (step {k})"
+                    log.fault = f"non-finite measurement at t = {times[k]:.6g} s (step {k})"
                     break
                 start = time.perf_counter()
                 output = controller.step(measured, clock[k], u_prev, told[k] if nc else None, **known)
-                solve_times[k] = time.perf_counter() - start
-                result = output.result
-                controls[k] = output.control
-                fallback[k] = output.fallback
-                deadline_steps[k] = output.deadline_hit
-                if result is not None:
-                    iterations[k] = result.iterations
-                    relaxed[k] = result.terminal_relaxed
-                # a refused plan's reason (a NaN plan's "success" is no success), else the status
-                statuses.append(
-                    (output.message or "fallback") if output.fallback or result is None else result.status
-                )
-                try:
-                    path = run.plant_step(states[k], controls[k], currents[k])
-                except Exception as error:  # CasADi's evaluation errors: a fault, not a lost run
-                    # ... except Ctrl-C, which CasADi reports from inside a call as a RuntimeError
-                    reraise_interrupt(error)
-                    fault = (
-                        f"plant exception at t = {times[k]:.6g} s (step {k}): {type(error).__name__}: {error}"
-                    )
+                log.controller_step(k, output, time.perf_counter() - start)
+                if not log.plant_step(k, run.plant_step, currents[k], times):
                     break
-                path = np.array(path, dtype=float).T  # (plant_substeps, nx)
-                next_state = path[-1]
-                if not np.all(np.isfinite(next_state)) or np.max(np.abs(next_state)) > BLOW_UP:
-                    fault = (
-                        f"plant blew up at t = {times[k + 1]:.6g} s (step {k}): state not finite or "
-                        f"beyond {BLOW_UP:g} in magnitude"
-                    )
-                    break
-                states[k + 1] = next_state
-                if record_substeps:
-                    substeps[k * plant_substeps + 1 : (k + 1) * plant_substeps + 1] = path
-                u_prev = controls[k]
-                completed = k + 1
-                bar.update(1, postfix=f"fail={int(fallback[: k + 1].sum())}")
+                u_prev = log.controls[k]
+                bar.update(1, postfix=f"fail={int(log.fallback[: k + 1].sum())}")
         except KeyboardInterrupt:
             interrupted = True
             interrupt_handled()
-    n = completed
-    closed_loop = ClosedLoopResult(
-        t=times[: n + 1],
-        states=states[: n + 1],
-        controls=controls[:n],
-        reference=run.reference(times[: n + 1]),
-        solve_times=solve_times[:n],
-        iterations=iterations[:n],
-        fallback_steps=fallback[:n],
-        relaxed_steps=relaxed[:n],
-        currents=currents[: n + 1],
-        statuses=tuple(statuses[:n]),
-        solver=controller.solver_name,
-        interrupted=interrupted,
-        deadline_steps=deadline_steps[:n],
-        fault=fault,
-        state_names=run.state_names,
-        state_units=run.state_units,
-        state_roles=run.state_roles,
-        **(
-            {
-                # built from the control instants, so that substep_t[::s] is t exactly
-                "substep_t": np.append(
-                    (times[:n, None] + dt / plant_substeps * np.arange(plant_substeps)).ravel(), times[n]
-                ),
-                "substep_states": substeps[: n * plant_substeps + 1],
-            }
-            if record_substeps
-            else {}
-        ),
-    )
+    closed_loop = log.result(times, currents, run, controller.solver_name, interrupted)
     if interrupted:
         raise SimulationInterrupted(closed_loop)
     return closed_loop
+
+
+def _check_arguments(
+    controller: object,
+    current: object,
+    noise: object,
+    seed: object,
+    current_known: object,
+    progress: object,
+    record_substeps: object,
+) -> None:
+    """Refuse a bad argument of :func:`simulate` by name, before anything is built."""
+    if not isinstance(controller, NMPC):
+        raise ValueError(f"controller must be a uuv_ocp.NMPC, got {type(controller).__name__}")
+    check.boolean("current_known", current_known)
+    check.boolean("progress", progress)
+    check.boolean("record_substeps", record_substeps)
+    if seed is not None:
+        check.positive_int("seed", seed, minimum=0)
+    if current is not None and not isinstance(current, Current):
+        raise ValueError(f"current must be a uuv_ocp.Current or None, got {current!r}")
+    if noise is not None and not isinstance(noise, MeasurementNoise):
+        raise ValueError(f"noise must be a uuv_ocp.MeasurementNoise or None, got {noise!r}")
+
+
+class _Log:
+    """What a closed loop records, step by step; ``completed`` steps of it are the run."""
+
+    def __init__(self, x0: np.ndarray, steps: int, control_size: int, substeps: int, dt: float) -> None:
+        nx = x0.size
+        self.dt = dt
+        self.states = np.empty((steps + 1, nx))
+        self.states[0] = x0
+        self.controls = np.zeros((steps, control_size))
+        self.solve_times = np.zeros(steps)
+        self.iterations = np.zeros(steps, dtype=int)
+        self.fallback = np.zeros(steps, dtype=bool)
+        self.relaxed = np.zeros(steps, dtype=bool)
+        self.deadline = np.zeros(steps, dtype=bool)
+        self.statuses: list[str] = []
+        self.substeps = substeps  # plant steps recorded per interval (0: none)
+        self.path = np.empty((steps * substeps + 1, nx) if substeps else (0, nx))
+        if substeps:
+            self.path[0] = x0
+        self.completed = 0
+        self.fault: str | None = None
+
+    def controller_step(self, k: int, output: Any, elapsed: float) -> None:
+        """Record step ``k``'s control and how it was obtained (an NMPC step record)."""
+        result = output.result
+        self.solve_times[k] = elapsed
+        self.controls[k] = output.control
+        self.fallback[k] = output.fallback
+        self.deadline[k] = output.deadline_hit
+        if result is not None:
+            self.iterations[k] = result.iterations
+            self.relaxed[k] = result.terminal_relaxed
+        # a refused plan's reason (a NaN plan's "success" is no success), else the status
+        self.statuses.append(
+            (output.message or "fallback") if output.fallback or result is None else result.status
+        )
+
+    def plant_step(self, k: int, plant_step: Any, current: np.ndarray, times: np.ndarray) -> bool:
+        """Move the plant over interval ``k``; ``False`` (with ``fault`` set) if it failed or blew up."""
+        try:
+            path = plant_step(self.states[k], self.controls[k], current)
+        except Exception as error:  # CasADi's evaluation errors: a fault, not a lost run
+            # ... except Ctrl-C, which CasADi reports from inside a call as a RuntimeError
+            reraise_interrupt(error)
+            self.fault = (
+                f"plant exception at t = {times[k]:.6g} s (step {k}): {type(error).__name__}: {error}"
+            )
+            return False
+        path = np.array(path, dtype=float).T  # (plant_substeps, nx)
+        next_state = path[-1]
+        if not np.all(np.isfinite(next_state)) or np.max(np.abs(next_state)) > BLOW_UP:
+            self.fault = (
+                f"plant blew up at t = {times[k + 1]:.6g} s (step {k}): state not finite or "
+                f"beyond {BLOW_UP:g} in magnitude"
+            )
+            return False
+        self.states[k + 1] = next_state
+        if self.substeps:
+            self.path[k * self.substeps + 1 : (k + 1) * self.substeps + 1] = path
+        self.completed = k + 1
+        return True
+
+    def result(
+        self, times: np.ndarray, currents: np.ndarray, run: Any, solver: str, interrupted: bool
+    ) -> ClosedLoopResult:
+        """Return the run up to its last completed step."""
+        n, s = self.completed, self.substeps
+        recorded = {}
+        if s:
+            recorded = {
+                # built from the control instants, so that substep_t[::s] is t exactly
+                "substep_t": np.append((times[:n, None] + self.dt / s * np.arange(s)).ravel(), times[n]),
+                "substep_states": self.path[: n * s + 1],
+            }
+        return ClosedLoopResult(
+            t=times[: n + 1],
+            states=self.states[: n + 1],
+            controls=self.controls[:n],
+            reference=run.reference(times[: n + 1]),
+            solve_times=self.solve_times[:n],
+            iterations=self.iterations[:n],
+            fallback_steps=self.fallback[:n],
+            relaxed_steps=self.relaxed[:n],
+            currents=currents[: n + 1],
+            statuses=tuple(self.statuses[:n]),
+            solver=solver,
+            interrupted=interrupted,
+            deadline_steps=self.deadline[:n],
+            fault=self.fault,
+            state_names=run.state_names,
+            state_units=run.state_units,
+            state_roles=run.state_roles,
+            **recorded,
+        )

@@ -223,6 +223,48 @@ def _renamed(function: ca.Function, name: str) -> ca.Function:
 
 
 @serialised
+def _checked_arguments(
+    problem: object,
+    directory: object,
+    functions: tuple[str, ...],
+    population: object,
+    compile: object,
+    verify: object,
+    flags: tuple[str, ...],
+    seed: object,
+    tolerance: object,
+    nmpc_builder: object,
+) -> tuple[int, float]:
+    """Refuse a bad argument of :func:`generate_c` by name; return the population and tolerance."""
+    if not isinstance(problem, Transcribed):
+        raise TypeError(
+            "problem must be an Ocp or a TrackingProblem, got "
+            f"{type(problem).__name__}: {check.shown(problem)}"
+        )
+    if not isinstance(directory, str | os.PathLike):
+        raise TypeError(f"directory must be a path (str or os.PathLike), got {type(directory).__name__}")
+    if isinstance(functions, str) or not isinstance(functions, tuple | list):
+        raise ValueError(
+            f"functions must be a tuple of names from {list(FUNCTION_NAMES)}, got {check.shown(functions)}"
+        )
+    accepted = ACCEPTED_NAMES if nmpc_builder is not None else FUNCTION_NAMES
+    unknown = [name for name in functions if name not in accepted]
+    if unknown or not functions:
+        raise ValueError(
+            f"functions must be a non-empty subset of {list(accepted)}, got {check.shown(functions)}"
+        )
+    minimum = MIN_IGWO_POPULATION if "cost_batch" in functions else 1
+    population = check.positive_int("population", population, minimum)
+    check.boolean("compile", compile)
+    check.boolean("verify", verify)
+    if isinstance(flags, str) or not all(isinstance(flag, str) for flag in flags):
+        raise ValueError(f"flags must be a tuple of strings, got {check.shown(flags)}")
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise ValueError(f"seed must be an integer >= 0, got {check.shown(seed)}")
+    tolerance = check.nonnegative_float("tolerance", tolerance)
+    return population, tolerance
+
+
 def generate_c(
     problem: Transcribed,
     directory: str | Path,
@@ -285,32 +327,9 @@ def generate_c(
         ``directory`` is owned by another user, writable by its group or others, not writable
         or not a directory (see :func:`uuv_ocp.native.compile.secure_directory`).
     """
-    if not isinstance(problem, Transcribed):
-        raise TypeError(
-            "problem must be an Ocp or a TrackingProblem, got "
-            f"{type(problem).__name__}: {check.shown(problem)}"
-        )
-    if not isinstance(directory, str | os.PathLike):
-        raise TypeError(f"directory must be a path (str or os.PathLike), got {type(directory).__name__}")
-    if isinstance(functions, str) or not isinstance(functions, tuple | list):
-        raise ValueError(
-            f"functions must be a tuple of names from {list(FUNCTION_NAMES)}, got {check.shown(functions)}"
-        )
-    accepted = ACCEPTED_NAMES if nmpc_builder is not None else FUNCTION_NAMES
-    unknown = [name for name in functions if name not in accepted]
-    if unknown or not functions:
-        raise ValueError(
-            f"functions must be a non-empty subset of {list(accepted)}, got {check.shown(functions)}"
-        )
-    minimum = MIN_IGWO_POPULATION if "cost_batch" in functions else 1
-    population = check.positive_int("population", population, minimum)
-    check.boolean("compile", compile)
-    check.boolean("verify", verify)
-    if isinstance(flags, str) or not all(isinstance(flag, str) for flag in flags):
-        raise ValueError(f"flags must be a tuple of strings, got {check.shown(flags)}")
-    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
-        raise ValueError(f"seed must be an integer >= 0, got {check.shown(seed)}")
-    tolerance = check.nonnegative_float("tolerance", tolerance)
+    population, tolerance = _checked_arguments(
+        problem, directory, functions, population, compile, verify, flags, seed, tolerance, nmpc_builder
+    )
     prefix = _prefix(problem, prefix)
     directory = Path(directory)
     symbolic = symbolic_functions(problem, population)

@@ -336,10 +336,9 @@ def test_real_time_iteration_plans_applied_on_obstacles_hold_them(monkeypatch):
 
 
 def test_the_c_fast_paths_apply_only_plans_that_hold_the_obstacles():
-    """step_control (resident step, C feedback) on the rock: every plan applied passes the judge.
+    """step (the resident C step where it runs) on the rock: every plan applied passes the judge.
 
-    The fast paths run only with a native HPIPM; elsewhere step_control is feedback(), and the
-    same holds.
+    The fast paths run only with the C step; elsewhere step is solve(), and the same holds.
     """
     rock = uo.Obstacle.circle((5.0, 0.2), 0.6, margin=0.5, name="rock")
     line = uo.Reference.from_xy(lambda t: 0.5 * t, lambda t: 0 * t, name="line")
@@ -351,11 +350,10 @@ def test_the_c_fast_paths_apply_only_plans_that_hold_the_obstacles():
     x, u, worst = line.initial_state(0.0), np.zeros(3), 0.0
     for k in range(60):
         t = k * problem.dt
-        applied = controller.step_control(x, t, u)
-        output = controller.last_output  # None after a fast path: its plan was applied
-        if output is None or not output.fallback:
+        output = controller.step(x, t, u)
+        if not output.fallback:
             worst = max(worst, uo.score(problem, controller.plan, x, t, u_prev=u)[1])
-        u = applied
+        u = output.control
         x = np.array(plant(x, u, np.zeros(2)))[:, -1]
     assert worst <= FEASIBILITY_TOLERANCE
     assert x[0] > 5.5  # past the rock

@@ -336,7 +336,7 @@ def test_real_time_iteration_plans_applied_on_obstacles_hold_them(monkeypatch):
 
 
 def test_the_c_fast_paths_apply_only_plans_that_hold_the_obstacles():
-    """step (the resident C step where it runs) on the rock: every plan applied passes the judge.
+    """NMPC.step (the resident C step where it runs) on the rock: every applied plan is judged.
 
     The fast paths run only with the C step; elsewhere step is solve(), and the same holds.
     """

@@ -527,7 +527,7 @@ class NMPC:
         return kinds
 
     def feedback_control(self, x: object) -> np.ndarray:
-        """Deprecated: call ``feedback(x).control`` (the same control, by the same fast path)."""
+        """Return ``feedback(x).control`` (deprecated: call that; the same control by the same path)."""
         warnings.warn(
             "NMPC.feedback_control(x) is deprecated: call NMPC.feedback(x).control",
             DeprecationWarning,
@@ -545,7 +545,7 @@ class NMPC:
         current: object | None = None,
         parameters: dict[str, Any] | None = None,
     ) -> np.ndarray:
-        """Deprecated: call ``step(x, t, ...).control`` (the same control, by the same C fast path)."""
+        """Return ``step(x, t, ...).control`` (deprecated: call that; the same control by the same path)."""
         warnings.warn(
             "NMPC.step_control(x, t, ...) is deprecated: call NMPC.step(x, t, ...).control",
             DeprecationWarning,

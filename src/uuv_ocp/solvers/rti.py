@@ -968,7 +968,7 @@ class RtiSolver(NlpSolver):
 
 
 def _shifted(warm_start: Iterate | DeferredPlan | None) -> Iterate | None:
-    """The warm start as a shifted :class:`Iterate` (a plan's own iterate, shifted by one stage)."""
+    """Return the warm start as a shifted :class:`Iterate` (a plan's own iterate, shifted by one stage)."""
     if isinstance(warm_start, DeferredPlan):
         return warm_start.iterate().shift()
     return warm_start

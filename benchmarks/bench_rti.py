@@ -35,10 +35,13 @@ interleaved: see :func:`reference_interleaved`).
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import subprocess
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -227,8 +230,6 @@ def _timed_loop(controller: uo.NMPC, how: str, steps: int) -> tuple[float, float
     ``how``: ``"step"``, ``"step, result read"``, ``"prepare + feedback"`` or the old API's
     ``"step_control"`` (for ``--baseline``; in this package a deprecated alias of ``step``).
     """
-    import warnings
-
     problem = _problem()  # equal to every row's: one plant for all
     plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
     controller.reset()
@@ -285,8 +286,6 @@ def baseline_worker() -> None:
     Runs on whichever ``uuv_ocp`` is first on ``PYTHONPATH`` (the baseline's); answers each
     round with one JSON line ``{label: [wall, cpu, in C]}`` (ms) on stdout.
     """
-    import json
-
     built = _built_rows(BASELINE)
     print(json.dumps({"ready": sorted(built)}), flush=True)
     for line in sys.stdin:
@@ -308,9 +307,6 @@ def interleaved(rounds: int = 3, steps: int = 300, baseline: str | None = None) 
     per-round median step (wall and thread CPU, ms), the range of the per-round medians, and
     the C step's own clock.
     """
-    import json
-    import subprocess
-
     worker = None
     if baseline is not None:
         env = {**os.environ, "PYTHONPATH": str(baseline), "UUV_OCP_BENCH_STEPS": str(steps)}

@@ -35,10 +35,13 @@ interleaved: see :func:`reference_interleaved`).
 
 from __future__ import annotations
 
+import json
 import math
 import os
+import subprocess
 import sys
 import time
+import warnings
 
 import numpy as np
 
@@ -56,9 +59,9 @@ CONIC = {"qpsol": "hpipm"}
 NATIVE, WHEEL = "native", "wheel"
 SPEED_VARIANTS: tuple[tuple[str, str, dict | None], ...] = (
     ("sqp-rti hpipm-ocp native", "sqp-rti", {**OCP, "hpipm": NATIVE}),
-    ("native, step_control", "sqp-rti", {**OCP, "hpipm": NATIVE, "lean": True}),
+    ("native, step", "sqp-rti", {**OCP, "hpipm": NATIVE, "lean": True}),
     (
-        "native, step_control, HPIPM only",
+        "native, step, HPIPM only",
         "sqp-rti",
         {**OCP, "hpipm": NATIVE, "lean": True, "qpsol_options": HPIPM_ONLY},
     ),
@@ -121,7 +124,7 @@ def speed(duration: float = 30.0) -> list[dict]:
     for label, solver, given in SPEED_VARIANTS:
         options = dict(given or {})
         libraries = options.pop("hpipm", None)
-        lean = options.pop("lean", False)  # NMPC.step_control (the resident C step): no phases
+        lean = options.pop("lean", False)  # NMPC.step (the resident C step): no phases
         if libraries == NATIVE and not native_available:
             print(f"{label}: skipped, no native HPIPM (make hpipm)")
             continue
@@ -135,8 +138,7 @@ def speed(duration: float = 30.0) -> list[dict]:
         for k in range(steps):
             start, cpu = time.perf_counter(), time.thread_time()
             if lean:
-                control = controller.step_control(state, k * problem.dt, control, np.zeros(2))
-                output = controller.last_output  # None after a resident C step
+                output = controller.step(state, k * problem.dt, control, np.zeros(2))
                 middle = start
             else:
                 controller.prepare(k * problem.dt, control, np.zeros(2))
@@ -147,14 +149,11 @@ def speed(duration: float = 30.0) -> list[dict]:
             step_times.append(end - start)
             prepare_times.append(middle - start)
             feedback_times.append(end - middle)
-            if output is None:  # step_control's resident C step: its control is already there
-                c_times.append(_resident_c_time(controller))
-            else:
-                failures += int(output.fallback)
-                c_time = output.result.details.get("c_time") if output.result is not None else None
-                if c_time is not None:
-                    c_times.append(c_time)
-                control = output.control
+            failures += int(output.fallback)
+            c_time = _c_seconds(controller, output)
+            if c_time is not None:
+                c_times.append(c_time)
+            control = output.control
             state = np.array(plant(state, control, np.zeros(2))).ravel()
         # the first step (cold start: IPOPT for sqp-rti) is excluded from the medians of none
         rows.append(
@@ -174,100 +173,188 @@ def speed(duration: float = 30.0) -> list[dict]:
     return rows
 
 
-#: the rows of ``--interleaved``: the C step on each HPIPM, in RTI and converged mode
-INTERLEAVED: tuple[tuple[str, str, dict], ...] = (
-    ("native (default)", NATIVE, {}),
-    ("native, step_control", NATIVE, {"lean": True}),
-    ("native, prepare + feedback_control", NATIVE, {"split": True}),
-    ("native, step (result and judge)", NATIVE, {"whole": True}),
-    ("native, speed_abs", NATIVE, {"qpsol_options": {"mode": "speed_abs"}}),
-    ("native, no condensing", NATIVE, {"qpsol_options": {"cond_horizon": 0}}),
-    ("wheel", WHEEL, {}),
-    ("native, step_control, HPIPM only", NATIVE, {"lean": True, "qpsol_options": HPIPM_ONLY}),
-    ("native, converged", NATIVE, {"mode": "converged"}),
-    ("native, converged, step_control", NATIVE, {"mode": "converged", "lean": True}),
+#: the rows of ``--interleaved``: the C step on each HPIPM, in RTI and converged mode, and how
+#: each row steps (:func:`_timed_loop`): ``step`` (the one API: the control and a record whose
+#: result is built when read), ``step, result read`` (the same, its SolveResult and judge read
+#: inside the timing: what ``step`` cost before the record was lazy), ``prepare + feedback``
+INTERLEAVED: tuple[tuple[str, str, dict, str], ...] = (
+    ("native, step (the one API)", NATIVE, {}, "step"),
+    ("native, step, result read", NATIVE, {}, "step, result read"),
+    ("native, prepare + feedback", NATIVE, {}, "prepare + feedback"),
+    ("native, speed_abs", NATIVE, {"qpsol_options": {"mode": "speed_abs"}}, "step"),
+    ("native, no condensing", NATIVE, {"qpsol_options": {"cond_horizon": 0}}, "step"),
+    ("wheel", WHEEL, {}, "step"),
+    ("native, step, HPIPM only", NATIVE, {"qpsol_options": HPIPM_ONLY}, "step"),
+    ("native, converged", NATIVE, {"mode": "converged"}, "step"),
+    ("native, converged, HPIPM only", NATIVE, {"mode": "converged", "qpsol_options": HPIPM_ONLY}, "step"),
     (
-        "native, converged, step_control, HPIPM only",
+        "native, converged, every QP tight",
         NATIVE,
-        {"mode": "converged", "lean": True, "qpsol_options": HPIPM_ONLY},
+        {"mode": "converged", "qpsol_options": {"loose_first_qp": False}},
+        "step",
     ),
-    (
-        "native, converged, every QP tight, step_control",
-        NATIVE,
-        {"mode": "converged", "lean": True, "qpsol_options": {"loose_first_qp": False}},
-    ),
-    ("wheel, converged", WHEEL, {"mode": "converged"}),
+    ("wheel, converged", WHEEL, {"mode": "converged"}, "step"),
+)
+#: the rows ``--baseline SRC`` runs on the package at SRC (another checkout's ``src``, e.g. the
+#: main branch's before the one controller API), in a process of its own, round for round with
+#: :data:`INTERLEAVED`: its ``step_control`` (the resident C step's control alone) and ``step``
+BASELINE: tuple[tuple[str, str, dict, str], ...] = (
+    ("baseline: step_control", NATIVE, {}, "step_control"),
+    ("baseline: step", NATIVE, {}, "step, result read"),
 )
 
 
-def interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
-    """``NMPC.prepare`` + ``feedback`` on s2 for the rows of :data:`INTERLEAVED`, in rounds.
+def _c_seconds(controller: uo.NMPC, output: object) -> float | None:
+    """Seconds the C step measured itself in the step that gave ``output`` (None: not a C step).
 
-    Every row has its own problem and controller, built first; then each round runs every
-    row's closed loop from rest once, one after the other, so that the machine's drift falls on
-    all rows alike.  Per row: median over the rounds of the per-round median step (wall and
-    thread CPU, ms), the range of the per-round medians, and the C step's own clock.
+    Read without building the record's result (a fast path's plan keeps the C step's ``info``);
+    ``output`` ``None`` is the old API's ``step_control`` after its resident step (another
+    checkout's package, ``--baseline``): the C step's own record of it.
     """
+    if output is None:
+        plan = getattr(controller, "_resident", None)  # the old API's resident plan
+        if plan is None:
+            return None
+        info = controller.backend.ocp_step(plan.variant, plan.still_water).info
+        return float(info[6] + info[7])
+    if getattr(output, "fast_path", ""):
+        info = controller._deferred.info  # noqa: SLF001 (the bench reads the C step's own record)
+        return float(info[6] + info[7] + info[8])
+    result = output.result  # type: ignore[attr-defined]
+    return None if result is None else result.details.get("c_time")
+
+
+def _timed_loop(controller: uo.NMPC, how: str, steps: int) -> tuple[float, float, float]:
+    """One s2 closed loop from rest stepped ``how``; median wall, thread CPU and in-C time (ms).
+
+    ``how``: ``"step"``, ``"step, result read"``, ``"prepare + feedback"`` or the old API's
+    ``"step_control"`` (for ``--baseline``; in this package a deprecated alias of ``step``).
+    """
+    problem = _problem()  # equal to every row's: one plant for all
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    controller.reset()
+    state, control = problem.reference.initial_state(0.0), np.zeros(3)
+    wall, cpu, inside = [], [], []
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)
+        for k in range(steps):
+            t = k * problem.dt
+            start, start_cpu = time.perf_counter(), time.thread_time()
+            if how == "step_control":
+                control = controller.step_control(state, t, control, np.zeros(2))
+                output = controller.last_output  # the old API: None after a resident C step
+            elif how == "prepare + feedback":
+                controller.prepare(t, control, np.zeros(2))
+                output = controller.feedback(state)
+                control = output.control
+            else:
+                output = controller.step(state, t, control, np.zeros(2))
+                control = output.control
+                if how == "step, result read":
+                    _ = output.result
+            wall.append(time.perf_counter() - start)
+            cpu.append(time.thread_time() - start_cpu)
+            if k:
+                seconds = _c_seconds(controller, output)
+                if seconds is not None:
+                    inside.append(seconds)
+            state = np.array(plant(state, control, np.zeros(2))).ravel()
+    return (
+        1e3 * float(np.median(wall)),
+        1e3 * float(np.median(cpu)),
+        1e3 * float(np.median(inside)) if inside else float("nan"),
+    )
+
+
+def _built_rows(rows: tuple[tuple[str, str, dict, str], ...]) -> dict[str, tuple[uo.NMPC, str]]:
+    """Build each row's controller (its C step included); rows on a missing native HPIPM are skipped."""
     from uuv_ocp.native.hpipm import installed
 
     native_available = installed() is not None
-    controllers, lean, split, whole = {}, set(), set(), set()
-    for label, libraries, given in INTERLEAVED:
-        options = dict(given)
-        if options.pop("lean", False):  # NMPC.step_control: the resident C step
-            lean.add(label)
-        if options.pop("split", False):  # NMPC.prepare, then feedback_control: the control alone
-            split.add(label)
-        if options.pop("whole", False):  # NMPC.step: the resident C step with its StepOutput
-            whole.add(label)
+    built = {}
+    for label, libraries, options, how in rows:
         if libraries == NATIVE and not native_available:
-            print(f"{label}: skipped, no native HPIPM (make hpipm)")
+            print(f"{label}: skipped, no native HPIPM (make hpipm)", file=sys.stderr)
             continue
-        controllers[label] = _built_controller("sqp-rti", {**OCP, **options}, libraries)
-    walls: dict[str, list[float]] = {label: [] for label in controllers}
-    cpus: dict[str, list[float]] = {label: [] for label in controllers}
-    c_times: dict[str, list[float]] = {label: [] for label in controllers}
-    problem = _problem()  # every row's problem is this one's equal: one plant for all
-    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
-    for _ in range(rounds):
-        for label, controller in controllers.items():
-            controller.reset()
-            state, control = problem.reference.initial_state(0.0), np.zeros(3)
-            wall, cpu, inside = [], [], []
-            for k in range(steps):
-                start, start_cpu = time.perf_counter(), time.thread_time()
-                if label in lean:
-                    control = controller.step_control(state, k * problem.dt, control, np.zeros(2))
-                elif label in whole:
-                    output = controller.step(state, k * problem.dt, control, np.zeros(2))
-                    control = output.control
-                else:
-                    controller.prepare(k * problem.dt, control, np.zeros(2))
-                    if label in split:
-                        control = controller.feedback_control(state)
-                    else:
-                        output = controller.feedback(state)
-                        control = output.control
-                wall.append(time.perf_counter() - start)
-                cpu.append(time.thread_time() - start_cpu)
-                if k and label in lean and controller.last_output is None:  # a resident C step
-                    inside.append(_resident_c_time(controller))
-                elif k and label not in lean | split and output.result is not None:
-                    inside.append(output.result.details["c_time"])
-                state = np.array(plant(state, control, np.zeros(2))).ravel()
-            walls[label].append(1e3 * float(np.median(wall)))
-            cpus[label].append(1e3 * float(np.median(cpu)))
-            c_times[label].append(1e3 * float(np.median(inside)) if inside else float("nan"))
-    return [
-        {
-            "label": label,
-            "wall_ms": float(np.median(walls[label])),
-            "wall_range": (min(walls[label]), max(walls[label])),
-            "cpu_ms": float(np.median(cpus[label])),
-            "c_ms": float(np.median(c_times[label])),
-        }
-        for label in controllers
-    ]
+        built[label] = (_built_controller("sqp-rti", {**OCP, **options}, libraries), how)
+    return built
+
+
+def baseline_worker() -> None:
+    """``--worker``: build :data:`BASELINE`'s rows, then run one round per ``round`` line on stdin.
+
+    Runs on whichever ``uuv_ocp`` is first on ``PYTHONPATH`` (the baseline's); answers each
+    round with one JSON line ``{label: [wall, cpu, in C]}`` (ms) on stdout.
+    """
+    built = _built_rows(BASELINE)
+    print(json.dumps({"ready": sorted(built)}), flush=True)
+    for line in sys.stdin:
+        if line.strip() != "round":
+            break
+        steps = int(os.environ.get("UUV_OCP_BENCH_STEPS", "300"))
+        answer = {label: _timed_loop(controller, how, steps) for label, (controller, how) in built.items()}
+        print(json.dumps(answer), flush=True)
+
+
+def interleaved(rounds: int = 3, steps: int = 300, baseline: str | None = None) -> list[dict]:
+    """``NMPC.step`` (and the phases) on s2 for the rows of :data:`INTERLEAVED`, in rounds.
+
+    Every row has its own problem and controller, built first; then each round runs every
+    row's closed loop from rest once, one after the other, so that the machine's drift falls on
+    all rows alike.  ``baseline``: the ``src`` folder of another checkout, whose
+    :data:`BASELINE` rows run in a process of their own (:func:`baseline_worker`), one round
+    there after (odd rounds: before) each round here.  Per row: median over the rounds of the
+    per-round median step (wall and thread CPU, ms), the range of the per-round medians, and
+    the C step's own clock.
+    """
+    worker = None
+    if baseline is not None:
+        env = {**os.environ, "PYTHONPATH": str(baseline), "UUV_OCP_BENCH_STEPS": str(steps)}
+        worker = subprocess.Popen(
+            [sys.executable, "-m", "benchmarks.bench_rti", "--worker"],
+            cwd=os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+            env=env,
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            text=True,
+        )
+        assert worker.stdin is not None and worker.stdout is not None
+        print(f"baseline {baseline}: {json.loads(worker.stdout.readline())['ready']}")
+    built = _built_rows(INTERLEAVED)
+    samples: dict[str, list[tuple[float, float, float]]] = {}
+
+    def remote_round() -> None:
+        assert worker is not None and worker.stdin is not None and worker.stdout is not None
+        worker.stdin.write("round\n")
+        worker.stdin.flush()
+        for label, values in json.loads(worker.stdout.readline()).items():
+            samples.setdefault(label, []).append(tuple(values))
+
+    try:
+        for round_index in range(rounds):
+            if worker is not None and round_index % 2:
+                remote_round()
+            for label, (controller, how) in built.items():
+                samples.setdefault(label, []).append(_timed_loop(controller, how, steps))
+            if worker is not None and not round_index % 2:
+                remote_round()
+    finally:
+        if worker is not None and worker.stdin is not None:
+            worker.stdin.close()
+            worker.wait(timeout=60)
+    rows = []
+    for label, values in samples.items():
+        walls = [v[0] for v in values]
+        rows.append(
+            {
+                "label": label,
+                "wall_ms": float(np.median(walls)),
+                "wall_range": (min(walls), max(walls)),
+                "cpu_ms": float(np.median([v[1] for v in values])),
+                "c_ms": float(np.median([v[2] for v in values])),
+            }
+        )
+    return rows
 
 
 def _ms(value: float) -> str:
@@ -276,10 +363,8 @@ def _ms(value: float) -> str:
 
 
 def _resident_info(controller: uo.NMPC) -> np.ndarray:
-    """Return the C step's ``info`` of ``controller``'s last resident step (``OcpQpStep.iterate``)."""
-    plan = controller._resident  # noqa: SLF001 (the bench reads the C step's own record)
-    step = controller.backend.ocp_step(plan.variant, plan.still_water)
-    return step.info
+    """Return the C step's ``info`` of ``controller``'s last fast step (``OcpQpStep.iterate``)."""
+    return controller._deferred.info  # noqa: SLF001 (the bench reads the C step's own record)
 
 
 def _resident_c_time(controller: uo.NMPC) -> float:
@@ -387,11 +472,11 @@ def reference_problem(horizon: int = 20, dt: float = 0.1) -> uo.Ocp:
 
 
 def reference_interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
-    """``step_control`` on :func:`reference_problem` and on s2, RTI and converged, in rounds.
+    """``NMPC.step`` on :func:`reference_problem` and on s2, RTI and converged, in rounds.
 
     Each of the four controllers runs its own s2 closed loop (30 s from rest; the reference
     problem gets s2's reference window as its parameter, built outside the timing, where s2's
-    ``step_control`` builds its own window inside it); each round runs the four loops one after
+    ``step`` builds its own window inside it); each round runs the four loops one after
     the other, the order rotating, so that the machine's drift falls on all alike (stepping them
     in lockstep instead evicts each one's caches between its steps: 1.5x slower).  Per round and
     controller: median wall time, median time in C (the C step's own clock), the largest
@@ -430,11 +515,12 @@ def reference_interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
                 t = k * dt
                 start = time.perf_counter()
                 if problem is ocp:  # the reference problem: its window is a parameter
-                    control = controller.step_control(state, 0.0, parameters=windows[k])
+                    output = controller.step(state, 0.0, parameters=windows[k])
                 else:
-                    control = controller.step_control(state, t, control)
+                    output = controller.step(state, t, control)
                 walls.append(time.perf_counter() - start)
-                if k and controller.last_output is None:  # a step of the C step alone
+                control = output.control
+                if k and output.fast_path:  # a step of the C step alone
                     c_times.append(_resident_c_time(controller))
                     riccati += _resident_qp_iterations(controller) == 0
                 state = np.array(plant(state, control, np.zeros(2))).ravel()
@@ -481,7 +567,7 @@ def _bluerov2_survey() -> tuple[uo.TrackingProblem, np.ndarray]:
 def loose_first_qp(
     case: str = "s2", steps: int = 300, every: int = 10, depth: int = 4, rounds: int = 2
 ) -> dict:
-    """Converged ``step_control`` with ``loose_first_qp`` on and off, ``rounds`` loops each, alternated.
+    """Converged ``NMPC.step`` with ``loose_first_qp`` on and off, ``rounds`` loops each, alternated.
 
     ``case``: ``"s2"`` (RexROV) or ``"bluerov2"`` (the 6-DOF survey).  Per setting: Gauss–Newton
     iterations of the resident steps (median, mean), steps that took the general path after
@@ -517,11 +603,11 @@ def loose_first_qp(
             iterations, general, applied, inside = [], 0, [], []
             for k in range(steps):
                 t = k * problem.dt
-                plan = controller._resident  # noqa: SLF001 (the bench reads the resident plan)
+                plan = controller._deferred  # noqa: SLF001 (the bench reads the resident plan)
                 sample = k >= 2 and k % every == 0 and plan is not None
                 if label.startswith("loose") and round_index == 0 and sample:
                     p = instance_parameters(problem, state, t, u_prev=control)
-                    warm = controller.backend.resident_iterate(plan).shift()
+                    warm = plan.iterate().shift()
                     primal, lam_g, lam_x = tight._initial_point(plan.variant, p, warm)  # noqa: SLF001
                     step = tight.ocp_step(plan.variant, plan.still_water)
                     scale = tight.objective_scale
@@ -530,10 +616,10 @@ def loose_first_qp(
                             primal, p, lam_x * scale, lam_g * scale, False, index + 1, 0.0, 1e-6, math.inf
                         )[3]
                         norms[index].append(float(info[2]))
-                control = controller.step_control(state, t, control)
-                if k and controller.last_output is None:
-                    plan = controller._resident  # noqa: SLF001
-                    info = controller.backend.ocp_step(plan.variant, plan.still_water).info
+                output = controller.step(state, t, control)
+                control = output.control
+                if k and output.fast_path:
+                    info = _resident_info(controller)
                     iterations.append(float(info[0]))
                     inside.append(float(info[6] + info[7]))
                 elif k:
@@ -738,7 +824,7 @@ def print_quality(rows: list, labels: list[str]) -> None:
 def print_reference(rounds: int) -> None:
     """Print :func:`reference_interleaved` over ``rounds`` rounds, then each row's median."""
     print(
-        f"\nstep_control on issue 13's reference problem (6 states) and on s2 (9), "
+        f"\nNMPC.step on issue 13's reference problem (6 states) and on s2 (9), "
         f"{rounds} interleaved rounds of a 30 s closed loop, ms per step"
     )
     print(
@@ -769,6 +855,7 @@ def main(
     quality_only: bool = False,
     loose_first: bool = False,
     reference_rounds: int = 0,
+    baseline: str | None = None,
 ) -> None:
     """Print the speed table (ratios to fatrop) and the quality table (``quick``: s2 only).
 
@@ -776,7 +863,9 @@ def main(
     the interleaved table (:func:`interleaved`) over that many rounds; ``speed_abs``: only the
     quality table of :data:`SPEED_ABS_QUALITY`; ``quality_only``: only the quality table of the
     default C step, fatrop and the C step's converged mode; ``loose_first``: only :func:`loose_first_qp`;
-    ``reference_rounds``: only :func:`reference_interleaved` over that many rounds.
+    ``reference_rounds``: only :func:`reference_interleaved` over that many rounds;
+    ``baseline``: with ``rounds``, the ``src`` of another checkout whose :data:`BASELINE` rows
+    run beside the interleaved table's (and the ratio of ``step`` to its ``step_control``).
     """
     print(f"load average at start: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
     if reference_rounds:
@@ -784,7 +873,7 @@ def main(
         return
     for case in ("s2", "bluerov2") if loose_first else ():
         result = loose_first_qp(case)
-        print(f"\nconverged step_control, {case} closed loop (30 s from rest), two rounds alternated")
+        print(f"\nconverged NMPC.step, {case} closed loop (30 s from rest), two rounds alternated")
         for label, row in result["rows"].items():
             print(
                 f"{label:<28} Gauss-Newton iterations median {row['median']:.0f}, mean {row['mean']:.2f}; "
@@ -810,12 +899,17 @@ def main(
     if rounds:
         print(f"\nsqp-rti, s2 closed loop (30 s from rest), {rounds} interleaved rounds, ms per step")
         print(f"{'C step':<36}{'wall':>8}{'range':>16}{'CPU':>8}{'in C':>8}")
-        for row in interleaved(rounds):
+        rows = interleaved(rounds, baseline=baseline)
+        for row in rows:
             low, high = row["wall_range"]
             print(
                 f"{row['label']:<36}{row['wall_ms']:>8.3f}{f'{low:.3f}-{high:.3f}':>16}"
                 f"{row['cpu_ms']:>8.3f}{_ms(row['c_ms']):>8}"
             )
+        walls = {row["label"]: row["wall_ms"] for row in rows}
+        ours, theirs = walls.get(INTERLEAVED[0][0]), walls.get(BASELINE[0][0])
+        if ours is not None and theirs is not None:
+            print(f"{INTERLEAVED[0][0]} / {BASELINE[0][0]}: {ours / theirs:.3f} (wall medians)")
         print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
         return
     if settings:
@@ -849,6 +943,9 @@ def main(
 
 
 if __name__ == "__main__":
+    if "--worker" in sys.argv:
+        baseline_worker()
+        sys.exit(0)
     main(
         quick="--quick" in sys.argv,
         settings="--hpipm-options" in sys.argv,
@@ -861,4 +958,5 @@ if __name__ == "__main__":
         reference_rounds=(int(sys.argv[sys.argv.index("--rounds") + 1]) if "--rounds" in sys.argv else 3)
         if "--reference-problem" in sys.argv
         else 0,
+        baseline=sys.argv[sys.argv.index("--baseline") + 1] if "--baseline" in sys.argv else None,
     )

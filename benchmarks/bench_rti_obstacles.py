@@ -1,6 +1,6 @@
 """Real-time iteration on the obstacle tutorial's rock: what the judge refuses and what it costs.
 
-``step_control`` (the C fast paths where a native HPIPM is built, else ``feedback``) flies 60
+``NMPC.step`` (the resident C step where the C step is built, else ``solve``) flies 60
 steps of the RexROV past the rock of ``docs/tutorials/obstacles.py`` (N = 25, dt = 0.2 s).
 Printed: the largest judged path-constraint violation of a plan applied (m), the steps that
 took a C fast path, the steps whose one-QP plan was refused and iterated to convergence
@@ -20,7 +20,7 @@ from uuv_ocp.control.scenario import vehicle_plant
 
 
 def main(steps: int = 60, unjudged: bool = False) -> dict[str, float]:
-    """Fly the rock course by ``step_control``; print and return the figures above.
+    """Fly the rock course by ``NMPC.step``; print and return the figures above.
 
     ``unjudged``: the controller skips its path-constraint judge (what it applied before the
     judge covered sqp-rti); the violations are still measured.
@@ -44,15 +44,14 @@ def main(steps: int = 60, unjudged: bool = False) -> dict[str, float]:
     for k in range(steps):
         t = k * problem.dt
         start = time.perf_counter()
-        applied = controller.step_control(x, t, u)
+        output = controller.step(x, t, u)
         times.append(time.perf_counter() - start)
-        output = controller.last_output  # None after a C fast path
-        fast += output is None
-        if output is not None and output.fallback:
+        fast += bool(output.fast_path)
+        if output.fallback:
             fallbacks += 1
         else:
             worst = max(worst, uo.score(problem, controller.plan, x, t, u_prev=u)[1])
-        u = applied
+        u = output.control
         x = np.array(plant(x, u, np.zeros(2)))[:, -1]
     figures = {
         "worst_violation_m": worst,

@@ -335,27 +335,29 @@ def test_real_time_iteration_plans_applied_on_obstacles_hold_them(monkeypatch):
     assert mended
 
 
+@needs_compiler
 def test_the_c_fast_paths_apply_only_plans_that_hold_the_obstacles():
-    """step_control (resident step, C feedback) on the rock: every plan applied passes the judge.
+    """NMPC.step with the C step (the resident fast path) on the rock: every applied plan is judged.
 
-    The fast paths run only with a native HPIPM; elsewhere step_control is feedback(), and the
-    same holds.
+    A resident C step's plan is one QP's, like ``solve``'s: unjudged, plans entering the rock's
+    zone by mm were applied (docs/solvers.md); judged, refused ones are refined or fall back.
     """
     rock = uo.Obstacle.circle((5.0, 0.2), 0.6, margin=0.5, name="rock")
     line = uo.Reference.from_xy(lambda t: 0.5 * t, lambda t: 0 * t, name="line")
     problem = uo.TrackingProblem(
         uo.Vehicle.rexrov(), line, horizon=25, dt=0.2, terminal="cost", obstacles=(rock,)
     )
-    controller = uo.NMPC(problem, "sqp-rti")
+    controller = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp"})
     plant, _ = vehicle_plant(problem, None, problem.dt, 10)
-    x, u, worst = line.initial_state(0.0), np.zeros(3), 0.0
+    x, u, worst, fast = line.initial_state(0.0), np.zeros(3), 0.0, 0
     for k in range(60):
         t = k * problem.dt
-        applied = controller.step_control(x, t, u)
-        output = controller.last_output  # None after a fast path: its plan was applied
-        if output is None or not output.fallback:
+        output = controller.step(x, t, u)
+        if not output.fallback:
             worst = max(worst, uo.score(problem, controller.plan, x, t, u_prev=u)[1])
-        u = applied
+        fast += output.fast_path == "resident C step"
+        u = output.control
         x = np.array(plant(x, u, np.zeros(2)))[:, -1]
     assert worst <= FEASIBILITY_TOLERANCE
+    assert fast > 30  # the fast path ran (and was judged)
     assert x[0] > 5.5  # past the rock

@@ -643,7 +643,8 @@ def test_the_fast_feedback_gives_what_solve_gives(problem, monkeypatch):
             assert np.array_equal(getattr(ra.iterate, name), getattr(rb.iterate, name)), (k, name)
         control = a.control
         state = np.array(plant(state, control, np.zeros(2))).ravel()
-    assert calls == [False] + [True] * 11  # every step but the cold first took the fast path
+    # every step but the cold first (nothing prepared: solve) took the fast path
+    assert calls == [True] * 11
 
 
 def test_a_failing_preparation_costs_speed_not_the_step(problem, monkeypatch):
@@ -660,9 +661,9 @@ def test_a_failing_preparation_costs_speed_not_the_step(problem, monkeypatch):
     monkeypatch.setattr(broken.backend, "prepare", fails)
     monkeypatch.setattr(plain.backend, "prepare", None)  # never prepares
     state, control = reference.initial_state(0.0), np.zeros(3)
-    for k in range(3):
-        a = broken.step(state, k * problem.dt, control)
-        b = plain.step(state, k * problem.dt, control)
+    for k in range(3):  # the two phases (step prepares nothing ahead: no time between them)
+        a = general_step(broken, state, k * problem.dt, control)
+        b = general_step(plain, state, k * problem.dt, control)
         assert not a.fallback and np.array_equal(a.control, b.control)
         control = a.control
 
@@ -671,7 +672,7 @@ def test_a_failing_preparation_costs_speed_not_the_step(problem, monkeypatch):
 
     monkeypatch.setattr(broken.backend, "prepare", interrupted)
     with pytest.raises(KeyboardInterrupt):
-        broken.step(state, 3 * problem.dt, control)
+        general_step(broken, state, 3 * problem.dt, control)
 
 
 @pytest.mark.parametrize("mode", ["rti", "converged"])
@@ -699,13 +700,14 @@ def test_resident_steps_of_controllers_sharing_a_backend_equal_step(problem, mod
         t = 1.0 + k * problem.dt
         for i, (lean, full) in enumerate(zip((first, second), references, strict=True)):
             measured = states[i] + 1e-3 * rng.standard_normal(6)
-            control = lean.step_control(measured, t, controls[i], np.zeros(2))
+            control = lean.step(measured, t, controls[i], np.zeros(2))
             expected = general_step(full, measured, t, controls[i], np.zeros(2))
-            assert lean._resident is None or lean._resident.variant == "hard"
-            assert np.array_equal(control, expected.control), (k, i)
+            assert lean._deferred is None or lean._deferred.variant == "hard"
+            assert np.array_equal(control.control, expected.control), (k, i)
             assert np.array_equal(lean.plan, expected.result.controls), (k, i)
             assert np.array_equal(lean.iterate.primal, full.iterate.primal), (k, i)
-            resident += lean.last_output is None
+            resident += control.fast_path == "resident C step"
+            control = control.control
             controls[i] = control
             states[i] = np.array(plant(states[i], control, np.zeros(2))).ravel()
     # rti: all but the two cold first steps; converged: a step from near rest that does not
@@ -714,10 +716,10 @@ def test_resident_steps_of_controllers_sharing_a_backend_equal_step(problem, mod
 
 
 def test_resident_steps_of_an_ocp_with_a_path_constraint_equal_step():
-    """``step_control`` on a user ``Ocp``: parameters, a non-convex path constraint, a soft bound.
+    """``step`` on a user ``Ocp``: parameters, a non-convex path constraint, a soft bound.
 
-    The resident C step must give ``step``'s controls and plans bit for bit (``step`` on a
-    backend of its own), and must run: every warm step is resident.
+    The resident C step must give the controls and plans of ``prepare`` + ``feedback`` bit for
+    bit (on a backend of its own), and must run: every warm step is resident.
     """
     needs_compiler("hpipm-ocp")
     ocp = uo.Ocp(horizon=20, dt=0.2)
@@ -736,12 +738,12 @@ def test_resident_steps_of_an_ocp_with_a_path_constraint_equal_step():
     full = uo.NMPC(ocp, "sqp-rti", options={"qpsol": "hpipm-ocp", "slack_tolerance": 1e-7})
     state, control, resident = np.zeros(4), np.zeros(2), 0
     for k in range(12):
-        applied = lean.step_control(state, 0.0, control, parameters=data)
+        record = lean.step(state, 0.0, control, parameters=data)
         expected = general_step(full, state, 0.0, control, parameters=data)
-        assert np.array_equal(applied, expected.control), k
+        assert np.array_equal(record.control, expected.control), k
         assert np.array_equal(lean.plan, expected.result.controls), k
-        resident += lean.last_output is None
-        control = applied
+        resident += record.fast_path == "resident C step"
+        control = record.control
         # the double integrator held at `control` for one interval, exactly
         state = np.concatenate([state[:2] + 0.2 * state[2:] + 0.02 * control, state[2:] + 0.2 * control])
     assert resident == 11  # all but the cold first step
@@ -759,20 +761,20 @@ def test_resident_steps_refuse_bad_input_before_the_c_call(problem):
     x = problem.reference.initial_state(0.0)
     for controller in (probed, clean):
         for k in range(3):  # cold, seeding, resident
-            controller.step_control(x, k * problem.dt, np.zeros(3), np.zeros(2))
-    assert probed._resident is not None
+            controller.step(x, k * problem.dt, np.zeros(3), np.zeros(2))
+    assert probed._deferred is not None
     bad_state = x.copy()
     bad_state[0] = np.nan
     for call, name in (
-        (lambda c: c.step_control(bad_state, 0.3, np.zeros(3)), "x0"),
+        (lambda c: c.step(bad_state, 0.3, np.zeros(3)), "x0"),
         (lambda c: c.step(x, math.inf, np.zeros(3)), "t0"),
-        (lambda c: c.step_control(x, 0.3, np.full(3, 1e9)), "u_prev"),
+        (lambda c: c.step(x, 0.3, np.full(3, 1e9)), "u_prev"),
     ):
         with pytest.raises(ValueError, match=name):
             call(probed)
-    a = probed.step_control(x, 0.3, np.zeros(3), np.zeros(2))
-    b = clean.step_control(x, 0.3, np.zeros(3), np.zeros(2))
-    assert np.array_equal(a, b) and probed.last_output is None
+    a = probed.step(x, 0.3, np.zeros(3), np.zeros(2))
+    b = clean.step(x, 0.3, np.zeros(3), np.zeros(2))
+    assert np.array_equal(a.control, b.control) and a.fast_path == "resident C step"
 
 
 def test_resident_seed_checks_its_sizes(problem):
@@ -839,48 +841,52 @@ def general_step(controller: uo.NMPC, x, t, u_prev, current=None, parameters=Non
     return controller.feedback(x)
 
 
-def test_step_control_gives_step_s_controls_without_the_result(problem):
-    """``step_control`` and ``step``: the controls, plans and warm starts of the general path.
+def test_step_takes_the_resident_c_step_with_the_general_path_s_numbers(problem, monkeypatch):
+    """``NMPC.step`` takes the resident C step by itself; its numbers are the general path's.
 
-    Both take warm steps from the C step's resident warm start; ``step`` also builds the
-    ``StepOutput`` (result, judge) of ``prepare`` + ``feedback``, bit for bit.  The cold first
-    step and a failed step go through ``feedback`` (``last_output`` for ``step_control``).
+    ``step`` on s2 with the C step: every warm step is the resident one (``fast_path``), and
+    its control, plan, warm start and (lazily built) result equal, bit for bit, those of
+    ``prepare`` + ``feedback`` on a controller whose backend has no fast path (every step
+    through ``solve``'s bookkeeping).  The deprecated ``step_control`` warns and gives the same
+    control by the same path.  A failed step goes through ``solve`` and the same fallback.
     """
     needs_compiler("hpipm-ocp")
     reference = problem.reference
-    lean = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp"})
+    stepper = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp"})
     full = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp", "slack_tolerance": 1e-7})
-    stepper = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp", "slack_tolerance": 2e-7})
+    lean = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp", "slack_tolerance": 2e-7})
+    monkeypatch.setattr(full.backend, "_feedback_in_c", lambda *a: None)  # no prepared C step
     plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
     state, control = reference.initial_state(0.0), np.zeros(3)
     rng = np.random.default_rng(9)
-    fast_steps = 0
+    paths = []
     for k in range(12):
         measured = state + 1e-3 * rng.standard_normal(6)
-        a = lean.step_control(measured, k * problem.dt, control, np.zeros(2))
-        b = general_step(full, measured, k * problem.dt, control, np.zeros(2))
         c = stepper.step(measured, k * problem.dt, control, np.zeros(2))
-        assert np.array_equal(a, b.control), k
-        assert np.array_equal(lean.plan, b.result.controls)
-        assert np.array_equal(lean.iterate.primal, full.iterate.primal)
-        assert np.array_equal(lean.iterate.lam_g, full.iterate.lam_g)
+        b = general_step(full, measured, k * problem.dt, control, np.zeros(2))
+        with pytest.warns(DeprecationWarning, match=r"NMPC\.step\(x, t, \.\.\.\)\.control"):
+            a = lean.step_control(measured, k * problem.dt, control, np.zeros(2))
+        paths.append(c.fast_path)
+        assert b.fast_path == "" and (lean.last_output is None) == (c.fast_path != "")
         assert np.array_equal(c.control, b.control) and c.fallback == b.fallback, k
+        assert np.array_equal(a, b.control), k
+        assert np.array_equal(stepper.plan, b.result.controls)
         assert np.array_equal(c.result.controls, b.result.controls)
         assert np.array_equal(c.result.states, b.result.states)
         for field in ("cost", "max_violation", "success", "status", "iterations", "terminal_relaxed"):
             assert getattr(c.result, field) == getattr(b.result, field), (k, field)
         assert c.result.details["attempts"] == b.result.details["attempts"]
-        assert np.array_equal(stepper.iterate.primal, full.iterate.primal)
-        assert np.array_equal(stepper.iterate.lam_x, full.iterate.lam_x)
-        fast_steps += lean.last_output is None
-        control = a
+        for name in ("primal", "lam_g", "lam_x"):
+            assert np.array_equal(getattr(stepper.iterate, name), getattr(full.iterate, name)), (k, name)
+        control = c.control
         state = np.array(plant(state, control, np.zeros(2))).ravel()
-    assert fast_steps == 11  # all but the cold first step
-    # a failed step: the general path's fallback, reported in last_output
-    lean.backend.qp_tolerance = full.backend.qp_tolerance = 1e-300
-    lean.backend.robust_options = full.backend.robust_options = lambda: {}
-    lean.backend.cold_start = full.backend.cold_start = "rti"  # no IPOPT for the cold retry either
-    a = lean.step_control(state, 12 * problem.dt, control, np.zeros(2))
+    assert paths == [""] + ["resident C step"] * 11  # all but the cold first step
+    # a failed step: solve()'s fallback chain, then the controller's fallback
+    for controller in (stepper, full):
+        controller.backend.qp_tolerance = 1e-300
+        controller.backend.robust_options = lambda: {}
+        controller.backend.cold_start = "rti"  # no IPOPT for the cold retry either
+    c = stepper.step(state, 12 * problem.dt, control, np.zeros(2))
     b = general_step(full, state, 12 * problem.dt, control, np.zeros(2))
-    assert lean.last_output is not None and lean.last_output.fallback and b.fallback
-    assert np.array_equal(a, b.control) and lean.last_output.message == b.message
+    assert c.fallback and b.fallback and c.fast_path == ""
+    assert np.array_equal(c.control, b.control) and c.message == b.message

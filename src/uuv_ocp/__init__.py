@@ -8,7 +8,7 @@ Importing the package has no side effects: nothing is built, compiled or plotted
 
 from uuv_ocp._version import __version__ as __version__
 from uuv_ocp.control.disturbances import Current, GaussMarkov, MeasurementNoise
-from uuv_ocp.control.mpc import NMPC, StepOutput
+from uuv_ocp.control.mpc import NMPC, StepOutput, StepRecord
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.judge import score
@@ -51,6 +51,7 @@ __all__ = [
     "SimulationInterrupted",
     "SolveResult",
     "StepOutput",
+    "StepRecord",
     "ThrusterConfiguration",
     "TrackingProblem",
     "Vehicle",

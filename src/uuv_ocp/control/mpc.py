@@ -14,10 +14,10 @@ The last test matters for the swarms, which hold path constraints only by a pena
 a real-time iteration (``sqp-rti``), whose one QP holds the constraints linearised at the
 warm start: a plan of it that the judge refuses is iterated further from that plan, on the
 same instance (up to :data:`RTI_REFINEMENTS` calls of the backend's ``solve``, judged after
-each, within the rest of the deadline), before the step gives up on it.  On such problems the
-C fast paths of :meth:`NMPC.feedback_control` and :meth:`NMPC.step_control` judge their plans
-too; a refused one is solved again on :meth:`NMPC.feedback`'s path, so every plan applied is
-judged.
+each, within the rest of the deadline), before the step gives up on it.  A plan a backend's
+fast path gives (a :class:`~uuv_ocp.solvers.base.DeferredPlan`: ``sqp-rti``'s C step) is
+judged on such problems too, and a refused one is refined the same way, so every plan applied
+is judged.
 Otherwise the step takes the *fallback*, the first admissible plan of
 
 1. the shifted previous plan (the last applied plan, one interval on, last control repeated);
@@ -33,15 +33,15 @@ from the measured state.  When none is admissible, the one with the smallest vio
 applied.  The steady control does not steer back to the reference; it stops the error from
 growing as fast as it would with no control or a stale one.  The step is counted in
 ``ClosedLoopResult.failures`` and the closed loop never stops on a solver failure; why the
-fresh plan was refused is in ``StepOutput.message`` (the backend's status, its exception,
+fresh plan was refused is in ``StepRecord.message`` (the backend's status, its exception,
 ``"non-finite controls ..."`` or ``"path constraint violated ..."``) and which plan was
-applied in ``StepOutput.fallback_source``.  ``KeyboardInterrupt`` (CasADi's, raised as a
+applied in ``StepRecord.fallback_source``.  ``KeyboardInterrupt`` (CasADi's, raised as a
 ``RuntimeError`` naming it, included) always propagates.  A backend whose ``solve`` returns
 something other than a :class:`~uuv_ocp.solvers.SolveResult` is a broken plug-in, not a
 failed solve: the step raises ``TypeError`` naming it.
 
 Deadlines (backend option ``deadline``, seconds; see docs/solvers.md): a step whose backend
-reports ``details["deadline_hit"]`` sets ``StepOutput.deadline_hit`` and is counted in
+reports ``details["deadline_hit"]`` sets ``StepRecord.deadline_hit`` and is counted in
 ``ClosedLoopResult.deadline_misses``.  An exact solver (or a hybrid's exact stage) stopped by
 the deadline reports ``success=False``, so the step takes the fallback above; a swarm stopped by
 it returns its best plan so far, which is applied when feasible (``success``) — a swarm is an
@@ -51,9 +51,17 @@ Building: :meth:`NMPC.warm_up` runs what the first steps would build or compile 
 start's NLP, ``sqp-rti``'s C step, JIT code) on one instance and forgets it; :func:`simulate`
 calls it before its loop, so that no timed step compiles.
 
-Phases: :meth:`NMPC.step` is :meth:`NMPC.prepare` (before the state is measured: the
-time, last control and data of the step; a real-time-iteration backend linearises then)
-followed by :meth:`NMPC.feedback` (the measured state in, the control out).
+One API: :meth:`NMPC.step` (state and time in, a :class:`StepRecord` out: the control to apply
+and how it came about), or its two phases for real-time use, :meth:`NMPC.prepare` (before the
+state is measured: the time, last control and data of the step; a
+:class:`~uuv_ocp.solvers.base.Preparable` backend linearises then) and :meth:`NMPC.feedback`
+(the measured state in, the record out).  ``step`` is the two phases with no time between
+them, so it prepares nothing ahead: a Preparable backend's ``feedback`` takes the whole step by
+its fastest path (``sqp-rti``'s C step: one C call from its resident warm start), other
+backends' ``solve``.  A fast path's plan comes as a :class:`~uuv_ocp.solvers.base.DeferredPlan`:
+the control at once, its warm start, :attr:`NMPC.plan` and :attr:`StepRecord.result` (the judge)
+built only when read.  ``step_control`` and ``feedback_control`` are deprecated aliases of
+``step(...).control`` and ``feedback(x).control``.
 
 Every applied control, fresh or fallback, is projected on the control box and on the rate
 bound around the last applied control: the plant never sees a bound violated, whatever the
@@ -65,8 +73,9 @@ from __future__ import annotations
 import functools
 import threading
 import time
+import warnings
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 import casadi as ca
@@ -77,9 +86,8 @@ from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE, instance_parameters, score_terms
 from uuv_ocp.solvers import REGISTRY, new_solver
-from uuv_ocp.solvers.base import reraise_interrupt
+from uuv_ocp.solvers.base import DeferredPlan, Preparable, reraise_interrupt
 from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.solvers.rti import ResidentPlan
 from uuv_ocp.tracking import TrackingProblem
 from uuv_ocp.transcription.multiple_shooting import parameter_blocks
 
@@ -97,15 +105,16 @@ PATH_VIOLATION = "path constraint violated"
 
 
 @dataclass(frozen=True)
-class StepOutput:
-    """What one controller step returns.
+class StepRecord:
+    """What one controller step returns: the control to apply and how it came about.
 
     Parameters
     ----------
-    control : numpy.ndarray, shape (3,)
-        Control to apply (N, N, N·m).
-    result : SolveResult or None
-        The solver's result (``None`` if the solver raised).
+    control : numpy.ndarray, shape (nu,)
+        Control to apply (physical units: N, N, N·m for the RexROV).
+    _result : SolveResult, DeferredPlan or None
+        The solver's outcome, read as :attr:`result` (a backend's fast path gives a
+        :class:`~uuv_ocp.solvers.base.DeferredPlan`, turned into its result when first read).
     fallback : bool
         Whether ``control`` comes from the fallback rather than the fresh solution.
     message : str
@@ -120,14 +129,36 @@ class StepOutput:
         Which fallback plan was applied (module doc): ``"shifted plan"``, ``"steady control"``
         or ``"held control"``, with ``" (least violation)"`` appended when none was
         admissible; empty when the fresh solution is applied.
+    fast_path : str
+        The backend's fast path that gave the applied plan (``sqp-rti``: ``"resident C step"``
+        or ``"prepared C step"``); empty when the plan came through ``solve`` (or a fallback).
     """
 
     control: np.ndarray
-    result: SolveResult | None
+    _result: SolveResult | DeferredPlan | None = field(repr=False)
     fallback: bool
     message: str = ""
     deadline_hit: bool = False
     fallback_source: str = ""
+    fast_path: str = ""
+
+    @property
+    def result(self) -> SolveResult | None:
+        """The solver's result (``None`` if the solver raised); the judge's cost and violation included.
+
+        After a fast path (:attr:`fast_path`) it is built on first read, from the copies the
+        step kept: the same numbers at any later time, at the cost of the judge then (read it
+        in the thread that steps the controller, or while it does not step).
+        """
+        outcome = self._result
+        if isinstance(outcome, DeferredPlan):
+            outcome = outcome.result()
+            object.__setattr__(self, "_result", outcome)  # built once; the record stays frozen
+        return outcome
+
+
+#: The name of :class:`StepRecord` before the fast paths returned one too.
+StepOutput = StepRecord
 
 
 _Method = TypeVar("_Method", bound=Callable[..., Any])
@@ -206,24 +237,35 @@ class NMPC:
         self._plan: np.ndarray | None = None
         self._pending: tuple[Any, ...] | None = None
         self._prepared_p: np.ndarray | None = None  # the instance prepare() linearised
-        # the last plan of a step_control step taken by sqp-rti's C step from its resident warm
-        # start (kept instead of _iterate/_plan until another path needs those: _materialize)
-        self._resident: ResidentPlan | None = None
-        self._token = object()  # this controller, as the owner of a C step's resident warm start
+        # the last plan a Preparable backend's fast path gave: kept instead of _iterate/_plan
+        # (and handed back as the next warm start) until another path needs those (_materialize)
+        self._deferred: DeferredPlan | None = None
         self._bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # see _admissible
         self._path_constrained: bool | None = None  # whether fresh plans are judged (module doc)
         self._steady: tuple[ca.Function, np.ndarray] | None = None  # see _steady_control
         #: whether :meth:`warm_up` has run (what the steps build is built)
         self.warmed_up = False
-        #: the last :meth:`feedback_control` step's output (None after a step by the C step alone)
-        self.last_output: StepOutput | None = None
+        #: the record of the last deprecated :meth:`step_control` / :meth:`feedback_control`
+        #: step, ``None`` after one a fast path took (kept for their callers)
+        self.last_output: StepRecord | None = None
+
+    @property
+    def backend(self) -> Any:
+        """The controller's own backend (any registered solver's; see :mod:`uuv_ocp.solvers.base`)."""
+        return self._backend
+
+    @backend.setter
+    def backend(self, backend: Any) -> None:
+        # checked once here, not per step: a runtime protocol check costs tens of µs
+        self._backend = backend
+        self._preparable = isinstance(backend, Preparable)
 
     @_one_thread
     def reset(self) -> None:
         """Forget the warm start and the previous plan; restart the random generator."""
         self._iterate = None
         self._plan = None
-        self._resident = None
+        self._deferred = None
         self._pending = None
         self._prepared_p = None
         self._rng = np.random.default_rng(self.seed)
@@ -261,22 +303,24 @@ class NMPC:
     @property
     def iterate(self) -> Iterate | None:
         """The warm start the next :meth:`step` will use (already shifted)."""
-        if self._resident is not None:
-            return self._from_resident()[1].shift()
+        if self._deferred is not None:
+            return self._deferred.iterate().shift()
         return self._iterate
 
-    def _from_resident(self) -> tuple[np.ndarray, Iterate]:
-        """Return the plan (physical controls) and unshifted iterate of the last resident C step."""
-        assert self._resident is not None
-        iterate = self.backend.resident_iterate(self._resident)
-        return self.problem.controls_from_scaled(iterate.scaled_controls), iterate
+    @property
+    def plan(self) -> np.ndarray | None:
+        """The last fresh plan (physical controls, shape (N, nu)), shifted by each fallback step."""
+        if self._deferred is not None:
+            return self.problem.controls_from_scaled(self._deferred.iterate().scaled_controls)
+        return self._plan
 
     def _materialize(self) -> None:
-        """Turn the plan of the last resident C step into ``_iterate`` and ``_plan``."""
-        if self._resident is not None:
-            self._plan, iterate = self._from_resident()
+        """Turn the last fast path's plan into ``_iterate`` and ``_plan`` (the general path's)."""
+        if self._deferred is not None:
+            iterate = self._deferred.iterate()
+            self._plan = self.problem.controls_from_scaled(iterate.scaled_controls)
             self._iterate = iterate.shift()
-            self._resident = None
+            self._deferred = None
 
     @_one_thread
     def step(
@@ -286,22 +330,19 @@ class NMPC:
         u_prev: object | None = None,
         current: object | None = None,
         parameters: dict[str, Any] | None = None,
-    ) -> StepOutput:
-        """Solve at state ``x`` and time ``t`` and return the control to apply.
+    ) -> StepRecord:
+        """Solve at state ``x`` and time ``t``; return the control to apply and the step's record.
 
         ``current`` is a tracking problem's model current; ``parameters`` an Ocp's data.
-        The same as :meth:`prepare` followed by :meth:`feedback` (with ``sqp-rti``'s C step, a
-        warm step runs as one C call from the resident warm start, as :meth:`step_control`
-        does, and the same :class:`StepOutput` is built from it).
+        :meth:`prepare` then :meth:`feedback` with no time between them, so nothing is prepared
+        ahead: the backend's feedback takes the whole step at the measured state by its
+        fastest path (``sqp-rti``'s C step: one C call from its resident warm start; docs/
+        solvers.md).  The controls, plans and warm starts are those of :meth:`prepare` +
+        :meth:`feedback`.
         """
-        start = time.perf_counter()
-        resident = self._resident_plan(x, t, u_prev, current, parameters)
-        if resident is not None:
-            plan, p = resident
-            result = self.backend.resident_result(p, plan, time.perf_counter() - start)
-            return StepOutput(self._admissible(plan.control, u_prev), result, False)
-        self.prepare(t, u_prev, current, parameters)
-        return self.feedback(x)
+        self._pending = self._prepared_p = None  # a step replaces a prepared one
+        p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
+        return self._solve_step(p, u_prev)
 
     @_one_thread
     def prepare(
@@ -314,35 +355,36 @@ class NMPC:
         """Run the preparation phase of the next step, before its state is measured.
 
         Stores the step's time, last control, current and parameters.  A backend with a
-        preparation phase (``"sqp-rti"``: linearisation at the shifted previous iterate) runs
-        it now, with the warm start's predicted first state standing in for the measurement;
-        :meth:`feedback` then only solves the QP.  Other backends do all their work in
-        :meth:`feedback`.  Without a warm start nothing is prepared; a preparation that raises
-        is dropped (``KeyboardInterrupt`` excepted), and :meth:`feedback` then solves afresh,
-        reporting any failure as a step's failure.
+        preparation phase (:class:`~uuv_ocp.solvers.base.Preparable`; ``"sqp-rti"``:
+        linearisation at the shifted previous iterate) runs it now, with the warm start's
+        predicted first state standing in for the measurement; :meth:`feedback` then only
+        solves the QP.  Other backends do all their work in :meth:`feedback`.  Without a warm
+        start nothing is prepared; a preparation that raises is dropped (``KeyboardInterrupt``
+        excepted), and :meth:`feedback` then solves afresh, reporting any failure as a step's
+        failure.
         """
         self._materialize()
         self._pending = (t, u_prev, current, parameters)
         self._prepared_p = None
-        prepare = getattr(self.backend, "prepare", None)
         warm = self._iterate if self.use_warm_start else None
-        if prepare is None or warm is None:
+        if not self._preparable or warm is None:
             return
         guess = warm.states[0]
         p = instance_parameters(self.problem, guess, t, u_prev=u_prev, current=current, parameters=parameters)
         try:
-            prepare(p, warm)
+            self.backend.prepare(p, warm)
         except Exception as error:  # a failed preparation only costs speed: feedback solves afresh
             reraise_interrupt(error)
             return
         self._prepared_p = p
 
     @_one_thread
-    def feedback(self, x: object) -> StepOutput:
-        """Run the feedback phase: the measured state ``x`` in, the control to apply out.
+    def feedback(self, x: object) -> StepRecord:
+        """Run the feedback phase: the measured state ``x`` in, the control and the step's record out.
 
         Uses the time, last control, current and parameters given to :meth:`prepare` (which
-        must come first; ``ValueError`` otherwise).
+        must come first; ``ValueError`` otherwise).  A backend without a preparation phase
+        takes the whole step here.
         """
         u_prev, p = self._measured_instance(x)
         return self._solve_step(p, u_prev)
@@ -359,34 +401,47 @@ class NMPC:
             p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
         return u_prev, p
 
-    def _solve_step(self, p: np.ndarray, u_prev: object | None) -> StepOutput:
+    def _solve_step(self, p: np.ndarray, u_prev: object | None) -> StepRecord:
         """Solve instance ``p`` and pick the control: the fresh plan's, or the fallback's."""
         start = time.perf_counter()
-        warm = self._iterate if self.use_warm_start else None
-        feedback = getattr(self.backend, "feedback", None)
+        preparable = self._preparable
         try:
-            if feedback is not None:
-                result = feedback(p, warm)
+            if preparable:
+                # the last fast plan as it is (the backend shifts it: in C for sqp-rti's resident step)
+                warm = self._deferred if self._deferred is not None else self._iterate
+                outcome = self.backend.feedback(p, warm if self.use_warm_start else None)
             else:
-                result = self.backend.solve(p, warm, rng=self._rng)
+                self._materialize()  # a fast plan of a Preparable backend set before this one
+                warm = self._iterate if self.use_warm_start else None
+                outcome = self.backend.solve(p, warm, rng=self._rng)
         except Exception as error:  # a backend crash must never stop a closed loop ...
             reraise_interrupt(error)  # ... but Ctrl-C (CasADi's too) always reaches the user
             result = None
             failure_reason = f"exception: {type(error).__name__}: {error}"
         else:
-            if not isinstance(result, SolveResult):  # a broken plug-in, not a failed solve
+            if preparable and isinstance(outcome, DeferredPlan):
+                if self._holds_path_constraints(outcome, p):  # judged on path-constrained problems
+                    self._deferred = outcome  # its iterate and plan are built when needed
+                    control = self._admissible(outcome.control, u_prev)
+                    return StepRecord(control, outcome, False, fast_path=outcome.path)
+                # refused: refined and judged below, as a refused plan of solve() is
+                outcome = outcome.result()
+            if not isinstance(outcome, SolveResult):  # a broken plug-in, not a failed solve
                 raise TypeError(
                     f"solver {self.solver_name!r} ({type(self.backend).__name__}) returned a "
-                    f"{type(result).__name__} from solve(); a backend must return a uuv_ocp SolveResult"
+                    f"{type(outcome).__name__} from {'feedback' if preparable else 'solve'}(); a backend "
+                    "must return a uuv_ocp SolveResult"
                 )
+            result = outcome
             failure_reason = self._refusal(result, p)
-            if failure_reason.startswith(PATH_VIOLATION) and feedback is not None:
+            if failure_reason.startswith(PATH_VIOLATION) and preparable:
                 result, failure_reason = self._refine(result, p, start)
+        self._materialize()  # the previous fast plan (if any): what the fallback shifts
         late = result is not None and bool(result.details.get("deadline_hit", False))
         if not failure_reason:
             assert result is not None
             control = self._accept(result.controls, result.iterate, u_prev)
-            return StepOutput(control, result, False, deadline_hit=late)
+            return StepRecord(control, result, False, deadline_hit=late)
         fallback, source = self._fallback_control(p)
         control = self._admissible(fallback, u_prev)
         if late and result is not None and np.all(np.isfinite(result.iterate.scaled_controls)):
@@ -395,7 +450,7 @@ class NMPC:
             self._iterate = result.iterate.shift()
         elif self._iterate is not None:
             self._iterate = self._iterate.shift()
-        return StepOutput(control, result, True, failure_reason, deadline_hit=late, fallback_source=source)
+        return StepRecord(control, result, True, failure_reason, deadline_hit=late, fallback_source=source)
 
     def _refusal(self, result: SolveResult, p: np.ndarray) -> str:
         """Why the fresh plan of ``result`` is not applied (module doc), or ``""`` to apply it."""
@@ -430,13 +485,14 @@ class NMPC:
         steps each), within what is left of its deadline (from ``start``, ``perf_counter`` s).
         """
         reason = self._refusal(result, p)
-        deadline = getattr(self.backend, "deadline", None)
+        backend: Preparable = self.backend
+        deadline = backend.deadline
         for _ in range(RTI_REFINEMENTS):
             time_limit = None if deadline is None else deadline - (time.perf_counter() - start)
             if time_limit is not None and time_limit <= 0:
                 break
             try:
-                refined = self.backend.solve(p, result.iterate, time_limit=time_limit)
+                refined = backend.solve(p, result.iterate, time_limit=time_limit)
             except Exception as error:  # the fallback handles it
                 reraise_interrupt(error)
                 break
@@ -447,11 +503,11 @@ class NMPC:
                 break
         return result, reason
 
-    def _holds_path_constraints(self, iterate: Iterate, p: np.ndarray) -> bool:
-        """Whether a C fast path's plan passes the judge's path-constraint test (module doc)."""
+    def _holds_path_constraints(self, plan: DeferredPlan, p: np.ndarray) -> bool:
+        """Whether a fast path's plan passes the judge's path-constraint test (module doc)."""
         if not self.path_constrained:
             return True
-        controls = self.problem.controls_from_scaled(iterate.scaled_controls)
+        controls = self.problem.controls_from_scaled(plan.iterate().scaled_controls)
         return bool(self._violations(controls, p)["constraint"] <= FEASIBILITY_TOLERANCE)
 
     @property
@@ -470,38 +526,17 @@ class NMPC:
         _, kinds = score_terms(self.problem, scaled, p)
         return kinds
 
-    @_one_thread
     def feedback_control(self, x: object) -> np.ndarray:
-        """:meth:`feedback`'s control alone, by the shortest path the backend has.
+        """Return ``feedback(x).control`` (deprecated: call that; the same control by the same path)."""
+        warnings.warn(
+            "NMPC.feedback_control(x) is deprecated: call NMPC.feedback(x).control",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        record = self.feedback(x)
+        self.last_output = None if record.fast_path else record
+        return record.control
 
-        With ``sqp-rti``'s C step, a prepared step that succeeds goes from the C call straight
-        to the control: the same control, warm start and plan as :meth:`feedback`, without the
-        :class:`~uuv_ocp.solvers.SolveResult` and its judge (``uuv_ocp.score`` on :attr:`plan`
-        gives the judge's numbers when wanted); :attr:`last_output` is then ``None``.  Every
-        other step (the cold first one, a failed step, other backends) is :meth:`feedback`, whose
-        :class:`StepOutput` (fallback, message, result) is kept in :attr:`last_output`.
-        """
-        u_prev, p = self._measured_instance(x)
-        fast = getattr(self.backend, "feedback_in_c", None)
-        step = None
-        if fast is not None:
-            try:
-                step = fast(p, self._iterate if self.use_warm_start else None)
-            except Exception as error:  # the general path below solves it again and reports it
-                reraise_interrupt(error)
-        if step is not None:  # finite by the C step's own test (else it returns None)
-            prepared, primal, lam_x, lam_g, _ = step
-            variant, backend = prepared.variant, self.backend
-            iterate = backend.c_iterate(variant, primal, lam_x, lam_g, backend.relaxed(variant, primal))
-            if not self._holds_path_constraints(iterate, p):
-                self.last_output = self._solve_step(p, u_prev)  # solved again, refined, judged
-                return self.last_output.control
-            self.last_output = None
-            return self._accept(self.problem.controls_from_scaled(iterate.scaled_controls), iterate, u_prev)
-        self.last_output = self._solve_step(p, u_prev)
-        return self.last_output.control
-
-    @_one_thread
     def step_control(
         self,
         x: object,
@@ -510,63 +545,15 @@ class NMPC:
         current: object | None = None,
         parameters: dict[str, Any] | None = None,
     ) -> np.ndarray:
-        """Return the control to apply at state ``x`` and time ``t``, by the shortest path there is.
-
-        The control, plan and warm start of :meth:`step`.  With ``sqp-rti``'s C step, a step
-        from a warm start is one C call from the C step's resident copy of the last plan,
-        shifted in C (:meth:`~uuv_ocp.solvers.rti.RtiSolver.resident_step`), with the
-        instance built at the measured state at once: the measured state enters the
-        linearisation directly instead of moving a prepared one (bit-equal to :meth:`step` on
-        the loops of ``tests/test_rti.py``, where the prepared guess is the warm start's own
-        first state).  :attr:`iterate` and :attr:`plan` are built from that plan when read;
-        :attr:`last_output` is ``None``.  Every other step
-        (the cold first one, a step the C step does not accept, other backends) is
-        :meth:`prepare` then :meth:`feedback_control`, with its :class:`StepOutput` in
-        :attr:`last_output`.
-        """
-        resident = self._resident_plan(x, t, u_prev, current, parameters)
-        if resident is not None:
-            self.last_output = None
-            return self._admissible(resident[0].control, u_prev)
-        self.prepare(t, u_prev, current, parameters)
-        return self.feedback_control(x)
-
-    def _resident_plan(
-        self,
-        x: object,
-        t: float,
-        u_prev: object | None,
-        current: object | None,
-        parameters: dict[str, Any] | None,
-    ) -> tuple[ResidentPlan, np.ndarray] | None:
-        """Take a step from the C step's resident warm start: its plan and instance, or ``None``.
-
-        ``None`` (nothing taken, the warm start materialised) where the backend has no
-        resident step or does not accept this one: the caller then runs the general path.
-        """
-        if not getattr(self.backend, "resident_available", False) or not self.use_warm_start:
-            return None
-        if self._resident is None and self._iterate is None:
-            return None
-        self._pending = self._prepared_p = None
-        p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
-        try:
-            plan = self.backend.resident_step(p, self._iterate, self._resident, self._token)
-        except Exception as error:  # the general path solves it again and reports it
-            reraise_interrupt(error)
-            plan = None
-        if plan is None or not self._holds_path_constraints(self.backend.resident_iterate(plan), p):
-            self._materialize()  # the last resident plan: the general path starts from it
-            return None
-        self._resident, self._iterate = plan, None
-        return plan, p
-
-    @property
-    def plan(self) -> np.ndarray | None:
-        """The last fresh plan (physical controls, shape (N, nu)), shifted by each fallback step."""
-        if self._resident is not None:
-            return self._from_resident()[0]
-        return self._plan
+        """Return ``step(x, t, ...).control`` (deprecated: call that; the same control by the same path)."""
+        warnings.warn(
+            "NMPC.step_control(x, t, ...) is deprecated: call NMPC.step(x, t, ...).control",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        record = self.step(x, t, u_prev, current, parameters)
+        self.last_output = None if record.fast_path else record
+        return record.control
 
     def _accept(self, plan: np.ndarray, iterate: Iterate, u_prev: object | None) -> np.ndarray:
         """Keep a fresh ``plan`` (physical controls) and its shifted warm start; the control to apply."""

@@ -70,7 +70,7 @@ class ClosedLoopResult:
         Inertial current velocity (m/s); zero columns for a problem without a current.
     statuses : tuple of str
         Solver status per step; on a fallback step why the fresh plan was refused
-        (:attr:`StepOutput.message <uuv_ocp.control.mpc.StepOutput>`: the backend's status, its
+        (:attr:`StepRecord.message <uuv_ocp.control.mpc.StepRecord>`: the backend's status, its
         exception, ``"non-finite controls (...)"``, ``"path constraint violated by ..."``).
     solver : str
         Solver name.
@@ -78,7 +78,7 @@ class ClosedLoopResult:
         Whether the run was stopped early by the user.
     deadline_steps : numpy.ndarray of bool, shape (n,), optional
         Steps whose solve the backend's ``deadline`` option stopped or outlasted
-        (:attr:`StepOutput.deadline_hit <uuv_ocp.control.mpc.StepOutput>`); all False when
+        (:attr:`StepRecord.deadline_hit <uuv_ocp.control.mpc.StepRecord>`); all False when
         omitted.
     fault : str or None
         Why the run stopped early (non-finite measurement, plant blow-up, plant exception), with

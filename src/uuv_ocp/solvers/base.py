@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import abc
 from typing import TYPE_CHECKING, Protocol, runtime_checkable
 
 import numpy as np
@@ -30,6 +31,74 @@ class Backend(Protocol):
         rng: np.random.Generator | None = None,
     ) -> SolveResult:
         """Solve the instance with parameter vector ``p``; never raise on a solver failure."""
+        ...
+
+
+class DeferredPlan(abc.ABC):
+    """A fresh plan that a :class:`Preparable` backend's ``feedback`` took by a fast path.
+
+    Its first control is there at once; its warm start and its :class:`SolveResult` (with the
+    judge's cost and violation) are built only when asked for, from copies taken at the step:
+    a closed loop that needs only the control pays for neither (for ``sqp-rti``'s C step they
+    cost more than the C call itself: docs/benchmarks.md).  Implementations are immutable records.
+    """
+
+    __slots__ = ()
+
+    #: the plan's first control (physical units, within the control box)
+    control: np.ndarray
+    #: which fast path took the step, e.g. ``"resident C step"`` (shown in the step's record)
+    path: str
+
+    @abc.abstractmethod
+    def iterate(self) -> Iterate:
+        """Return the plan's warm start, unshifted: what ``result().iterate`` is."""
+
+    @abc.abstractmethod
+    def result(self) -> SolveResult:
+        """Return the :class:`SolveResult` the backend's ``solve`` reports for this plan."""
+
+
+@runtime_checkable
+class Preparable(Protocol):
+    """A backend with a real-time iteration's two phases (``"sqp-rti"``); what NMPC calls on it.
+
+    :class:`~uuv_ocp.control.mpc.NMPC` checks ``isinstance(backend, Preparable)`` once, when the
+    backend is set, and then calls these methods instead of ``solve`` alone:
+
+    - ``prepare(p, warm_start)`` before the state is measured (``p``'s state part a guess:
+      the warm start's first state); the backend keeps what it prepared for the next
+      ``feedback``.  A preparation that raises only costs speed (NMPC drops it).
+    - ``feedback(p, warm_start)`` with the measured instance: the step's plan, from the kept
+      preparation where it applies, else the whole step by the backend's fastest path (a
+      :class:`DeferredPlan`), else its ``solve``.  ``warm_start`` is the shifted
+      :class:`Iterate`, or the :class:`DeferredPlan` the previous ``feedback`` returned (the
+      backend shifts it itself).  A failure is a :class:`SolveResult` with ``success=False``.
+    - ``solve(p, warm_start, time_limit=...)`` further iterations from a plan the judge refused,
+      within what is left of ``deadline`` (seconds, ``None``: no deadline).
+    """
+
+    deadline: float | None
+
+    def prepare(self, p: np.ndarray, warm_start: Iterate | None) -> object:
+        """Prepare the step on instance ``p`` (its state a guess) from ``warm_start``; keep it."""
+        ...
+
+    def feedback(
+        self, p: np.ndarray, warm_start: Iterate | DeferredPlan | None
+    ) -> SolveResult | DeferredPlan:
+        """Return the plan of the measured instance ``p``; never raise on a solver failure."""
+        ...
+
+    def solve(
+        self,
+        p: np.ndarray,
+        warm_start: Iterate | None = None,
+        rng: np.random.Generator | None = None,
+        *,
+        time_limit: float | None = None,
+    ) -> SolveResult:
+        """Solve instance ``p`` from ``warm_start``, stopping new iterations after ``time_limit`` s."""
         ...
 
 

@@ -18,10 +18,12 @@ near the solution).
 Phases (acados' split): :meth:`RtiSolver.prepare` linearises at the shifted previous iterate
 with every parameter of the next instance but the measured state; :meth:`RtiSolver.feedback`
 puts the measured state into the initial-state rows (the only place ``x0`` enters the NLP, and
-it enters linearly, so the prepared QP is exact) and solves the QP.  With the C step,
-:meth:`RtiSolver.resident_step` runs a whole step in one C call from the C step's own copy of
-the last plan, shifted in C (``NMPC.step_control``'s path: no Python between the steps but the
-instance's parameters and the control's projection).
+it enters linearly, so the prepared QP is exact) and solves the QP.  A feedback without a
+preparation is the whole step (``NMPC.step``: no time between the phases to hide a preparation
+in); with the C step it is :meth:`RtiSolver.resident_step`, one C call from the C step's own
+copy of the last plan, shifted in C (no Python between the steps but the instance's
+parameters and the control's projection).  The C step's plans come back as a
+:class:`CStepPlan`, whose :class:`SolveResult` (and its judge) is built only when read.
 
 Modes (options):
 
@@ -68,7 +70,7 @@ import os
 import time
 import warnings
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -86,7 +88,7 @@ from uuv_ocp.native.compile import (
 )
 from uuv_ocp.native.hpipm import check_choice
 from uuv_ocp.native.runtime import COMPILED_ENV
-from uuv_ocp.solvers.base import reraise_interrupt
+from uuv_ocp.solvers.base import DeferredPlan, reraise_interrupt
 from uuv_ocp.solvers.ipopt import ipopt_options
 from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import AUTO, Option, one_of, option_defaults, option_names, revise
@@ -192,12 +194,15 @@ class Preparation:
     duals: tuple[np.ndarray, np.ndarray] | None = None
 
 
-class ResidentPlan(NamedTuple):
-    """The plan of a step the C step took from its resident warm start (:meth:`RtiSolver.resident_step`).
+@dataclass(frozen=True, slots=True)
+class CStepPlan(DeferredPlan):
+    """The plan of a step the C step took alone: :meth:`RtiSolver.feedback`'s fast paths.
 
-    What :class:`~uuv_ocp.control.NMPC` keeps instead of an :class:`Iterate` while its steps
-    run from the resident warm start; :meth:`RtiSolver.resident_iterate` turns it into one.
-    A named tuple (immutable, built in ~0.5 µs, a frozen dataclass in ~4): one is built per step.
+    Either the resident step (one C call from the C step's own copy of the last plan, shifted
+    in C: :meth:`RtiSolver.resident_step`) or the prepared step (the QP of :meth:`RtiSolver.prepare`
+    with the measured state put in).  Holds copies of what the C call left, so that
+    :meth:`iterate` and :meth:`result` give, whenever they are called, what :meth:`RtiSolver.solve`
+    returns when its first attempt succeeds.
 
     Parameters
     ----------
@@ -213,6 +218,16 @@ class ResidentPlan(NamedTuple):
         Whether the plan needed the exact-penalty relaxation.
     control : numpy.ndarray
         The plan's first control (physical units), clipped to the box as :meth:`plan_iterate` does.
+    path : str
+        ``"resident C step"`` or ``"prepared C step"``.
+    backend : RtiSolver
+        The backend that took the step (it builds the iterate and the result).
+    p : numpy.ndarray
+        The instance solved.
+    info : numpy.ndarray
+        The C step's record of the call (``OcpQpStep.iterate``'s ``info``).
+    elapsed : float
+        Wall time of the step inside the backend (s).
     """
 
     variant: str
@@ -222,6 +237,35 @@ class ResidentPlan(NamedTuple):
     lam_g: np.ndarray
     relaxed: bool
     control: np.ndarray
+    path: str
+    backend: RtiSolver
+    p: np.ndarray
+    info: np.ndarray
+    elapsed: float
+
+    def iterate(self) -> Iterate:
+        """Return the plan and warm start as :meth:`RtiSolver.solve` returns them (unshifted)."""
+        return self.backend.c_iterate(self.variant, self.primal, self.lam_x, self.lam_g, self.relaxed)
+
+    def result(self) -> SolveResult:
+        """Return what :meth:`RtiSolver.solve` reports when its first attempt gives this plan.
+
+        Built from the C step's record of the call; ``details["c_time"]``: the C step's own
+        clock (the preparation used, the linearisations and the QPs).
+        """
+        backend, info = self.backend, self.info
+        converge = backend.mode == "converged"
+        final = backend._c_record(
+            self.variant, self.still_water, self.primal, self.lam_x, self.lam_g, info, converge, self.elapsed
+        )
+        result = backend._result(self.p, final, [final], self.relaxed, self.elapsed)
+        result.details["deadline_hit"] = False
+        result.details["c_time"] = float(info[8] + info[6] + info[7])
+        return result
+
+
+#: the name of :class:`CStepPlan` before it also held the prepared step's plans
+ResidentPlan = CStepPlan
 
 
 @serialised
@@ -533,44 +577,43 @@ class RtiSolver(NlpSolver):
         """Whether :meth:`resident_step` can run: the C step (``qpsol="hpipm-ocp"``), no deadline."""
         return self.qpsol == "hpipm-ocp" and self.deadline is None
 
-    def resident_step(
-        self, p: np.ndarray, warm_start: Iterate | None, last: ResidentPlan | None, owner: object
-    ) -> ResidentPlan | None:
-        """One step of the C step from its resident warm start, for ``NMPC.step_control``.
+    def resident_step(self, p: np.ndarray, warm_start: Iterate | DeferredPlan | None) -> CStepPlan | None:
+        """One step of the C step from its resident warm start (:meth:`feedback`'s whole step).
 
-        The warm start is the C step's own copy of the last plan, shifted in C (``last``, the
-        caller's last :class:`ResidentPlan`), or ``warm_start`` seeded into it when ``last`` is
-        ``None``, belongs to another variant than the terminal strategy now picks, or another
-        ``owner`` (a controller sharing this backend) seeded it since.  The step is the first
-        attempt of :meth:`solve` (same variant, iterations, stops); ``None`` when it does not
-        apply (no C step, a deadline, no warm start) or is not accepted (an infeasible QP, and
-        in converged mode no convergence): the caller then solves by :meth:`solve`, from the
-        warm start ``resident_iterate(last).shift()``.
+        The warm start is the C step's own copy of the last plan, shifted in C, when
+        ``warm_start`` is the :class:`CStepPlan` of the resident step that left it there (no
+        other step of this NLP variant and still-water flag since, by any caller); otherwise
+        ``warm_start`` (a plan shifted here, or an already shifted :class:`Iterate`) is seeded
+        into it first.  The step is the first attempt of :meth:`solve` (same variant,
+        iterations, stops); ``None`` when it does not apply (no C step, a deadline, no warm
+        start) or is not accepted (an infeasible QP, and in converged mode no convergence):
+        the caller then solves by :meth:`solve`.
         """
-        if not self.resident_available:
+        if not self.resident_available or warm_start is None:
             return None
+        start = time.perf_counter()
         still_water = self._uses_still_water(p)
         ocp = None
-        if last is not None:
-            variant = self._first_variant(last.variant, last.relaxed)
+        if isinstance(warm_start, CStepPlan):
+            variant = self._first_variant(warm_start.variant, warm_start.relaxed)
             ocp = self._ocp_steps.get((variant, still_water))
-            fresh = variant == last.variant and still_water == last.still_water
-            if not fresh or ocp is None or ocp.owner is not owner:
-                warm_start, ocp = self.resident_iterate(last).shift(), None
+            fresh = variant == warm_start.variant and still_water == warm_start.still_water
+            # the C step's resident point is this plan's, shifted, only if it was the last one left
+            if not fresh or ocp is None or ocp.owner is not warm_start.primal:
+                ocp = None
         if ocp is None:
-            if warm_start is None:
-                return None
-            variant = self.first_variant(warm_start)
+            iterate = _shifted(warm_start)
+            variant = self.first_variant(iterate)
             ocp = self.ocp_step(variant, still_water)
             if ocp is None:
                 return None
             data, objective_scale = self.variants[variant], self.objective_scale
-            primal, lam_g, lam_x = self._initial_point(variant, p, warm_start)
+            primal, lam_g, lam_x = self._initial_point(variant, p, iterate)
             ocp.seed(
                 primal,
                 np.zeros(data.lbx.size) if lam_x is None else lam_x * objective_scale,
                 np.zeros(data.lbg.size) if lam_g is None else lam_g * objective_scale,
-                owner,
+                None,
             )
         converge = self.mode == "converged"
         limit = (self.max_iter or self.default_max_iter) if converge else self.iterations
@@ -578,41 +621,51 @@ class RtiSolver(NlpSolver):
             ocp.owner = None  # the caller goes on from its own copy of the plan
             return None
         primal = ocp.w.copy()
-        index, lower, upper, scale, centre = self._first_control(variant)
-        # plan_iterate's clip to the box, then OcpSpec.physical, on the first control alone
-        control = centre + scale * np.minimum(np.maximum(primal[index], lower), upper)
-        return ResidentPlan(
+        # the new primal (a fresh array) marks the resident point as this plan's (resident_step
+        # above); not the plan itself, which refers to this backend (no reference cycle)
+        ocp.owner = primal
+        return self._c_plan(
             variant,
             still_water,
             primal,
             ocp.lam_x.copy(),
             ocp.lam_g.copy(),
+            "resident C step",
+            p,
+            ocp.info.copy(),
+            start,
+        )
+
+    def _c_plan(
+        self,
+        variant: str,
+        still_water: bool,
+        primal: np.ndarray,
+        lam_x: np.ndarray,
+        lam_g: np.ndarray,
+        path: str,
+        p: np.ndarray,
+        info: np.ndarray,
+        start: float,
+    ) -> CStepPlan:
+        """Return the :class:`CStepPlan` of a C call that succeeded (arrays already copied)."""
+        index, lower, upper, scale, centre = self._first_control(variant)
+        # plan_iterate's clip to the box, then OcpSpec.physical, on the first control alone
+        control = centre + scale * np.minimum(np.maximum(primal[index], lower), upper)
+        return CStepPlan(
+            variant,
+            still_water,
+            primal,
+            lam_x,
+            lam_g,
             self.relaxed(variant, primal),
             control,
+            path,
+            self,
+            np.array(p, dtype=float),
+            info,
+            time.perf_counter() - start,
         )
-
-    def resident_result(self, p: np.ndarray, plan: ResidentPlan, elapsed: float) -> SolveResult:
-        """Return the :class:`SolveResult` of the resident step that gave ``plan`` (instance ``p``).
-
-        What :meth:`solve` reports when its first attempt succeeds, built from the C step's
-        record of that step (its ``info``, read before any other call of the C step);
-        ``elapsed``: the step's wall time (s).  ``details["c_time"]``: the C step's own clock.
-        """
-        step = self._ocp_steps[(plan.variant, plan.still_water)]
-        assert step is not None  # a resident plan comes from the C step
-        info = step.info.copy()
-        converge = self.mode == "converged"
-        final = self._c_record(
-            plan.variant, plan.still_water, plan.primal, plan.lam_x, plan.lam_g, info, converge, elapsed
-        )
-        result = self._result(p, final, [final], plan.relaxed, elapsed)
-        result.details["deadline_hit"] = False
-        result.details["c_time"] = float(info[6] + info[7])
-        return result
-
-    def resident_iterate(self, plan: ResidentPlan) -> Iterate:
-        """Return the plan and warm start of ``plan`` as :meth:`solve` returns them (unshifted)."""
-        return self.c_iterate(plan.variant, plan.primal, plan.lam_x, plan.lam_g, plan.relaxed)
 
     def c_iterate(
         self, variant: str, primal: np.ndarray, lam_x: np.ndarray, lam_g: np.ndarray, relaxed: bool
@@ -673,28 +726,37 @@ class RtiSolver(NlpSolver):
         )
         return self._prepared
 
-    def feedback(self, p: np.ndarray, warm_start: Iterate | None) -> SolveResult:
-        """Solve instance ``p`` from the prepared linearisation (see :meth:`prepare`).
+    def feedback(self, p: np.ndarray, warm_start: Iterate | DeferredPlan | None) -> SolveResult | CStepPlan:
+        """Return the plan of instance ``p`` (the measured state in), by the fastest path that applies.
 
-        The preparation is used when its variant is the first one tried and ``p`` differs from
-        its parameters only in the state; otherwise this is :meth:`solve`.  With the C step and
-        ``mode="rti"`` without a deadline, a step that succeeds goes straight from the C call to
-        its result (the same numbers as :meth:`solve`, without its fallback bookkeeping); a step
-        that fails goes through :meth:`solve` and its fallback chain.
+        ``warm_start``: the shifted :class:`Iterate`, or the :class:`CStepPlan` the last call
+        returned (shifted here, in C for the resident step).  In order:
+
+        1. after :meth:`prepare`: its linearisation, when its variant is the first one tried and
+           ``p`` differs from its parameters only in the state; with the C step, ``mode="rti"``
+           and no deadline, a step that succeeds is a :class:`CStepPlan` (``"prepared C step"``);
+        2. without a preparation: the resident step (:meth:`resident_step`, the C step without a
+           deadline), a :class:`CStepPlan` (``"resident C step"``) when it succeeds;
+        3. otherwise, and after a failed fast step, :meth:`solve` with its fallback chain.
+
+        A :class:`CStepPlan` holds the numbers :meth:`solve` gives (its ``result()`` builds the
+        same :class:`SolveResult`, judge included; tests/test_rti.py checks them bit for bit).
         """
-        fast = self._feedback_in_c(p, warm_start)
-        return fast if fast is not None else self.solve(p, warm_start)
+        if self._prepared is not None:
+            iterate = _shifted(warm_start)
+            fast = self._feedback_in_c(p, iterate)
+            return fast if fast is not None else self.solve(p, iterate)
+        plan = self.resident_step(p, warm_start)
+        return plan if plan is not None else self.solve(p, _shifted(warm_start))
 
-    def feedback_in_c(
-        self, p: np.ndarray, warm_start: Iterate | None
-    ) -> tuple[Preparation, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-        """Run the prepared C step on ``p`` if it applies; ``(preparation, w, λx, λg, info)`` if it succeeds.
+    def _feedback_in_c(self, p: np.ndarray, warm_start: Iterate | None) -> CStepPlan | None:
+        """Run the prepared C step on ``p`` if it applies; its plan if it succeeds.
 
-        ``λx, λg`` are the C step's (scaled by the objective scale); ``info`` as
-        :meth:`OcpQpStep.iterate`.  ``None`` (nothing consumed but the preparation) when this
-        does not apply (no preparation for this warm start and instance, another mode, a
-        deadline) or when the step fails: :meth:`solve` then takes it with its fallbacks.
+        ``None`` (nothing consumed but the preparation) when this does not apply (no
+        preparation for this warm start and instance, another mode, a deadline) or when the
+        step fails: :meth:`solve` then takes it with its fallbacks.
         """
+        start = time.perf_counter()
         prepared = self._prepared
         if (
             prepared is None
@@ -715,33 +777,9 @@ class RtiSolver(NlpSolver):
         )
         if int(info[3]) in (STOP_INFEASIBLE, STOP_EVALUATION):
             return None  # solve() takes it again from a fresh linearisation, then its fallbacks
-        return prepared, primal, lam_x, lam_g, info
-
-    def _feedback_in_c(self, p: np.ndarray, warm_start: Iterate | None) -> SolveResult | None:
-        """Run the first attempt of :meth:`solve` from the C step's preparation, if it succeeds.
-
-        The result of :meth:`feedback_in_c` in :meth:`solve`'s format (``None`` where it is).
-        """
-        start = time.perf_counter()
-        step = self.feedback_in_c(p, warm_start)
-        if step is None:
-            return None
-        prepared, primal, lam_x, lam_g, info = step
-        final = self._c_record(
-            prepared.variant,
-            prepared.still_water,
-            primal,
-            lam_x,
-            lam_g,
-            info,
-            False,
-            time.perf_counter() - start,
+        return self._c_plan(
+            prepared.variant, prepared.still_water, primal, lam_x, lam_g, "prepared C step", p, info, start
         )
-        relaxed = self.relaxed(prepared.variant, primal)
-        result = self._result(p, final, [final], relaxed, time.perf_counter() - start)
-        result.details["deadline_hit"] = False
-        result.details["c_time"] = float(info[8] + info[6] + info[7])
-        return result
 
     def _matching_preparation(
         self, variant: str, p: np.ndarray, primal: np.ndarray, still_water: bool
@@ -927,6 +965,13 @@ class RtiSolver(NlpSolver):
             plugin_time,
         )
         return {**record, "qp_iterations": int(info[4])}
+
+
+def _shifted(warm_start: Iterate | DeferredPlan | None) -> Iterate | None:
+    """Return the warm start as a shifted :class:`Iterate` (a plan's own iterate, shifted by one stage)."""
+    if isinstance(warm_start, DeferredPlan):
+        return warm_start.iterate().shift()
+    return warm_start
 
 
 def _attempt_record(

@@ -606,7 +606,8 @@ class OcpQpStep:
         self._resident_step = bind(
             "uuv_rti_resident_step", integer, pointer, pointer, integer, real, real, integer, *[pointer] * 4
         )
-        #: who seeded the resident warm start last (:meth:`seed`'s ``owner``)
+        #: a mark of whose point the resident warm start is (:meth:`seed`'s ``owner``;
+        #: ``RtiSolver.resident_step`` sets it to the primal of the plan that left it there)
         self.owner: object | None = None
         settings = np.array(_options_array(options), dtype=float)
         memory = create(settings.ctypes.data)

@@ -17,17 +17,23 @@ import pytest
 import uuv_ocp as uo
 from conftest import needs_compiler
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.solvers import REGISTRY
 
 THREADS = 4
 STEPS = 4
 HORIZON = 6
 SWARM = {"population": 8, "iterations": 6}
-#: name -> (solver, options).  sqp-rti runs its C step (hpipm-ocp) where a compiler exists;
-#: "igwo-compiled" the all-C IGWO step with its random-number worker thread.
+#: name -> (solver, options): every registered backend (a new one is tested here by
+#: registering it), one hybrid and one multistart; sqp-rti runs its C step (hpipm-ocp) where a
+#: compiler exists; "igwo-compiled" the all-C IGWO step with its random-number worker thread.
 SOLVERS = {
-    "sqp-rti": ("sqp-rti", None),
-    "ipopt": ("ipopt", None),
-    "igwo": ("igwo", SWARM),
+    **{
+        name: (name, SWARM if REGISTRY.kind(name) == "swarm" else None)
+        for name in REGISTRY.names()
+        if REGISTRY.kind(name) in ("exact", "swarm")
+    },
+    "igwo+sqp": ("igwo+sqp", {"swarm": SWARM}),
+    "multistart-ipopt": ("multistart-ipopt", None),
     "igwo-compiled": ("igwo", {**SWARM, "compiled": True, "rng_thread": True}),
 }
 

@@ -29,9 +29,8 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import BUILD_LOCK, BuildCache
-from uuv_ocp.integrators import rk4_step
 from uuv_ocp.native.buffered import BufferedFunction
-from uuv_ocp.transcription.collocation import implicit_step
+from uuv_ocp.transcription.base import transcription
 from uuv_ocp.transcription.condensed import condense, decode
 from uuv_ocp.transcription.multiple_shooting import NlpData, transcribe
 
@@ -80,13 +79,10 @@ _THREAD = threading.local()  # .callers: this thread's BufferedFunctions by (spe
 def build_spec(spec: OcpSpec) -> Built:
     """Transcribe ``spec``: the NLP and the condensed Functions on one step Function.
 
-    The step is RK4 for multiple shooting and the implicit Radau IIA step for collocation
-    (the condensed form's solve of the NLP's collocation equations).
+    The step is the transcription strategy's (:mod:`uuv_ocp.transcription.base`): RK4 for
+    multiple shooting, the implicit Radau IIA step for collocation.
     """
-    if spec.transcription == "collocation":
-        step = implicit_step(spec.dynamics, spec.dt, spec.degree, name="model_step")
-    else:
-        step = rk4_step(spec.dynamics, spec.dt, spec.substeps, name="model_step")
+    step = transcription(spec.transcription).step(spec)
     hard = transcribe(spec, step, False, spec.terminal_penalty)
     cost, rollout, score_terms = condense(spec, step)
     return Built(

@@ -37,13 +37,14 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+import uuv_ocp.transcription.collocation  # noqa: F401 - registers the collocation strategy
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
-from uuv_ocp.transcription.collocation import COLLOCATION_DEGREES
+from uuv_ocp.transcription.base import transcription, transcription_names
 
 INTEGRATORS = ("rk4",)
-#: Transcriptions of the dynamics an Ocp may choose (module :mod:`uuv_ocp.transcription`).
+#: The built-in transcriptions (:mod:`uuv_ocp.transcription.base`; more can be registered).
 TRANSCRIPTIONS = ("multiple_shooting", "collocation")
 PLACES = ("path", "initial", "terminal")
 MAX_HORIZON = 10_000  # larger horizons exhaust memory while building the NLP (documented bound)
@@ -100,32 +101,16 @@ class Constraint:
         return self.lower == self.upper
 
 
-def check_transcription(transcription: object, degree: object, substeps: int) -> tuple[str, int]:
-    """Validate an Ocp's ``transcription`` and ``degree``; return them (degree 0: multiple shooting).
+def check_transcription(name: object, degree: object, substeps: int) -> tuple[str, int]:
+    """Validate an Ocp's ``transcription`` and ``degree``; return them (degree 0: none taken).
 
     Raises
     ------
     ValueError
-        An unknown transcription, a degree outside 1..5, a degree with multiple shooting, or
-        ``substeps`` other than 1 with collocation.
+        An unregistered transcription, or a degree (or ``substeps``) the strategy refuses.
     """
-    transcription = check.choice("transcription", transcription, TRANSCRIPTIONS)
-    if transcription == "multiple_shooting":
-        if degree is not None:
-            raise ValueError(
-                f"degree is for transcription='collocation', got degree={check.shown(degree)} "
-                "with multiple shooting"
-            )
-        return transcription, 0
-    if degree is None:
-        degree = 3
-    if isinstance(degree, bool) or degree not in COLLOCATION_DEGREES:
-        raise ValueError(f"degree must be one of {list(COLLOCATION_DEGREES)}, got {check.shown(degree)}")
-    if substeps != 1:
-        raise ValueError(
-            f"substeps must be 1 with transcription='collocation' (raise degree instead), got {substeps}"
-        )
-    return transcription, int(degree)
+    strategy = transcription(check.choice("transcription", name, transcription_names()))
+    return strategy.name, strategy.check_degree(degree, substeps)
 
 
 class Ocp(Transcribed):
@@ -141,12 +126,13 @@ class Ocp(Transcribed):
         Multiple shooting's integrator on each interval.
     substeps : int
         Integrator steps per interval, >= 1 (multiple shooting; collocation takes 1).
-    transcription : {"multiple_shooting", "collocation"}
-        How the dynamics become constraints: ``"multiple_shooting"`` (the state at each node
-        is a variable, ``x_{k+1} = F(x_k, u_k)`` by ``integrator``) or ``"collocation"``
-        (direct Radau IIA collocation: the exact solvers also carry ``degree`` collocation
-        states per interval and the collocation equations; rollouts, the swarms and the judge
-        solve those equations per interval, :mod:`uuv_ocp.transcription.collocation`).
+    transcription : {"multiple_shooting", "collocation"} or a registered name
+        How the dynamics become constraints (:mod:`uuv_ocp.transcription.base`):
+        ``"multiple_shooting"`` (the state at each node is a variable, ``x_{k+1} = F(x_k, u_k)``
+        by ``integrator``) or ``"collocation"`` (direct Radau IIA collocation: the exact solvers
+        also carry ``degree`` collocation states per interval and the collocation equations;
+        rollouts, the swarms and the judge solve those equations per interval,
+        :mod:`uuv_ocp.transcription.collocation`).
     degree : int, optional
         Collocation points per interval, 1..5 (Radau IIA of order ``2 degree − 1``); 3 by
         default with ``transcription="collocation"``; only with it.

@@ -61,7 +61,7 @@ from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names
 from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.transcription.collocation import radau_points
+from uuv_ocp.transcription.base import transcription
 from uuv_ocp.transcription.multiple_shooting import NlpData, transfer_map
 
 TERMINAL_STRATEGIES = ("sticky", "hard-first", "soft")
@@ -657,10 +657,9 @@ class NlpSolver:
         if self._lifted:
             primal[lifted[:, self._state_dim :]] = np.vstack([scaled_prev[None, :], scaled])
         primal[data.control_index] = scaled
-        if data.collocation_index.size:  # collocation states on the chord of their interval
-            tau = radau_points(data.collocation_index.shape[1] // self._state_dim)
-            chords = states[:-1, None, :] + tau[None, :, None] * (states[1:] - states[:-1])[:, None, :]
-            primal[data.collocation_index] = chords.reshape(len(chords), -1)
+        if data.interval_index.size:  # e.g. collocation states: the strategy's own guess
+            spec = self.problem.spec()
+            primal[data.interval_index] = transcription(spec.transcription).interval_guess(spec, states)
         return primal
 
     def _initial_point(self, variant: str, p: np.ndarray, warm_start: Iterate | None) -> tuple:

@@ -20,8 +20,15 @@ one discretisation: at a solution of the NLP, the rollout of its controls is its
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import casadi as ca
 import numpy as np
+
+from uuv_ocp.transcription.base import register_transcription
+
+if TYPE_CHECKING:
+    from uuv_ocp.ocp import OcpSpec
 
 #: Degrees of collocation offered (Radau IIA of order 1, 3, 5, 7, 9).
 COLLOCATION_DEGREES = (1, 2, 3, 4, 5)
@@ -109,3 +116,55 @@ def implicit_step(dynamics: ca.Function, dt: float, degree: int, name: str = "mo
         ["x", "u", "p_stage", "p_global"],
         ["x_next"],
     )
+
+
+class RadauCollocation:
+    """Direct Radau IIA collocation of ``degree`` points per interval (module doc)."""
+
+    name = "collocation"
+    variable_kind = "K"
+    row_kind = "collocation"
+
+    def check_degree(self, degree: object, substeps: int) -> int:
+        """Return the degree (3 by default); refuse one outside 1..5 or ``substeps`` other than 1."""
+        if degree is None:
+            degree = 3
+        if isinstance(degree, bool) or degree not in COLLOCATION_DEGREES:
+            raise ValueError(f"degree must be one of {list(COLLOCATION_DEGREES)}, got {degree!r}")
+        if substeps != 1:
+            raise ValueError(
+                f"substeps must be 1 with transcription='collocation' (raise degree instead), got {substeps}"
+            )
+        return int(degree)
+
+    def step(self, spec: OcpSpec) -> ca.Function:
+        """Return the implicit Radau step (:func:`implicit_step`)."""
+        return implicit_step(spec.dynamics, spec.dt, spec.degree, name="model_step")
+
+    def interval_size(self, spec: OcpSpec) -> int:
+        """``degree · nx`` collocation states."""
+        return spec.degree * spec.state_dim
+
+    def interval(
+        self,
+        spec: OcpSpec,
+        step: ca.Function,
+        variables: ca.SX,
+        state: ca.SX,
+        control: ca.SX,
+        p_stage: ca.SX,
+        p_global: ca.SX,
+    ) -> tuple[ca.SX, ca.SX]:
+        """Return the collocation equations and the last point (``τ_d = 1``) as the end state."""
+        residual = collocation_residual(spec.dynamics, spec.dt, spec.degree)
+        return residual(variables, state, control, p_stage, p_global), variables[-spec.state_dim :]
+
+    def interval_guess(self, spec: OcpSpec, states: np.ndarray) -> np.ndarray:
+        """Each collocation state on the chord from ``x_k`` to ``x_{k+1}``."""
+        tau = radau_points(spec.degree)
+        chords = states[:-1, None, :] + tau[None, :, None] * (states[1:] - states[:-1])[:, None, :]
+        result: np.ndarray = chords.reshape(len(chords), -1)
+        return result
+
+
+register_transcription(RadauCollocation())

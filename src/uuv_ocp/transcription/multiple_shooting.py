@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import casadi as ca
 import numpy as np
 
-from uuv_ocp.transcription.collocation import collocation_residual
+from uuv_ocp.transcription.base import Transcription, transcription
 
 if TYPE_CHECKING:
     from uuv_ocp.ocp import OcpSpec
@@ -48,7 +48,7 @@ class NlpData:
     control_index: np.ndarray
     lifted_index: np.ndarray
     terminal_slack_index: np.ndarray
-    collocation_index: np.ndarray  # (N, degree·nx) positions of the collocation states; (N, 0) without
+    interval_index: np.ndarray  # (N, m) positions of the strategy's interval variables (m = 0: none)
     primal_shift: np.ndarray = field(repr=False)
     constraint_shift: np.ndarray = field(repr=False)
 
@@ -130,7 +130,7 @@ class _Instance:
 
     spec: OcpSpec
     step: ca.Function
-    collocation: ca.Function | None
+    strategy: Transcription
     x0: ca.SX
     u_prev: ca.SX
     pg: ca.SX
@@ -143,11 +143,10 @@ def transcribe(spec: OcpSpec, step: ca.Function, soft_terminal: bool, terminal_p
     """Build the hard NLP (``soft_terminal=False``) or its exact-penalty terminal relaxation."""
     p = ca.SX.sym("p", spec.layout.size)
     x0, u_prev, pg, nodes = parameter_blocks(spec, p)
-    collocated = spec.transcription == "collocation"
     instance = _Instance(
         spec=spec,
         step=step,
-        collocation=collocation_residual(spec.dynamics, spec.dt, spec.degree) if collocated else None,
+        strategy=transcription(spec.transcription),
         x0=x0,
         u_prev=u_prev,
         pg=pg,
@@ -204,15 +203,14 @@ def _stage(instance: _Instance, rows: _Rows, k: int, lifted: ca.SX) -> ca.SX:
         on_node = constraint.place == "node" and k > 0
         if constraint.place == "stage" or on_node or (constraint.place == "initial" and k == 0):
             _constrain(rows, path, f"c{j}", k, function(*args), constraint)
-    if instance.collocation is not None:
-        # direct collocation: the interval's collocation states are variables of stage k
-        # (between z_k and X_{k+1}, where fatrop and the OCP-QP map take stage inputs) and
-        # their equations rows of this stage; the end state is the last point's
-        points = rows.variable("K", k, spec.degree * nx, -np.inf, np.inf)
-        path.append(("collocation", k, instance.collocation(points, state, control, stage_p, pg), 0.0, 0.0))
-        next_state = points[(spec.degree - 1) * nx :]
-    else:
-        next_state = instance.step(state, control, stage_p, pg)
+    # the strategy's interval: its variables are inputs of stage k (between z_k and X_{k+1},
+    # where fatrop and the OCP-QP map take them), its rows this stage's rows
+    strategy = instance.strategy
+    size = strategy.interval_size(spec)
+    variables = rows.variable(strategy.variable_kind, k, size, -np.inf, np.inf) if size else ca.SX(0, 1)
+    interval_rows, next_state = strategy.interval(spec, instance.step, variables, state, control, stage_p, pg)
+    if interval_rows.numel():
+        path.append((strategy.row_kind, k, interval_rows, 0.0, 0.0))
     if k == n - 1:
         _last_stage_rows(instance, rows, path, next_state, control)
     following = rows.variable("X", k + 1, lifted.numel(), -np.inf, np.inf)
@@ -266,6 +264,7 @@ def _terminal(instance: _Instance, rows: _Rows, final_state: ca.SX) -> None:
 
 def _nlp_data(spec: OcpSpec, p: ca.SX, rows: _Rows) -> NlpData:
     """Return the NLP of ``rows`` for ``casadi.nlpsol``, with its index maps."""
+    strategy = transcription(spec.transcription)
     n, nx = spec.horizon, spec.state_dim
     residual = ca.vertcat(*rows.residuals) if rows.residuals else ca.SX(0, 1)
     objective = ca.sumsqr(residual) + rows.linear + rows.other
@@ -294,7 +293,7 @@ def _nlp_data(spec: OcpSpec, p: ca.SX, rows: _Rows) -> NlpData:
         state_index=positions("X", range(n + 1), nx),
         control_index=positions("z", range(n), spec.control_size),
         lifted_index=positions("X", range(n + 1), lifted_dim),
-        collocation_index=positions("K", range(n), spec.degree * nx),
+        interval_index=positions(strategy.variable_kind, range(n), strategy.interval_size(spec)),
         terminal_slack_index=np.array(
             [i for i, key in enumerate(variable_keys) if key[0] == "terminal_slack"], dtype=int
         ),

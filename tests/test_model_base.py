@@ -33,6 +33,65 @@ Vessel4DOF = type(vehicle_from_class(USER_VEHICLE_FILE, "Vessel4DOF"))
 VESSEL_LAYOUT = Vessel4DOF().layout
 
 
+# ------------------------------------- a vehicle whose controls are actuator commands, not forces
+TORPEDO_LAYOUT = uo.VehicleLayout(
+    state_names=("x", "y", "psi", "u", "v", "r"),
+    state_units=("m", "m", "rad", "m/s", "m/s", "rad/s"),
+    control_names=("n", "delta"),
+    control_units=("rad/s", "rad"),
+    positions=(0, 1),
+    angles=(2,),
+    heading=2,
+    velocities=(3, 4, 5),
+    current_dim=2,
+    reference="planar",
+)
+
+
+@dataclass(frozen=True)
+class Torpedo:
+    """A small underactuated torpedo in the plane: propeller speed ``n`` and rudder angle ``δ``.
+
+    Thrust ``k_t n|n|`` (a fixed-pitch propeller at low advance), rudder lift ``Y_δ u_r² δ``
+    acting ``l`` behind the centre (so it yaws the hull), linear damping; no sway actuator.
+    """
+
+    mass: float = 30.0  # kg
+    inertia: float = 3.0  # I_z, kg·m²
+    added_mass: tuple[float, float, float] = (1.5, 30.0, 3.0)  # X_u̇, Y_v̇, N_ṙ
+    damping: tuple[float, float, float] = (5.0, 60.0, 15.0)  # X_u, Y_v, N_r
+    thrust_coefficient: float = 0.0167  # k_t, N/(rad/s)²
+    rudder_lift: float = 40.0  # Y_δ, N/((m/s)²·rad)
+    rudder_arm: float = 0.8  # l, m
+    control_bound: tuple[float, ...] = (60.0, 0.4)  # rad/s, rad
+    control_rate_bound: tuple[float, ...] = (100.0, 0.8)  # per second
+    name: str = "torpedo"
+
+    @property
+    def layout(self) -> uo.VehicleLayout:
+        return TORPEDO_LAYOUT
+
+    def model_function(self) -> ca.Function:
+        x, command, current = ca.SX.sym("x", 6), ca.SX.sym("command", 2), ca.SX.sym("current", 2)
+        psi, u, v, r = x[2], x[3], x[4], x[5]
+        propeller, rudder = command[0], command[1]
+        u_r = u - (ca.cos(psi) * current[0] + ca.sin(psi) * current[1])
+        v_r = v - (-ca.sin(psi) * current[0] + ca.cos(psi) * current[1])
+        m_u, m_v = self.mass + self.added_mass[0], self.mass + self.added_mass[1]
+        m_r = self.inertia + self.added_mass[2]
+        d_u, d_v, d_r = self.damping
+        lift = self.rudder_lift * u_r**2 * rudder
+        xdot = ca.vertcat(
+            u * ca.cos(psi) - v * ca.sin(psi),
+            u * ca.sin(psi) + v * ca.cos(psi),
+            r,
+            (m_v * v * r - d_u * u_r + self.thrust_coefficient * propeller * ca.fabs(propeller)) / m_u,
+            (-m_u * u * r - d_v * v_r + lift) / m_v,
+            (-d_r * r - self.rudder_arm * lift) / m_r,
+        )
+        return ca.Function("torpedo", [x, command, current], [xdot], ["x", "command", "current"], ["xdot"])
+
+
 def built_in_vehicles():
     """Every vehicle the package ships: the presets' registry, with and without thrusters."""
     vehicles = [make() for make in VEHICLE_PRESETS.values()]
@@ -40,7 +99,7 @@ def built_in_vehicles():
     return vehicles
 
 
-ALL_VEHICLES = [*built_in_vehicles(), Vessel4DOF()]
+ALL_VEHICLES = [*built_in_vehicles(), Vessel4DOF(), Torpedo()]
 IDS = [f"{v.name}-{v.layout.control_dim}u" for v in ALL_VEHICLES]
 
 
@@ -357,3 +416,32 @@ def test_user_vessel_closed_loop_error_decreases():
     plotting.xoy_figure(run)
     thrust = plotting.thrust_figure(run, vehicle=Vessel4DOF())
     assert "Y (N)" in [axis.get_ylabel() for axis in thrust.axes]
+
+
+def test_a_vehicle_steered_by_propeller_and_rudder_is_brought_onto_its_line():
+    """Controls in rad/s and rad: bounds, rates and the NMPC act on the actuators themselves."""
+    vehicle = Torpedo()
+    line = uo.Reference.waypoints([[0.0, 0.0], [60.0, 0.0]], speed=1.0, turn_radius=2.0)
+    problem = uo.TrackingProblem(vehicle, line, horizon=20, dt=0.1, terminal="cost")
+    plant = uo.rk4_step(model_function("plant", vehicle), problem.dt, 10)
+    controller = uo.NMPC(problem, "ipopt")
+    state = problem.initial_state()
+    state[1] += 0.5  # 0.5 m beside the line: only the rudder can close it (no sway actuator)
+    state[3] = 1.0  # cruising at the line's speed
+    # the propeller running at its cruise speed: thrust ∝ n|n| has no slope at n = 0, where a
+    # Newton-type solver started from rest would stay
+    cruise = math.sqrt(vehicle.damping[0] * 1.0 / vehicle.thrust_coefficient)
+    command, commands, errors = np.array([cruise, 0.0]), [], []
+    for k in range(80):
+        record = controller.step(state, k * problem.dt, command)
+        assert not record.fallback
+        step_change = np.abs(record.control - command)
+        assert np.all(step_change <= np.asarray(vehicle.control_rate_bound) * problem.dt + 1e-6)
+        command = record.control
+        commands.append(command)
+        state = np.array(plant(state, command, np.zeros(2))).ravel()
+        errors.append(state[:2] - line.evaluate(np.array([(k + 1) * problem.dt]))[0, :2])
+    commands, errors = np.array(commands), np.array(errors)
+    assert np.all(np.abs(commands) <= np.asarray(vehicle.control_bound) + 1e-6)
+    assert np.max(np.abs(commands[:, 1])) > 0.1  # it steered with the rudder
+    assert np.max(np.abs(errors[-20:])) < 0.02  # on the line, at its place, after 6 s

@@ -70,12 +70,12 @@ from uuv_ocp.transcription.condensed import batched_fitness, candidate_fitness
 
 #: ``-ffp-contract=off`` keeps compiled arithmetic identical to CasADi's virtual machine;
 #: Verification tolerance of the SIMD ``cost_batch`` (relative): its own ``sin``/``cos`` differ
-#: from libm by a few ulp (native/simd_math.h), and the cost of an N-step rollout amplifies that;
-#: measured 2.7e-12 on the BlueROV2 obstacle course, where 1e-12 refused the kernel.  Everything
-#: else (CasADi's generated code, the exact batch) keeps ``tolerance``.
+#: from libm by a few ulp (native/simd_math.h), and the cost of an N-step rollout amplifies that
+#: past 1e-12 on long 6-DOF horizons (docs/benchmarks.md, "SIMD tolerance").  Everything else
+#: (CasADi's generated code, the exact batch) keeps ``tolerance``.
 SIMD_TOLERANCE = 1e-10
-#: ``-march=native`` gives the SIMD kernel this processor's vector width (3x on AVX-512,
-#: measured) and makes the processor part of the cache key; ``-D_GNU_SOURCE`` lets the IGWO
+#: ``-march=native`` gives the SIMD kernel this processor's vector width (docs/benchmarks.md)
+#: and makes the processor part of the cache key; ``-D_GNU_SOURCE`` lets the IGWO
 #: step place its random-number thread on another CPU (Linux).
 DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off", "-march=native", "-D_GNU_SOURCE")
 FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step", "rollout", "score_terms")

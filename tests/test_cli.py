@@ -56,7 +56,7 @@ def _replay(vehicle, run):
     import numpy as np
     from scipy.integrate import solve_ivp
 
-    rhs = vehicle.dynamics_function()
+    rhs = vehicle.model_function()  # the vehicle protocol's dynamics (built-ins and a user's)
     state = run.states[0]
     for k, control in enumerate(run.controls):
         step = solve_ivp(
@@ -267,7 +267,6 @@ def test_track_a_users_vehicle_class_from_its_file(tmp_path, capsys):
     from pathlib import Path
 
     import numpy as np
-    from scipy.integrate import solve_ivp
 
     from uuv_ocp.control.simulation import ClosedLoopResult
     from uuv_ocp.specs import vehicle_from_spec
@@ -284,18 +283,7 @@ def test_track_a_users_vehicle_class_from_its_file(tmp_path, capsys):
     pose = uo.Reference.paper("s2").evaluate(np.array([0.0]))[0, :3]
     np.testing.assert_array_equal(run.states[0], [*pose, 0.0, 0.0, 0.0, 0.0, 0.0])
     # the plant was the file's vessel: scipy's RK45 through its model_function() gives the run
-    rhs = vessel.model_function()
-    state = run.states[0]
-    for k, control in enumerate(run.controls):
-        step = solve_ivp(
-            lambda _, x, u=control: np.asarray(rhs(x, u, np.zeros(2))).ravel(),
-            (run.t[k], run.t[k + 1]),
-            state,
-            rtol=1e-10,
-            atol=1e-10,
-        )
-        state = step.y[:, -1]
-    np.testing.assert_allclose(state, run.states[-1], atol=1e-6)
+    np.testing.assert_allclose(_replay(vessel, run), run.states[-1], atol=1e-6)
 
 
 @pytest.mark.parametrize(

@@ -53,10 +53,7 @@ B = np.array([[0.0], [1.0]])
 @pytest.mark.parametrize("degree", COLLOCATION_DEGREES)
 def test_one_step_is_the_pade_approximant_of_the_exponential(degree):
     step = implicit_step(linear_dynamics(A, B), DT, degree)
-    # held control: the augmented system [x; u]' = [[A, B], [0, 0]] [x; u]
-    augmented = np.zeros((3, 3))
-    augmented[:2, :2], augmented[:2, 2:] = A, B
-    expected = pade_matrix(DT * augmented, degree)[:2]
+    expected = pade_matrix(DT * augmented(), degree)[:2]  # the control held on the interval
     for x0, u in (([1.0, 0.0], 0.0), ([0.0, 1.0], 0.0), ([0.0, 0.0], 1.0), ([0.3, -0.7], 0.4)):
         got = np.array(step(x0, u, [], [])).ravel()
         np.testing.assert_allclose(got, expected @ np.array([*x0, u]), rtol=0, atol=1e-13)
@@ -94,11 +91,8 @@ def lq_ocp(degree: int) -> uo.Ocp:
     return ocp
 
 
-def riccati(degree: int, x0: np.ndarray) -> tuple[np.ndarray, float]:
-    """Finite-horizon discrete LQR of the Padé-discretised oscillator, in numpy."""
-    augmented = np.zeros((3, 3))
-    augmented[:2, :2], augmented[:2, 2:] = A, B
-    discrete = pade_matrix(DT * augmented, degree)[:2]
+def riccati(discrete: np.ndarray, x0: np.ndarray) -> tuple[np.ndarray, float]:
+    """Finite-horizon discrete LQR of ``x⁺ = [A_d B_d] [x; u]`` (the lq_ocp costs), in numpy."""
     a_d, b_d = discrete[:, :2], discrete[:, 2:]
     q, r, p = np.diag([2.0, 1.0]), np.array([[0.5]]), np.diag([20.0, 10.0])
     gains = []
@@ -113,11 +107,18 @@ def riccati(degree: int, x0: np.ndarray) -> tuple[np.ndarray, float]:
     return np.array(controls), float(x0 @ p @ x0)
 
 
+def augmented() -> np.ndarray:
+    """Return the oscillator with its control held: ``[x; u]' = [[A, B], [0, 0]] [x; u]``."""
+    matrix = np.zeros((3, 3))
+    matrix[:2, :2], matrix[:2, 2:] = A, B
+    return matrix
+
+
 @pytest.mark.parametrize("solver", EXACT)
 @pytest.mark.parametrize("degree", [1, 3])
 def test_every_exact_backend_solves_the_collocation_lqr_to_the_riccati_solution(solver, degree):
     x0 = np.array([1.0, -0.5])
-    controls, cost = riccati(degree, x0)
+    controls, cost = riccati(pade_matrix(DT * augmented(), degree)[:2], x0)
     result = uo.solve(lq_ocp(degree), solver, x0=x0, options=TIGHT.get(solver))
     assert result.success, result.status
     np.testing.assert_allclose(result.controls, controls, rtol=1e-6, atol=1e-6)
@@ -132,7 +133,7 @@ def test_every_exact_backend_solves_the_collocation_lqr_to_the_riccati_solution(
 
 def test_swarms_evaluate_the_same_discretisation():
     x0 = np.array([1.0, -0.5])
-    controls, cost = riccati(2, x0)
+    controls, cost = riccati(pade_matrix(DT * augmented(), 2)[:2], x0)
     # the judge on the Riccati controls is the Riccati cost: the condensed cost is the collocation's
     assert uo.score(lq_ocp(2), controls, x0=x0)[0] == pytest.approx(cost, rel=1e-10)
     bounded = uo.Ocp(horizon=HORIZON, dt=DT, transcription="collocation", degree=2)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
-from test_collocation import DT, EXACT, HORIZON, TIGHT, A, B, pade_matrix
+from test_collocation import DT, EXACT, HORIZON, TIGHT, A, B, augmented, pade_matrix, riccati
 from uuv_ocp.transcription.base import Transcription, register_transcription, transcription_names
 
 
@@ -71,32 +71,18 @@ def lq_ocp() -> uo.Ocp:
     return ocp
 
 
-def riccati(x0: np.ndarray) -> tuple[np.ndarray, float]:
-    """Discrete LQR of the oscillator discretised by the (1, 1) Padé approximant (Crank–Nicolson)."""
-    augmented = np.zeros((3, 3))
-    augmented[:2, :2], augmented[:2, 2:] = A, B
-    # (1, 1) Padé: (I − M/2)⁻¹ (I + M/2), written directly (not through pade_matrix's degrees)
-    half = DT * augmented / 2
+def crank_nicolson() -> np.ndarray:
+    """``[A_d B_d]`` of the (1, 1) Padé approximant ``(I − M/2)⁻¹ (I + M/2)``, written directly."""
+    half = DT * augmented() / 2
     discrete = np.linalg.solve(np.eye(3) - half, np.eye(3) + half)[:2]
-    assert not np.allclose(discrete, pade_matrix(DT * augmented, 1)[:2])  # not Radau's (0, 1)
-    a_d, b_d = discrete[:, :2], discrete[:, 2:]
-    q, r, p = np.diag([2.0, 1.0]), np.array([[0.5]]), np.diag([20.0, 10.0])
-    gains = []
-    for _ in range(HORIZON):
-        gain = np.linalg.solve(r + b_d.T @ p @ b_d, b_d.T @ p @ a_d)
-        p = q + a_d.T @ p @ (a_d - b_d @ gain)
-        gains.append(gain)
-    x, controls = x0.copy(), []
-    for gain in reversed(gains):
-        controls.append(-gain @ x)
-        x = a_d @ x + b_d @ controls[-1]
-    return np.array(controls), float(x0 @ p @ x0)
+    assert not np.allclose(discrete, pade_matrix(DT * augmented(), 1)[:2])  # not Radau's (0, 1)
+    return discrete
 
 
 @pytest.mark.parametrize("solver", EXACT)
 def test_a_registered_transcription_is_solved_by_every_exact_backend(solver):
     x0 = np.array([1.0, -0.5])
-    controls, cost = riccati(x0)
+    controls, cost = riccati(crank_nicolson(), x0)
     result = uo.solve(lq_ocp(), solver, x0=x0, options=TIGHT.get(solver))
     assert result.success, result.status
     np.testing.assert_allclose(result.controls, controls, rtol=1e-6, atol=1e-6)

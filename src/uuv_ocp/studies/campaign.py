@@ -445,42 +445,12 @@ def run_campaigns(
     campaign gets its own folder in ``out_dir``.  Returns one :class:`CampaignResult` per
     configuration, in order.
     """
-    configs = list(configs)
-    if not configs or not all(isinstance(config, CampaignConfig) for config in configs):
-        raise ValueError(f"configs must be a non-empty sequence of CampaignConfig, got {configs!r}")
-    if len({config.name for config in configs}) != len(configs):
-        raise ValueError("configs must be different campaigns, got the same campaign twice")
-    check.choice("executor", executor, EXECUTORS)
-    workers = check.positive_int("workers", workers)
-    if scheduler is not None:
-        if executor != "dask":
-            raise ValueError(f"scheduler is for executor 'dask', got executor {executor!r}")
-        if not isinstance(scheduler, str) or "://" not in scheduler:
-            raise ValueError(f"scheduler must be an address like 'tcp://host:8786', got {scheduler!r}")
-    if executor == "dask":
-        require_dask()
+    configs, workers = _checked_configs(configs, executor, workers, scheduler)
     out = check_writable(out_dir)
     repaired = check_index(out)
     if repaired:
         warnings.warn(repaired, IndexWarning, stacklevel=3)
-    metrics: list[dict[int, dict]] = [{} for _ in configs]
-    faults: list[dict[int, str | None]] = [{} for _ in configs]
-    recomputed: list[list[int]] = [[] for _ in configs]
-    for c, config in enumerate(configs):  # resumed trials load in milliseconds: not part of the bar's rate
-        directory = out / config.name
-        directory.mkdir(exist_ok=True)
-        steps = config.steps()
-        for index in range(config.trials):
-            path = _trial_path(directory, index)
-            existed = path.exists()
-            saved = _load(config, index, directory, steps)
-            if saved is None:
-                if existed:
-                    recomputed[c].append(index)
-                continue
-            run, digest = saved
-            # rebuild the index row: the files are the authority
-            metrics[c][index], faults[c][index] = _index_row(config, index, directory, run, digest), run.fault
+    metrics, faults, recomputed = _resume(configs, out)
     resumed = [len(m) for m in metrics]
     pending = [
         ((c, i), (config, i))
@@ -516,24 +486,74 @@ def run_campaigns(
             "(killed, out of memory, or a crash in native code); no record written for "
             f"{'it' if len(crashed) == 1 else 'them'}, every other trial is saved (rerun to retry)"
         )
-    results = []
-    for c, config in enumerate(configs):
-        trials = tuple(metrics[c][i] for i in range(config.trials))
-        fault_list = tuple(faults[c][i] for i in range(config.trials))
+    return tuple(
+        _write_result(config, metrics[c], faults[c], recomputed[c], resumed[c], out / config.name)
+        for c, config in enumerate(configs)
+    )
+
+
+def _checked_configs(
+    configs: Sequence[CampaignConfig], executor: str, workers: object, scheduler: object
+) -> tuple[list[CampaignConfig], int]:
+    """Refuse a bad argument of :func:`run_campaigns` by name; return the configurations and workers."""
+    configs = list(configs)
+    if not configs or not all(isinstance(config, CampaignConfig) for config in configs):
+        raise ValueError(f"configs must be a non-empty sequence of CampaignConfig, got {configs!r}")
+    if len({config.name for config in configs}) != len(configs):
+        raise ValueError("configs must be different campaigns, got the same campaign twice")
+    check.choice("executor", executor, EXECUTORS)
+    workers = check.positive_int("workers", workers)
+    if scheduler is not None:
+        if executor != "dask":
+            raise ValueError(f"scheduler is for executor 'dask', got executor {executor!r}")
+        if not isinstance(scheduler, str) or "://" not in scheduler:
+            raise ValueError(f"scheduler must be an address like 'tcp://host:8786', got {scheduler!r}")
+    if executor == "dask":
+        require_dask()
+    return configs, workers
+
+
+def _resume(
+    configs: list[CampaignConfig], out: Path
+) -> tuple[list[dict[int, dict]], list[dict[int, str | None]], list[list[int]]]:
+    """Read back every sound trial record: metrics and faults by trial, and the refused ones."""
+    metrics: list[dict[int, dict]] = [{} for _ in configs]
+    faults: list[dict[int, str | None]] = [{} for _ in configs]
+    recomputed: list[list[int]] = [[] for _ in configs]
+    for c, config in enumerate(configs):  # resumed trials load in milliseconds: not part of the bar's rate
         directory = out / config.name
-        result = CampaignResult(
-            config,
-            trials,
-            summarise(trials, fault_list),
-            directory,
-            fault_list,
-            tuple(recomputed[c]),
-            resumed[c],
-        )
-        write_text(directory / "config.toml", _config_toml(config), "campaign file")
-        write_text(directory / "summary.txt", format_summary(result) + "\n", "summary")
-        results.append(result)
-    return tuple(results)
+        directory.mkdir(exist_ok=True)
+        steps = config.steps()
+        for index in range(config.trials):
+            existed = _trial_path(directory, index).exists()
+            saved = _load(config, index, directory, steps)
+            if saved is None:
+                if existed:
+                    recomputed[c].append(index)
+                continue
+            run, digest = saved
+            # rebuild the index row: the files are the authority
+            metrics[c][index], faults[c][index] = _index_row(config, index, directory, run, digest), run.fault
+    return metrics, faults, recomputed
+
+
+def _write_result(
+    config: CampaignConfig,
+    metrics: dict[int, dict],
+    faults: dict[int, str | None],
+    recomputed: list[int],
+    resumed: int,
+    directory: Path,
+) -> CampaignResult:
+    """Return one campaign's result; write its configuration and summary beside its trials."""
+    trials = tuple(metrics[i] for i in range(config.trials))
+    fault_list = tuple(faults[i] for i in range(config.trials))
+    result = CampaignResult(
+        config, trials, summarise(trials, fault_list), directory, fault_list, tuple(recomputed), resumed
+    )
+    write_text(directory / "config.toml", _config_toml(config), "campaign file")
+    write_text(directory / "summary.txt", format_summary(result) + "\n", "summary")
+    return result
 
 
 def _config_toml(config: CampaignConfig) -> str:

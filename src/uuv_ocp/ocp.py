@@ -671,7 +671,8 @@ class OcpSpec:
         return shifted / ca.DM(self.control_scale)
 
 
-def _freeze(ocp: Ocp) -> OcpSpec:
+def _check_declaration(ocp: Ocp) -> None:
+    """Refuse an Ocp that cannot be transcribed, naming what it misses."""
     if not ocp._states:
         raise ValueError("the Ocp declares no state: call ocp.state(...)")
     if not ocp._controls:
@@ -681,6 +682,25 @@ def _freeze(ocp: Ocp) -> OcpSpec:
         raise ValueError(f"state(s) {missing} have no dynamics: call ocp.set_der(state, derivative)")
     if not (ocp._stage_costs or ocp._terminal_costs):
         raise ValueError("the Ocp has no cost: call add_stage_cost or add_terminal_cost")
+
+
+def _control_scaling(ocp: Ocp) -> tuple[np.ndarray, ...]:
+    """Return the controls' box, rate bound, and the centre and half-width that scale a finite box."""
+    lower = np.concatenate([d.lower for d in ocp._controls])
+    upper = np.concatenate([d.upper for d in ocp._controls])
+    rate = np.concatenate(
+        [d.max_rate if d.max_rate is not None else np.full(d.size, math.inf) for d in ocp._controls]
+    )
+    finite = np.isfinite(lower) & np.isfinite(upper) & (upper > lower)
+    centre = np.zeros_like(lower)
+    scale = np.ones_like(lower)
+    centre[finite] = 0.5 * (lower[finite] + upper[finite])
+    scale[finite] = 0.5 * (upper[finite] - lower[finite])
+    return lower, upper, rate, centre, scale
+
+
+def _freeze(ocp: Ocp) -> OcpSpec:
+    _check_declaration(ocp)
     x = ca.vertcat(*[d.symbol for d in ocp._states])
     u = ca.vertcat(*[d.symbol for d in ocp._controls])
     previous = ca.vertcat(
@@ -724,16 +744,7 @@ def _freeze(ocp: Ocp) -> OcpSpec:
         else:
             function = ca.Function(f"c{i}", stage_inputs, [constraint.expression], stage_names, ["g"])
         constraints.append((constraint, function))
-    lower = np.concatenate([d.lower for d in ocp._controls])
-    upper = np.concatenate([d.upper for d in ocp._controls])
-    rate = np.concatenate(
-        [d.max_rate if d.max_rate is not None else np.full(d.size, math.inf) for d in ocp._controls]
-    )
-    finite = np.isfinite(lower) & np.isfinite(upper) & (upper > lower)
-    centre = np.zeros_like(lower)
-    scale = np.ones_like(lower)
-    centre[finite] = 0.5 * (lower[finite] + upper[finite])
-    scale[finite] = 0.5 * (upper[finite] - lower[finite])
+    lower, upper, rate, centre, scale = _control_scaling(ocp)
     lifted = bool(np.any(np.isfinite(rate)) or ocp._previous)
     layout = _layout(ocp, globals_, stagewise)
     # one mapping feeds both the content key and the constructor: Any, as OcpSpec's fields differ in type

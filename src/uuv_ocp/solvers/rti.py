@@ -63,6 +63,7 @@ the variable and constraint order), ``"qrqp"`` and ``"osqp"``
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -90,7 +91,7 @@ from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.ipopt import ipopt_options
 from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import AUTO, Option, one_of, option_defaults, option_names, revise
-from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.result import Attempt, Iterate, SolveResult, Stage, Variant
 from uuv_ocp.solvers.rti_ocp import (
     OCP_QP_DEFAULTS,
     STOP_CONVERGED,
@@ -605,10 +606,9 @@ class RtiSolver(NlpSolver):
         final = self._c_record(
             plan.variant, plan.still_water, plan.primal, plan.lam_x, plan.lam_g, info, converge, elapsed
         )
-        result = self._result(p, final, [final], plan.relaxed, elapsed)
-        result.details["deadline_hit"] = False
-        result.details["c_time"] = float(info[6] + info[7])
-        return result
+        return self._result(
+            p, final, [final], plan.relaxed, elapsed, deadline_hit=False, c_time=float(info[6] + info[7])
+        )
 
     def resident_iterate(self, plan: ResidentPlan) -> Iterate:
         """Return the plan and warm start of ``plan`` as :meth:`solve` returns them (unshifted)."""
@@ -738,10 +738,9 @@ class RtiSolver(NlpSolver):
             time.perf_counter() - start,
         )
         relaxed = self.relaxed(prepared.variant, primal)
-        result = self._result(p, final, [final], relaxed, time.perf_counter() - start)
-        result.details["deadline_hit"] = False
-        result.details["c_time"] = float(info[8] + info[6] + info[7])
-        return result
+        c_time = float(info[8] + info[6] + info[7])
+        elapsed = time.perf_counter() - start
+        return self._result(p, final, [final], relaxed, elapsed, deadline_hit=False, c_time=c_time)
 
     def _matching_preparation(
         self, variant: str, p: np.ndarray, primal: np.ndarray, still_water: bool
@@ -790,7 +789,7 @@ class RtiSolver(NlpSolver):
         finally:
             self._prepared = None
         if self.qpsol == "hpipm-ocp":
-            result.details["c_time"] = self._c_time
+            result = dataclasses.replace(result, details=result.details.replace(c_time=self._c_time))
         return result
 
     def robust_options(self) -> dict[str, Any]:
@@ -798,11 +797,11 @@ class RtiSolver(NlpSolver):
         return {"plugin": "ipopt", **ipopt_options(self.max_iter, self.deadline)}
 
     def _attempt(
-        self, variant: str, p: np.ndarray, warm_start: Iterate | None, robust: bool | str = False
-    ) -> dict[str, Any]:
-        if robust or (warm_start is None and self.cold_start == "ipopt"):
+        self, variant: Variant, p: np.ndarray, warm_start: Iterate | None, stage: Stage = Stage.PLAIN
+    ) -> Attempt:
+        if stage is not Stage.PLAIN or (warm_start is None and self.cold_start == "ipopt"):
             self._prepared = None
-            return super()._attempt(variant, p, warm_start, robust=True)
+            return super()._attempt(variant, p, warm_start, Stage.ROBUST)
         data = self.variants[variant]
         primal, lam_g, lam_x = self._initial_point(variant, p, warm_start)
         primal = np.array(primal, dtype=float)
@@ -850,7 +849,7 @@ class RtiSolver(NlpSolver):
             status = "max_iter" if converge else f"rti ({iterations} iteration(s))"
         return _attempt_record(
             variant,
-            robust,
+            stage,
             still_water,
             primal,
             lam_g,
@@ -873,7 +872,7 @@ class RtiSolver(NlpSolver):
         still_water: bool,
         converge: bool,
         limit: int,
-    ) -> dict[str, Any]:
+    ) -> Attempt:
         """Run the iterations of :meth:`_attempt` in one call of the C step (same stops, statuses)."""
         prepared = self._matching_preparation(variant, p, primal, still_water) is not None
         scale = self.objective_scale
@@ -897,7 +896,7 @@ class RtiSolver(NlpSolver):
         info: np.ndarray,
         converge: bool,
         plugin_time: float,
-    ) -> dict[str, Any]:
+    ) -> Attempt:
         """Return the attempt record of one C step call (``info`` of ``OcpQpStep.iterate``)."""
         iterations, violation, step_norm, stop = int(info[0]), float(info[1]), float(info[2]), int(info[3])
         converged = stop == STOP_CONVERGED
@@ -915,7 +914,7 @@ class RtiSolver(NlpSolver):
         scale = self.objective_scale
         record = _attempt_record(
             variant,
-            False,
+            Stage.PLAIN,
             still_water,
             primal,
             lam_g / scale,
@@ -926,12 +925,12 @@ class RtiSolver(NlpSolver):
             step_norm,
             plugin_time,
         )
-        return {**record, "qp_iterations": int(info[4])}
+        return dataclasses.replace(record, qp_iterations=int(info[4]))
 
 
 def _attempt_record(
     variant: str,
-    robust: bool | str,
+    stage: Stage,
     still_water: bool,
     primal: np.ndarray,
     lam_g: np.ndarray,
@@ -941,7 +940,7 @@ def _attempt_record(
     iterations: int,
     step_norm: float,
     plugin_time: float,
-) -> dict[str, Any]:
+) -> Attempt:
     """One attempt in :class:`NlpSolver`'s record format, for both QP paths.
 
     ``outcome = (feasible, converged, converge)``: success is a feasible QP step that converged
@@ -950,19 +949,19 @@ def _attempt_record(
     feasible, converged, converge = outcome
     if feasible and not converge and not converged:
         status = f"rti ({iterations} iteration(s), last step {step_norm:.3g})"
-    return {
-        "variant": variant,
-        "robust": robust,
-        "still_water": still_water,
-        "primal": primal,
-        "lam_g": lam_g,
-        "lam_x": lam_x,
-        "success": feasible and (converged or not converge),
-        "status": status,
-        "iterations": iterations,
-        "evaluations": iterations,
-        "plugin_time": plugin_time,
-    }
+    return Attempt(
+        variant=Variant(variant),
+        stage=stage,
+        still_water=still_water,
+        primal=primal,
+        lam_g=lam_g,
+        lam_x=lam_x,
+        success=feasible and (converged or not converge),
+        status=status,
+        iterations=iterations,
+        evaluations=iterations,
+        solver_time=plugin_time,
+    )
 
 
 def _automatic_qpsol() -> str:

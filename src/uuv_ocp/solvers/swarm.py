@@ -53,7 +53,7 @@ from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
 from uuv_ocp.native.runtime import COMPILED_ENV, NativeIgwo, compiled_build, uses_pcg64
 from uuv_ocp.optimize import ALGORITHMS, ImprovedGreyWolf, MinimizeResult, minimize
 from uuv_ocp.solvers.options import AUTO, Option, format_value, one_of, option_defaults, option_names
-from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.result import Iterate, SolveDetails, SolveResult
 from uuv_ocp.transcription.condensed import batched_fitness, encode
 from uuv_ocp.transcription.condensed import (
     candidate_fitness as candidate_fitness,  # re-exported: its old home
@@ -308,6 +308,8 @@ class SwarmSolver:
         ``"igwo"``, ``"gwo"``, ``"ssa"`` or ``"pso"``.
     """
 
+    time_limited = True  # solve(..., time_limit=) (the Backend protocol's capability)
+
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None, *, method: str) -> None:
         options = dict(options or {})
         check.choice("method", method, sorted(ALGORITHMS))
@@ -506,12 +508,14 @@ class SwarmSolver:
             terminal_relaxed=problem.soft_terminal_available and kinds["terminal"] > tolerance,
             iterate=iterate,
             history=outcome.history,
-            details={
-                "fitness": outcome.fun,
-                "violations": kinds,
-                "deadline_hit": outcome.deadline_hit or late,
-                **self._candidate_details(archive, outcome, offset, p),
-            },
+            details=SolveDetails.of(
+                {
+                    "fitness": outcome.fun,
+                    "violations": kinds,
+                    "deadline_hit": outcome.deadline_hit or late,
+                    **self._candidate_details(archive, outcome, offset, p),
+                }
+            ),
         )
 
     def _candidate_archive(self, p: np.ndarray) -> CandidateArchive:

@@ -15,7 +15,11 @@ from helpers_fossen import (
     s2_reference,
 )
 
-EXACT = ["ipopt", "sqp", "fatrop"]
+# every registered exact backend but the real-time iteration (one SQP step per call by default;
+# tests/test_rti.py holds it to IPOPT's optimum in its converged mode): a new one is tested here
+EXACT = [
+    name for name in uo.available_solvers() if uo.solvers.REGISTRY.kind(name) == "exact" and name != "sqp-rti"
+]
 DT = 0.1  # s2_problem's sampling time and horizon (conftest)
 HORIZON = 20
 

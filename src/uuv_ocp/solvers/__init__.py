@@ -37,6 +37,7 @@ from uuv_ocp.solvers.multistart import multistart_factory
 from uuv_ocp.solvers.nlp import NlpSolver
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.solvers.rti import RtiSolver
+from uuv_ocp.solvers.slsqp import SlsqpSolver
 from uuv_ocp.solvers.sqp import SqpSolver
 from uuv_ocp.solvers.swarm import SwarmSolver, swarm_factory
 
@@ -48,6 +49,7 @@ _BUILTIN: dict[str, tuple[SolverFactory, str]] = {
     "fatrop": (FatropSolver, "exact"),
     "sqp": (SqpSolver, "exact"),
     "sqp-rti": (RtiSolver, "exact"),
+    "slsqp": (SlsqpSolver, "exact"),
     **{method: (swarm_factory(method), "swarm") for method in ALGORITHMS},
 }
 EXACT_SOLVERS = ("fatrop", "ipopt", "sqp")
@@ -306,6 +308,7 @@ __all__ = [
     "RtiSolver",
     "SolveResult",
     "SolverRegistry",
+    "SlsqpSolver",
     "SqpSolver",
     "SwarmSolver",
     "MinimizeResult",

@@ -132,7 +132,7 @@ def test_windows_cut_from_sample_blocks_match_direct_evaluation(reference):
         # without a vehicle heading: the reference's own branch, first value in [-π, π]
         as_given = reference.evaluate(t0 + 0.1 * np.arange(21))
         np.testing.assert_allclose(problem.reference_window(t0), as_given, rtol=1e-13, atol=1e-11)
-    blocks = problem._cache["sample_blocks"]
+    blocks = problem._store["sample_blocks"]
     assert len(blocks) >= 3 and all(block is not None for block in blocks.values())
     # off the sampling grid: the direct evaluation itself
     t0 = first * 0.1 + 0.05

@@ -100,11 +100,6 @@ class Transcribed:
         """Return the frozen description of the problem."""
         raise NotImplementedError
 
-    @property
-    def _cache(self) -> dict[Any, Any]:
-        """Alias of the problem's store of derived data (the name before the redesign)."""
-        return self._store
-
     # ---------------------------------------------------------------- building
     def build(self) -> Built:
         """Build (once per content, on first use) and return the CasADi objects all solvers share.

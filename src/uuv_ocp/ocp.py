@@ -430,8 +430,6 @@ class Ocp(Transcribed):
         spec: OcpSpec = self._store["spec"]
         return spec
 
-    freeze = spec
-
     def parameters(
         self, x0: object, parameters: Mapping[str, object] | None = None, u_prev: object | None = None
     ) -> np.ndarray:

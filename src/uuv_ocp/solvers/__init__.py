@@ -52,7 +52,6 @@ _BUILTIN: dict[str, tuple[SolverFactory, str]] = {
     "slsqp": (SlsqpSolver, "exact"),
     **{method: (swarm_factory(method), "swarm") for method in ALGORITHMS},
 }
-EXACT_SOLVERS = ("fatrop", "ipopt", "sqp")
 
 
 class SolverRegistry:

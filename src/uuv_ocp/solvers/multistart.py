@@ -65,7 +65,6 @@ from uuv_ocp.solvers.options import (
 from uuv_ocp.solvers.result import Iterate, SolveDetails, SolveResult
 from uuv_ocp.transcription.condensed import encode
 
-PREFIX = "multistart-"
 DEFAULT_STARTS = 8
 STRUCTURED_LEVEL = 0.5  # scaled control of the "±50 %" starts
 RANDOM_KNOTS = 4

@@ -1,44 +1,35 @@
-"""Declared solver options: one source of truth for the constructors, their errors and the docs.
+"""Declared solver options: one source of truth for the backends, their errors and the docs.
 
-Every backend declares the options its constructor accepts as a tuple of :class:`Option`
-(name, default, accepted values, unit, one-line description), kept next to its code, and its
-constructor reads every default from that tuple.  The tables of ``docs/solvers.md`` are
-rendered from the same tuples (:func:`uuv_ocp.solvers.catalog.options_table`, called by the
-mkdocs hook ``docs/hooks/solver_options.py``), so the documented default *is* the one used.
+A backend declares its options as a frozen dataclass whose fields are made by :func:`option`
+(default, accepted values, unit, one-line description and a validator), and reads its
+``options`` dict with the one generic :func:`parse_options`, which refuses an option the
+dataclass does not declare (so the backend does not honour) and validates every given value,
+naming ``options['<name>'] of '<solver>'``, before anything is built.  :func:`declaration`
+turns the dataclass into :class:`Option` rows: the backend's ``OPTIONS``, which the tables of
+``docs/solvers.md`` are rendered from (:func:`uuv_ocp.solvers.catalog.options_table`, called by
+the mkdocs hook ``docs/hooks/solver_options.py``), so the documented default *is* the one used.
 This module is below the registry (every backend imports it); what reads a declaration by a
 registered name lives above it, in :mod:`uuv_ocp.solvers.catalog`.
 
-How a backend declares its options (e.g. a new exact backend on :class:`NlpSolver`)::
+How a backend declares its options (e.g. :mod:`uuv_ocp.solvers.slsqp`)::
 
-    from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
-    from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names, revise
-
-    RTI_OPTIONS = (
-        # the options NlpSolver reads, with this backend's own defaults or meanings where they differ
-        *revise(NLP_OPTIONS, max_iter={"meaning": "50 (converged mode)"}),
-        Option("mode", "rti", one_of(MODES), "one SQP step per call, or iterate to `tol`"),
-        Option("tol", 1e-8, "float > 0", "stopping tolerance of the converged mode"),
-    )
+    @dataclasses.dataclass(frozen=True)
+    class SlsqpOptions(ChainOptions):  # the options every NlpSolver honours, and its own
+        tol: float = option(1e-11, "float > 0", "SLSQP's `ftol`", check=positive_float)
 
 
-    class RtiSolver(NlpSolver):
-        OPTIONS = RTI_OPTIONS  # what catalog.declared_options() and the docs read
-        option_names = option_names(RTI_OPTIONS)  # the keys the unknown-option error lists
+    class SlsqpSolver(NlpSolver):
+        Options = SlsqpOptions  # what NlpSolver.__init__ parses options into
+        OPTIONS = declaration(SlsqpOptions)  # what catalog.declared_options() and the docs read
+        option_names = option_names(OPTIONS)  # the keys the unknown-option error lists
 
-        def __init__(self, problem, options=None):
-            options = dict(options or {})
-            default = option_defaults(self.OPTIONS)
-            # pop with the literal name: tests/test_solvers.py reads the names from the source
-            self.mode = check.choice("options['mode']", options.pop("mode", default["mode"]), MODES)
-            ...
-            super().__init__(problem, options)  # pops and checks the NlpSolver options
-
-Then add a marker ``<!-- solver-options: sqp-rti -->`` where its section of ``docs/solvers.md``
+Then add a marker ``<!-- solver-options: slsqp -->`` where its section of ``docs/solvers.md``
 lists the options; the hook replaces it by the table.  The registry finds a declaration as the
 ``OPTIONS`` attribute of the registered factory (a class attribute, or an attribute set on a
 factory function: :func:`~uuv_ocp.solvers.swarm.swarm_factory`); ``tests/test_solver_options.py``
-fails for a registered backend without one, for a default the constructor does not use, and
-for an option the constructor accepts but does not declare.
+fails for a registered backend without one, for a default the backend does not hold, and for an
+Options dataclass that is not its declaration.  The swarms and ``sqp-rti`` still read their
+options by hand from :class:`Option` tuples (``option_defaults``, ``revise``).
 
 A default the backend works out when it is built (from the machine, the environment or
 another option) is :data:`AUTO` with a ``meaning`` saying how, and the constructor replaces

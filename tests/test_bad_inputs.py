@@ -603,7 +603,7 @@ API_CASES: list[tuple[str, Callable[[], object], type[Exception], str]] = [
         "swarm-rng_thread-str",
         lambda: uo.get_solver(PROBLEM, "igwo", {"rng_thread": "yes"}),
         ValueError,
-        r"options\['rng_thread'\] must be True or False",
+        r"options\['rng_thread'\] of 'igwo' must be True or False",
     ),
     (
         "get_solver-problem",

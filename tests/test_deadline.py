@@ -639,10 +639,8 @@ def test_closed_loop_without_a_deadline_has_no_misses(s2_problem, tmp_path):
 @pytest.mark.parametrize("name", ["ipopt", "fatrop", "sqp", "igwo", "pso", "igwo+ipopt", "multistart-ipopt"])
 @pytest.mark.parametrize("bad", BAD_DEADLINES)
 def test_bad_deadline_raises_naming_the_option(s2_problem, name, bad):
-    # the one options parser names the option and the backend (a composite: itself, before any
-    # build); the swarms still read their options by hand
-    by_hand = name in ("igwo", "pso")
-    expected = r"options\['deadline'\]" + ("" if by_hand else f" of '{re.escape(name)}'")
+    # the one options parser names the option and the backend (a composite: itself, before any build)
+    expected = r"options\['deadline'\]" + f" of '{re.escape(name)}'"
     with pytest.raises(ValueError, match=expected):
         get_solver(s2_problem, name, {"deadline": bad})
 

@@ -130,7 +130,7 @@ def _declares_options_class(name: str) -> bool:
 
 PARSED = [name for name in ["igwo+ipopt", "multistart-ipopt", *BASE] if _declares_options_class(name)]
 # backends whose constructors still pop their options by hand (checked by the tests above only)
-BY_HAND = {"sqp-rti", "igwo", "gwo", "ssa", "pso"}
+BY_HAND = {"sqp-rti"}
 
 
 def test_every_backend_but_the_listed_ones_parses_an_options_dataclass():

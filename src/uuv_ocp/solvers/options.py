@@ -28,8 +28,10 @@ lists the options; the hook replaces it by the table.  The registry finds a decl
 ``OPTIONS`` attribute of the registered factory (a class attribute, or an attribute set on a
 factory function: :func:`~uuv_ocp.solvers.swarm.swarm_factory`); ``tests/test_solver_options.py``
 fails for a registered backend without one, for a default the backend does not hold, and for an
-Options dataclass that is not its declaration.  The swarms and ``sqp-rti`` still read their
-options by hand from :class:`Option` tuples (``option_defaults``, ``revise``).
+Options dataclass that is not its declaration.  A computed declaration (the swarms': population
+and iterations are each algorithm's) becomes a dataclass by :func:`make_options_class`; ``sqp-rti``
+still reads its own options by hand from :class:`Option` tuples (``option_defaults``,
+``revise``) and hands the rest to :class:`~uuv_ocp.solvers.nlp.NlpSolver`'s parser.
 
 A default the backend works out when it is built (from the machine, the environment or
 another option) is :data:`AUTO` with a ``meaning`` saying how, and the constructor replaces
@@ -63,6 +65,7 @@ __all__ = [
     "option",
     "option_defaults",
     "option_names",
+    "make_options_class",
     "parse_options",
     "revise",
 ]
@@ -308,6 +311,33 @@ def parse_options(
             label = f"options[{f.name!r}] of {solver!r}"  # names the parameter and the backend
             values[f.name] = value if check is None else check(label, value)
     return options_class(**values)
+
+
+def make_options_class(name: str, rows: Sequence[Option], checks: Mapping[str, Check]) -> type:
+    """Return a frozen options dataclass made of :class:`Option` rows, each with its validator.
+
+    For backends whose declaration is computed (the swarms: population and iterations are each
+    algorithm's); ``checks`` needs one validator per row.
+    """
+    missing = sorted({row.name for row in rows} - set(checks))
+    if missing:
+        raise ValueError(f"make_options_class {name!r}: no check for {missing}")
+    fields = [
+        (
+            row.name,
+            Any,
+            option(
+                row.default,
+                row.kind,
+                row.description,
+                unit=row.unit,
+                meaning=row.meaning,
+                check=checks[row.name],
+            ),
+        )
+        for row in rows
+    ]
+    return dataclasses.make_dataclass(name, fields, frozen=True)
 
 
 def shown_type(value: object) -> str:

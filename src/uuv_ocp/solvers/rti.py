@@ -924,8 +924,9 @@ class RtiSolver(NlpSolver):
             iterations,
             step_norm,
             plugin_time,
+            qp_iterations=int(info[4]),
         )
-        return dataclasses.replace(record, qp_iterations=int(info[4]))
+        return record
 
 
 def _attempt_record(
@@ -940,6 +941,7 @@ def _attempt_record(
     iterations: int,
     step_norm: float,
     plugin_time: float,
+    qp_iterations: int | None = None,
 ) -> Attempt:
     """One attempt in :class:`NlpSolver`'s record format, for both QP paths.
 
@@ -950,7 +952,7 @@ def _attempt_record(
     if feasible and not converge and not converged:
         status = f"rti ({iterations} iteration(s), last step {step_norm:.3g})"
     return Attempt(
-        variant=Variant(variant),
+        variant=variant if isinstance(variant, Variant) else Variant(variant),
         stage=stage,
         still_water=still_water,
         primal=primal,
@@ -961,6 +963,7 @@ def _attempt_record(
         iterations=iterations,
         evaluations=iterations,
         solver_time=plugin_time,
+        qp_iterations=qp_iterations,
     )
 
 

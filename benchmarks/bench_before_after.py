@@ -1,4 +1,4 @@
-"""Per-step time of every backend on two source trees, in one run: is any backend slower?
+"""Per-step time of every backend on two source trees, in one run (is any backend slower?).
 
 Each round runs, for each tree in turn (alternating which goes first), one worker process per
 tree that times ``NMPC.step`` over a short closed loop on s2 (RexROV, N = 20, dt = 0.1 s) for

@@ -552,7 +552,7 @@ API_CASES: list[tuple[str, Callable[[], object], type[Exception], str]] = [
         "penalty_escalation-int",
         lambda: uo.get_solver(PROBLEM, "ipopt", {"penalty_escalation": 5}),
         ValueError,
-        r"options\['penalty_escalation'\] must be a tuple of factors > 0, e.g. .*got 5$",
+        r"options\['penalty_escalation'\] of 'ipopt' must be a tuple of factors > 0, e.g. .*got 5$",
     ),
     (
         "penalty_escalation-str",
@@ -564,7 +564,7 @@ API_CASES: list[tuple[str, Callable[[], object], type[Exception], str]] = [
         "penalty_escalation-negative",
         lambda: uo.get_solver(PROBLEM, "ipopt", {"penalty_escalation": (10.0, -1.0)}),
         ValueError,
-        r"options\['penalty_escalation'\] entries must be a finite number > 0",
+        r"options\['penalty_escalation'\] of 'ipopt' entries must be a finite number > 0",
     ),
     (
         "slack_tolerance-negative",
@@ -603,7 +603,7 @@ API_CASES: list[tuple[str, Callable[[], object], type[Exception], str]] = [
         "swarm-rng_thread-str",
         lambda: uo.get_solver(PROBLEM, "igwo", {"rng_thread": "yes"}),
         ValueError,
-        r"options\['rng_thread'\] must be True or False",
+        r"options\['rng_thread'\] of 'igwo' must be True or False",
     ),
     (
         "get_solver-problem",

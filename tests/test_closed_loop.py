@@ -100,11 +100,11 @@ class _FailingEveryThird(IpoptSolver):
         super().__init__(problem, options)
         self.calls = 0
 
-    def solve(self, p, warm_start=None, rng=None):
+    def solve(self, p, warm_start=None, rng=None, *, time_limit=None):  # time_limited, as IPOPT
         self.calls += 1
         if self.calls % 3 == 0:
             raise RuntimeError("synthetic solver crash")
-        return super().solve(p, warm_start, rng)
+        return super().solve(p, warm_start, rng, time_limit=time_limit)
 
 
 class _InterruptedSecond(IpoptSolver):
@@ -112,7 +112,7 @@ class _InterruptedSecond(IpoptSolver):
 
     name = "interrupted-ipopt"
 
-    def solve(self, p, warm_start=None, rng=None):
+    def solve(self, p, warm_start=None, rng=None, *, time_limit=None):
         raise RuntimeError(
             "Error in Function::call for 'solver' [IpoptInterface] at .../casadi_interrupt.hpp: "
             "KeyboardInterrupt"

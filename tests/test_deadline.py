@@ -25,6 +25,7 @@ from uuv_ocp.judge import instance_parameters
 from uuv_ocp.optimize import minimize
 from uuv_ocp.solvers import get_solver, new_solver, watchdog
 from uuv_ocp.solvers.hybrid import SWARM_SHARE
+from uuv_ocp.solvers.result import Stage
 
 SWARMS = ["igwo", "gwo", "ssa", "pso"]
 BAD_DEADLINES = [0, 0.0, -1.0, math.nan, math.inf, -math.inf, "0.1", True, [0.1]]
@@ -274,9 +275,9 @@ def test_build_ahead_builds_every_plugin_of_the_fallback_chain(s2_problem, name)
     backend.build(instance_parameters(s2_problem, np.zeros(6), 0.0))
     built = set(backend._solvers)
     for variant in backend.variants:
-        assert (variant, False, True) in built
-        assert bool(backend.robust_options()) == ((variant, True, True) in built)
-        assert bool(backend.rescue_options()) == ((variant, "rescue", True) in built)
+        assert (variant, Stage.PLAIN, True) in built
+        assert bool(backend.robust_options()) == ((variant, Stage.ROBUST, True) in built)
+        assert bool(backend.rescue_options()) == ((variant, Stage.RESCUE, True) in built)
 
 
 @pytest.mark.parametrize("name", ["ipopt", "fatrop", "sqp", "sqp-rti"])
@@ -638,9 +639,8 @@ def test_closed_loop_without_a_deadline_has_no_misses(s2_problem, tmp_path):
 @pytest.mark.parametrize("name", ["ipopt", "fatrop", "sqp", "igwo", "pso", "igwo+ipopt", "multistart-ipopt"])
 @pytest.mark.parametrize("bad", BAD_DEADLINES)
 def test_bad_deadline_raises_naming_the_option(s2_problem, name, bad):
-    # a hybrid or a multistart checks its own option (naming itself) before it builds a backend
-    composite = "+" in name or name.startswith("multistart-")
-    expected = r"options\['deadline'\]" + (f" of '{re.escape(name)}'" if composite else "")
+    # the one options parser names the option and the backend (a composite: itself, before any build)
+    expected = r"options\['deadline'\]" + f" of '{re.escape(name)}'"
     with pytest.raises(ValueError, match=expected):
         get_solver(s2_problem, name, {"deadline": bad})
 

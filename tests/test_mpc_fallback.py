@@ -9,7 +9,7 @@ from uuv_ocp.control.scenario import vehicle_plant
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.solvers import REGISTRY
-from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.result import Iterate, SolveResult, Stage
 
 
 def _result(problem, controls, *, success, status):
@@ -292,7 +292,7 @@ def test_warm_up_builds_the_whole_fallback_chain(s2_problem):
     x0 = s2_problem.reference.initial_state(0.0)
     controller.warm_up(x0, 0.0)
     stages = {stage for (_, stage, _) in controller.backend._solvers}
-    assert {False, True, "rescue"} <= stages, stages
+    assert {Stage.PLAIN, Stage.ROBUST, Stage.RESCUE} <= stages, stages
 
 
 def test_real_time_iteration_plans_applied_on_obstacles_hold_them(monkeypatch):

@@ -461,8 +461,6 @@ class Ocp(Transcribed):
                     self._frozen = True
         return self._spec
 
-    freeze = spec
-
     def instance_parameters(
         self,
         x0: object,

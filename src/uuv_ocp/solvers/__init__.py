@@ -29,6 +29,7 @@ from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import instance_parameters
 from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
+from uuv_ocp.solvers.base import check_backend
 from uuv_ocp.solvers.fatrop import FatropSolver
 from uuv_ocp.solvers.hybrid import hybrid_factory
 from uuv_ocp.solvers.ipopt import IpoptSolver
@@ -36,6 +37,7 @@ from uuv_ocp.solvers.multistart import multistart_factory
 from uuv_ocp.solvers.nlp import NlpSolver
 from uuv_ocp.solvers.result import Iterate, SolveResult
 from uuv_ocp.solvers.rti import RtiSolver
+from uuv_ocp.solvers.slsqp import SlsqpSolver
 from uuv_ocp.solvers.sqp import SqpSolver
 from uuv_ocp.solvers.swarm import SwarmSolver, swarm_factory
 
@@ -47,9 +49,9 @@ _BUILTIN: dict[str, tuple[SolverFactory, str]] = {
     "fatrop": (FatropSolver, "exact"),
     "sqp": (SqpSolver, "exact"),
     "sqp-rti": (RtiSolver, "exact"),
+    "slsqp": (SlsqpSolver, "exact"),
     **{method: (swarm_factory(method), "swarm") for method in ALGORITHMS},
 }
-EXACT_SOLVERS = ("fatrop", "ipopt", "sqp")
 
 
 class SolverRegistry:
@@ -77,6 +79,8 @@ class SolverRegistry:
             raise ValueError(f"kind must be one of {list(KINDS)}, got {kind!r}")
         if name in self._factories and not overwrite:
             raise ValueError(f"solver {name!r} is already registered; pass overwrite=True")
+        if isinstance(factory, type):  # a class: its protocol can be read now, before any build
+            check_backend(factory, name)
         self._factories[name] = (factory, kind)
 
     def kind(self, name: str) -> str:
@@ -151,6 +155,8 @@ def register_solver(
     """Register a backend ``factory(problem, options) -> Backend`` under ``name``.
 
     ``kind="swarm"`` or ``"exact"`` says which half of a ``"<swarm>+<exact>"`` hybrid it can be.
+    A class is checked against :class:`~uuv_ocp.solvers.base.Backend` here (``TypeError``
+    naming the missing member); what a factory function returns, when it is first built.
     """
     REGISTRY.register(name, factory, kind=kind, overwrite=overwrite)
 
@@ -192,11 +198,16 @@ def new_solver(problem: Transcribed, name: str, options: dict[str, Any] | None =
     ValueError
         Not a problem, an unknown name or options that are not a dict (or that the backend
         rejects), before anything is built.
+    TypeError
+        The factory's product does not conform to :class:`~uuv_ocp.solvers.base.Backend`
+        (the message names the backend and the missing member).
     """
     name, _ = _checked(problem, name, options)
     factory = REGISTRY.factory(name)
     with BUILD_LOCK:  # constructors build CasADi objects
-        return factory(problem, options)
+        backend = factory(problem, options)
+    check_backend(backend, name)  # a factory function's product is known only now
+    return backend
 
 
 def get_solver(problem: Transcribed, name: str, options: dict[str, Any] | None = None) -> Any:
@@ -296,6 +307,7 @@ __all__ = [
     "RtiSolver",
     "SolveResult",
     "SolverRegistry",
+    "SlsqpSolver",
     "SqpSolver",
     "SwarmSolver",
     "MinimizeResult",

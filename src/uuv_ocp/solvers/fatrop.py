@@ -2,17 +2,26 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
 
-from uuv_ocp import _validation as check
-from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE
 from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.ipopt import IPOPT_MAX_ITER, ipopt_options
-from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
-from uuv_ocp.solvers.options import Option, option_names, revise
+from uuv_ocp.solvers.nlp import NlpOptions, NlpSolver
+from uuv_ocp.solvers.options import (
+    Option,
+    declaration,
+    mapping,
+    option,
+    option_names,
+    optional,
+    positive_float,
+    positive_int,
+)
+from uuv_ocp.solvers.result import Attempt
 from uuv_ocp.transcription.multiple_shooting import NlpData
 
 FATROP_MAX_ITER = 200
@@ -21,27 +30,36 @@ FATROP_MAX_ITER = 200
 FATROP_STALL_TIME = 10.0
 """Default ``stall_time`` (s): a fatrop iteration takes milliseconds on these NLPs."""
 
-FATROP_OPTIONS: tuple[Option, ...] = (
-    *revise(
-        NLP_OPTIONS,
-        max_iter={
-            "meaning": f"{FATROP_MAX_ITER} (`fatrop.max_iter`, and the watchdog's limit on all "
-            f"iterations, restoration included; its IPOPT rescue: {IPOPT_MAX_ITER})"
-        },
-        plugin_options={
-            "description": "merged into the CasADi `nlpsol` options of every fatrop attempt "
-            "(robust retry too)"
-        },
-    ),
-    Option(
-        "stall_time",
+
+@dataclasses.dataclass(frozen=True)
+class FatropOptions(NlpOptions):
+    """Options of :class:`FatropSolver`: those of :class:`NlpOptions` and ``stall_time``."""
+
+    max_iter: int | None = option(
+        None,
+        "int >= 1 or `None`",
+        "iteration limit of one attempt of the plugin",
+        meaning=f"{FATROP_MAX_ITER} (`fatrop.max_iter`, and the watchdog's limit on all "
+        f"iterations, restoration included; its IPOPT rescue: {IPOPT_MAX_ITER})",
+        check=optional(positive_int),
+    )
+    plugin_options: dict = option(
+        {},
+        "dict",
+        "merged into the CasADi `nlpsol` options of every fatrop attempt (robust retry too)",
+        check=mapping,
+    )
+    stall_time: float | None = option(
         FATROP_STALL_TIME,
         "float > 0 or `None`",
         "longest wait for one fatrop iteration before the watchdog stops the attempt as stalled",
         unit="s",
         meaning="no limit",
-    ),
-)
+        check=optional(positive_float),
+    )
+
+
+FATROP_OPTIONS: tuple[Option, ...] = declaration(FatropOptions)
 
 
 class FatropSolver(NlpSolver):
@@ -64,14 +82,10 @@ class FatropSolver(NlpSolver):
 
     name = "fatrop"
     plugin = "fatrop"
+    Options = FatropOptions
     OPTIONS = FATROP_OPTIONS
     option_names = option_names(FATROP_OPTIONS)
-
-    def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
-        options = dict(options or {})
-        stall = options.pop("stall_time", FATROP_STALL_TIME)
-        self.stall_time = None if stall is None else check.positive_float("options['stall_time']", stall)
-        super().__init__(problem, options)
+    stall_time: float | None  # set from FatropOptions
 
     def watched(self, plugin: str) -> bool:
         """Fatrop always runs in the watchdog's worker (it can loop for good; see module doc)."""
@@ -109,7 +123,7 @@ class FatropSolver(NlpSolver):
         """Fatrop's conservative initial barrier, ``mu_init = 1e-3``."""
         return {"fatrop.mu_init": 1e-3}
 
-    def stalled(self, attempt: dict[str, Any], p: np.ndarray) -> bool:
+    def stalled(self, attempt: Attempt, p: np.ndarray) -> bool:
         """At fatrop's iteration limit with a plan the judge finds feasible (``FEASIBILITY_TOLERANCE``).
 
         That is the inertia-correction stall described in :meth:`rescue_options`: the robust
@@ -117,7 +131,7 @@ class FatropSolver(NlpSolver):
         (docs/benchmarks.md, the BlueROV2 obstacle course), so the rescue runs at once.
         """
         limit = self.max_iter or FATROP_MAX_ITER
-        if attempt["success"] or attempt["iterations"] < limit:
+        if attempt.success or attempt.iterations < limit:
             return False
         return self._judged(attempt, p)[2] <= FEASIBILITY_TOLERANCE
 

@@ -37,63 +37,81 @@ further start begins after the deadline.  If the swarm leaves no time at all, th
 does not start and the swarm's plan is returned (``success`` = the swarm's feasibility).
 ``details["deadline_hit"]`` says whether the hybrid's plan was late (the exact stage's own
 flag, or no time left for it); ``details["swarm_deadline_hit"]`` whether the swarm's share
-stopped the swarm.  Both halves must accept ``solve(..., time_limit=seconds)`` (the built-in
-backends do).
+stopped the swarm.  Both halves must declare the ``time_limit`` capability
+(``time_limited = True`` and ``solve(..., time_limit=seconds)``; the built-in backends do).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 
-from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers import watchdog
+from uuv_ocp.solvers.base import check_backend, takes_time_limit
 from uuv_ocp.solvers.multistart import best_result, plan_guess
-from uuv_ocp.solvers.options import Option, option_defaults
-from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.options import (
+    Option,
+    boolean,
+    declaration,
+    mapping,
+    option,
+    optional,
+    parse_options,
+    positive_float,
+    positive_int,
+)
+from uuv_ocp.solvers.result import Iterate, SolveDetails, SolveResult
 
 SWARM_SHARE = 0.5
 """Share of a hybrid's ``deadline`` given to its swarm; the exact stage gets the rest."""
 
 
-HYBRID_OPTIONS: tuple[Option, ...] = (
-    Option("swarm", None, "dict or `None`", "options of the swarm half", meaning="its defaults"),
-    Option("exact", None, "dict or `None`", "options of the exact half", meaning="its defaults"),
-    Option(
-        "candidates",
+@dataclasses.dataclass(frozen=True)
+class HybridOptions:
+    """Options of every ``"<swarm>+<exact>"`` hybrid."""
+
+    swarm: dict | None = option(
+        None, "dict or `None`", "options of the swarm half", meaning="its defaults", check=optional(mapping)
+    )
+    exact: dict | None = option(
+        None, "dict or `None`", "options of the exact half", meaning="its defaults", check=optional(mapping)
+    )
+    candidates: int = option(
         1,
         "int >= 1",
         "the exact half starts from the swarm's best k distinct plans; the best result is returned",
-    ),
-    Option(
-        "keep_warm_start",
+        check=positive_int,
+    )
+    keep_warm_start: bool = option(
         True,
         "bool",
         "candidates >= 2: the caller's warm start is the second start, in place of the swarm's k-th plan",
-    ),
-    Option(
-        "candidate_distance",
+        check=boolean,
+    )
+    candidate_distance: float | None = option(
         None,
         "float > 0 or `None`",
         "passed to the swarm: RMS distance by which two candidate plans must differ",
         meaning="the swarm's default",
-    ),
-    Option(
-        "deadline",
+        check=optional(positive_float),
+    )
+    deadline: float | None = option(
         None,
         "float > 0 or `None`",
         f"wall-time budget of the whole solve: {SWARM_SHARE:.0%} for the swarm, the rest for the exact half",
         unit="s",
         meaning="none",
-    ),
-)
-"""Options of every ``"<swarm>+<exact>"`` hybrid."""
+        check=optional(positive_float),
+    )
+
+
+HYBRID_OPTIONS: tuple[Option, ...] = declaration(HybridOptions)
+"""Rows of :class:`HybridOptions` (the docs' table)."""
 
 
 class HybridSolver:
@@ -161,11 +179,9 @@ class HybridSolver:
                 solver=self.name,
                 status=f"deadline: {deadline:g} s used up by the swarm, no exact stage; {swarm.status}",
                 solve_time=watchdog.now() - start,
-                details={
-                    **swarm.details,
-                    "deadline_hit": True,
-                    "swarm_deadline_hit": bool(swarm.details.get("deadline_hit", False)),
-                },
+                details=swarm.details.replace(
+                    deadline_hit=True, swarm_deadline_hit=bool(swarm.details.get("deadline_hit", False))
+                ),
             )
         results = [first_exact]
         if not plans:
@@ -224,46 +240,27 @@ class HybridSolver:
             iterations=iterations,
             evaluations=evaluations + swarm.evaluations,
             history=swarm.history,
-            details=details,
+            details=SolveDetails.of(details),
         )
 
 
 def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
     """Registry factory for ``"<first>+<second>"``."""
+    swarm_name, _, exact_name = name.partition("+")
 
     def factory(problem: Transcribed, options: dict[str, Any] | None = None) -> HybridSolver:
-        options = dict(options or {})
-        default = option_defaults(HYBRID_OPTIONS)
-        swarm_options = options.pop("swarm", default["swarm"])
-        exact_options = options.pop("exact", default["exact"])
-        candidates = check.positive_int(
-            "options['candidates']", options.pop("candidates", default["candidates"])
-        )
-        keep = check.boolean(
-            "options['keep_warm_start']", options.pop("keep_warm_start", default["keep_warm_start"])
-        )
-        distance = options.pop("candidate_distance", default["candidate_distance"])
-        deadline = options.pop("deadline", default["deadline"])
-        if options:
-            raise ValueError(
-                f"options of {name!r} take only 'swarm' and 'exact' dicts, 'candidates', "
-                f"'keep_warm_start', 'candidate_distance' and 'deadline', got {sorted(options)}"
-            )
+        settings = parse_options(HybridOptions, options, name)
+        swarm_options, exact_options = settings.swarm, settings.exact
+        candidates, keep = settings.candidates, settings.keep_warm_start
+        distance, deadline = settings.candidate_distance, settings.deadline
         if deadline is not None:
-            deadline = check.positive_float(f"options['deadline'] of {name!r}", deadline)
-            if exact_options is not None and not isinstance(exact_options, dict):
-                raise ValueError(f"options['exact'] of {name!r} must be a dict, got {exact_options!r}")
             # built with the deadline: the exact stage's in-attempt stops (iteration callback)
             exact_options = {"deadline": deadline, **(exact_options or {})}
-        if swarm_options is not None and not isinstance(swarm_options, dict):
-            raise ValueError(f"options['swarm'] of {name!r} must be a dict, got {swarm_options!r}")
         if candidates > 1 or distance is not None:
             swarm_options = dict(swarm_options or {})
             swarm_options["candidates"] = candidates
             if distance is not None:
-                swarm_options["candidate_distance"] = check.positive_float(
-                    "options['candidate_distance']", distance
-                )
+                swarm_options["candidate_distance"] = distance
         hybrid = HybridSolver(
             name,
             first(problem, swarm_options),
@@ -273,14 +270,15 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
             deadline,
             keep,
         )
-        if deadline is not None:
-            for half in (hybrid.first, hybrid.second):
-                if "time_limit" not in inspect.signature(half.solve).parameters:
-                    raise ValueError(
-                        f"options['deadline'] of {name!r} needs both halves to accept "
-                        f"solve(..., time_limit=seconds); {type(half).__name__} does not"
-                    )
+        for label, half in ((swarm_name, hybrid.first), (exact_name, hybrid.second)):
+            check_backend(half, label)
+            if deadline is not None and not takes_time_limit(half):
+                raise ValueError(
+                    f"options['deadline'] of {name!r} needs both halves to accept "
+                    f"solve(..., time_limit=seconds) (time_limited = True); {type(half).__name__} does not"
+                )
         return hybrid
 
+    factory.Options = HybridOptions  # type: ignore[attr-defined]  # what parse_options reads
     factory.OPTIONS = HYBRID_OPTIONS  # type: ignore[attr-defined]  # the declaration the docs read
     return factory

@@ -2,18 +2,31 @@
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
-from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
-from uuv_ocp.solvers.options import Option, option_names, revise
+from uuv_ocp.solvers.nlp import NlpOptions, NlpSolver
+from uuv_ocp.solvers.options import Option, declaration, option, option_names, optional, positive_int
 from uuv_ocp.transcription.multiple_shooting import NlpData
 
 IPOPT_MAX_ITER = 200
 """IPOPT's iteration limit when ``max_iter`` is ``None``."""
 
-IPOPT_OPTIONS: tuple[Option, ...] = revise(
-    NLP_OPTIONS, max_iter={"meaning": f"{IPOPT_MAX_ITER} (`ipopt.max_iter`)"}
-)
+
+@dataclasses.dataclass(frozen=True)
+class IpoptOptions(NlpOptions):
+    """Options of :class:`IpoptSolver`: those of :class:`NlpOptions`, ``max_iter`` defaulting to IPOPT's."""
+
+    max_iter: int | None = option(
+        None,
+        "int >= 1 or `None`",
+        "iteration limit of one attempt of the plugin",
+        meaning=f"{IPOPT_MAX_ITER} (`ipopt.max_iter`)",
+        check=optional(positive_int),
+    )
+
+
+IPOPT_OPTIONS: tuple[Option, ...] = declaration(IpoptOptions)
 
 
 class IpoptSolver(NlpSolver):
@@ -21,6 +34,7 @@ class IpoptSolver(NlpSolver):
 
     name = "ipopt"
     plugin = "ipopt"
+    Options = IpoptOptions
     OPTIONS = IPOPT_OPTIONS
     option_names = option_names(IPOPT_OPTIONS)
 

@@ -42,7 +42,6 @@ registered as an exact backend, so ``"<swarm>+multistart-<exact>"`` hybrids are 
 from __future__ import annotations
 
 import dataclasses
-import inspect
 from collections.abc import Callable, Sequence
 from typing import Any
 
@@ -52,32 +51,61 @@ from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers import watchdog
-from uuv_ocp.solvers.options import Option, option_defaults, option_names
-from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.base import check_backend, takes_time_limit
+from uuv_ocp.solvers.options import (
+    Option,
+    declaration,
+    mapping,
+    option,
+    optional,
+    parse_options,
+    positive_float,
+    positive_int,
+)
+from uuv_ocp.solvers.result import Iterate, SolveDetails, SolveResult
 from uuv_ocp.transcription.condensed import encode
 
-PREFIX = "multistart-"
 DEFAULT_STARTS = 8
 STRUCTURED_LEVEL = 0.5  # scaled control of the "±50 %" starts
 RANDOM_KNOTS = 4
 
 
-MULTISTART_OPTIONS: tuple[Option, ...] = (
-    Option(
-        "starts", DEFAULT_STARTS, "int >= 1", "number of initial guesses K (the first K of the list above)"
-    ),
-    Option("seed", 0, "int >= 0", "seed of the random starts when the caller passes no generator"),
-    Option("exact", None, "dict or `None`", "options of the exact backend", meaning="its defaults"),
-    Option(
-        "deadline",
+def _seed(label: str, value: object) -> int:
+    return check.positive_int(label, value, minimum=0)
+
+
+@dataclasses.dataclass(frozen=True)
+class MultistartOptions:
+    """Options of every ``"multistart-<exact>"`` backend."""
+
+    starts: int = option(
+        DEFAULT_STARTS,
+        "int >= 1",
+        "number of initial guesses K (the first K of the list above)",
+        check=positive_int,
+    )
+    seed: int = option(
+        0, "int >= 0", "seed of the random starts when the caller passes no generator", check=_seed
+    )
+    exact: dict | None = option(
+        None,
+        "dict or `None`",
+        "options of the exact backend",
+        meaning="its defaults",
+        check=optional(mapping),
+    )
+    deadline: float | None = option(
         None,
         "float > 0 or `None`",
         "wall-time budget of the whole solve; no start begins after it",
         unit="s",
         meaning="none",
-    ),
-)
-"""Options of every ``"multistart-<exact>"`` backend."""
+        check=optional(positive_float),
+    )
+
+
+MULTISTART_OPTIONS: tuple[Option, ...] = declaration(MultistartOptions)
+"""Rows of :class:`MultistartOptions` (the docs' table)."""
 
 
 def rank_key(result: SolveResult) -> tuple[int, int, float]:
@@ -246,7 +274,7 @@ class MultistartSolver:
             solve_time=watchdog.now() - start,
             iterations=sum(r.iterations for r in results),
             evaluations=sum(r.evaluations for r in results),
-            details=details,
+            details=SolveDetails.of(details),
         )
 
 
@@ -268,30 +296,21 @@ def multistart_factory(name: str, exact: Callable) -> Callable:
     """
 
     def factory(problem: Transcribed, options: dict[str, Any] | None = None) -> MultistartSolver:
-        options = dict(options or {})
-        default = option_defaults(MULTISTART_OPTIONS)
-        starts = check.positive_int("options['starts']", options.pop("starts", default["starts"]))
-        seed = check.positive_int("options['seed']", options.pop("seed", default["seed"]), minimum=0)
-        exact_options = options.pop("exact", default["exact"])
-        if exact_options is not None and not isinstance(exact_options, dict):
-            raise ValueError(f"options['exact'] of {name!r} must be a dict, got {exact_options!r}")
-        deadline = options.pop("deadline", default["deadline"])
-        if options:
-            raise ValueError(
-                f"unknown options for solver {name!r}: {sorted(options)}; "
-                f"valid: {list(option_names(MULTISTART_OPTIONS))}"
-            )
+        settings = parse_options(MultistartOptions, options, name)
+        starts, seed, exact_options = settings.starts, settings.seed, settings.exact
+        deadline = settings.deadline
         if deadline is not None:
-            deadline = check.positive_float(f"options['deadline'] of {name!r}", deadline)
             # built with the deadline: the exact backend's in-attempt stops (iteration callback)
             exact_options = {"deadline": deadline, **(exact_options or {})}
         backend = exact(problem, exact_options)
-        if deadline is not None and "time_limit" not in inspect.signature(backend.solve).parameters:
+        check_backend(backend, name.removeprefix("multistart-"))
+        if deadline is not None and not takes_time_limit(backend):
             raise ValueError(
                 f"options['deadline'] of {name!r} needs an exact backend that accepts "
-                f"solve(..., time_limit=seconds); {type(backend).__name__} does not"
+                f"solve(..., time_limit=seconds) (time_limited = True); {type(backend).__name__} does not"
             )
         return MultistartSolver(name, problem, backend, starts, seed, deadline)
 
+    factory.Options = MultistartOptions  # type: ignore[attr-defined]  # what parse_options reads
     factory.OPTIONS = MULTISTART_OPTIONS  # type: ignore[attr-defined]  # the declaration the docs read
     return factory

@@ -45,6 +45,8 @@ import dataclasses
 import functools
 import math
 import warnings
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import Any
 
 import casadi as ca
@@ -59,8 +61,23 @@ from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
 from uuv_ocp.native.runtime import jit_directory
 from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.base import reraise_interrupt
-from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names
-from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.options import (
+    Option,
+    among,
+    boolean,
+    declaration,
+    factors,
+    mapping,
+    nonnegative_float,
+    one_of,
+    option,
+    option_names,
+    optional,
+    parse_options,
+    positive_float,
+    positive_int,
+)
+from uuv_ocp.solvers.result import HARD, SOFT, Attempt, Iterate, SolveDetails, SolveResult, Stage, Variant
 from uuv_ocp.transcription.base import transcription
 from uuv_ocp.transcription.multiple_shooting import NlpData, transfer_map
 
@@ -186,82 +203,97 @@ def _with_slack_curvature(data: NlpData, curvature: float) -> NlpData:
     return dataclasses.replace(data, nlp=nlp, residual=ca.vertcat(data.residual, extra))
 
 
-NLP_OPTIONS: tuple[Option, ...] = (
-    Option(
-        "terminal_strategy",
+@dataclasses.dataclass(frozen=True)
+class ChainOptions:
+    """Options of the fallback chain of every :class:`NlpSolver` (the NLP variants, the deadline).
+
+    What a backend on :class:`NlpSolver` honours whatever solves its attempts; a backend that
+    is not a CasADi ``nlpsol`` (:mod:`~uuv_ocp.solvers.slsqp`) takes these and its own.
+    """
+
+    terminal_strategy: str = option(
         "sticky",
         one_of(TERMINAL_STRATEGIES),
         'hard NLP, soft fallback and which is tried first (see "Terminal equality policy")',
-    ),
-    Option(
-        "terminal_penalty",
+        check=among(TERMINAL_STRATEGIES),
+    )
+    terminal_penalty: float | None = option(
         None,
         "float > 0 or `None`",
         "ρ of the soft NLP's exact penalty ρ Σ|x_N − x_R,N| on the terminal equality",
         unit="cost per unit of the terminal equality",
         meaning="the problem's (`Ocp(terminal_penalty=)`; tracking preset: `Weights.terminal_penalty`)",
-    ),
-    Option(
-        "penalty_escalation",
+        check=optional(positive_float),
+    )
+    penalty_escalation: tuple[float, ...] = option(
         (),
         "tuple of factors > 0",
         "factors ρ is multiplied by in turn, warm-started, while the soft solve fails",
         meaning="none",
-    ),
-    Option(
-        "slack_curvature",
+        check=factors,
+    )
+    slack_curvature: float = option(
         0.0,
         "float >= 0",
         "μ of an added (μ/2) Σ s² on the terminal slacks (an L1 + L2 exact penalty)",
-    ),
-    Option(
-        "slack_tolerance",
+        check=nonnegative_float,
+    )
+    slack_tolerance: float = option(
         1e-7,
         "float > 0",
         "largest terminal slack of a soft solve still reported as the equality held",
         unit="those of the terminal equality (tracking: the states')",
-    ),
-    Option(
-        "max_iter",
+        check=positive_float,
+    )
+    max_iter: int | None = option(
         None,
         "int >= 1 or `None`",
         "iteration limit of one attempt of the plugin",
         meaning="the backend's own limit",
-    ),
-    Option(
-        "objective_scale",
+        check=optional(positive_int),
+    )
+    objective_scale: float = option(
         1.0,
         "float > 0",
         "factor on the objective the plugin sees (its absolute tolerances against the weights)",
-    ),
-    Option(
-        "deadline",
+        check=positive_float,
+    )
+    deadline: float | None = option(
         None,
         "float > 0 or `None`",
         'wall-time budget of one solve (see "Deadlines")',
         unit="s",
         meaning="none",
-    ),
-    Option(
-        "compiled",
+        check=optional(positive_float),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class NlpOptions(ChainOptions):
+    """Options of every :class:`NlpSolver` on a CasADi ``nlpsol`` plugin (subclasses add their own)."""
+
+    compiled: bool = option(
         False,
         "`True` or `False`",
         "JIT-compile the NLP functions with the system C compiler (none: the virtual machine, one warning)",
-    ),
-    Option(
-        "still_water",
+        check=boolean,
+    )
+    still_water: bool = option(
         True,
         "`True` or `False`",
         "solve the NLP specialised to zero current when the model's current is zero on the whole horizon",
-    ),
-    Option(
-        "plugin_options",
+        check=boolean,
+    )
+    plugin_options: dict = option(
         {},
         "dict",
         "merged into the CasADi `nlpsol` options, over this backend's settings",
-    ),
-)
-"""Options of every :class:`NlpSolver` (subclasses revise defaults and add their own)."""
+        check=mapping,
+    )
+
+
+NLP_OPTIONS: tuple[Option, ...] = declaration(NlpOptions)
+"""Rows of :class:`NlpOptions` (the docs' table; subclasses revise defaults and add their own)."""
 
 
 class NlpSolver:
@@ -292,88 +324,63 @@ class NlpSolver:
 
     name = "nlp"
     plugin = ""
+    time_limited = True  # solve(..., time_limit=) (the Backend protocol's capability)
     uses_duals = True
     levenberg_marquardt = 0.0
     # the options ``options`` may hold, with their defaults (see uuv_ocp.solvers.options); a
     # subclass with options or defaults of its own declares its own tuple
+    #: the options dataclass :func:`~uuv_ocp.solvers.options.parse_options` reads ``options`` into
+    Options: type[ChainOptions] = NlpOptions
+    # its rows (what catalog.declared_options() and the docs read); a subclass declares both
     OPTIONS: tuple[Option, ...] = NLP_OPTIONS
     option_names: tuple[str, ...] = option_names(NLP_OPTIONS)
+    # set from the parsed options (ChainOptions' fields), typed here for the plumbing
+    terminal_strategy: str
+    terminal_penalty: float | None
+    penalty_escalation: tuple[float, ...]
+    slack_curvature: float
+    slack_tolerance: float
+    max_iter: int | None
+    objective_scale: float
+    deadline: float | None
+    # what a backend whose Options lack them (no nlpsol: compiled, still water, plugin options) runs with
+    compiled = False
+    still_water = False
+    plugin_options: Mapping[str, Any] = MappingProxyType({})
     #: caller of the judge's ``score_terms`` (a compiled, verified twin); None: CasADi's VM
     judge_terms: BufferedFunction | None = None
 
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
-        options = dict(options or {})
-        default = option_defaults(self.OPTIONS)
         self.problem = problem
-        self.terminal_strategy = check.choice(
-            "options['terminal_strategy']",
-            options.pop("terminal_strategy", default["terminal_strategy"]),
-            TERMINAL_STRATEGIES,
-        )
-        self.slack_tolerance = check.positive_float(
-            "options['slack_tolerance']", options.pop("slack_tolerance", default["slack_tolerance"])
-        )
-        self.objective_scale = check.positive_float(
-            "options['objective_scale']",
-            options.pop("objective_scale", default["objective_scale"]),
-        )
-        penalty_escalation = options.pop("penalty_escalation", default["penalty_escalation"])
-        if not isinstance(penalty_escalation, tuple | list | np.ndarray):
-            raise ValueError(
-                "options['penalty_escalation'] must be a tuple of factors > 0, e.g. (100.0, 1e4), "
-                f"got {check.shown(penalty_escalation)}"
-            )
-        penalty_escalation = tuple(penalty_escalation)
-        for factor in penalty_escalation:
-            check.positive_float("options['penalty_escalation'] entries", factor)
-        self.penalty_escalation = penalty_escalation
-        terminal_penalty = options.pop("terminal_penalty", default["terminal_penalty"])
-        if terminal_penalty is not None:
-            terminal_penalty = check.positive_float("options['terminal_penalty']", terminal_penalty)
-        self.terminal_penalty = terminal_penalty
-        self.slack_curvature = check.nonnegative_float(
-            "options['slack_curvature']", options.pop("slack_curvature", default["slack_curvature"])
-        )
-        max_iter = options.pop("max_iter", default["max_iter"])
-        self.max_iter = None if max_iter is None else check.positive_int("options['max_iter']", max_iter)
-        self.compiled = check.boolean("options['compiled']", options.pop("compiled", default["compiled"]))
-        deadline = options.pop("deadline", default["deadline"])
-        self.deadline = None if deadline is None else check.positive_float("options['deadline']", deadline)
-        self.still_water = check.boolean(
-            "options['still_water']", options.pop("still_water", default["still_water"])
-        )
-        plugin_options = options.pop("plugin_options", default["plugin_options"])
-        if not isinstance(plugin_options, dict):
-            raise ValueError(f"options['plugin_options'] must be a dict, got {plugin_options!r}")
-        if options:
-            raise ValueError(
-                f"unknown options for solver {self.name!r}: {sorted(options)}; "
-                f"valid: {sorted(self.option_names)}"
-            )
-        # an unknown name or a wrong type crashed the first solve with a CasADi traceback
-        check.nlpsol_options("options['plugin_options']", self.plugin, plugin_options)
-        self.plugin_options = plugin_options
+        self.settings = parse_options(self.Options, options, self.name, self.option_names)
+        for key, value in dataclasses.asdict(self.settings).items():
+            setattr(self, key, value)  # self.max_iter, self.deadline, ... as the plumbing reads them
+        terminal_penalty = self.terminal_penalty
+        penalty_escalation = self.penalty_escalation
+        if isinstance(self.settings, NlpOptions) and self.plugin:
+            # an unknown name or a wrong type crashed the first solve with a CasADi traceback
+            check.nlpsol_options("options['plugin_options']", self.plugin, dict(self.plugin_options))
         # the soft NLP's exact-penalty weight may be the solver's own: only the soft variant
         # changes, the hard NLP and the judge (score) stay those of ``problem``
         built = problem.build()
-        self.variants: dict[str, NlpData] = {"hard": built.hard}
-        self._escalations: list[str] = []
+        self.variants: dict[str, NlpData] = {HARD: built.hard}  # keyed by Variant
+        self._escalations: list[Variant] = []
         base = terminal_penalty if terminal_penalty is not None else built.spec.terminal_penalty
         soft = built.soft_variant(base)
         if soft is not None:
-            self.variants["soft"] = soft
+            self.variants[SOFT] = soft
             for factor in penalty_escalation:
-                name = f"soft_x{factor:g}"
+                name = Variant.escalated(factor)
                 self.variants[name] = built.soft_variant(base * factor)  # type: ignore[assignment]
                 self._escalations.append(name)
             if self.slack_curvature > 0.0:
-                for name in ("soft", *self._escalations):
+                for name in (SOFT, *self._escalations):
                     self.variants[name] = _with_slack_curvature(self.variants[name], self.slack_curvature)
-        self._solvers: dict[tuple[str, bool | str, bool], BufferedFunction] = {}
+        self._solvers: dict[tuple[str, Stage, bool], BufferedFunction] = {}
         self._maps: dict[tuple[str, str, str], tuple[np.ndarray, np.ndarray]] = {}
         self._control_box: dict[str, tuple[np.ndarray, np.ndarray]] = {}
         self._clock = _DeadlineClock()
-        self._plugins: dict[tuple[str, bool | str, bool], str] = {}
+        self._plugins: dict[tuple[str, Stage, bool], str] = {}
         # attempts of plugins that cannot stop themselves run in this forked worker (see watched)
         self._worker = watchdog.Worker(self._solvers.__getitem__)
         self._deadline_callbacks: list[_DeadlineCallback] = []  # kept alive for their nlpsols
@@ -429,7 +436,7 @@ class NlpSolver:
         """
         return {}
 
-    def stalled(self, attempt: dict[str, Any], p: np.ndarray) -> bool:
+    def stalled(self, attempt: Attempt, p: np.ndarray) -> bool:
         """Whether a failed ``attempt`` stalled next to a solution (default: never).
 
         A backend with a rescue (:meth:`rescue_options`) that says so hands that attempt's
@@ -438,14 +445,12 @@ class NlpSolver:
         return False
 
     def _judged(
-        self, attempt: dict[str, Any], p: np.ndarray, relaxed: bool | None = None
+        self, attempt: Attempt, p: np.ndarray, relaxed: bool | None = None
     ) -> tuple[Iterate, float, float]:
         """Return ``attempt``'s plan and warm start, and the judge's cost and violation of the plan."""
         if relaxed is None:
-            relaxed = self.relaxed(attempt["variant"], attempt["primal"])
-        iterate = self.plan_iterate(
-            attempt["variant"], attempt["primal"], attempt["lam_g"], attempt["lam_x"], relaxed
-        )
+            relaxed = self.relaxed(attempt.variant, attempt.primal)
+        iterate = self.plan_iterate(attempt.variant, attempt.primal, attempt.lam_g, attempt.lam_x, relaxed)
         cost, violation = score_parameters(self.problem, iterate.scaled_controls.ravel(), p, self.judge_terms)
         return iterate, cost, violation
 
@@ -485,17 +490,17 @@ class NlpSolver:
             constraint_shift=data.constraint_shift,
         )
 
-    def _iterate_of(self, attempt: dict[str, Any]) -> Iterate:
+    def _iterate_of(self, attempt: Attempt) -> Iterate:
         """Warm start carrying an attempt's primal and dual vectors, in its variant's layout."""
-        data = self.variants[attempt["variant"]]
-        primal = attempt["primal"]
+        data = self.variants[attempt.variant]
+        primal = attempt.primal
         return Iterate(
             scaled_controls=primal[data.control_index],
             states=primal[data.state_index],
             primal=primal,
-            lam_g=attempt["lam_g"],
-            lam_x=attempt["lam_x"],
-            variant=attempt["variant"],
+            lam_g=attempt.lam_g,
+            lam_x=attempt.lam_x,
+            variant=attempt.variant,
         )
 
     def _uses_still_water(self, p: np.ndarray) -> bool:
@@ -513,20 +518,20 @@ class NlpSolver:
         return {**data.nlp, "f": f, "g": g}
 
     def _solver(
-        self, variant: str, robust: bool | str = False, still_water: bool = False
+        self, variant: str, stage: Stage = Stage.PLAIN, still_water: bool = False
     ) -> BufferedFunction:
         """Return the variant's ``nlpsol``, called zero-copy (no numpy -> DM conversions per step)."""
-        solver = self._solvers.get((variant, robust, still_water))
+        solver = self._solvers.get((variant, stage, still_water))
         if solver is None:
             with BUILD_LOCK:  # nlpsol, its JIT and callbacks build CasADi objects (uuv_ocp._concurrency)
-                solver = self._built_solver(variant, robust, still_water)
+                solver = self._built_solver(variant, stage, still_water)
         return solver
 
     def _built_solver(
-        self, variant: str, robust: bool | str = False, still_water: bool = False
+        self, variant: str, stage: Stage = Stage.PLAIN, still_water: bool = False
     ) -> BufferedFunction:
         """Build (once) and return :meth:`_solver`'s ``nlpsol``; under the package's build lock."""
-        key = (variant, robust, still_water)
+        key = (variant, stage, still_water)
         if key not in self._solvers:
             data = self.variants[variant]
             # ad_weight 1: constraint Jacobians by reverse-mode AD, 18 % fewer virtual-machine
@@ -537,10 +542,10 @@ class NlpSolver:
                 "error_on_fail": False,
                 "oracle_options": {"ad_weight": 1.0},
             }
-            if robust == "rescue":
+            if stage is Stage.RESCUE:
                 robust_options = dict(self.rescue_options())
             else:
-                robust_options = dict(self.robust_options()) if robust else {}
+                robust_options = dict(self.robust_options()) if stage is Stage.ROBUST else {}
             plugin = robust_options.pop("plugin", self.plugin)
             if plugin == self.plugin:
                 options.update(self.plugin_defaults(data))
@@ -550,8 +555,8 @@ class NlpSolver:
                 options.update(robust_options)
             nlp = self._still_water_nlp(data) if still_water else dict(data.nlp)
             nlp["f"] = nlp["f"] * self.objective_scale
-            stage = {"rescue": "_rescue", True: "_robust"}.get(robust, "")
-            name = f"{plugin}_{variant}{stage}{'_still_water' if still_water else ''}"
+            suffix = "" if stage is Stage.PLAIN else f"_{stage.value}"
+            name = f"{plugin}_{variant}{suffix}{'_still_water' if still_water else ''}"
             if self.deadline is not None and plugin in CALLBACK_PLUGINS:
                 sizes = (nlp["x"].numel(), nlp["g"].numel(), nlp["p"].numel())
                 callback = _DeadlineCallback(f"{name}_deadline", sizes, self._clock)
@@ -581,11 +586,11 @@ class NlpSolver:
             flags = [self._uses_still_water(p)]
         else:
             flags = [False] + ([True] if self.still_water and self._still_water_slice is not None else [])
-        stages: list[bool | str] = [False]
+        stages = [Stage.PLAIN]
         if self.robust_options():
-            stages.append(True)
+            stages.append(Stage.ROBUST)
         if self.rescue_options():
-            stages.append("rescue")
+            stages.append(Stage.RESCUE)
         for stage in stages:
             if not _is_nlpsol(self._stage_plugin(stage)):  # sqp-rti's own step is no nlpsol
                 continue
@@ -593,11 +598,11 @@ class NlpSolver:
                 for variant in self.variants:
                     self._solver(variant, stage, still_water)
 
-    def _stage_plugin(self, stage: bool | str) -> str:
+    def _stage_plugin(self, stage: Stage) -> str:
         """Return the plugin of an attempt: the backend's, or its robust retry's or rescue's own."""
-        if stage == "rescue":
+        if stage is Stage.RESCUE:
             return str(self.rescue_options().get("plugin", self.plugin))
-        if stage:
+        if stage is Stage.ROBUST:
             return str(self.robust_options().get("plugin", self.plugin))
         return self.plugin
 
@@ -681,8 +686,14 @@ class NlpSolver:
         return primal, None, None
 
     def _attempt(
-        self, variant: str, p: np.ndarray, warm_start: Iterate | None, robust: bool | str = False
-    ) -> dict[str, Any]:
+        self, variant: Variant, p: np.ndarray, warm_start: Iterate | None, stage: Stage = Stage.PLAIN
+    ) -> Attempt:
+        """Run one attempt of the fallback chain: ``variant`` from ``warm_start`` with ``stage``'s settings.
+
+        The seam of an exact backend that is not a CasADi ``nlpsol`` (docs/solvers.md): it
+        starts from :meth:`_initial_point`, stops at ``self._clock.at``
+        (:func:`~uuv_ocp.solvers.watchdog.now` time) and never raises on a solver failure.
+        """
         data = self.variants[variant]
         primal, lam_g, lam_x = self._initial_point(variant, p, warm_start)
         if not self.uses_duals or lam_g is None:
@@ -690,11 +701,11 @@ class NlpSolver:
         if not self.uses_duals or lam_x is None:
             lam_x = np.zeros(data.lbx.size)
         still_water = self._uses_still_water(p)
-        solver = self._solver(variant, robust, still_water)
+        solver = self._solver(variant, stage, still_water)
         scale = self.objective_scale
         self._clock.fired = False
         start = watchdog.now()
-        key = (variant, robust, still_water)
+        key = (variant, stage, still_water)
         plugin = self._plugins[key]
         # nlpsol inputs in order: x0, p, lbx, ubx, lbg, ubg, lam_x0, lam_g0 (zero = CasADi's default)
         args = (primal, p, data.lbx, data.ubx, data.lbg, data.ubg, lam_x * scale, lam_g * scale)
@@ -736,29 +747,25 @@ class NlpSolver:
             # a NaN iterate is no plan and no warm start: the attempt's starting point stands
             status, success = f"{status}; NaN or Inf in the returned iterate", False
             new_primal, new_lam_x, new_lam_g = args[0], args[6], args[7]
-        return {
-            "variant": variant,
-            "robust": robust,
-            "still_water": still_water,
-            "primal": new_primal,
-            "lam_g": new_lam_g / scale,
-            "lam_x": new_lam_x / scale,
-            "success": success,
-            "status": status,
-            "iterations": iterations,
-            "evaluations": int(stats.get("n_call_nlp_f", 0) or stats.get("n_call_nlp_fg", 0) or 0),
-            "plugin_time": plugin_time,
-            "watched": watched,
-        }
+        return Attempt(
+            variant=variant,
+            stage=stage,
+            still_water=still_water,
+            primal=new_primal,
+            lam_g=new_lam_g / scale,
+            lam_x=new_lam_x / scale,
+            success=success,
+            status=status,
+            iterations=iterations,
+            evaluations=int(stats.get("n_call_nlp_f", 0) or stats.get("n_call_nlp_fg", 0) or 0),
+            solver_time=plugin_time,
+            watched=watched,
+        )
 
     def relaxed(self, variant: str, primal: np.ndarray) -> bool:
         """Whether ``primal`` of ``variant`` needed the exact-penalty relaxation (slack > tolerance)."""
         index = self.variants[variant].terminal_slack_index
-        return (
-            variant.startswith("soft")
-            and bool(index.size)
-            and float(np.max(primal[index])) > self.slack_tolerance
-        )
+        return variant != HARD and bool(index.size) and float(np.max(primal[index])) > self.slack_tolerance
 
     # ------------------------------------------------------------------ solve
     def solve(
@@ -780,79 +787,79 @@ class NlpSolver:
         start = watchdog.now()
         limit = self.deadline if time_limit is None else check.positive_float("time_limit", time_limit)
         self._clock.at = math.inf if limit is None else start + limit
-        attempts: list[dict[str, Any]] = []
+        attempts: list[Attempt] = []
         skipped = 0
         build_time = 0.0
 
-        def attempt(variant: str, warm: Iterate | None, robust: bool | str = False) -> bool:
+        def attempt(variant: Variant, warm: Iterate | None, stage: Stage = Stage.PLAIN) -> bool:
             """Run one attempt unless the deadline has passed (the first one always runs)."""
             nonlocal skipped
             nonlocal build_time
             if attempts and watchdog.now() >= self._clock.at:
                 skipped += 1
                 return False
-            key = (variant, robust, self._uses_still_water(p))
-            if key not in self._solvers and _is_nlpsol(self._stage_plugin(robust)):
+            key = (variant, stage, self._uses_still_water(p))
+            if key not in self._solvers and _is_nlpsol(self._stage_plugin(stage)):
                 # building a plugin (0.1-0.5 s, once) is no part of the budget: the clock waits
                 built = watchdog.now()
                 self._solver(*key)
                 spent = watchdog.now() - built
                 build_time += spent
                 self._clock.at += spent
-            attempts.append(self._attempt(variant, p, warm, robust=robust))
-            failed = not attempts[-1]["success"] and robust != "rescue"
+            attempts.append(self._attempt(variant, p, warm, stage))
+            failed = not attempts[-1].success and stage is not Stage.RESCUE
             if failed and self.stalled(attempts[-1], p) and self.rescue_options():
                 # stuck next to a solution: the rest of the chain would stall the same way
-                attempt(variant, self._iterate_of(attempts[-1]), robust="rescue")
+                attempt(variant, self._iterate_of(attempts[-1]), Stage.RESCUE)
             return True
 
-        soft_available = "soft" in self.variants
+        soft_available = SOFT in self.variants
         strategy = self.terminal_strategy if soft_available else "hard-first"
         soft_first = strategy == "soft" or (
             strategy == "sticky" and warm_start is not None and warm_start.terminal_relaxed
         )
-        soft_variant = "soft"
+        soft_variant = SOFT
         if soft_first and warm_start is not None and warm_start.variant in self._escalations:
-            soft_variant = warm_start.variant  # stay at the escalated penalty while relaxed
+            soft_variant = Variant(warm_start.variant)  # stay at the escalated penalty while relaxed
         if soft_first:
             attempt(soft_variant, warm_start)
         else:
-            attempt("hard", warm_start)
-            if not attempts[-1]["success"] and soft_available:
-                attempt("soft", warm_start)
-        if not attempts[-1]["success"] and warm_start is not None:
+            attempt(HARD, warm_start)
+            if not attempts[-1].success and soft_available:
+                attempt(SOFT, warm_start)
+        if not attempts[-1].success and warm_start is not None:
             # A warm start can sit in a bad region (e.g. after a burst of saturation): one
             # retry from the reference-based cold guess, same NLP variant.
-            attempt(attempts[-1]["variant"], None)
-        start_index = self._escalations.index(soft_variant) + 1 if soft_variant != "soft" else 0
+            attempt(attempts[-1].variant, None)
+        start_index = self._escalations.index(soft_variant) + 1 if soft_variant != SOFT else 0
         for variant in self._escalations[start_index:]:
-            if attempts[-1]["success"] or not attempts[-1]["variant"].startswith("soft"):
+            if attempts[-1].success or not attempts[-1].variant.soft:
                 break
             # classic exact-penalty update: a larger ρ, warm-started from the closest iterate
             if not attempt(variant, warm_start):
                 break
-        if not attempts[-1]["success"] and self.robust_options():
+        if not attempts[-1].success and self.robust_options():
             # last resort: the same NLP with the backend's conservative settings
-            attempt(attempts[-1]["variant"], warm_start, robust=True)
-        if not attempts[-1]["success"] and self.rescue_options():
+            attempt(attempts[-1].variant, warm_start, Stage.ROBUST)
+        if not attempts[-1].success and self.rescue_options():
             # a backend that stalls near a solution (fatrop under inertia correction on
             # non-convex constraints) hands its last iterate, duals included, to another plugin
-            attempt(attempts[-1]["variant"], self._iterate_of(attempts[-1]), robust="rescue")
+            attempt(attempts[-1].variant, self._iterate_of(attempts[-1]), Stage.RESCUE)
         self._clock.at = math.inf
         final = attempts[-1]
-        relaxed = self.relaxed(final["variant"], final["primal"])
+        relaxed = self.relaxed(final.variant, final.primal)
         elapsed = watchdog.now() - start
-        result = self._result(p, final, attempts, relaxed, elapsed)
-        if build_time:
-            result.details["build_time"] = build_time
+        late = limit is not None and elapsed - build_time > limit
+        result = self._result(
+            p, final, attempts, relaxed, elapsed, deadline_hit=late, build_time=build_time or None
+        )
         elapsed -= build_time
-        if limit is None or elapsed <= limit:
-            result.details["deadline_hit"] = False  # the result's own fresh dict: no copy per step
+        if not late:
             return result if result.success else self._rolled_out(result, p)
         # not ready in time: a failure, whatever the last attempt reached (see module doc)
         reason = f"{skipped} further attempt(s) not started" if skipped else "no attempt skipped"
         iterate = result.iterate
-        if strategy == "sticky" and soft_available and final["variant"] == "hard":
+        if strategy == "sticky" and soft_available and final.variant == HARD:
             # a warm start from this iterate (a closed loop keeps it) goes to the soft NLP, which
             # is always feasible: a hard NLP that never finishes in time would never yield to it
             iterate = dataclasses.replace(iterate, terminal_relaxed=True)
@@ -864,7 +871,7 @@ class NlpSolver:
                 f"deadline: {limit:g} s exceeded ({elapsed:.3g} s, {len(attempts)} attempt(s), "
                 f"{reason}); last attempt: {result.status}"
             ),
-            details={**result.details, "deadline_hit": True, "attempts_skipped": skipped},
+            details=result.details.replace(attempts_skipped=skipped),
         )
 
     def _rolled_out(self, result: SolveResult, p: np.ndarray) -> SolveResult:
@@ -881,16 +888,18 @@ class NlpSolver:
     def _result(
         self,
         p: np.ndarray,
-        final: dict[str, Any],
-        attempts: list[dict[str, Any]],
+        final: Attempt,
+        attempts: list[Attempt],
         relaxed: bool,
         elapsed: float,
+        **details: Any,
     ) -> SolveResult:
+        """Return the result of a solve whose last attempt is ``final`` (``details``: more fields)."""
         problem = self.problem
         iterate, cost, violation = self._judged(final, p, relaxed)
         scaled, states = iterate.scaled_controls, iterate.states
-        status = final["status"]
-        if final["variant"].startswith("soft"):
+        status = final.status
+        if final.variant.soft:
             status = f"soft_terminal: {status}" if relaxed else f"soft_terminal_held: {status}"
         return SolveResult(
             solver=self.name,
@@ -898,23 +907,17 @@ class NlpSolver:
             states=states,
             cost=cost,
             max_violation=violation,
-            success=final["success"],
+            success=final.success,
             status=status,
             solve_time=elapsed,
-            iterations=sum(a["iterations"] for a in attempts),
-            evaluations=sum(a["evaluations"] for a in attempts),
+            iterations=sum(a.iterations for a in attempts),
+            evaluations=sum(a.evaluations for a in attempts),
             terminal_relaxed=relaxed,
             iterate=iterate,
-            details={
-                "attempts": [
-                    (
-                        a["variant"] + {"rescue": " (rescue)", True: " (robust)"}.get(a["robust"], ""),
-                        a["status"],
-                        a["iterations"],
-                    )
-                    for a in attempts
-                ],
-                "plugin_time": sum(a["plugin_time"] for a in attempts),
-                "still_water": final["still_water"],
-            },
+            details=SolveDetails(
+                attempts=tuple(a.summary() for a in attempts),
+                plugin_time=sum(a.solver_time for a in attempts),
+                still_water=final.still_water,
+                **details,
+            ),
         )

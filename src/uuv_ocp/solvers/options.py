@@ -1,44 +1,37 @@
-"""Declared solver options: one source of truth for the constructors, their errors and the docs.
+"""Declared solver options: one source of truth for the backends, their errors and the docs.
 
-Every backend declares the options its constructor accepts as a tuple of :class:`Option`
-(name, default, accepted values, unit, one-line description), kept next to its code, and its
-constructor reads every default from that tuple.  The tables of ``docs/solvers.md`` are
-rendered from the same tuples (:func:`uuv_ocp.solvers.catalog.options_table`, called by the
-mkdocs hook ``docs/hooks/solver_options.py``), so the documented default *is* the one used.
+A backend declares its options as a frozen dataclass whose fields are made by :func:`option`
+(default, accepted values, unit, one-line description and a validator), and reads its
+``options`` dict with the one generic :func:`parse_options`, which refuses an option the
+dataclass does not declare (so the backend does not honour) and validates every given value,
+naming ``options['<name>'] of '<solver>'``, before anything is built.  :func:`declaration`
+turns the dataclass into :class:`Option` rows: the backend's ``OPTIONS``, which the tables of
+``docs/solvers.md`` are rendered from (:func:`uuv_ocp.solvers.catalog.options_table`, called by
+the mkdocs hook ``docs/hooks/solver_options.py``), so the documented default *is* the one used.
 This module is below the registry (every backend imports it); what reads a declaration by a
 registered name lives above it, in :mod:`uuv_ocp.solvers.catalog`.
 
-How a backend declares its options (e.g. a new exact backend on :class:`NlpSolver`)::
+How a backend declares its options (e.g. :mod:`uuv_ocp.solvers.slsqp`)::
 
-    from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
-    from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names, revise
-
-    RTI_OPTIONS = (
-        # the options NlpSolver reads, with this backend's own defaults or meanings where they differ
-        *revise(NLP_OPTIONS, max_iter={"meaning": "50 (converged mode)"}),
-        Option("mode", "rti", one_of(MODES), "one SQP step per call, or iterate to `tol`"),
-        Option("tol", 1e-8, "float > 0", "stopping tolerance of the converged mode"),
-    )
+    @dataclasses.dataclass(frozen=True)
+    class SlsqpOptions(ChainOptions):  # the options every NlpSolver honours, and its own
+        tol: float = option(1e-11, "float > 0", "SLSQP's `ftol`", check=positive_float)
 
 
-    class RtiSolver(NlpSolver):
-        OPTIONS = RTI_OPTIONS  # what catalog.declared_options() and the docs read
-        option_names = option_names(RTI_OPTIONS)  # the keys the unknown-option error lists
+    class SlsqpSolver(NlpSolver):
+        Options = SlsqpOptions  # what NlpSolver.__init__ parses options into
+        OPTIONS = declaration(SlsqpOptions)  # what catalog.declared_options() and the docs read
+        option_names = option_names(OPTIONS)  # the keys the unknown-option error lists
 
-        def __init__(self, problem, options=None):
-            options = dict(options or {})
-            default = option_defaults(self.OPTIONS)
-            # pop with the literal name: tests/test_solvers.py reads the names from the source
-            self.mode = check.choice("options['mode']", options.pop("mode", default["mode"]), MODES)
-            ...
-            super().__init__(problem, options)  # pops and checks the NlpSolver options
-
-Then add a marker ``<!-- solver-options: sqp-rti -->`` where its section of ``docs/solvers.md``
+Then add a marker ``<!-- solver-options: slsqp -->`` where its section of ``docs/solvers.md``
 lists the options; the hook replaces it by the table.  The registry finds a declaration as the
 ``OPTIONS`` attribute of the registered factory (a class attribute, or an attribute set on a
 factory function: :func:`~uuv_ocp.solvers.swarm.swarm_factory`); ``tests/test_solver_options.py``
-fails for a registered backend without one, for a default the constructor does not use, and
-for an option the constructor accepts but does not declare.
+fails for a registered backend without one, for a default the backend does not hold, and for an
+Options dataclass that is not its declaration.  A computed declaration (the swarms': population
+and iterations are each algorithm's) becomes a dataclass by :func:`make_options_class`; ``sqp-rti``
+still reads its own options by hand from :class:`Option` tuples (``option_defaults``,
+``revise``) and hands the rest to :class:`~uuv_ocp.solvers.nlp.NlpSolver`'s parser.
 
 A default the backend works out when it is built (from the machine, the environment or
 another option) is :data:`AUTO` with a ``meaning`` saying how, and the constructor replaces
@@ -54,16 +47,26 @@ import copy
 import dataclasses
 import math
 import re
-from collections.abc import Mapping, Sequence
-from typing import Any
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any, TypeVar
+
+import numpy as np
+
+from uuv_ocp import _validation
+
+T = TypeVar("T")
 
 __all__ = [
     "AUTO",
     "Option",
+    "declaration",
     "format_value",
     "one_of",
+    "option",
     "option_defaults",
     "option_names",
+    "make_options_class",
+    "parse_options",
     "revise",
 ]
 
@@ -209,3 +212,177 @@ def default_cell(option: Option) -> str:
     """Markdown of an option's default: the value in code, then what it means."""
     text = "auto" if option.default is AUTO else f"`{format_value(option.default)}`"
     return f"{text}: {option.meaning}" if option.meaning else text
+
+
+# ------------------------------------------------------------------ options as dataclasses
+
+Check = Callable[[str, Any], Any]
+"""A validator ``check(label, value) -> value``: the accepted value, or ``ValueError`` naming ``label``."""
+
+
+@dataclasses.dataclass(frozen=True)
+class _Declared:
+    """What :func:`option` attaches to a dataclass field: the docs' columns and the validator."""
+
+    kind: str
+    description: str
+    unit: str
+    meaning: str
+    check: Check | None
+
+
+def option(
+    default: Any,
+    kind: str,
+    description: str,
+    *,
+    unit: str = "",
+    meaning: str = "",
+    check: Check | None = None,
+) -> Any:
+    """Declare one field of a backend's options dataclass (see :func:`parse_options`).
+
+    ``default``, ``kind``, ``description``, ``unit`` and ``meaning`` are those of
+    :class:`Option` (the docs' table); ``check(label, value)`` validates a given value and
+    returns it (``ValueError`` naming ``label`` otherwise; ``None``: any value).  A mutable
+    default is copied for every instance.
+    """
+    Option("checked", default, kind, description, unit, meaning)  # the declaration's own checks
+    metadata = {"option": _Declared(kind, description, unit, meaning, check)}
+    if isinstance(default, dict | list | set):
+        return dataclasses.field(default_factory=lambda: copy.deepcopy(default), metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+def _declared_fields(options_class: type) -> list[dataclasses.Field]:
+    if not (isinstance(options_class, type) and dataclasses.is_dataclass(options_class)):
+        raise TypeError(f"options class must be a dataclass, got {options_class!r}")
+    fields = dataclasses.fields(options_class)
+    missing = [f.name for f in fields if "option" not in f.metadata]
+    if missing:
+        raise TypeError(f"{options_class.__name__}: fields {missing} are not declared with option()")
+    return list(fields)
+
+
+def declaration(options_class: type) -> tuple[Option, ...]:
+    """Return the :class:`Option` rows of an options dataclass (what the docs' tables render)."""
+    rows = []
+    for f in _declared_fields(options_class):
+        meta: _Declared = f.metadata["option"]
+        default = f.default_factory() if f.default is dataclasses.MISSING else f.default  # type: ignore[operator]
+        rows.append(Option(f.name, default, meta.kind, meta.description, meta.unit, meta.meaning))
+    return tuple(rows)
+
+
+def parse_options(
+    options_class: type[T],
+    options: Mapping[str, Any] | None,
+    solver: str,
+    valid: Sequence[str] | None = None,
+) -> T:
+    """Return ``options_class(**options)`` with every given value validated, before any build.
+
+    The one parser of every backend's ``options`` dict: an option the backend does not
+    declare (so does not honour) is refused, as is a value its field's ``check`` refuses.
+    ``valid``: the names the error lists (default: the fields; a subclass that read options
+    of its own before passing the rest here lists all of them).
+
+    Raises
+    ------
+    ValueError
+        ``options`` is not a dict; an unknown name (the message lists the valid ones); a value
+        out of its range (the message names ``options['<name>']``).
+    """
+    if options is None:
+        options = {}
+    if not isinstance(options, Mapping):
+        raise ValueError(f"options of solver {solver!r} must be a dict or None, got {shown_type(options)}")
+    fields = _declared_fields(options_class)
+    names = [f.name for f in fields]
+    unknown = sorted(set(options) - set(names))
+    if unknown:
+        listed = sorted(names if valid is None else valid)
+        raise ValueError(f"unknown options for solver {solver!r}: {unknown}; valid: {listed}")
+    values = {}
+    for f in fields:
+        if f.name in options:
+            check = f.metadata["option"].check
+            value = options[f.name]
+            label = f"options[{f.name!r}] of {solver!r}"  # names the parameter and the backend
+            values[f.name] = value if check is None else check(label, value)
+    return options_class(**values)
+
+
+def make_options_class(name: str, rows: Sequence[Option], checks: Mapping[str, Check]) -> type:
+    """Return a frozen options dataclass made of :class:`Option` rows, each with its validator.
+
+    For backends whose declaration is computed (the swarms: population and iterations are each
+    algorithm's); ``checks`` needs one validator per row.
+    """
+    missing = sorted({row.name for row in rows} - set(checks))
+    if missing:
+        raise ValueError(f"make_options_class {name!r}: no check for {missing}")
+    fields = [
+        (
+            row.name,
+            Any,
+            option(
+                row.default,
+                row.kind,
+                row.description,
+                unit=row.unit,
+                meaning=row.meaning,
+                check=checks[row.name],
+            ),
+        )
+        for row in rows
+    ]
+    return dataclasses.make_dataclass(name, fields, frozen=True)
+
+
+def shown_type(value: object) -> str:
+    """Name of ``value``'s type, for messages."""
+    return type(value).__name__
+
+
+# validators for option(check=...); each is check(label, value) -> value
+
+
+def optional(check: Check) -> Check:
+    """``None`` or what ``check`` accepts."""
+
+    def checked(label: str, value: Any) -> Any:
+        return None if value is None else check(label, value)
+
+    return checked
+
+
+def among(values: Sequence[str]) -> Check:
+    """One of ``values`` (the message lists them)."""
+
+    def checked(label: str, value: Any) -> Any:
+        return _validation.choice(label, value, values)
+
+    return checked
+
+
+def mapping(label: str, value: Any) -> dict:
+    """Accept a dict (returned copied)."""
+    if not isinstance(value, dict):
+        raise ValueError(f"{label} must be a dict, got {_validation.shown(value)}")
+    return dict(value)
+
+
+def factors(label: str, value: Any) -> tuple[float, ...]:
+    """Accept a tuple of floats > 0 (a list or an array is made a tuple)."""
+    if not isinstance(value, tuple | list | np.ndarray):
+        raise ValueError(
+            f"{label} must be a tuple of factors > 0, e.g. (100.0, 1e4), got {_validation.shown(value)}"
+        )
+    return tuple(_validation.positive_float(f"{label} entries", factor) for factor in value)
+
+
+positive_float: Check = _validation.positive_float
+nonnegative_float: Check = _validation.nonnegative_float
+positive_int: Check = _validation.positive_int
+boolean: Check = _validation.boolean

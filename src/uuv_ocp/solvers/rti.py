@@ -65,6 +65,7 @@ the variable and constraint order), ``"qrqp"`` and ``"osqp"``
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import time
@@ -92,7 +93,7 @@ from uuv_ocp.solvers.base import DeferredPlan, reraise_interrupt
 from uuv_ocp.solvers.ipopt import ipopt_options
 from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
 from uuv_ocp.solvers.options import AUTO, Option, one_of, option_defaults, option_names, revise
-from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.result import Attempt, Iterate, SolveResult, Stage, Variant
 from uuv_ocp.solvers.rti_ocp import (
     OCP_QP_DEFAULTS,
     STOP_CONVERGED,
@@ -258,10 +259,10 @@ class CStepPlan(DeferredPlan):
         final = backend._c_record(
             self.variant, self.still_water, self.primal, self.lam_x, self.lam_g, info, converge, self.elapsed
         )
-        result = backend._result(self.p, final, [final], self.relaxed, self.elapsed)
-        result.details["deadline_hit"] = False
-        result.details["c_time"] = float(info[8] + info[6] + info[7])
-        return result
+        c_time = float(info[8] + info[6] + info[7])
+        return backend._result(
+            self.p, final, [final], self.relaxed, self.elapsed, deadline_hit=False, c_time=c_time
+        )
 
 
 #: the name of :class:`CStepPlan` before it also held the prepared step's plans
@@ -828,7 +829,7 @@ class RtiSolver(NlpSolver):
         finally:
             self._prepared = None
         if self.qpsol == "hpipm-ocp":
-            result.details["c_time"] = self._c_time
+            result = dataclasses.replace(result, details=result.details.replace(c_time=self._c_time))
         return result
 
     def robust_options(self) -> dict[str, Any]:
@@ -836,11 +837,11 @@ class RtiSolver(NlpSolver):
         return {"plugin": "ipopt", **ipopt_options(self.max_iter, self.deadline)}
 
     def _attempt(
-        self, variant: str, p: np.ndarray, warm_start: Iterate | None, robust: bool | str = False
-    ) -> dict[str, Any]:
-        if robust or (warm_start is None and self.cold_start == "ipopt"):
+        self, variant: Variant, p: np.ndarray, warm_start: Iterate | None, stage: Stage = Stage.PLAIN
+    ) -> Attempt:
+        if stage is not Stage.PLAIN or (warm_start is None and self.cold_start == "ipopt"):
             self._prepared = None
-            return super()._attempt(variant, p, warm_start, robust=True)
+            return super()._attempt(variant, p, warm_start, Stage.ROBUST)
         data = self.variants[variant]
         primal, lam_g, lam_x = self._initial_point(variant, p, warm_start)
         primal = np.array(primal, dtype=float)
@@ -888,7 +889,7 @@ class RtiSolver(NlpSolver):
             status = "max_iter" if converge else f"rti ({iterations} iteration(s))"
         return _attempt_record(
             variant,
-            robust,
+            stage,
             still_water,
             primal,
             lam_g,
@@ -911,7 +912,7 @@ class RtiSolver(NlpSolver):
         still_water: bool,
         converge: bool,
         limit: int,
-    ) -> dict[str, Any]:
+    ) -> Attempt:
         """Run the iterations of :meth:`_attempt` in one call of the C step (same stops, statuses)."""
         prepared = self._matching_preparation(variant, p, primal, still_water) is not None
         scale = self.objective_scale
@@ -935,7 +936,7 @@ class RtiSolver(NlpSolver):
         info: np.ndarray,
         converge: bool,
         plugin_time: float,
-    ) -> dict[str, Any]:
+    ) -> Attempt:
         """Return the attempt record of one C step call (``info`` of ``OcpQpStep.iterate``)."""
         iterations, violation, step_norm, stop = int(info[0]), float(info[1]), float(info[2]), int(info[3])
         converged = stop == STOP_CONVERGED
@@ -953,7 +954,7 @@ class RtiSolver(NlpSolver):
         scale = self.objective_scale
         record = _attempt_record(
             variant,
-            False,
+            Stage.PLAIN,
             still_water,
             primal,
             lam_g / scale,
@@ -963,8 +964,9 @@ class RtiSolver(NlpSolver):
             iterations,
             step_norm,
             plugin_time,
+            qp_iterations=int(info[4]),
         )
-        return {**record, "qp_iterations": int(info[4])}
+        return record
 
 
 def _shifted(warm_start: Iterate | DeferredPlan | None) -> Iterate | None:
@@ -976,7 +978,7 @@ def _shifted(warm_start: Iterate | DeferredPlan | None) -> Iterate | None:
 
 def _attempt_record(
     variant: str,
-    robust: bool | str,
+    stage: Stage,
     still_water: bool,
     primal: np.ndarray,
     lam_g: np.ndarray,
@@ -986,7 +988,8 @@ def _attempt_record(
     iterations: int,
     step_norm: float,
     plugin_time: float,
-) -> dict[str, Any]:
+    qp_iterations: int | None = None,
+) -> Attempt:
     """One attempt in :class:`NlpSolver`'s record format, for both QP paths.
 
     ``outcome = (feasible, converged, converge)``: success is a feasible QP step that converged
@@ -995,19 +998,20 @@ def _attempt_record(
     feasible, converged, converge = outcome
     if feasible and not converge and not converged:
         status = f"rti ({iterations} iteration(s), last step {step_norm:.3g})"
-    return {
-        "variant": variant,
-        "robust": robust,
-        "still_water": still_water,
-        "primal": primal,
-        "lam_g": lam_g,
-        "lam_x": lam_x,
-        "success": feasible and (converged or not converge),
-        "status": status,
-        "iterations": iterations,
-        "evaluations": iterations,
-        "plugin_time": plugin_time,
-    }
+    return Attempt(
+        variant=variant if isinstance(variant, Variant) else Variant(variant),
+        stage=stage,
+        still_water=still_water,
+        primal=primal,
+        lam_g=lam_g,
+        lam_x=lam_x,
+        success=feasible and (converged or not converge),
+        status=status,
+        iterations=iterations,
+        evaluations=iterations,
+        solver_time=plugin_time,
+        qp_iterations=qp_iterations,
+    )
 
 
 def _automatic_qpsol() -> str:

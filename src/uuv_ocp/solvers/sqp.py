@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
+import dataclasses
 import os
 import sys
 import threading
@@ -15,11 +16,22 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from uuv_ocp import _validation as check
-from uuv_ocp.build import Transcribed
-from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
-from uuv_ocp.solvers.options import Option, one_of, option_defaults, option_names, revise
-from uuv_ocp.solvers.result import Iterate
+from uuv_ocp.solvers.nlp import NlpOptions, NlpSolver
+from uuv_ocp.solvers.options import (
+    Option,
+    among,
+    declaration,
+    factors,
+    mapping,
+    nonnegative_float,
+    one_of,
+    option,
+    option_names,
+    optional,
+    positive_float,
+    positive_int,
+)
+from uuv_ocp.solvers.result import Attempt, Iterate, Stage, Variant
 from uuv_ocp.transcription.multiple_shooting import NlpData
 
 _STDOUT_LOCK = threading.Lock()
@@ -61,34 +73,58 @@ SQP_MAX_ITER = 100
 BLOCKSQP_MAX_ITER = 300
 """The ``blocksqp`` last-resort retry's iteration limit when ``max_iter`` is ``None``."""
 
+
 # Why these defaults: see the comments in SqpSolver and docs/solvers.md (measured)
-SQP_OPTIONS: tuple[Option, ...] = (
-    *revise(
-        NLP_OPTIONS,
-        penalty_escalation={"default": (100.0, 1e4), "meaning": ""},
-        slack_curvature={"default": 1e4},
-        max_iter={"meaning": f"{SQP_MAX_ITER} (`blocksqp` retry: {BLOCKSQP_MAX_ITER})"},
-        objective_scale={"default": 1e-3},
-    ),
-    Option(
-        "hessian",
+@dataclasses.dataclass(frozen=True)
+class SqpOptions(NlpOptions):
+    """Options of :class:`SqpSolver`: those of :class:`NlpOptions` with its defaults, and its own."""
+
+    penalty_escalation: tuple[float, ...] = option(
+        (100.0, 1e4),
+        "tuple of factors > 0",
+        "factors ρ is multiplied by in turn, warm-started, while the soft solve fails",
+        check=factors,
+    )
+    slack_curvature: float = option(
+        1e4,
+        "float >= 0",
+        "μ of an added (μ/2) Σ s² on the terminal slacks (an L1 + L2 exact penalty)",
+        check=nonnegative_float,
+    )
+    max_iter: int | None = option(
+        None,
+        "int >= 1 or `None`",
+        "iteration limit of one attempt of the plugin",
+        meaning=f"{SQP_MAX_ITER} (`blocksqp` retry: {BLOCKSQP_MAX_ITER})",
+        check=optional(positive_int),
+    )
+    objective_scale: float = option(
+        1e-3,
+        "float > 0",
+        "factor on the objective the plugin sees (its absolute tolerances against the weights)",
+        check=positive_float,
+    )
+    hessian: str = option(
         "gauss-newton",
         one_of(HESSIANS),
         "Hessian of the QPs: Gauss–Newton 2JᵣᵀJᵣ (PSD by construction) or CasADi's exact one",
-    ),
-    Option(
-        "levenberg_marquardt",
+        check=among(HESSIANS),
+    )
+    levenberg_marquardt: float = option(
         1e-7,
         "float >= 0",
         "multiple of the identity added to the Gauss–Newton Hessian (scaled variables)",
-    ),
-    Option(
-        "soft_plugin_options",
+        check=nonnegative_float,
+    )
+    soft_plugin_options: dict = option(
         {"qpsol": "hpipm", "qpsol_options": {"error_on_fail": False}, "max_iter_ls": 15},
         "dict",
         "plugin options of the soft NLP variants only (before `plugin_options`)",
-    ),
-)
+        check=mapping,
+    )
+
+
+SQP_OPTIONS: tuple[Option, ...] = declaration(SqpOptions)
 
 
 class SqpSolver(NlpSolver):
@@ -130,24 +166,11 @@ class SqpSolver(NlpSolver):
     # weighted by multipliers of size ρ, which dominates once the terminal penalty is active.
     # (defaults in SQP_OPTIONS: penalty_escalation (100, 1e4), slack_curvature 1e4,
     # soft_plugin_options with HPIPM and max_iter_ls 15)
+    Options = SqpOptions
     OPTIONS = SQP_OPTIONS
     option_names = option_names(SQP_OPTIONS)
-
-    def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
-        options = dict(options or {})
-        default = option_defaults(self.OPTIONS)
-        self.hessian = check.choice(
-            "options['hessian']", options.pop("hessian", default["hessian"]), HESSIANS
-        )
-        self.levenberg_marquardt = check.nonnegative_float(
-            "options['levenberg_marquardt']",
-            options.pop("levenberg_marquardt", default["levenberg_marquardt"]),
-        )
-        soft_plugin_options = options.pop("soft_plugin_options", default["soft_plugin_options"])
-        if not isinstance(soft_plugin_options, dict):
-            raise ValueError(f"options['soft_plugin_options'] must be a dict, got {soft_plugin_options!r}")
-        self.soft_plugin_options = soft_plugin_options
-        super().__init__(problem, options)
+    hessian: str  # these three are set from SqpOptions
+    soft_plugin_options: dict[str, Any]
 
     def plugin_defaults(self, data: NlpData) -> dict[str, Any]:
         """``sqpmethod`` on QRQP with the Gauss–Newton Hessian; the soft variants' own options."""
@@ -196,9 +219,9 @@ class SqpSolver(NlpSolver):
         }
 
     def _attempt(
-        self, variant: str, p: np.ndarray, warm_start: Iterate | None, robust: bool | str = False
-    ) -> dict[str, Any]:
-        if not robust:
-            return super()._attempt(variant, p, warm_start)
+        self, variant: Variant, p: np.ndarray, warm_start: Iterate | None, stage: Stage = Stage.PLAIN
+    ) -> Attempt:
+        if stage is not Stage.ROBUST:
+            return super()._attempt(variant, p, warm_start, stage)
         with _silenced_c_stdout():  # qpOASES' licence banner, printed on every blockSQP solve
-            return super()._attempt(variant, p, warm_start, robust=robust)
+            return super()._attempt(variant, p, warm_start, stage)

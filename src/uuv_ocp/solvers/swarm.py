@@ -36,6 +36,7 @@ finishes its budget after the deadline also reports ``deadline_hit``.
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 import warnings
@@ -52,8 +53,22 @@ from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
 from uuv_ocp.native.runtime import COMPILED_ENV, NativeIgwo, compiled_build, uses_pcg64
 from uuv_ocp.optimize import ALGORITHMS, ImprovedGreyWolf, MinimizeResult, minimize
-from uuv_ocp.solvers.options import AUTO, Option, format_value, one_of, option_defaults, option_names
-from uuv_ocp.solvers.result import Iterate, SolveResult
+from uuv_ocp.solvers.options import (
+    AUTO,
+    Check,
+    Option,
+    among,
+    boolean,
+    format_value,
+    make_options_class,
+    mapping,
+    one_of,
+    optional,
+    parse_options,
+    positive_float,
+    positive_int,
+)
+from uuv_ocp.solvers.result import Iterate, SolveDetails, SolveResult
 from uuv_ocp.transcription.condensed import batched_fitness, encode
 from uuv_ocp.transcription.condensed import (
     candidate_fitness as candidate_fitness,  # re-exported: its old home
@@ -206,6 +221,51 @@ def swarm_options(method: str) -> tuple[Option, ...]:
     )
 
 
+def _at_least_four(label: str, value: object) -> int:
+    return check.positive_int(label, value, minimum=4)
+
+
+def _nonnegative_int(label: str, value: object) -> int:
+    return check.positive_int(label, value, minimum=0)
+
+
+def _compiled_choice(label: str, value: object) -> object:
+    if isinstance(value, str) and value == "auto":
+        return value
+    return check.boolean(label, value)
+
+
+def _or_auto(inner: Check) -> Check:
+    def checked(label: str, value: Any) -> Any:
+        return value if value is AUTO else inner(label, value)
+
+    return checked
+
+
+_SWARM_CHECKS: dict[str, Check] = {
+    "population": _at_least_four,
+    "iterations": positive_int,
+    "max_evaluations": optional(positive_int),  # and >= population, checked with it
+    "seed": _nonnegative_int,
+    "search": among(SEARCH_MODES),
+    "seed_warm_start": boolean,
+    "parallelization": among(PARALLELIZATIONS),
+    "algorithm_options": optional(mapping),  # and each entry, by the algorithm itself
+    "compiled": _compiled_choice,
+    "rng_thread": _or_auto(boolean),
+    "deadline": optional(positive_float),
+    "candidates": positive_int,
+    "candidate_metric": among(CANDIDATE_METRICS),
+    "candidate_distance": _or_auto(positive_float),
+}
+
+
+@functools.cache
+def swarm_options_class(method: str) -> type:
+    """Return the frozen options dataclass of the swarm backend ``method`` (its :func:`swarm_options`)."""
+    return make_options_class(f"{method.upper()}Options", swarm_options(method), _SWARM_CHECKS)
+
+
 class BufferedFitness:
     """Zero-copy population fitness (:class:`uuv_ocp.native.buffered.BufferedFunction`).
 
@@ -308,67 +368,33 @@ class SwarmSolver:
         ``"igwo"``, ``"gwo"``, ``"ssa"`` or ``"pso"``.
     """
 
+    time_limited = True  # solve(..., time_limit=) (the Backend protocol's capability)
+
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None, *, method: str) -> None:
-        options = dict(options or {})
         check.choice("method", method, sorted(ALGORITHMS))
         algorithm = ALGORITHMS[method]
         self.OPTIONS = swarm_options(method)
-        default = option_defaults(self.OPTIONS)
+        self.settings: Any = parse_options(swarm_options_class(method), options, method)
+        settings: Any = self.settings
         self.name = method
         self.problem = problem
         self.method = method
-        self.population = check.positive_int(
-            "options['population']",
-            options.pop("population", default["population"]),
-            minimum=4,
-        )
-        self.iterations = check.positive_int(
-            "options['iterations']", options.pop("iterations", default["iterations"])
-        )
-        max_evaluations = options.pop("max_evaluations", default["max_evaluations"])
-        self.max_evaluations = (
-            None
-            if max_evaluations is None
-            else check.positive_int("options['max_evaluations']", max_evaluations, minimum=self.population)
-        )
-        self.seed = check.positive_int("options['seed']", options.pop("seed", default["seed"]), minimum=0)
-        self.search = check.choice(
-            "options['search']", options.pop("search", default["search"]), SEARCH_MODES
-        )
-        self.seed_warm_start = check.boolean(
-            "options['seed_warm_start']", options.pop("seed_warm_start", default["seed_warm_start"])
-        )
-        self.parallelization = check.choice(
-            "options['parallelization']",
-            options.pop("parallelization", default["parallelization"]),
-            PARALLELIZATIONS,
-        )
-        self.algorithm_options = options.pop("algorithm_options", default["algorithm_options"])
-        self.compiled = _compiled_default(options.pop("compiled", default["compiled"]))
-        rng_thread = options.pop("rng_thread", default["rng_thread"])
-        self.rng_thread = _usable_cpus() >= 2 if rng_thread is AUTO else rng_thread
-        deadline = options.pop("deadline", default["deadline"])
-        self.deadline = None if deadline is None else check.positive_float("options['deadline']", deadline)
-        self.candidates = check.positive_int(
-            "options['candidates']", options.pop("candidates", default["candidates"])
-        )
-        self.candidate_metric = check.choice(
-            "options['candidate_metric']",
-            options.pop("candidate_metric", default["candidate_metric"]),
-            CANDIDATE_METRICS,
-        )
-        distance = options.pop("candidate_distance", default["candidate_distance"])
-        self.candidate_distance = check.positive_float(
-            "options['candidate_distance']",
-            CANDIDATE_DISTANCE[self.candidate_metric] if distance is AUTO else distance,
-        )
-        if options:
-            valid = list(option_names(self.OPTIONS))
-            unknown = sorted(options)
-            raise ValueError(f"unknown options for solver {method!r}: {unknown}; valid: {valid}")
+        self.population, self.iterations = settings.population, settings.iterations
+        self.max_evaluations = settings.max_evaluations
+        if self.max_evaluations is not None:
+            label = f"options['max_evaluations'] of {method!r}"
+            self.max_evaluations = check.positive_int(label, self.max_evaluations, minimum=self.population)
+        self.seed, self.search = settings.seed, settings.search
+        self.seed_warm_start, self.parallelization = settings.seed_warm_start, settings.parallelization
+        self.algorithm_options = settings.algorithm_options
+        self.compiled = _compiled_default(settings.compiled)
+        self.rng_thread = _usable_cpus() >= 2 if settings.rng_thread is AUTO else settings.rng_thread
+        self.deadline, self.candidates = settings.deadline, settings.candidates
+        self.candidate_metric = settings.candidate_metric
+        distance = settings.candidate_distance
+        self.candidate_distance = CANDIDATE_DISTANCE[self.candidate_metric] if distance is AUTO else distance
         # validate algorithm options now, before any solve (the constructor checks them)
         algorithm(-np.ones(1), np.ones(1), self.population, self.iterations, self.algorithm_options)
-        check.boolean("options['rng_thread']", self.rng_thread)
         spec = problem.spec()
         if not (np.all(np.isfinite(spec.lower)) and np.all(np.isfinite(spec.upper))):
             raise ValueError(
@@ -506,12 +532,14 @@ class SwarmSolver:
             terminal_relaxed=problem.soft_terminal_available and kinds["terminal"] > tolerance,
             iterate=iterate,
             history=outcome.history,
-            details={
-                "fitness": outcome.fun,
-                "violations": kinds,
-                "deadline_hit": outcome.deadline_hit or late,
-                **self._candidate_details(archive, outcome, offset, p),
-            },
+            details=SolveDetails.of(
+                {
+                    "fitness": outcome.fun,
+                    "violations": kinds,
+                    "deadline_hit": outcome.deadline_hit or late,
+                    **self._candidate_details(archive, outcome, offset, p),
+                }
+            ),
         )
 
     def _candidate_archive(self, p: np.ndarray) -> CandidateArchive:
@@ -613,5 +641,6 @@ def swarm_factory(method: str):
         return SwarmSolver(problem, options, method=method)
 
     factory.__name__ = f"{method}_factory"
+    factory.Options = swarm_options_class(method)  # type: ignore[attr-defined]  # what parse_options reads
     factory.OPTIONS = swarm_options(method)  # type: ignore[attr-defined]  # the declaration the docs read
     return factory

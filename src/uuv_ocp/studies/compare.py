@@ -64,17 +64,6 @@ def unreachable_from(reference: Reference, vehicle: AnyVehicle, t0: float, durat
     return _reach(reference, vehicle, t0, duration)[1]
 
 
-def reference_speed_note(
-    reference: Reference, vehicle: AnyVehicle, t0: float, duration: float
-) -> tuple[float, str]:
-    """Largest path speed on the run (m/s) and a note if it exceeds the vehicle's top speed.
-
-    See :func:`unreachable_from` for the top speed.
-    """
-    speed, _, note = _reach(reference, vehicle, t0, duration)
-    return speed, note
-
-
 def _reach(
     reference: Reference, vehicle: AnyVehicle, t0: float, duration: float
 ) -> tuple[float, float | None, str]:
@@ -178,7 +167,7 @@ def track_references(
                 run = saved[0]
             else:
                 controller = NMPC(problem, solver, options=solver_options)
-                with warnings.catch_warnings():  # the row's note says it (reference_speed_note)
+                with warnings.catch_warnings():  # the row's note says it (_reach)
                     warnings.simplefilter("ignore", ReferenceSpeedWarning)
                     try:
                         run = simulate(

@@ -206,3 +206,72 @@ def test_tracking_problem_state_is_augmented_with_the_layout_current():
     estimate = estimator.estimate()
     np.testing.assert_array_equal(estimate.current, [0.1, -0.2])
     assert estimate.bias.shape == (3,)
+
+
+@pytest.fixture(scope="module")
+def offset_runs():
+    """s2 (RexROV) under a constant current of 0.8 m/s unknown to the controller: EKF vs naive."""
+    vehicle = uo.Vehicle.rexrov()
+    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=10)
+    # precise sensors, so that the estimate's own noise (not the offset) is far below the naive offset
+    sensors = uo.Sensors(
+        [
+            uo.Sensor.of_states("pose", [0, 1, 2], 6, 10.0, (1e-3, 1e-3, 5e-4), angular=(False, False, True)),
+            uo.Sensor.of_states("dvl", [3, 4, 5], 6, 10.0, (1e-3, 1e-3, 5e-4)),
+        ]
+    )
+    x0, current = problem.reference.initial_state(0.0), uo.Current(0.8, 1.0)
+    estimator = uo.Estimator(problem, "ekf", sensors=sensors)
+    common = dict(x0=x0, duration=30.0, current=current, seed=1)
+    estimated = uo.simulate(uo.NMPC(problem, "sqp-rti"), estimator=estimator, **common)
+    naive = uo.simulate(uo.NMPC(problem, "sqp-rti"), current_known=False, **common)
+    return estimated, naive
+
+
+def test_offset_free_nmpc_with_the_ekf_removes_the_naive_controllers_offset(offset_runs):
+    estimated, naive = offset_runs
+    # the mean position error over the last 10 s: the offset (the noise averages out)
+    offset = np.linalg.norm(estimated.errors[-100:].mean(axis=0))
+    naive_offset = np.linalg.norm(naive.errors[-100:].mean(axis=0))
+    assert naive_offset > 5e-3
+    assert offset < 1e-3 and offset < naive_offset / 10
+    # the controller was told the estimated current, which converged to the true one
+    np.testing.assert_allclose(estimated.estimates.currents[-1], estimated.currents[-1], atol=0.01)
+    assert naive.estimates is None and naive.measurements is None
+
+
+def test_a_run_records_its_estimates_and_measurements_and_saves_them(offset_runs, tmp_path):
+    run = offset_runs[0]
+    n = run.controls.shape[0]
+    estimates, measurements = run.estimates, run.measurements
+    assert estimates.states.shape == (n, 6) and estimates.currents.shape == (n, 2)
+    assert estimates.variances.shape == (n, 8) and np.all(estimates.variances > 0)
+    assert measurements.sensors == ("pose", "dvl") and measurements.sizes == (3, 3)
+    assert measurements.values.shape == (n, 6) and np.all(np.isfinite(measurements.values))
+    # the estimate the controller got at step 0 is the reset state corrected by the first fixes
+    assert np.linalg.norm(estimates.states[0] - run.states[0]) < 0.01
+    run.save(tmp_path / "run.npz")
+    loaded = uo.ClosedLoopResult.load(tmp_path / "run.npz")
+    for field in uo.ClosedLoopResult.ESTIMATION_FIELDS:
+        np.testing.assert_array_equal(getattr(loaded, field), getattr(run, field))
+    assert loaded.measurements.sensors == ("pose", "dvl") and loaded.measurements.sizes == (3, 3)
+
+
+def test_simulate_refuses_bad_estimation_arguments_by_name(offset_runs):
+    vehicle = uo.Vehicle.rexrov()
+    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=5)
+    mpc = uo.NMPC(problem, "sqp-rti")
+    x0 = problem.reference.initial_state(0.0)
+    sensors = uo.Sensors.auv(vehicle)
+    estimator = uo.Estimator(problem, "ekf", sensors=sensors)
+    with pytest.raises(ValueError, match="estimator must be a uuv_ocp.Estimator"):
+        uo.simulate(mpc, x0, 1.0, estimator="ekf")
+    with pytest.raises(ValueError, match="sensors needs an estimator"):
+        uo.simulate(mpc, x0, 1.0, sensors=sensors)
+    with pytest.raises(ValueError, match="noise is the full-state noise"):
+        uo.simulate(mpc, x0, 1.0, estimator=estimator, noise=uo.MeasurementNoise((0.1,) * 6))
+    with pytest.raises(ValueError, match="sensors must be the estimator's own"):
+        uo.simulate(mpc, x0, 1.0, estimator=estimator, sensors=uo.Sensors(list(sensors)[:2]))
+    other = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=6)
+    with pytest.raises(ValueError, match="estimator must be built on the controller's problem"):
+        uo.simulate(mpc, x0, 1.0, estimator=uo.Estimator(other, "ekf", sensors=sensors))

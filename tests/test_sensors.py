@@ -11,7 +11,7 @@ from uuv_ocp.estimation import Measurement, Sensor, Sensors
 
 
 def expected_steps(rate_num: int, rate_den: int, dt_num: int, dt_den: int, steps: int) -> set[int]:
-    """Steps at which a sensor of rate p/q Hz reports with dt = a/b s: first k with k dt >= j / f.
+    """Return the steps at which a sensor of rate p/q Hz reports with dt = a/b s (k dt >= j / f).
 
     Sample j is at j q / p s, i.e. at step ceil(j q b / (p a)): integers only.
     """
@@ -70,7 +70,9 @@ def test_collection_schedule_and_draws():
 
 
 def test_dropouts_and_outliers_happen_at_their_rates():
-    sensor = Sensor.of_states("dvl", [0], 1, 10.0, 0.01, dropout=0.3, outlier_probability=0.1, outlier_scale=50.0)
+    sensor = Sensor.of_states(
+        "dvl", [0], 1, 10.0, 0.01, dropout=0.3, outlier_probability=0.1, outlier_scale=50.0
+    )
     sensors = Sensors([sensor])
     rng = np.random.default_rng(2)
     results = [sensors.measure(k, 0.1, [0.0], rng) for k in range(5000)]
@@ -87,7 +89,9 @@ def test_auv_preset_is_built_from_the_layout(vehicle):
     sensors = Sensors.auv(vehicle)
     x = np.arange(1.0, layout.state_dim + 1)
     by_name = dict(zip(sensors.names, sensors, strict=True))
-    np.testing.assert_array_equal(by_name["position"].function(x).full().ravel(), x[list(layout.positions[:2])])
+    np.testing.assert_array_equal(
+        by_name["position"].function(x).full().ravel(), x[list(layout.positions[:2])]
+    )
     linear = list(layout.velocities[: len(layout.positions)])
     np.testing.assert_array_equal(by_name["dvl"].function(x).full().ravel(), x[linear])
     np.testing.assert_array_equal(by_name["attitude"].function(x).full().ravel(), x[list(layout.angles)])

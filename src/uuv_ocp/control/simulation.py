@@ -155,8 +155,8 @@ class ClosedLoopResult:
         Role of each state column (``"x"``, ``"y"``, ``"z"``, ``"psi"``, ``"velocity"`` or
         ``""``; the vehicle's ``layout.state_roles``): plots and metrics find the positions,
         the heading and the velocities by role, whatever the vehicle names them.
-    estimated_states, estimated_currents, estimate_variances, innovations, estimate_times : numpy.ndarray, optional
-        A run with an estimator: :attr:`estimates` (:class:`EstimateLog`); empty otherwise.
+    estimated_states, estimated_currents, estimate_variances, innovations, estimate_times : optional
+        Arrays of a run with an estimator: :attr:`estimates` (:class:`EstimateLog`); empty otherwise.
     measurement_values, measurement_dropped, sensor_names, sensor_sizes : optional
         A run with an estimator: :attr:`measurements` (:class:`MeasurementLog`); empty otherwise.
     """
@@ -322,22 +322,23 @@ class ClosedLoopResult:
             fault=(str(data["fault"]) or None) if "fault" in data else None,
             substep_t=data["substep_t"] if "substep_t" in data else np.zeros(0),
             substep_states=data["substep_states"] if "substep_states" in data else np.zeros((0, 0)),
-            **{
-                key: tuple(str(name) for name in data[key])
-                for key in ("state_names", "state_units", "state_roles")
-                if key in data
-            },
-            # a run with an estimator (files of runs without one have none of these)
-            **{key: data[key] for key in cls.ESTIMATION_FIELDS if key in data},
-            **(
-                {
-                    "sensor_names": tuple(str(name) for name in data["sensor_names"]),
-                    "sensor_sizes": tuple(int(size) for size in data["sensor_sizes"]),
-                }
-                if "sensor_names" in data
-                else {}
-            ),
+            **cls._optional_fields(data),
         )
+
+    @classmethod
+    def _optional_fields(cls, data: dict[str, np.ndarray]) -> dict[str, Any]:
+        """Return the named-state and estimation fields that ``data`` holds (older files lack them)."""
+        fields: dict[str, Any] = {
+            key: tuple(str(name) for name in data[key])
+            for key in ("state_names", "state_units", "state_roles")
+            if key in data
+        }
+        # a run with an estimator (files of runs without one have none of these)
+        fields.update({key: data[key] for key in cls.ESTIMATION_FIELDS if key in data})
+        if "sensor_names" in data:
+            fields["sensor_names"] = tuple(str(name) for name in data["sensor_names"])
+            fields["sensor_sizes"] = tuple(int(size) for size in data["sensor_sizes"])
+        return fields
 
 
 def simulate(
@@ -534,7 +535,7 @@ def _check_arguments(
 
 
 def _check_estimation(controller: NMPC, estimator: object, sensors: object, noise: object) -> Sensors | None:
-    """The sensors of a run with an estimator (``None`` without); ``ValueError`` naming the argument."""
+    """Return the sensors of a run with an estimator (``None`` without); ``ValueError`` names the argument."""
     if estimator is None:
         if sensors is not None:
             raise ValueError(

@@ -38,7 +38,7 @@ CURRENT_MODELS = ("random_walk", "gauss_markov")
 
 
 def _per_state(name: str, value: object, size: int) -> np.ndarray:
-    """A positive float for every entry, or ``size`` of them."""
+    """Return ``size`` positive floats from one float or ``size`` of them."""
     if isinstance(value, (int, float)) and not isinstance(value, bool):
         value = (float(value),) * size
     return np.asarray(check.vector(name, value, size, positive=True))
@@ -402,7 +402,7 @@ class Estimator:
         innovations: np.ndarray | None = None,
         S: np.ndarray | None = None,
     ) -> Estimate:
-        """The current estimate as a record (copies)."""
+        """Return the current estimate as a record (copies)."""
         m = self.model
         return Estimate(
             step,
@@ -432,7 +432,7 @@ class Estimator:
 
 
 def buffered(name: str, inputs: list[ca.SX], outputs: list[ca.SX]) -> BufferedFunction:
-    """A zero-copy caller of a Function of ``outputs`` (one CasADi call per estimator step)."""
+    """Return a zero-copy caller of a Function of ``outputs`` (one CasADi call per estimator step)."""
     with BUILD_LOCK:  # dense outputs: a sparse one would make BufferedFunction wrap it in MX
         function = ca.Function(name, inputs, [ca.densify(o) for o in outputs])
     return BufferedFunction(function)

@@ -133,7 +133,7 @@ class Sensor:
         std: float | Sequence[float],
         **options: Any,
     ) -> Sensor:
-        """A sensor that measures the states ``indices`` of an ``state_dim``-state vector directly."""
+        """Return a sensor that measures the states ``indices`` of a ``state_dim``-state vector."""
         state_dim = check.positive_int("state_dim", state_dim)
         chosen = list(indices)
         if not chosen or any(
@@ -143,13 +143,8 @@ class Sensor:
             raise ValueError(f"indices must be state indices in [0, {state_dim}), got {indices!r}")
         x = ca.SX.sym("x", state_dim)
         function = ca.Function(f"h_{name}", [x], [x[chosen]], ["x"], ["y"])
-        return cls(
-            name,
-            function,
-            rate,
-            std if not isinstance(std, (int, float)) else (float(std),) * len(chosen),
-            **options,
-        )
+        spread = (float(std),) * len(chosen) if isinstance(std, (int, float)) else tuple(std)
+        return cls(name, function, rate, spread, **options)
 
     @property
     def size(self) -> int:
@@ -224,7 +219,7 @@ class Sensors:
         return iter(self.items)
 
     def __len__(self) -> int:
-        """Number of sensors."""
+        """Return the number of sensors."""
         return len(self.items)
 
     @property
@@ -270,7 +265,7 @@ class Sensors:
         return np.concatenate([np.asarray(s.angular, dtype=bool) for s in self.items])
 
     def due(self, step: int, dt: float) -> tuple[int, ...]:
-        """Indices of the sensors due at control step ``step`` (module doc: the schedule)."""
+        """Return the indices of the sensors due at control step ``step`` (module doc: the schedule)."""
         step = check.positive_int("step", step, minimum=0)
         dt = check.positive_float("dt", dt)
         return tuple(i for i, s in enumerate(self.items) if s.due(step, dt))
@@ -306,7 +301,7 @@ class Sensors:
     # ----------------------------------------------------------------- presets
     @classmethod
     def auv(cls, vehicle: Any, *, dvl_dropout: float = 0.05) -> Sensors:
-        """The issue's AUV sensor suite on ``vehicle``'s layout (module doc: figures and sources).
+        """Return the issue's AUV sensor suite on ``vehicle``'s layout (module doc: figures, sources).
 
         Built from ``vehicle.layout`` (a :class:`~uuv_ocp.model.base.VehicleLayout`, or a vehicle
         that has one): a horizontal position fix, a DVL on the body linear velocities (the first

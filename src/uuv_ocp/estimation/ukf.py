@@ -45,7 +45,7 @@ class UnscentedKalmanFilter(Estimator):
         self._measure = buffered("ukf_measure", [X], [h.map(points)(X)])
 
     def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
-        """The 2n + 1 sigma points of ``(x, P)`` as columns (module doc)."""
+        """Return the 2n + 1 sigma points of ``(x, P)`` as columns (module doc)."""
         L = np.linalg.cholesky(self.scale * P)
         return np.hstack([x[:, None], x[:, None] + L, x[:, None] - L])
 

@@ -275,3 +275,23 @@ def test_simulate_refuses_bad_estimation_arguments_by_name(offset_runs):
     other = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=6)
     with pytest.raises(ValueError, match="estimator must be built on the controller's problem"):
         uo.simulate(mpc, x0, 1.0, estimator=uo.Estimator(other, "ekf", sensors=sensors))
+
+
+@pytest.mark.parametrize("method", ["ekf", "ukf"])
+def test_heading_innovations_are_wrapped_across_pi(method):
+    """A heading of π − 0.005 measured as −π + 0.005: an innovation of 0.01 rad, not −2π."""
+    ocp = uo.Ocp(horizon=3, dt=DT)
+    psi = ocp.state("psi", 1)
+    r = ocp.control("r", 1, lower=-1.0, upper=1.0)
+    ocp.set_der(psi, r)
+    ocp.add_stage_cost(residual=psi, weight=1.0)
+    # a compass reports the heading wrapped into (−π, π]: the sigma points straddle ±π
+    wrapped = ca.Function("compass", [psi], [ca.atan2(ca.sin(psi), ca.cos(psi))])
+    sensors = Sensors([Sensor("heading", wrapped, 10.0, 0.01, angular=(True,))])
+    estimator = Estimator(ocp, method, sensors=sensors, options=EstimatorOptions(initial_state_std=0.02))
+    for use_step in (False, True):
+        estimator.reset([np.pi - 0.005])
+        measurement = Measurement(1, (0,), np.array([-np.pi + 0.005]))
+        estimate = estimator.step([0.0], measurement) if use_step else estimator.correct(measurement)
+        np.testing.assert_allclose(estimate.innovations, [0.01], atol=1e-6)
+        assert abs(np.angle(np.exp(1j * (estimate.state[0] - np.pi)))) < 0.006

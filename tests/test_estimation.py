@@ -295,3 +295,18 @@ def test_heading_innovations_are_wrapped_across_pi(method):
         estimate = estimator.step([0.0], measurement) if use_step else estimator.correct(measurement)
         np.testing.assert_allclose(estimate.innovations, [0.01], atol=1e-6)
         assert abs(np.angle(np.exp(1j * (estimate.state[0] - np.pi)))) < 0.006
+
+
+def test_closed_loop_on_a_user_ocp_runs_on_the_estimate():
+    """An Ocp without a current: the controller gets the EKF's state, which follows the plant."""
+    problem = linear_ocp()
+    estimator = Estimator(problem, "ekf", sensors=linear_sensors())
+    run = uo.simulate(uo.NMPC(problem, "ipopt"), x0=[1.0, 0.0], duration=3.0, estimator=estimator, seed=2)
+    n = run.controls.shape[0]
+    assert run.fault is None and n == 30
+    assert run.estimates.currents.shape == (n, 0)
+    error = run.estimates.states - run.states[:n]
+    assert np.sqrt(np.mean(error**2)) < 0.1  # sensors of 0.1 and 0.05 σ
+    # the position sensor reports at every step, the velocity one at 5 Hz when it does not drop out
+    assert np.all(np.isfinite(run.measurements.values[:, 0]))
+    assert np.all(np.isnan(run.measurements.values[1::2, 1]))

@@ -10,6 +10,16 @@ from uuv_ocp._version import __version__ as __version__
 from uuv_ocp.control.disturbances import Current, GaussMarkov, MeasurementNoise
 from uuv_ocp.control.mpc import NMPC, StepOutput, StepRecord
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
+from uuv_ocp.estimation import (
+    Estimate,
+    Estimator,
+    EstimatorOptions,
+    Measurement,
+    Sensor,
+    Sensors,
+    available_estimators,
+    register_estimator,
+)
 from uuv_ocp.integrators import rk4_step
 from uuv_ocp.judge import score
 from uuv_ocp.model.base import VehicleLayout, VehicleModel
@@ -39,15 +49,21 @@ __all__ = [
     "PAPER_REFERENCES",
     "ClosedLoopResult",
     "Current",
+    "Estimate",
+    "Estimator",
+    "EstimatorOptions",
     "GeneratedCode",
     "GaussMarkov",
     "Iterate",
     "MinimizeResult",
+    "Measurement",
     "MeasurementNoise",
     "NMPC",
     "Obstacle",
     "Ocp",
     "Reference",
+    "Sensor",
+    "Sensors",
     "SimulationInterrupted",
     "SolveResult",
     "StepOutput",
@@ -59,6 +75,7 @@ __all__ = [
     "VehicleLayout",
     "VehicleModel",
     "Weights",
+    "available_estimators",
     "available_solvers",
     "compare",
     "format_comparison",
@@ -66,6 +83,7 @@ __all__ = [
     "get_solver",
     "new_solver",
     "minimize",
+    "register_estimator",
     "register_solver",
     "rk4_step",
     "score",

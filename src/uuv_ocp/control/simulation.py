@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -27,6 +27,8 @@ from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.metrics import position_errors, tracking_metrics
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.scenario import scenario
+from uuv_ocp.estimation.base import Estimate, Estimator
+from uuv_ocp.estimation.sensors import Measurement, Sensors
 from uuv_ocp.interrupts import check_interrupt, interrupt_handled, remember_interrupts
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.solvers.base import reraise_interrupt
@@ -42,6 +44,59 @@ class SimulationInterrupted(KeyboardInterrupt):
     def __init__(self, result: ClosedLoopResult) -> None:
         super().__init__(f"simulation interrupted after {result.controls.shape[0]} steps")
         self.result = result
+
+
+@dataclass(frozen=True)
+class EstimateLog:
+    """What the estimator gave the controller at each step of a run (``run.estimates``).
+
+    Attributes
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Times of the controller steps (s).
+    states : numpy.ndarray, shape (n, nx)
+        Estimated states (the controller's input).
+    currents : numpy.ndarray, shape (n, nc)
+        Estimated inertial currents (m/s).
+    variances : numpy.ndarray, shape (n, na)
+        Diagonal of the augmented covariance ``[x, c, b]`` (for ±2σ bands).
+    innovations : numpy.ndarray, shape (n, m)
+        Innovations of the stacked sensor outputs; NaN where a sensor did not report.
+    times : numpy.ndarray, shape (n,)
+        Wall-clock time of each estimator step (s).
+    """
+
+    t: np.ndarray
+    states: np.ndarray
+    currents: np.ndarray
+    variances: np.ndarray
+    innovations: np.ndarray
+    times: np.ndarray
+
+
+@dataclass(frozen=True)
+class MeasurementLog:
+    """What the sensors reported at each step of a run (``run.measurements``).
+
+    Attributes
+    ----------
+    t : numpy.ndarray, shape (n,)
+        Times of the controller steps (s).
+    values : numpy.ndarray, shape (n, m)
+        The stacked outputs of all sensors; NaN where a sensor was not due or dropped out.
+    dropped : numpy.ndarray of bool, shape (n, number of sensors)
+        Which sensors were due but did not report (dropouts).
+    sensors : tuple of str
+        The sensors' names, in order.
+    sizes : tuple of int
+        Their numbers of outputs (the column blocks of ``values``).
+    """
+
+    t: np.ndarray
+    values: np.ndarray
+    dropped: np.ndarray
+    sensors: tuple[str, ...]
+    sizes: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -100,6 +155,10 @@ class ClosedLoopResult:
         Role of each state column (``"x"``, ``"y"``, ``"z"``, ``"psi"``, ``"velocity"`` or
         ``""``; the vehicle's ``layout.state_roles``): plots and metrics find the positions,
         the heading and the velocities by role, whatever the vehicle names them.
+    estimated_states, estimated_currents, estimate_variances, innovations, estimate_times : optional
+        Arrays of a run with an estimator: :attr:`estimates` (:class:`EstimateLog`); empty otherwise.
+    measurement_values, measurement_dropped, sensor_names, sensor_sizes : optional
+        A run with an estimator: :attr:`measurements` (:class:`MeasurementLog`); empty otherwise.
     """
 
     t: np.ndarray
@@ -121,6 +180,55 @@ class ClosedLoopResult:
     state_names: tuple[str, ...] = ()
     state_units: tuple[str, ...] = ()
     state_roles: tuple[str, ...] = ()
+    estimated_states: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    estimated_currents: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    estimate_variances: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    innovations: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    estimate_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    measurement_values: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    measurement_dropped: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
+    sensor_names: tuple[str, ...] = ()
+    sensor_sizes: tuple[int, ...] = ()
+
+    #: the fields of a run with an estimator (saved only when there was one)
+    ESTIMATION_FIELDS: ClassVar[tuple[str, ...]] = (
+        "estimated_states",
+        "estimated_currents",
+        "estimate_variances",
+        "innovations",
+        "estimate_times",
+        "measurement_values",
+        "measurement_dropped",
+    )
+
+    @property
+    def estimates(self) -> EstimateLog | None:
+        """The estimator's output per step, or ``None`` for a run without an estimator."""
+        if not self.sensor_names:
+            return None
+        n = self.estimated_states.shape[0]
+        return EstimateLog(
+            self.t[:n],
+            self.estimated_states,
+            self.estimated_currents,
+            self.estimate_variances,
+            self.innovations,
+            self.estimate_times,
+        )
+
+    @property
+    def measurements(self) -> MeasurementLog | None:
+        """The sensors' reports per step, or ``None`` for a run without an estimator."""
+        if not self.sensor_names:
+            return None
+        n = self.measurement_values.shape[0]
+        return MeasurementLog(
+            self.t[:n],
+            self.measurement_values,
+            self.measurement_dropped,
+            self.sensor_names,
+            self.sensor_sizes,
+        )
 
     def __post_init__(self) -> None:
         """Fill ``deadline_steps`` (all False) when omitted."""
@@ -152,6 +260,11 @@ class ClosedLoopResult:
         The plant sub-steps only when recorded, so that runs without them keep their files.
         """
         recorded = {"substep_t": self.substep_t, "substep_states": self.substep_states}
+        estimation: dict[str, np.ndarray] = {}
+        if self.sensor_names:
+            estimation = {key: getattr(self, key) for key in self.ESTIMATION_FIELDS}
+            estimation["sensor_names"] = np.array(self.sensor_names, dtype=str)
+            estimation["sensor_sizes"] = np.array(self.sensor_sizes, dtype=int)
         named = {
             key: np.array(getattr(self, key), dtype=str)
             for key in ("state_names", "state_units", "state_roles")
@@ -160,6 +273,7 @@ class ClosedLoopResult:
         return dict(
             **(recorded if self.substep_t.size else {}),
             **named,
+            **estimation,
             t=self.t,
             states=self.states,
             controls=self.controls,
@@ -208,12 +322,23 @@ class ClosedLoopResult:
             fault=(str(data["fault"]) or None) if "fault" in data else None,
             substep_t=data["substep_t"] if "substep_t" in data else np.zeros(0),
             substep_states=data["substep_states"] if "substep_states" in data else np.zeros((0, 0)),
-            **{
-                key: tuple(str(name) for name in data[key])
-                for key in ("state_names", "state_units", "state_roles")
-                if key in data
-            },
+            **cls._optional_fields(data),
         )
+
+    @classmethod
+    def _optional_fields(cls, data: dict[str, np.ndarray]) -> dict[str, Any]:
+        """Return the named-state and estimation fields that ``data`` holds (older files lack them)."""
+        fields: dict[str, Any] = {
+            key: tuple(str(name) for name in data[key])
+            for key in ("state_names", "state_units", "state_roles")
+            if key in data
+        }
+        # a run with an estimator (files of runs without one have none of these)
+        fields.update({key: data[key] for key in cls.ESTIMATION_FIELDS if key in data})
+        if "sensor_names" in data:
+            fields["sensor_names"] = tuple(str(name) for name in data["sensor_names"])
+            fields["sensor_sizes"] = tuple(int(size) for size in data["sensor_sizes"])
+        return fields
 
 
 def simulate(
@@ -223,8 +348,10 @@ def simulate(
     *,
     t0: float | None = None,
     current: Current | None = None,
-    current_known: bool = True,
+    current_known: bool | None = None,
     noise: MeasurementNoise | None = None,
+    estimator: Estimator | None = None,
+    sensors: Sensors | None = None,
     plant: Any = None,
     plant_substeps: int = 10,
     seed: int | None = None,
@@ -250,10 +377,23 @@ def simulate(
         Start time on the reference (s); the reference's ``t_start`` by default.
     current : Current, optional
         Ocean current acting on the plant (tracking problems; horizontal).
-    current_known : bool
-        Whether the controller's model is told the current measured at each step.
+    current_known : bool, optional
+        Whether the controller's model is told the true current at each step (the oracle).
+        Default: ``True`` without an estimator, ``False`` with one (the controller is then
+        told the estimated current); ``False`` without an estimator: told no current (the
+        naive controller).
     noise : MeasurementNoise, optional
-        Noise on the state the controller sees (one standard deviation per state).
+        Noise on the state the controller sees (one standard deviation per state); not with
+        an estimator (its sensors have their own noise).
+    estimator : Estimator, optional
+        Estimate the state (and the current) from ``sensors``: at each step only the sensors
+        due measure the true state (their noise, dropouts and outliers), the estimator takes
+        them (after predicting over the last interval with the applied control), and the
+        controller gets the estimated state and, unless ``current_known``, the estimated
+        current.  It is reset to ``x0`` (and zero current) with its prior covariance.
+        ``run.estimates`` and ``run.measurements`` record what it did.
+    sensors : Sensors, optional
+        The sensors (default and only choice: the estimator's own, ``estimator.sensors``).
     plant : VehicleModel or casadi.Function, optional
         Tracking problems: plant vehicle (a ``VehicleModel``) of the same state (default:
         the controller's own model, i.e. no mismatch).  An :class:`~uuv_ocp.ocp.Ocp`: a Function
@@ -286,6 +426,9 @@ def simulate(
         On Ctrl-C, carrying the run up to the interrupt.
     """
     _check_arguments(controller, current, noise, seed, current_known, progress, record_substeps)
+    sensors = _check_estimation(controller, estimator, sensors, noise)
+    if current_known is None:
+        current_known = estimator is None
     problem = controller.problem
     spec = problem.spec()
     x0 = check.finite_array("x0", x0, (spec.state_dim,))
@@ -313,9 +456,13 @@ def simulate(
     # what the controller's model is told: the measured current, or none (the instance's
     # current is then zero); a time-invariant problem is always asked at t = 0
     told = currents if current_known else np.zeros_like(currents)
+    estimated = estimator is not None and not current_known and nc > 0
     clock = times if run.time_varying else np.zeros_like(times)
     known = {"parameters": parameters} if parameters is not None else {}
     log = _Log(x0, steps, spec.control_size, plant_substeps if record_substeps else 0, dt)
+    if estimator is not None and sensors is not None:
+        log.track_estimates(estimator, sensors)
+        estimator.reset(x0)
     u_prev = np.clip(np.zeros(spec.control_size), spec.lower, spec.upper)
     interrupted = False
     with (
@@ -331,12 +478,24 @@ def simulate(
                 controller.warm_up(x0, clock[0], u_prev, told[0] if nc else None, **known)
             for k in range(steps):
                 check_interrupt()  # a Ctrl-C CasADi swallowed (uuv_ocp.interrupts) stops here
-                measured = log.states[k] + (noise.sample(rng) if noise is not None else 0.0)
+                told_k = told[k] if nc else None
+                if estimator is not None and sensors is not None:
+                    measurement = sensors.measure(k, dt, log.states[k], rng)
+                    start = time.perf_counter()
+                    estimate = (
+                        estimator.correct(measurement) if k == 0 else estimator.step(u_prev, measurement)
+                    )
+                    log.estimate(k, measurement, estimate, time.perf_counter() - start)
+                    measured = estimate.state
+                    if estimated:
+                        told_k = estimate.current
+                else:
+                    measured = log.states[k] + (noise.sample(rng) if noise is not None else 0.0)
                 if not np.all(np.isfinite(measured)):  # the controller would fail on it: stop here
                     log.fault = f"non-finite measurement at t = {times[k]:.6g} s (step {k})"
                     break
                 start = time.perf_counter()
-                output = controller.step(measured, clock[k], u_prev, told[k] if nc else None, **known)
+                output = controller.step(measured, clock[k], u_prev, told_k, **known)
                 log.controller_step(k, output, time.perf_counter() - start)
                 if not log.plant_step(k, run.plant_step, currents[k], times):
                     break
@@ -363,7 +522,8 @@ def _check_arguments(
     """Refuse a bad argument of :func:`simulate` by name, before anything is built."""
     if not isinstance(controller, NMPC):
         raise ValueError(f"controller must be a uuv_ocp.NMPC, got {type(controller).__name__}")
-    check.boolean("current_known", current_known)
+    if current_known is not None:
+        check.boolean("current_known", current_known)
     check.boolean("progress", progress)
     check.boolean("record_substeps", record_substeps)
     if seed is not None:
@@ -372,6 +532,29 @@ def _check_arguments(
         raise ValueError(f"current must be a uuv_ocp.Current or None, got {current!r}")
     if noise is not None and not isinstance(noise, MeasurementNoise):
         raise ValueError(f"noise must be a uuv_ocp.MeasurementNoise or None, got {noise!r}")
+
+
+def _check_estimation(controller: NMPC, estimator: object, sensors: object, noise: object) -> Sensors | None:
+    """Return the sensors of a run with an estimator (``None`` without); ``ValueError`` names the argument."""
+    if estimator is None:
+        if sensors is not None:
+            raise ValueError(
+                "sensors needs an estimator: pass estimator=uo.Estimator(problem, 'ekf', sensors=...)"
+            )
+        return None
+    if not isinstance(estimator, Estimator):
+        raise ValueError(f"estimator must be a uuv_ocp.Estimator or None, got {type(estimator).__name__}")
+    if estimator.problem.spec().key != controller.problem.spec().key:
+        raise ValueError(
+            "estimator must be built on the controller's problem (its model is the controller's)"
+        )
+    if noise is not None:
+        raise ValueError(
+            "noise is the full-state noise of a run without an estimator; the sensors carry theirs"
+        )
+    if sensors is not None and sensors != estimator.sensors:
+        raise ValueError("sensors must be the estimator's own (estimator.sensors), or None")
+    return estimator.sensors
 
 
 class _Log:
@@ -395,6 +578,34 @@ class _Log:
             self.path[0] = x0
         self.completed = 0
         self.fault: str | None = None
+        self.estimation: dict[str, Any] = {}
+
+    def track_estimates(self, estimator: Estimator, sensors: Sensors) -> None:
+        """Make room for the estimates and measurements of every step."""
+        steps, model = len(self.controls), estimator.model
+        m = int(sum(sensors.sizes))
+        self.estimation = {
+            "estimated_states": np.full((steps, model.nx), np.nan),
+            "estimated_currents": np.full((steps, model.nc), np.nan),
+            "estimate_variances": np.full((steps, model.size), np.nan),
+            "innovations": np.full((steps, m), np.nan),
+            "estimate_times": np.zeros(steps),
+            "measurement_values": np.full((steps, m), np.nan),
+            "measurement_dropped": np.zeros((steps, len(sensors)), dtype=bool),
+        }
+        self.sensors = sensors
+
+    def estimate(self, k: int, measurement: Measurement, estimate: Estimate, elapsed: float) -> None:
+        """Record step ``k``'s measurements and the estimate the controller gets."""
+        log = self.estimation
+        rows = self.sensors.rows(measurement.sensors)
+        log["estimated_states"][k] = estimate.state
+        log["estimated_currents"][k] = estimate.current
+        log["estimate_variances"][k] = np.diag(estimate.covariance)
+        log["innovations"][k, rows] = estimate.innovations
+        log["estimate_times"][k] = elapsed
+        log["measurement_values"][k, rows] = measurement.values
+        log["measurement_dropped"][k, list(measurement.dropped)] = True
 
     def controller_step(self, k: int, output: Any, elapsed: float) -> None:
         """Record step ``k``'s control and how it was obtained (an NMPC step record)."""
@@ -441,13 +652,19 @@ class _Log:
     ) -> ClosedLoopResult:
         """Return the run up to its last completed step."""
         n, s = self.completed, self.substeps
-        recorded = {}
+        recorded: dict[str, Any] = {}
+        if self.estimation:
+            recorded = {key: value[:n] for key, value in self.estimation.items()}
+            recorded["sensor_names"] = self.sensors.names
+            recorded["sensor_sizes"] = self.sensors.sizes
         if s:
-            recorded = {
-                # built from the control instants, so that substep_t[::s] is t exactly
-                "substep_t": np.append((times[:n, None] + self.dt / s * np.arange(s)).ravel(), times[n]),
-                "substep_states": self.path[: n * s + 1],
-            }
+            recorded.update(
+                {
+                    # built from the control instants, so that substep_t[::s] is t exactly
+                    "substep_t": np.append((times[:n, None] + self.dt / s * np.arange(s)).ravel(), times[n]),
+                    "substep_states": self.path[: n * s + 1],
+                }
+            )
         return ClosedLoopResult(
             t=times[: n + 1],
             states=self.states[: n + 1],

@@ -1,0 +1,30 @@
+"""State and current estimation: sensors as data, and estimators on the controller's own model.
+
+:class:`~uuv_ocp.estimation.sensors.Sensors` says what is measured, how often and how noisily;
+:class:`~uuv_ocp.estimation.base.Estimator` (``"ekf"``, ``"ukf"``) estimates the state and the
+ocean current from them on the problem's own discrete model (docs/estimation.md).
+"""
+
+from uuv_ocp.estimation.base import (
+    Estimate,
+    Estimator,
+    EstimatorOptions,
+    available_estimators,
+    register_estimator,
+)
+from uuv_ocp.estimation.ekf import ExtendedKalmanFilter
+from uuv_ocp.estimation.sensors import Measurement, Sensor, Sensors
+from uuv_ocp.estimation.ukf import UnscentedKalmanFilter
+
+__all__ = [
+    "Estimate",
+    "Estimator",
+    "EstimatorOptions",
+    "ExtendedKalmanFilter",
+    "Measurement",
+    "Sensor",
+    "Sensors",
+    "UnscentedKalmanFilter",
+    "available_estimators",
+    "register_estimator",
+]

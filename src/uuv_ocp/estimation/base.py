@@ -1,0 +1,464 @@
+"""What every estimator shares: the augmented model, options, the estimate record, the registry.
+
+The model is the controller's own discrete step ``x⁺ = F(x, u, p_stage, p_global)``
+(``problem.build().step``: RK4 or the collocation step the NMPC predicts with), with the state
+augmented by the ocean current ``c`` (the problem's stagewise parameter named
+``options.current_parameter``, ``"current"`` for a :class:`~uuv_ocp.TrackingProblem`: inertial,
+``layout.current_dim`` entries) and, if ``options.bias``, a bias ``b`` added to the control
+(a generalised-force bias when the controls are forces):
+
+    x⁺ = F(x, u + b, p_stage[current := c], p_global) + w_x
+    c⁺ = μ + a (c − μ) + w_c,   a = exp(−dt / τ)   (Gauss–Markov; random walk: a = 1)
+    b⁺ = b + w_b
+
+with ``w ~ N(0, Q)``, ``Q = diag(σ_x², q_c² dt | q_c² τ/2 (1 − a²), q_b² dt)``: the current's
+noise intensity ``q_c`` (m/s/√s) gives the same discrete variance as the continuous process over
+one step, and the Gauss–Markov model tends to the random walk as τ → ∞.  The other stagewise
+parameters (a reference, moving obstacles) do not enter a vehicle's dynamics and are held at
+zero; an :class:`~uuv_ocp.Ocp`'s own parameters are taken from ``parameters=``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK
+from uuv_ocp.build import Transcribed
+from uuv_ocp.estimation.sensors import Measurement, Sensors
+from uuv_ocp.native.buffered import BufferedFunction
+
+CURRENT_MODELS = ("random_walk", "gauss_markov")
+
+
+def _per_state(name: str, value: object, size: int) -> np.ndarray:
+    """Return ``size`` positive floats from one float or ``size`` of them."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        value = (float(value),) * size
+    return np.asarray(check.vector(name, value, size, positive=True))
+
+
+@dataclass(frozen=True)
+class EstimatorOptions:
+    """Noise model and tuning of an estimator (module doc: the augmented model).
+
+    Parameters
+    ----------
+    state_std : float or sequence of float
+        Process-noise standard deviation per control step on each state (its unit), > 0:
+        what the model misses over one step.  Default 1e-3.
+    initial_state_std : float or sequence of float
+        Standard deviation of the initial state estimate (its unit), > 0.  Default 0.1.
+    current_parameter : str
+        Name of the problem's stagewise parameter that is the ocean current; a problem without
+        it has no current in the state.
+    current_model : {"random_walk", "gauss_markov"}
+        How the current evolves.
+    current_std : float
+        Noise intensity ``q_c`` of the current (m/s/√s), > 0.  Default 0.01: the current may
+        drift by ≈ 0.08 m/s in a minute.
+    current_time_constant : float
+        Correlation time τ of the Gauss–Markov current (s), > 0.  Default 600.
+    current_mean : float
+        Mean μ of the Gauss–Markov current, each entry (m/s).  Default 0.
+    initial_current_std : float
+        Standard deviation of the initial current estimate (m/s), > 0.  Default 0.5.
+    bias : bool
+        Also estimate a bias added to the controls (a random walk).
+    bias_std : float
+        Noise intensity of the bias (control unit/√s), > 0.  Default 1.
+    initial_bias_std : float
+        Standard deviation of the initial bias (control unit), > 0.  Default 100.
+    alpha, beta, kappa : float
+        The UKF's Merwe scaled sigma points: spread α ∈ (0, 1], β = 2 optimal for Gaussian
+        priors, κ >= 0 secondary scaling; λ = α² (n + κ) − n.  The defaults α = 1, β = 2,
+        κ = 0 keep every weight non-negative (the predicted covariance stays positive
+        semi-definite; α = 1e-3, the textbook choice, gives a centre weight of −1e6 and loses
+        six digits to cancellation).
+    """
+
+    state_std: float | tuple[float, ...] = 1e-3
+    initial_state_std: float | tuple[float, ...] = 0.1
+    current_parameter: str = "current"
+    current_model: str = "random_walk"
+    current_std: float = 0.01
+    current_time_constant: float = 600.0
+    current_mean: float = 0.0
+    initial_current_std: float = 0.5
+    bias: bool = False
+    bias_std: float = 1.0
+    initial_bias_std: float = 100.0
+    alpha: float = 1.0
+    beta: float = 2.0
+    kappa: float = 0.0
+
+    def __post_init__(self) -> None:
+        """Check the scalar fields (``ValueError`` names the field); the per-state ones on use."""
+        set_field = object.__setattr__
+        check.choice("options.current_model", self.current_model, CURRENT_MODELS)
+        if not isinstance(self.current_parameter, str):
+            raise ValueError(
+                f"options.current_parameter must be a str, got {check.shown(self.current_parameter)}"
+            )
+        check.boolean("options.bias", self.bias)
+        for name in (
+            "current_std",
+            "current_time_constant",
+            "initial_current_std",
+            "bias_std",
+            "initial_bias_std",
+        ):
+            set_field(self, name, check.positive_float(f"options.{name}", getattr(self, name)))
+        set_field(self, "current_mean", check.finite_float("options.current_mean", self.current_mean))
+        alpha = check.positive_float("options.alpha", self.alpha)
+        if alpha > 1.0:
+            raise ValueError(f"options.alpha must lie in (0, 1], got {alpha}")
+        set_field(self, "alpha", alpha)
+        set_field(self, "beta", check.nonnegative_float("options.beta", self.beta))
+        set_field(self, "kappa", check.nonnegative_float("options.kappa", self.kappa))
+        for name in ("state_std", "initial_state_std"):
+            value = getattr(self, name)
+            if isinstance(value, (list, np.ndarray)):
+                set_field(self, name, tuple(float(v) for v in value))
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One estimate, after the measurements of a control step.
+
+    Attributes
+    ----------
+    step : int
+        Control step index.
+    state : numpy.ndarray, shape (nx,)
+        Estimated state.
+    current : numpy.ndarray, shape (nc,)
+        Estimated inertial current (m/s); empty without one.
+    bias : numpy.ndarray, shape (nb,)
+        Estimated control bias; empty unless ``options.bias``.
+    covariance : numpy.ndarray, shape (n, n)
+        Covariance of the augmented state ``[x, c, b]``.
+    sensors : tuple of int
+        Sensors whose measurements were used.
+    innovations : numpy.ndarray, shape (m,)
+        Measurement minus its prediction (angles wrapped), for those sensors' outputs in order.
+    innovation_covariance : numpy.ndarray, shape (m, m)
+        Its predicted covariance ``S`` (for NIS: ``yᵀ S⁻¹ y``).
+    """
+
+    step: int
+    state: np.ndarray
+    current: np.ndarray
+    bias: np.ndarray
+    covariance: np.ndarray
+    sensors: tuple[int, ...] = ()
+    innovations: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    innovation_covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+
+    @property
+    def augmented(self) -> np.ndarray:
+        """The augmented state ``[x, c, b]``."""
+        return np.concatenate([self.state, self.current, self.bias])
+
+
+def wrap(angles: np.ndarray) -> np.ndarray:
+    """Angles wrapped into (−π, π]."""
+    return np.pi - np.mod(np.pi - angles, 2.0 * np.pi)
+
+
+class AugmentedModel:
+    """The augmented discrete model of a problem (module doc), as CasADi expressions."""
+
+    def __init__(
+        self,
+        problem: Transcribed,
+        sensors: Sensors,
+        options: EstimatorOptions,
+        parameters: Mapping[str, Any] | None,
+    ) -> None:
+        spec = problem.spec()
+        self.spec = spec
+        nx, nu = spec.state_dim, spec.control_size
+        if sensors.state_dim != nx:
+            raise ValueError(
+                f"sensors must measure the problem's {nx} states, got sensors on {sensors.state_dim}"
+            )
+        offset, nc = 0, 0
+        for name, (_, size, stagewise) in spec.layout.entries.items():
+            if not stagewise:
+                continue
+            if name == options.current_parameter:
+                nc = size
+                break
+            offset += size
+        nb = nu if options.bias else 0
+        self.nx, self.nu, self.nc, self.nb = nx, nu, nc, nb
+        self.size = nx + nc + nb
+        self.dt = spec.dt
+        # the problem's own parameters (an Ocp's, its first node); a tracking problem's
+        # reference does not enter the dynamics and its current is a state here: zeros
+        from uuv_ocp.ocp import Ocp
+
+        if isinstance(problem, Ocp) and spec.layout.entries:
+            p = problem.parameters(np.zeros(nx), parameters)
+        elif parameters is not None:
+            raise ValueError(f"parameters is for an Ocp with parameters, got {check.shown(parameters)}")
+        else:
+            p = np.zeros(spec.layout.size)
+        self.p_global = np.concatenate(
+            [p[part] for part, _, stagewise in spec.layout.entries.values() if not stagewise] or [np.zeros(0)]
+        )
+        self.p_stage = np.concatenate(
+            [
+                p[part.start : part.start + size]
+                for part, size, stagewise in spec.layout.entries.values()
+                if stagewise
+            ]
+            or [np.zeros(0)]
+        )
+        state_std = _per_state("options.state_std", options.state_std, nx)
+        initial_std = _per_state("options.initial_state_std", options.initial_state_std, nx)
+        dt = spec.dt
+        if options.current_model == "gauss_markov":
+            tau = options.current_time_constant
+            self.decay = math.exp(-dt / tau)
+            current_variance = options.current_std**2 * tau / 2.0 * (1.0 - self.decay**2)
+        else:
+            self.decay = 1.0
+            current_variance = options.current_std**2 * dt
+        self.mean = options.current_mean
+        self.Q = np.diag(
+            np.concatenate(
+                [state_std**2, np.full(nc, current_variance), np.full(nb, options.bias_std**2 * dt)]
+            )
+        )
+        self.P0 = np.diag(
+            np.concatenate(
+                [
+                    initial_std**2,
+                    np.full(nc, options.initial_current_std**2),
+                    np.full(nb, options.initial_bias_std**2),
+                ]
+            )
+        )
+        with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
+            self.xa = ca.SX.sym("xa", self.size)
+            self.u = ca.SX.sym("u", nu)
+            self.ps = ca.SX.sym("p_stage", spec.stage_dim)
+            self.pg = ca.SX.sym("p_global", spec.global_dim)
+            x, c, b = self.xa[:nx], self.xa[nx : nx + nc], self.xa[nx + nc :]
+            stage = ca.vertcat(self.ps[:offset], c, self.ps[offset + nc :]) if nc else self.ps
+            step = problem.build().step
+            pieces = [step(x, self.u + b if nb else self.u, stage, self.pg)]
+            if nc:
+                pieces.append(self.mean + self.decay * (c - self.mean) if self.decay != 1.0 else c)
+            if nb:
+                pieces.append(b)
+            self.f = ca.vertcat(*pieces)
+            self.h = sensors.stacked()(x)
+            self.inputs = [self.xa, self.u, self.ps, self.pg]
+
+
+class Estimator:
+    """A state and current estimator on a problem's own model, chosen by name.
+
+    ``Estimator(problem, "ekf", sensors=...)`` returns the registered class of that name
+    (:func:`available_estimators`): ``"ekf"`` (:class:`~uuv_ocp.estimation.ekf.ExtendedKalmanFilter`)
+    or ``"ukf"`` (:class:`~uuv_ocp.estimation.ukf.UnscentedKalmanFilter`).
+
+    Parameters
+    ----------
+    problem : Ocp or TrackingProblem
+        The controller's problem: its built step is the model.
+    method : str
+        Registered estimator name.
+    sensors : Sensors
+        What is measured (their ``h`` are on the problem's state).
+    options : EstimatorOptions, optional
+        Noise model and tuning.
+    parameters : dict, optional
+        An Ocp's parameter values (as :meth:`Ocp.parameters <uuv_ocp.Ocp.parameters>`); the
+        first node's stagewise values are the model's.
+
+    Notes
+    -----
+    An estimator holds its mean and covariance (it is mutable, like an NMPC): :meth:`reset`
+    starts it, :meth:`correct` takes the measurements of a step, :meth:`predict` moves it
+    over one control interval, :meth:`step` does both.
+    """
+
+    name = "estimator"
+
+    def __new__(cls, problem: Any = None, method: str = "ekf", **_: Any) -> Any:
+        """Dispatch ``Estimator(problem, name, ...)`` to the class registered as ``name``."""
+        if cls is Estimator:
+            cls = _resolve(method)
+        return object.__new__(cls)
+
+    def __init__(
+        self,
+        problem: Transcribed,
+        method: str | None = None,
+        *,
+        sensors: Sensors,
+        options: EstimatorOptions | None = None,
+        parameters: Mapping[str, Any] | None = None,
+    ) -> None:
+        if not isinstance(problem, Transcribed):
+            raise ValueError(
+                f"problem must be a uuv_ocp.Ocp or TrackingProblem, got {type(problem).__name__}"
+            )
+        if not isinstance(sensors, Sensors):
+            raise ValueError(f"sensors must be a uuv_ocp.Sensors, got {type(sensors).__name__}")
+        options = EstimatorOptions() if options is None else options
+        if not isinstance(options, EstimatorOptions):
+            raise ValueError(
+                f"options must be a uuv_ocp.EstimatorOptions or None, got {type(options).__name__}"
+            )
+        self.problem, self.sensors, self.options = problem, sensors, options
+        self.model = AugmentedModel(problem, sensors, options, parameters)
+        self.R = sensors.std**2
+        self.angular = sensors.angular
+        self._rows: dict[tuple[int, ...], np.ndarray] = {}
+        self._angular_rows: dict[bytes, np.ndarray] = {}
+        self.x = np.zeros(self.model.size)
+        self.P = self.model.P0.copy()
+        self.steps = 0
+        self._build()
+
+    # ------------------------------------------------------------ subclasses
+    def _build(self) -> None:
+        raise NotImplementedError
+
+    def predict(self, u: object) -> None:
+        """Move the estimate over one control interval under the applied control ``u``."""
+        raise NotImplementedError
+
+    def _update(self, rows: np.ndarray, z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Correct with outputs ``rows`` of the stacked sensors measured as ``z``; (innovations, S)."""
+        raise NotImplementedError
+
+    # ---------------------------------------------------------------- shared
+    def rows(self, sensors: tuple[int, ...]) -> np.ndarray:
+        """Rows of the stacked sensor output of ``sensors`` (cached per combination)."""
+        rows = self._rows.get(sensors)
+        if rows is None:
+            rows = self._rows[sensors] = self.sensors.rows(sensors)
+        return rows
+
+    def reset(self, x0: object, current: object | None = None, covariance: object | None = None) -> None:
+        """Start from state ``x0`` (and ``current``, m/s; zero by default) with the prior covariance.
+
+        ``covariance`` (n × n, the augmented state's) replaces the options' initial one.
+        """
+        m = self.model
+        x = check.finite_array("x0", x0, (m.nx,))
+        c = np.zeros(m.nc) if current is None else check.finite_array("current", current, (m.nc,))
+        self.x = np.concatenate([x, c, np.zeros(m.nb)])
+        if covariance is None:
+            self.P = m.P0.copy()
+        else:
+            P = check.finite_array("covariance", covariance, (m.size, m.size))
+            if not np.allclose(P, P.T) or np.any(np.linalg.eigvalsh(0.5 * (P + P.T)) < 0):
+                raise ValueError("covariance must be symmetric positive semi-definite")
+            self.P = P.copy()
+        self.steps = 0
+        self._reset_hook()
+
+    def _reset_hook(self) -> None:
+        pass
+
+    def correct(self, measurement: Measurement) -> Estimate:
+        """Use the measurements of one step (only the sensors that reported) and return the estimate."""
+        if not isinstance(measurement, Measurement):
+            raise ValueError(f"measurement must be a uuv_ocp Measurement, got {type(measurement).__name__}")
+        rows = self.rows(measurement.sensors)
+        if measurement.values.shape != rows.shape:
+            raise ValueError(
+                f"measurement.values must have {rows.size} entries (the reporting sensors' outputs), "
+                f"got shape {measurement.values.shape}"
+            )
+        if rows.size:
+            innovations, S = self._update(rows, measurement.values)
+        else:
+            innovations, S = np.zeros(0), np.zeros((0, 0))
+        return self.estimate(measurement.step, measurement.sensors, innovations, S)
+
+    def step(self, u: object, measurement: Measurement) -> Estimate:
+        """:meth:`predict` under ``u``, then :meth:`correct` with ``measurement``."""
+        self.predict(u)
+        return self.correct(measurement)
+
+    def estimate(
+        self,
+        step: int = 0,
+        sensors: tuple[int, ...] = (),
+        innovations: np.ndarray | None = None,
+        S: np.ndarray | None = None,
+    ) -> Estimate:
+        """Return the current estimate as a record (copies)."""
+        m = self.model
+        return Estimate(
+            step,
+            self.x[: m.nx].copy(),
+            self.x[m.nx : m.nx + m.nc].copy(),
+            self.x[m.nx + m.nc :].copy(),
+            self.P.copy(),
+            sensors,
+            np.zeros(0) if innovations is None else innovations,
+            np.zeros((0, 0)) if S is None else S,
+        )
+
+    def _control(self, u: object) -> np.ndarray:
+        value = np.asarray(u, dtype=float) if not isinstance(u, np.ndarray) else u
+        if value.shape == (self.model.nu,) and np.isfinite(value).all():  # the hot path
+            return value
+        return check.finite_array("u", u, (self.model.nu,))
+
+    def _residual(self, rows: np.ndarray, z: np.ndarray, predicted: np.ndarray) -> np.ndarray:
+        y = z - predicted
+        angular = self._angular_rows.get(rows.tobytes())
+        if angular is None:
+            angular = self._angular_rows[rows.tobytes()] = np.flatnonzero(self.angular[rows])
+        if angular.size:
+            y[angular] = wrap(y[angular])
+        return y
+
+
+def buffered(name: str, inputs: list[ca.SX], outputs: list[ca.SX]) -> BufferedFunction:
+    """Return a zero-copy caller of a Function of ``outputs`` (one CasADi call per estimator step)."""
+    with BUILD_LOCK:  # dense outputs: a sparse one would make BufferedFunction wrap it in MX
+        function = ca.Function(name, inputs, [ca.densify(o) for o in outputs])
+    return BufferedFunction(function)
+
+
+# ------------------------------------------------------------------- registry
+_ESTIMATORS: dict[str, Callable[..., Any]] = {}
+
+
+def register_estimator(name: str, cls: type[Estimator], *, overwrite: bool = False) -> None:
+    """Register an :class:`Estimator` subclass under ``name`` (``Estimator(problem, name, ...)``)."""
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"name must be a non-empty str, got {check.shown(name)}")
+    if not (isinstance(cls, type) and issubclass(cls, Estimator)):
+        raise ValueError(f"cls must be a subclass of uuv_ocp.Estimator, got {cls!r}")
+    if name.lower() in _ESTIMATORS and not overwrite:
+        raise ValueError(f"estimator {name!r} is registered already (pass overwrite=True)")
+    _ESTIMATORS[name.lower()] = cls
+
+
+def available_estimators() -> list[str]:
+    """Names accepted by :class:`Estimator`, sorted."""
+    return sorted(_ESTIMATORS)
+
+
+def _resolve(method: object) -> Any:
+    if not isinstance(method, str) or method.lower() not in _ESTIMATORS:
+        raise ValueError(f"method must be one of {available_estimators()}, got {check.shown(method)}")
+    return _ESTIMATORS[method.lower()]

@@ -16,8 +16,10 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(PY) -m uuv_ocp.cli demo $(if $(FRESH),--fresh)
 
+# One BLAS thread: scipy's SLSQP (the slsqp backend) calls OpenBLAS on small matrices, where
+# its threads only contend with the suite's own processes (docs/benchmarks.md, "SLSQP").
 test: $(STAMP)
-	$(PY) -m pytest -q
+	OPENBLAS_NUM_THREADS=1 $(PY) -m pytest -q
 
 # The benchmarks get a venv of their own: mealpy (the reference implementation they compare
 # with) pins numpy<=1.26.0, which must not leak into the test environment.

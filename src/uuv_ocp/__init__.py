@@ -39,6 +39,7 @@ from uuv_ocp.solvers import (
     minimize,
     new_solver,
     register_solver,
+    register_swarm,
     solve,
 )
 from uuv_ocp.solvers.rti_export import generate_c
@@ -85,6 +86,7 @@ __all__ = [
     "minimize",
     "register_estimator",
     "register_solver",
+    "register_swarm",
     "rk4_step",
     "score",
     "simulate",

@@ -14,7 +14,7 @@ the same name as an attribute; import from the submodule with
 from uuv_ocp.optimize.gwo import GreyWolf, gwo_update
 from uuv_ocp.optimize.igwo import ImprovedGreyWolf, igwo_update
 from uuv_ocp.optimize.loop import MinimizeResult, PopulationAlgorithm
-from uuv_ocp.optimize.minimize import ALGORITHMS, available_methods, minimize
+from uuv_ocp.optimize.minimize import ALGORITHMS, available_methods, minimize, register_algorithm
 from uuv_ocp.optimize.pso import ParticleSwarm
 from uuv_ocp.optimize.schedules import (
     CONVERGENCE_FACTORS,
@@ -26,6 +26,7 @@ from uuv_ocp.optimize.ssa import SparrowSearch
 
 __all__ = [
     "ALGORITHMS",
+    "register_algorithm",
     "CONVERGENCE_FACTORS",
     "GreyWolf",
     "ImprovedGreyWolf",

@@ -11,7 +11,9 @@ of looping over individuals in Python.
 from __future__ import annotations
 
 import numbers
+import threading
 from collections.abc import Mapping
+from types import MappingProxyType
 from typing import Any
 
 import numpy as np
@@ -23,12 +25,37 @@ from uuv_ocp.optimize.loop import MinimizeResult, Objective, PopulationAlgorithm
 from uuv_ocp.optimize.pso import ParticleSwarm
 from uuv_ocp.optimize.ssa import SparrowSearch
 
-__all__ = ["ALGORITHMS", "available_methods", "minimize"]
+__all__ = ["ALGORITHMS", "available_methods", "minimize", "register_algorithm"]
 
-#: Registry name -> algorithm class.
-ALGORITHMS: Mapping[str, type[PopulationAlgorithm]] = {
+_LOCK = threading.Lock()
+_ALGORITHMS: dict[str, type[PopulationAlgorithm]] = {
     cls.name: cls for cls in (ImprovedGreyWolf, GreyWolf, SparrowSearch, ParticleSwarm)
 }
+#: Registry name -> algorithm class (a read-only view; :func:`register_algorithm` adds to it).
+ALGORITHMS: Mapping[str, type[PopulationAlgorithm]] = MappingProxyType(_ALGORITHMS)
+
+
+def register_algorithm(algorithm: type[PopulationAlgorithm], *, overwrite: bool = False) -> None:
+    """Make a population algorithm available to :func:`minimize` by its ``name``.
+
+    The swarm backends take it too once it is registered as a solver
+    (:func:`uuv_ocp.register_swarm` does both).
+
+    Raises
+    ------
+    ValueError
+        ``algorithm`` is not a :class:`~uuv_ocp.optimize.loop.PopulationAlgorithm` subclass,
+        its ``name`` is not a non-empty identifier, or the name is taken (``overwrite=False``).
+    """
+    if not (isinstance(algorithm, type) and issubclass(algorithm, PopulationAlgorithm)):
+        raise ValueError(f"algorithm must be a PopulationAlgorithm subclass, got {algorithm!r}")
+    name = algorithm.name
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ValueError(f"algorithm.name must be a non-empty identifier, got {name!r}")
+    with _LOCK:
+        if name in _ALGORITHMS and not overwrite:
+            raise ValueError(f"algorithm {name!r} is registered already (pass overwrite=True)")
+        _ALGORITHMS[name] = algorithm
 
 
 def available_methods() -> list[str]:

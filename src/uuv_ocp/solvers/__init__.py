@@ -28,7 +28,8 @@ from typing import Any
 from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import instance_parameters
-from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize
+from uuv_ocp.optimize import ALGORITHMS, MinimizeResult, minimize, register_algorithm
+from uuv_ocp.optimize.loop import PopulationAlgorithm
 from uuv_ocp.solvers.base import check_backend
 from uuv_ocp.solvers.fatrop import FatropSolver
 from uuv_ocp.solvers.hybrid import hybrid_factory
@@ -159,6 +160,18 @@ def register_solver(
     naming the missing member); what a factory function returns, when it is first built.
     """
     REGISTRY.register(name, factory, kind=kind, overwrite=overwrite)
+
+
+def register_swarm(algorithm: type[PopulationAlgorithm], *, overwrite: bool = False) -> None:
+    """Register a population algorithm as :func:`uuv_ocp.minimize` method *and* swarm backend.
+
+    One class (a :class:`~uuv_ocp.optimize.loop.PopulationAlgorithm` subclass with a ``name``)
+    becomes ``minimize(method=name)``, ``solve(problem, name)``, ``NMPC(problem, name)``, the
+    hybrids ``"name+<exact>"`` and every registry-iterating test, on the compiled population
+    evaluation of the problem like the built-in swarms.
+    """
+    register_algorithm(algorithm, overwrite=overwrite)
+    REGISTRY.register(algorithm.name, swarm_factory(algorithm.name), kind="swarm", overwrite=overwrite)
 
 
 def available_solvers() -> list[str]:
@@ -310,6 +323,7 @@ __all__ = [
     "SlsqpSolver",
     "SqpSolver",
     "SwarmSolver",
+    "register_swarm",
     "MinimizeResult",
     "minimize",
     "available_solvers",

@@ -310,3 +310,48 @@ def test_closed_loop_on_a_user_ocp_runs_on_the_estimate():
     # the position sensor reports at every step, the velocity one at 5 Hz when it does not drop out
     assert np.all(np.isfinite(run.measurements.values[:, 0]))
     assert np.all(np.isnan(run.measurements.values[1::2, 1]))
+
+
+def test_review_fixes_name_what_is_wrong():
+    """A misspelt current parameter, a method another class implements, and PSD rounding."""
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=5)
+    sensors = Sensors.auv(problem.vehicle)
+    with pytest.raises(ValueError, match="options.current_parameter must name a stagewise parameter"):
+        Estimator(problem, "ekf", sensors=sensors, options=EstimatorOptions(current_parameter="curent"))
+    from uuv_ocp.estimation.ekf import ExtendedKalmanFilter
+
+    with pytest.raises(ValueError, match="method 'ukf' names UnscentedKalmanFilter"):
+        ExtendedKalmanFilter(problem, "ukf", sensors=sensors)
+    estimator = Estimator(problem, "ekf", sensors=sensors)
+    estimator.reset(problem.initial_state())
+    covariance = estimator.P.copy()
+    covariance[0, 0] = -1e-18  # rounding below zero on a PSD matrix: accepted
+    estimator.reset(problem.initial_state(), covariance=covariance)
+    covariance[0, 0] = -1e-3
+    with pytest.raises(ValueError, match="covariance must be symmetric positive semi-definite"):
+        estimator.reset(problem.initial_state(), covariance=covariance)
+
+
+def test_ukf_square_root_survives_a_sensor_far_more_precise_than_the_prior():
+    from uuv_ocp.estimation.ukf import _square_root
+
+    vectors = np.linalg.qr(np.random.default_rng(0).normal(size=(4, 4)))[0]
+    broken = vectors @ np.diag([1e6, 1.0, 1e-6, -1e-10]) @ vectors.T  # lost definiteness to rounding
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(broken)
+    root = _square_root(broken)
+    np.testing.assert_allclose(root @ root.T, vectors @ np.diag([1e6, 1.0, 1e-6, 0.0]) @ vectors.T, atol=1e-8)
+
+
+def test_an_estimated_current_the_loop_cannot_hand_over_is_refused():
+    ocp = uo.Ocp(horizon=5, dt=0.1)
+    x = ocp.state("x")
+    u = ocp.control("u", lower=-1.0, upper=1.0)
+    current = ocp.parameter("current", stagewise=True)
+    ocp.set_der(x, u + current)
+    ocp.add_stage_cost(x**2 + u**2)
+    sensors = Sensors([Sensor.of_states("fix", [0], 1, 10.0, 0.01)])
+    estimator = Estimator(ocp, "ekf", sensors=sensors, parameters={"current": 0.0})
+    assert estimator.model.nc == 1
+    with pytest.raises(ValueError, match="estimator estimates a current of 1 entries"):
+        uo.simulate(uo.NMPC(ocp, "ipopt"), [1.0], 1.0, estimator=estimator, parameters={"current": 0.0})

@@ -200,3 +200,41 @@ def test_the_deprecated_aliases_warn_and_give_the_new_api_s_control(s2_problem, 
     with pytest.warns(DeprecationWarning, match=r"call NMPC\.feedback\(x\)\.control"):
         control = old.feedback_control(x)
     np.testing.assert_array_equal(control, new.feedback(x).control)
+
+
+class _NanPlan(_Plan):
+    """A broken plug-in's fast plan: its control is not a number."""
+
+    __slots__ = ()
+
+    def __init__(self, result):
+        super().__init__(result)
+        self.control = np.full_like(result.controls[0], np.nan)
+
+
+class _NanFast(_Fast):
+    name = "nan-fast"
+
+    def feedback(self, p, warm_start):
+        self.plans.append(_NanPlan(_plan_result(self.problem, p, self.name)))
+        return self.plans[-1]
+
+
+def test_a_fast_plan_that_is_not_a_number_is_never_applied(s2_problem):
+    REGISTRY.register(_NanFast.name, _NanFast, overwrite=True)
+    try:
+        controller = uo.NMPC(s2_problem, "nan-fast")
+        record = controller.step(s2_problem.reference.initial_state(0.0), 0.0, np.zeros(3), np.zeros(2))
+    finally:
+        REGISTRY._factories.pop(_NanFast.name, None)
+    assert np.all(np.isfinite(record.control)) and not record.fast_path
+
+
+def test_a_bad_state_in_feedback_keeps_the_preparation_for_a_retry(s2_problem, registered):
+    controller = uo.NMPC(s2_problem, "fast")
+    x = s2_problem.reference.initial_state(0.0)
+    controller.prepare(0.0, np.zeros(3), np.zeros(2))
+    with pytest.raises(ValueError, match="x0"):
+        controller.feedback(np.full(6, np.nan))
+    record = controller.feedback(x)  # prepare()'s arguments were not consumed by the bad call
+    assert np.all(np.isfinite(record.control))

@@ -114,3 +114,16 @@ def test_slsqp_stops_at_the_deadline(tiny, monkeypatch):
     assert not result.success and result.details["deadline_hit"] is True
     ((_, status, iterations),) = result.details["attempts"]
     assert status.startswith("stopped by the deadline") and iterations <= 1
+
+
+def test_a_used_slsqp_solver_gives_a_fresh_ones_answer(tiny):
+    """Its constraint cache is keyed on the instance too: no values of the previous p."""
+    x0 = tiny.initial_state()
+    p1 = tiny.parameters(x0, 0.0)
+    p2 = tiny.parameters(x0 + np.array([0.2, -0.1, 0.05, 0.0, 0.0, 0.0]), 0.0)
+    used = uo.new_solver(tiny, "slsqp")
+    first = used.solve(p1)
+    again = used.solve(p2, first.iterate)  # starts where the p1 solve stopped
+    fresh = uo.new_solver(tiny, "slsqp").solve(p2, first.iterate)
+    np.testing.assert_array_equal(again.controls, fresh.controls)
+    assert again.iterations == fresh.iterations

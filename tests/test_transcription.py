@@ -101,3 +101,16 @@ def test_registration_checks_the_protocol_and_the_name():
         uo.Ocp(transcription="pseudospectral")
     with pytest.raises(ValueError, match="no degree"):
         uo.Ocp(transcription="trapezoidal", degree=2)
+
+
+def test_a_strategy_registered_again_under_its_name_gets_builds_of_its_own():
+    class Other(Trapezoidal):
+        """The same rule under another class: equal problems, another content key."""
+
+    before = lq_ocp().spec().key
+    register_transcription(Other(), overwrite=True)
+    try:
+        assert lq_ocp().spec().key != before
+    finally:
+        register_transcription(Trapezoidal(), overwrite=True)
+    assert lq_ocp().spec().key == before

@@ -774,7 +774,14 @@ def _freeze(ocp: Ocp) -> OcpSpec:
         rate_penalty=ocp.rate_penalty,
         layout=layout,
     )
-    return OcpSpec(**spec_fields, key=_content_key(spec_fields))
+    # the strategy's class is part of the content: a name registered again (overwrite=True)
+    # for another strategy does not reuse the old one's builds
+    strategy = type(transcription(ocp.transcription))
+    keyed = {
+        **spec_fields,
+        "transcription": f"{ocp.transcription}:{strategy.__module__}.{strategy.__qualname__}",
+    }
+    return OcpSpec(**spec_fields, key=_content_key(keyed))
 
 
 def _layout(ocp: Ocp, globals_: list[Declared], stagewise: list[Declared]) -> ParameterLayout:

@@ -45,11 +45,13 @@ from typing import Any
 
 import numpy as np
 
+from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp._validation import shown
 from uuv_ocp.model.base import check_vehicle
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
+from uuv_ocp.solvers.base import reraise_interrupt
 
 AnyVehicle = Vehicle | Vehicle6DOF
 
@@ -182,21 +184,21 @@ def vehicle_from_class(path: Path, class_name: str) -> Any:
     sys.modules[module_name] = module
     try:
         module_spec.loader.exec_module(module)
-    except KeyboardInterrupt:
+    except BaseException as error:  # the user's code: its error, named, as a bad --vehicle
         del sys.modules[module_name]
-        raise
-    except Exception as error:  # the user's code: its error, named, as a bad --vehicle
-        del sys.modules[module_name]
+        reraise_interrupt(error)  # Ctrl-C (CasADi reports it as a RuntimeError) stays one
+        if not isinstance(error, Exception):
+            raise
         raise ValueError(f"vehicle file {str(path)!r} raised {type(error).__name__}: {error}") from error
     factory = getattr(module, class_name, None)
     if not callable(factory):
         found = sorted(name for name, value in vars(module).items() if isinstance(value, type))
         raise ValueError(f"vehicle file {str(path)!r} has no class {class_name!r}; its classes: {found}")
     try:
-        vehicle = factory()
-    except KeyboardInterrupt:
-        raise
+        with BUILD_LOCK:  # a vehicle may build CasADi Functions as it is made (uuv_ocp._concurrency)
+            vehicle = factory()
     except Exception as error:
+        reraise_interrupt(error)
         raise ValueError(f"{class_name}() of {str(path)!r} raised {type(error).__name__}: {error}") from error
     return check_vehicle(f"vehicle {class_name} of {path}", vehicle)
 

@@ -83,6 +83,7 @@ import numpy as np
 from scipy.optimize import lsq_linear
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE, instance_parameters, score_terms
 from uuv_ocp.solvers import REGISTRY, new_solver
@@ -393,12 +394,15 @@ class NMPC:
         """Consume :meth:`prepare`'s arguments: the last control and the instance at state ``x``."""
         if self._pending is None:
             raise ValueError("NMPC.feedback(x) needs NMPC.prepare(t, u_prev, ...) first (or call step)")
-        (t, u_prev, current, parameters), self._pending = self._pending, None
+        t, u_prev, current, parameters = self._pending
+        # the instance is made (and x checked) before prepare()'s arguments are consumed: a bad
+        # x raises and a retry with a good one still finds them
         if self._prepared_p is not None:  # the instance of prepare(), its guessed state replaced
             p = self.problem.with_state(self._prepared_p, x)
             self._prepared_p = None
         else:
             p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
+        self._pending = None
         return u_prev, p
 
     def _solve_step(self, p: np.ndarray, u_prev: object | None) -> StepRecord:
@@ -420,7 +424,8 @@ class NMPC:
             failure_reason = f"exception: {type(error).__name__}: {error}"
         else:
             if preparable and isinstance(outcome, DeferredPlan):
-                if self._holds_path_constraints(outcome, p):  # judged on path-constrained problems
+                finite = bool(np.all(np.isfinite(outcome.control)))  # a plug-in's NaN is no plan
+                if finite and self._holds_path_constraints(outcome, p):  # judged where paths bind
                     self._deferred = outcome  # its iterate and plan are built when needed
                     control = self._admissible(outcome.control, u_prev)
                     return StepRecord(control, outcome, False, fast_path=outcome.path)
@@ -630,6 +635,21 @@ class NMPC:
             plan[k] = previous
         return plan
 
+    @staticmethod
+    def _steady_function(spec: Any) -> tuple[ca.Function, np.ndarray]:
+        """Return ``(x, u, p) -> (f_v, ∂f_v/∂u)`` of the control-driven dynamics rows ``v``, and ``v``."""
+        x = ca.SX.sym("x", spec.state_dim)
+        u = ca.SX.sym("u", spec.control_size)
+        parameters = ca.SX.sym("p", spec.layout.size)
+        _, _, pg, nodes = parameter_blocks(spec, parameters)
+        rate = spec.dynamics(x, u, nodes[0], pg)
+        jacobian = ca.jacobian(rate, u)
+        rows = np.unique(np.array(jacobian.sparsity().get_triplet()[0], dtype=int))
+        if rows.size == 0:  # the controls drive nothing directly: nothing to hold
+            rows = np.arange(spec.state_dim)
+        function = ca.Function("steady_control", [x, u, parameters], [rate[rows], jacobian[rows, :]])
+        return function, rows
+
     def _steady_control(self, p: np.ndarray, start: np.ndarray) -> np.ndarray | None:
         """Return the steady control of ``p`` (module doc), clipped to the box; ``None`` if not finite.
 
@@ -640,17 +660,8 @@ class NMPC:
         """
         spec = self.problem.spec()
         if self._steady is None:
-            x = ca.SX.sym("x", spec.state_dim)
-            u = ca.SX.sym("u", spec.control_size)
-            parameters = ca.SX.sym("p", spec.layout.size)
-            _, _, pg, nodes = parameter_blocks(spec, parameters)
-            rate = spec.dynamics(x, u, nodes[0], pg)
-            jacobian = ca.jacobian(rate, u)
-            rows = np.unique(np.array(jacobian.sparsity().get_triplet()[0], dtype=int))
-            if rows.size == 0:  # the controls drive nothing directly: nothing to hold
-                rows = np.arange(spec.state_dim)
-            function = ca.Function("steady_control", [x, u, parameters], [rate[rows], jacobian[rows, :]])
-            self._steady = (function, rows)
+            with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
+                self._steady = self._steady_function(spec)
         function, rows = self._steady
         state = np.array(p[spec.layout.x0], dtype=float)
         if isinstance(self.problem, TrackingProblem):  # hold the reference's velocities

@@ -457,6 +457,15 @@ def simulate(
     # current is then zero); a time-invariant problem is always asked at t = 0
     told = currents if current_known else np.zeros_like(currents)
     estimated = estimator is not None and not current_known and nc > 0
+    if estimator is not None and not current_known and estimator.model.nc != nc:
+        # e.g. an Ocp whose "current" parameter the estimator estimates: the loop has no channel
+        # to hand it to the controller (its current is in parameters=), so say so
+        raise ValueError(
+            f"estimator estimates a current of {estimator.model.nc} entries but this closed loop "
+            f"passes the controller a current of {nc} (an Ocp takes its data in parameters=); "
+            "set options.current_parameter to a stagewise parameter the loop hands over, or "
+            "current_known=True"
+        )
     clock = times if run.time_varying else np.zeros_like(times)
     known = {"parameters": parameters} if parameters is not None else {}
     log = _Log(x0, steps, spec.control_size, plant_substeps if record_substeps else 0, dt)

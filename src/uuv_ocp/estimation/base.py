@@ -55,9 +55,10 @@ class EstimatorOptions:
         what the model misses over one step.  Default 1e-3.
     initial_state_std : float or sequence of float
         Standard deviation of the initial state estimate (its unit), > 0.  Default 0.1.
-    current_parameter : str
-        Name of the problem's stagewise parameter that is the ocean current; a problem without
-        it has no current in the state.
+    current_parameter : str or None
+        Name of the problem's stagewise parameter that is the ocean current (a name that is no
+        stagewise parameter of the problem is refused); ``None`` (default): ``"current"`` where
+        the problem has it, else no current in the state.
     current_model : {"random_walk", "gauss_markov"}
         How the current evolves.
     current_std : float
@@ -85,7 +86,7 @@ class EstimatorOptions:
 
     state_std: float | tuple[float, ...] = 1e-3
     initial_state_std: float | tuple[float, ...] = 0.1
-    current_parameter: str = "current"
+    current_parameter: str | None = None
     current_model: str = "random_walk"
     current_std: float = 0.01
     current_time_constant: float = 600.0
@@ -102,9 +103,9 @@ class EstimatorOptions:
         """Check the scalar fields (``ValueError`` names the field); the per-state ones on use."""
         set_field = object.__setattr__
         check.choice("options.current_model", self.current_model, CURRENT_MODELS)
-        if not isinstance(self.current_parameter, str):
+        if self.current_parameter is not None and not isinstance(self.current_parameter, str):
             raise ValueError(
-                f"options.current_parameter must be a str, got {check.shown(self.current_parameter)}"
+                f"options.current_parameter must be a str or None, got {check.shown(self.current_parameter)}"
             )
         check.boolean("options.bias", self.bias)
         for name in (
@@ -189,11 +190,19 @@ class AugmentedModel:
             raise ValueError(
                 f"sensors must measure the problem's {nx} states, got sensors on {sensors.state_dim}"
             )
+        stagewise_names = [name for name, (_, _, stagewise) in spec.layout.entries.items() if stagewise]
+        wanted = options.current_parameter
+        if wanted is not None and wanted not in stagewise_names:
+            raise ValueError(
+                f"options.current_parameter must name a stagewise parameter of the problem "
+                f"{stagewise_names}, got {wanted!r}"
+            )
+        wanted = wanted or "current"
         offset, nc = 0, 0
         for name, (_, size, stagewise) in spec.layout.entries.items():
             if not stagewise:
                 continue
-            if name == options.current_parameter:
+            if name == wanted:
                 nc = size
                 break
             offset += size
@@ -253,7 +262,9 @@ class AugmentedModel:
             self.ps = ca.SX.sym("p_stage", spec.stage_dim)
             self.pg = ca.SX.sym("p_global", spec.global_dim)
             x, c, b = self.xa[:nx], self.xa[nx : nx + nc], self.xa[nx + nc :]
-            stage = ca.vertcat(self.ps[:offset], c, self.ps[offset + nc :]) if nc else self.ps
+            # empty slices of an SX are 1-by-0 rows, which vertcat does not skip: leave them out
+            parts = (self.ps[:offset], c, self.ps[offset + nc :])
+            stage = ca.vertcat(*[part for part in parts if part.numel()]) if nc else self.ps
             step = problem.build().step
             pieces = [step(x, self.u + b if nb else self.u, stage, self.pg)]
             if nc:
@@ -321,8 +332,14 @@ class Estimator:
             raise ValueError(
                 f"options must be a uuv_ocp.EstimatorOptions or None, got {type(options).__name__}"
             )
+        if method is not None and _resolve(method) is not type(self):
+            raise ValueError(
+                f"method {method!r} names {_resolve(method).__name__}, not this class {type(self).__name__}; "
+                f"call uo.Estimator(problem, {method!r}, ...)"
+            )
         self.problem, self.sensors, self.options = problem, sensors, options
-        self.model = AugmentedModel(problem, sensors, options, parameters)
+        with BUILD_LOCK:  # CasADi Functions are built here (uuv_ocp._concurrency)
+            self.model = AugmentedModel(problem, sensors, options, parameters)
         self.R = sensors.std**2
         self.angular = sensors.angular
         self._rows: dict[tuple[int, ...], np.ndarray] = {}
@@ -330,7 +347,8 @@ class Estimator:
         self.x = np.zeros(self.model.size)
         self.P = self.model.P0.copy()
         self.steps = 0
-        self._build()
+        with BUILD_LOCK:
+            self._build()
 
     # ------------------------------------------------------------ subclasses
     def _build(self) -> None:
@@ -365,7 +383,9 @@ class Estimator:
             self.P = m.P0.copy()
         else:
             P = check.finite_array("covariance", covariance, (m.size, m.size))
-            if not np.allclose(P, P.T) or np.any(np.linalg.eigvalsh(0.5 * (P + P.T)) < 0):
+            eigenvalues = np.linalg.eigvalsh(0.5 * (P + P.T))
+            # rounding-level negative eigenvalues (a covariance read back from an Estimate) pass
+            if not np.allclose(P, P.T) or eigenvalues.min() < -1e-12 * max(1.0, eigenvalues.max()):
                 raise ValueError("covariance must be symmetric positive semi-definite")
             self.P = P.copy()
         self.steps = 0

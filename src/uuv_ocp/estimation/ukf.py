@@ -46,7 +46,7 @@ class UnscentedKalmanFilter(Estimator):
 
     def sigma_points(self, x: np.ndarray, P: np.ndarray) -> np.ndarray:
         """Return the 2n + 1 sigma points of ``(x, P)`` as columns (module doc)."""
-        L = np.linalg.cholesky(self.scale * P)
+        L = _square_root(self.scale * P)
         return np.hstack([x[:, None], x[:, None] + L, x[:, None] - L])
 
     def predict(self, u: object) -> None:
@@ -86,3 +86,19 @@ class UnscentedKalmanFilter(Estimator):
 
 
 register_estimator("ukf", UnscentedKalmanFilter)
+
+
+def _square_root(matrix: np.ndarray) -> np.ndarray:
+    """Return ``L`` with ``L Lᵀ = matrix``: Cholesky, or the eigen-square-root of its PSD part.
+
+    ``P − K S Kᵀ`` can lose definiteness to rounding when a sensor is far more precise than
+    the prior; its negative eigenvalues (rounding) are then clipped to zero instead of stopping
+    the filter (the EKF's Joseph form keeps definiteness by construction).
+    """
+    try:
+        root: np.ndarray = np.linalg.cholesky(matrix)
+        return root
+    except np.linalg.LinAlgError:
+        values, vectors = np.linalg.eigh(0.5 * (matrix + matrix.T))
+        clipped: np.ndarray = vectors * np.sqrt(np.clip(values, 0.0, None))
+        return clipped

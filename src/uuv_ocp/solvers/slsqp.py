@@ -110,7 +110,8 @@ class _Oracle:
         return float(value), np.asarray(gradient).ravel()
 
     def _constraints(self, w: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        key = w.tobytes()
+        # keyed on the instance too: a solve of another p may start where the last one stopped
+        key = w.tobytes() + self.p.tobytes()
         if key != self._at:  # scipy asks for the equalities, then the inequalities, at one point
             value, jacobian = self._g(w, self.p)
             self._g_value, self._g_jacobian = np.asarray(value).ravel(), np.asarray(ca.densify(jacobian))

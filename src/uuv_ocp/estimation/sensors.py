@@ -47,6 +47,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK
 
 #: Largest denominator of the fractions ``dt`` and ``rate`` are rounded to (module doc).
 SCHEDULE_DENOMINATOR = 1_000_000
@@ -141,8 +142,9 @@ class Sensor:
             for i in chosen
         ):
             raise ValueError(f"indices must be state indices in [0, {state_dim}), got {indices!r}")
-        x = ca.SX.sym("x", state_dim)
-        function = ca.Function(f"h_{name}", [x], [x[chosen]], ["x"], ["y"])
+        with BUILD_LOCK:  # CasADi Functions are built here (uuv_ocp._concurrency)
+            x = ca.SX.sym("x", state_dim)
+            function = ca.Function(f"h_{name}", [x], [x[chosen]], ["x"], ["y"])
         spread = (float(std),) * len(chosen) if isinstance(std, (int, float)) else tuple(std)
         return cls(name, function, rate, spread, **options)
 
@@ -251,8 +253,10 @@ class Sensors:
 
     def stacked(self) -> ca.Function:
         """``h_all(x) -> y`` stacking every sensor's output (what estimators linearise)."""
-        x = ca.SX.sym("x", self.state_dim)
-        return ca.Function("h_all", [x], [ca.vertcat(*[s.function(x) for s in self.items])], ["x"], ["y"])
+        with BUILD_LOCK:  # CasADi Functions are built here (uuv_ocp._concurrency)
+            x = ca.SX.sym("x", self.state_dim)
+            outputs = ca.vertcat(*[s.function(x) for s in self.items])
+            return ca.Function("h_all", [x], [outputs], ["x"], ["y"])
 
     @property
     def std(self) -> np.ndarray:

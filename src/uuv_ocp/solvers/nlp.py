@@ -534,9 +534,9 @@ class NlpSolver:
         key = (variant, stage, still_water)
         if key not in self._solvers:
             data = self.variants[variant]
-            # ad_weight 1: constraint Jacobians by reverse-mode AD, 18 % fewer virtual-machine
-            # instructions than CasADi's automatic choice on this NLP (RexROV, N = 20: fatrop's
-            # nlp_jac_g 29.6 k -> 24.4 k, sqp's nlp_jac_fg 31.0 k -> 25.8 k; same values)
+            # ad_weight 1: constraint Jacobians by reverse-mode AD, fewer virtual-machine
+            # instructions than CasADi's automatic choice on these stagewise NLPs, same values
+            # (docs/solvers.md, "ad_weight")
             options: dict[str, Any] = {
                 "print_time": False,
                 "error_on_fail": False,

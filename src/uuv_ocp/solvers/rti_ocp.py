@@ -70,9 +70,8 @@ OCP_QP_DEFAULTS: dict[str, Any] = {
     #: try the QP with its equalities alone first (one Riccati recursion; see the module doc)
     "equality_first": True,
 }
-#: ``cond_horizon="auto"``: partial condensing to ``horizon // 4`` stages from this horizon on
-#: (s2, N = 20 → 5 stages: 0.19 against 0.24 ms per step in C with the native BLASFEO, 0.58
-#: against 0.86 ms per QP with the wheel's, same settled error; see docs/solvers.md)
+#: ``cond_horizon="auto"``: partial condensing to ``horizon // 4`` stages from this horizon on,
+#: faster than none at the same settled error on s2 (docs/solvers.md, the condensing table)
 AUTO_CONDENSING_FROM = 8
 #: converged mode: residuals 1e-10, as ``HPIPM_DEFAULTS`` of the ``"hpipm"`` path (with 1e-6 the
 #: converged point moved by ~1e-6 from IPOPT's optimum; see solvers/rti.py), in ``balance`` mode:

@@ -155,13 +155,12 @@ class SqpSolver(NlpSolver):
     name = "sqp"
     plugin = "sqpmethod"
     # On references the vehicle cannot follow (s8, s9) the soft problem is solved at every
-    # step; with ρ = 1e4 sqpmethod cycles between two points (failed line searches) on 135 of
-    # 300 steps of s8, with ρ = 1e6 on 50 — but ρ = 1e6 from the start costs failures on the
-    # trackable references (measured).  So ρ = 1e4 first, escalated only on failure.
-    # Soft variants only (measured on s8 / s9, 30 s closed loop; see docs/solvers.md):
+    # step; a small ρ lets sqpmethod cycle between two points (failed line searches), a large
+    # one from the start costs failures on the trackable references.  So ρ = 1e4 first,
+    # escalated only on failure.  Soft variants only (docs/solvers.md, the SQP table):
     # QRQP declares "Converged" on degenerate soft QPs with |pr| > 1 (steps outside the
-    # thrust bounds), so the soft QPs go to HPIPM; a longer line search (15), ρ escalated
-    # ×100 then ×1e4, and (μ/2) Σ s² with μ = 1e4 on the slacks: 44 / 36 -> 24 / 27 failures.
+    # thrust bounds), so the soft QPs go to HPIPM; a longer line search, ρ escalated ×100
+    # then ×1e4, and (μ/2) Σ s² with μ = 1e4 on the slacks halve the failures there.
     # The rest is genuine SQP cycling: the Gauss–Newton Hessian omits the dynamics' curvature
     # weighted by multipliers of size ρ, which dominates once the terminal penalty is active.
     # (defaults in SQP_OPTIONS: penalty_escalation (100, 1e4), slack_curvature 1e4,
@@ -177,7 +176,7 @@ class SqpSolver(NlpSolver):
         defaults: dict[str, Any] = {
             "qpsol": "qrqp",
             # QRQP's own default (1000 active-set iterations) let an infeasible QP from rest
-            # take 8.7 s; 100 bounds the worst step to < 1 s (measured on s2)
+            # take seconds; 100 bounds the worst step (docs/solvers.md, the SQP table)
             "qpsol_options": {
                 "print_iter": False,
                 "print_header": False,

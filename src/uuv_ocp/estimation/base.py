@@ -394,8 +394,8 @@ class Estimator:
     def _reset_hook(self) -> None:
         pass
 
-    def correct(self, measurement: Measurement) -> Estimate:
-        """Use the measurements of one step (only the sensors that reported) and return the estimate."""
+    def measured_rows(self, measurement: object) -> np.ndarray:
+        """Return the rows of the stacked outputs ``measurement`` fills; ``ValueError`` if it does not fit."""
         if not isinstance(measurement, Measurement):
             raise ValueError(f"measurement must be a uuv_ocp Measurement, got {type(measurement).__name__}")
         rows = self.rows(measurement.sensors)
@@ -404,6 +404,11 @@ class Estimator:
                 f"measurement.values must have {rows.size} entries (the reporting sensors' outputs), "
                 f"got shape {measurement.values.shape}"
             )
+        return rows
+
+    def correct(self, measurement: Measurement) -> Estimate:
+        """Use the measurements of one step (only the sensors that reported) and return the estimate."""
+        rows = self.measured_rows(measurement)
         if rows.size:
             innovations, S = self._update(rows, measurement.values)
         else:

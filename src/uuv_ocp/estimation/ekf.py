@@ -75,14 +75,7 @@ class ExtendedKalmanFilter(Estimator):
 
     def step(self, u: object, measurement: Measurement) -> Estimate:
         """:meth:`predict` under ``u`` and :meth:`correct` with ``measurement``, in one CasADi call."""
-        if not isinstance(measurement, Measurement):
-            raise ValueError(f"measurement must be a uuv_ocp Measurement, got {type(measurement).__name__}")
-        rows = self.rows(measurement.sensors)
-        if measurement.values.shape != rows.shape:
-            raise ValueError(
-                f"measurement.values must have {rows.size} entries (the reporting sensors' outputs), "
-                f"got shape {measurement.values.shape}"
-            )
+        rows = self.measured_rows(measurement)
         if not rows.size:
             self.predict(u)
             return self.estimate(measurement.step)

@@ -74,14 +74,18 @@ def main(
     duration: float = 30.0,
     horizon: int = 20,
     out: str | Path | None = "out/obstacles.png",
+    options: dict[str, dict] | None = None,
 ) -> dict[str, dict[str, Outcome]]:
-    """Run every course with every solver; print the table; write the figure if ``out``."""
+    """Run every course with every solver; print the table; write the figure if ``out``.
+
+    ``options`` maps a solver name to its options (default: each solver's own).
+    """
     results: dict[str, dict[str, Outcome]] = {}
     print(f"{'vehicle':<16}{'solver':<13}{'obstacle m':>11}{'margin m':>10}{'fail':>6}{'median ms':>11}")
     for course in courses(horizon):
         results[course.name] = {}
         for solver in solvers:
-            controller = uo.NMPC(course.problem, solver, seed=1)
+            controller = uo.NMPC(course.problem, solver, options=(options or {}).get(solver), seed=1)
             run = uo.simulate(controller, course.x0, duration=duration, record_substeps=True)
             outcome = Outcome(
                 run,

@@ -228,7 +228,11 @@ def test_obstacles_example_never_collides_at_any_plant_step(tmp_path, capsys):
     """
     module = load("obstacles")
     solvers = ("sqp", "igwo+sqp")
-    results = module.main(solvers=solvers, duration=12.0, horizon=15, out=tmp_path / "obstacles.png")
+    # a small swarm keeps the test short: what is checked is the plant path, not the swarm
+    small = {"igwo+sqp": {"swarm": {"population": 10, "iterations": 10}}}
+    results = module.main(
+        solvers=solvers, duration=12.0, horizon=15, out=tmp_path / "obstacles.png", options=small
+    )
     assert (tmp_path / "obstacles.png").stat().st_size > 1000
     printed = capsys.readouterr().out
     for course in module.courses():

@@ -208,24 +208,51 @@ def test_tracking_problem_state_is_augmented_with_the_layout_current():
     assert estimate.bias.shape == (3,)
 
 
-@pytest.fixture(scope="module")
-def offset_runs():
-    """s2 (RexROV) under a constant current of 0.8 m/s unknown to the controller: EKF vs naive."""
-    vehicle = uo.Vehicle.rexrov()
-    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=10)
-    # precise sensors, so that the estimate's own noise (not the offset) is far below the naive offset
-    sensors = uo.Sensors(
+def _precise_sensors():
+    """Precise sensors, so that the estimate's own noise (not the offset) is far below the naive offset."""
+    return uo.Sensors(
         [
             uo.Sensor.of_states("pose", [0, 1, 2], 6, 10.0, (1e-3, 1e-3, 5e-4), angular=(False, False, True)),
             uo.Sensor.of_states("dvl", [3, 4, 5], 6, 10.0, (1e-3, 1e-3, 5e-4)),
         ]
     )
+
+
+@pytest.fixture(scope="module")
+def offset_runs():
+    """s2 (RexROV) under a constant current of 0.8 m/s unknown to the controller: EKF vs naive."""
+    vehicle = uo.Vehicle.rexrov()
+    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=10)
+    sensors = _precise_sensors()
     x0, current = problem.reference.initial_state(0.0), uo.Current(0.8, 1.0)
     estimator = uo.Estimator(problem, "ekf", sensors=sensors)
     common = dict(x0=x0, duration=30.0, current=current, seed=1)
     estimated = uo.simulate(uo.NMPC(problem, "sqp-rti"), estimator=estimator, **common)
     naive = uo.simulate(uo.NMPC(problem, "sqp-rti"), current_known=False, **common)
     return estimated, naive
+
+
+def test_an_estimator_that_models_no_current_leaves_the_controller_naive(offset_runs):
+    estimated, naive = offset_runs
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=10)
+    options = uo.EstimatorOptions(current_model="none")
+    blind = uo.Estimator(problem, "ekf", sensors=_precise_sensors(), options=options)
+    assert blind.model.nc == 0 and blind.model.size == 6
+    run = uo.simulate(
+        uo.NMPC(problem, "sqp-rti"),
+        x0=problem.reference.initial_state(0.0),
+        duration=30.0,
+        current=uo.Current(0.8, 1.0),
+        seed=1,
+        estimator=blind,
+    )
+    assert run.estimates.currents.shape == (run.controls.shape[0], 0)
+    offset = np.linalg.norm(run.errors[-100:].mean(axis=0))
+    naive_offset = np.linalg.norm(naive.errors[-100:].mean(axis=0))
+    # on estimated states the controller keeps the naive controller's offset (the filter takes
+    # the current's push for process noise), ten times what the current-estimating loop leaves
+    assert offset > 0.5 * naive_offset
+    assert offset > 10 * np.linalg.norm(estimated.errors[-100:].mean(axis=0))
 
 
 def test_offset_free_nmpc_with_the_ekf_removes_the_naive_controllers_offset(offset_runs):

@@ -380,8 +380,9 @@ def simulate(
     current_known : bool, optional
         Whether the controller's model is told the true current at each step (the oracle).
         Default: ``True`` without an estimator, ``False`` with one (the controller is then
-        told the estimated current); ``False`` without an estimator: told no current (the
-        naive controller).
+        told the estimated current); ``False`` without an estimator, or with one that models
+        no current (``EstimatorOptions(current_model="none")``): told no current (the naive
+        controller).
     noise : MeasurementNoise, optional
         Noise on the state the controller sees (one standard deviation per state); not with
         an estimator (its sensors have their own noise).
@@ -456,8 +457,9 @@ def simulate(
     # what the controller's model is told: the measured current, or none (the instance's
     # current is then zero); a time-invariant problem is always asked at t = 0
     told = currents if current_known else np.zeros_like(currents)
-    estimated = estimator is not None and not current_known and nc > 0
-    if estimator is not None and not current_known and estimator.model.nc != nc:
+    # an estimator that models no current (current_model="none") leaves the controller naive
+    estimated = estimator is not None and not current_known and nc > 0 and estimator.model.nc > 0
+    if estimated and estimator is not None and estimator.model.nc != nc:
         # e.g. an Ocp whose "current" parameter the estimator estimates: the loop has no channel
         # to hand it to the controller (its current is in parameters=), so say so
         raise ValueError(

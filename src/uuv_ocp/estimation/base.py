@@ -34,7 +34,7 @@ from uuv_ocp.build import Transcribed
 from uuv_ocp.estimation.sensors import Measurement, Sensors
 from uuv_ocp.native.buffered import BufferedFunction
 
-CURRENT_MODELS = ("random_walk", "gauss_markov")
+CURRENT_MODELS = ("random_walk", "gauss_markov", "none")
 
 
 def _per_state(name: str, value: object, size: int) -> np.ndarray:
@@ -59,8 +59,10 @@ class EstimatorOptions:
         Name of the problem's stagewise parameter that is the ocean current (a name that is no
         stagewise parameter of the problem is refused); ``None`` (default): ``"current"`` where
         the problem has it, else no current in the state.
-    current_model : {"random_walk", "gauss_markov"}
-        How the current evolves.
+    current_model : {"random_walk", "gauss_markov", "none"}
+        How the current evolves; ``"none"``: no current in the state (the filter takes its
+        effect for process noise and a closed loop's controller is told no current: the naive
+        controller, on estimated states).
     current_std : float
         Noise intensity ``q_c`` of the current (m/s/√s), > 0.  Default 0.01: the current may
         drift by ≈ 0.08 m/s in a minute.
@@ -200,7 +202,7 @@ class AugmentedModel:
         wanted = wanted or "current"
         offset, nc = 0, 0
         for name, (_, size, stagewise) in spec.layout.entries.items():
-            if not stagewise:
+            if not stagewise or options.current_model == "none":
                 continue
             if name == wanted:
                 nc = size

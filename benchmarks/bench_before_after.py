@@ -5,7 +5,8 @@ tree that times ``NMPC.step`` over a short closed loop on s2 (RexROV, N = 20, dt
 every backend; the table gives the median over rounds of each tree's per-round median step and
 their ratio.  Alternating trees within a round lets the machine's drift hit both alike.
 
-Run: ``python -m benchmarks.bench_before_after --baseline /path/to/old/src [--rounds 5]``
+Run: ``python -m benchmarks.bench_before_after --baseline /path/to/old/src [--rounds 5] [--clock cpu]``
+(``--clock cpu``: the worker's CPU time per step, for a machine that other work loads)
 (the baseline is another checkout's ``src`` folder, e.g. a ``git worktree`` of an older commit).
 """
 
@@ -41,6 +42,7 @@ import numpy as np
 import uuv_ocp as uo
 
 steps, names = int(sys.argv[1]), json.loads(sys.argv[2])
+clock = time.process_time if sys.argv[3] == "cpu" else time.perf_counter
 problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1)
 plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
 medians = {}
@@ -51,9 +53,9 @@ for name, options in names.items():
     controller.step(state, 0.0, control)  # builds and compiles outside the timing
     times = []
     for k in range(1, steps + 1):
-        start = time.perf_counter()
+        start = clock()
         record = controller.step(state, k * problem.dt, control)
-        times.append(time.perf_counter() - start)
+        times.append(clock() - start)
         control = record.control
         state = np.array(plant(state, control, np.zeros(2))).ravel()
     medians[name] = float(np.median(times))
@@ -61,10 +63,10 @@ print(json.dumps(medians))
 """
 
 
-def _run(source: Path, steps: int) -> dict[str, float]:
+def _run(source: Path, steps: int, clock: str = "wall") -> dict[str, float]:
     environment = {**os.environ, "PYTHONPATH": str(source)}
     completed = subprocess.run(
-        [sys.executable, "-c", _WORKER, str(steps), json.dumps(BACKENDS)],
+        [sys.executable, "-c", _WORKER, str(steps), json.dumps(BACKENDS), clock],
         env=environment,
         capture_output=True,
         text=True,
@@ -81,15 +83,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--current", type=Path, default=Path(__file__).resolve().parents[1] / "src")
     parser.add_argument("--rounds", type=int, default=5)
     parser.add_argument("--steps", type=int, default=STEPS)
+    parser.add_argument(
+        "--clock",
+        choices=("wall", "cpu"),
+        default="wall",
+        help="cpu: the worker's CPU time per step, which other processes on a loaded machine do not inflate",
+    )
     args = parser.parse_args(argv)
     trees = {"before": args.baseline.resolve(), "after": args.current.resolve()}
     rounds: dict[str, list[dict[str, float]]] = {"before": [], "after": []}
     for index in range(args.rounds):
         order = ("before", "after") if index % 2 == 0 else ("after", "before")
         for label in order:
-            rounds[label].append(_run(trees[label], args.steps))
+            rounds[label].append(_run(trees[label], args.steps, args.clock))
         print(f"round {index + 1}/{args.rounds} done", file=sys.stderr, flush=True)
-    print(f"per-step median of NMPC.step on s2 (N = 20), median of {args.rounds} interleaved rounds")
+    print(
+        f"per-step median of NMPC.step on s2 (N = 20), {args.clock} clock, "
+        f"median of {args.rounds} interleaved rounds"
+    )
     print(f"before: {trees['before']}\nafter:  {trees['after']}")
     print(f"{'backend':>14} {'before ms':>10} {'after ms':>10} {'after/before':>13}")
     for name in BACKENDS:

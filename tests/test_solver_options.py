@@ -129,13 +129,11 @@ def _declares_options_class(name: str) -> bool:
 
 
 PARSED = [name for name in ["igwo+ipopt", "multistart-ipopt", *BASE] if _declares_options_class(name)]
-# backends whose constructors still pop their options by hand (checked by the tests above only)
-BY_HAND = {"sqp-rti"}
 
 
-def test_every_backend_but_the_listed_ones_parses_an_options_dataclass():
+def test_every_backend_parses_an_options_dataclass():
     """A new backend declares an Options dataclass: what it does not declare is refused."""
-    assert set(BASE) - {name for name in PARSED} == BY_HAND
+    assert set(BASE) - {name for name in PARSED} == set()
 
 
 @pytest.mark.parametrize("name", PARSED)

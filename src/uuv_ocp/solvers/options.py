@@ -29,9 +29,7 @@ lists the options; the hook replaces it by the table.  The registry finds a decl
 factory function: :func:`~uuv_ocp.solvers.swarm.swarm_factory`); ``tests/test_solver_options.py``
 fails for a registered backend without one, for a default the backend does not hold, and for an
 Options dataclass that is not its declaration.  A computed declaration (the swarms': population
-and iterations are each algorithm's) becomes a dataclass by :func:`make_options_class`; ``sqp-rti``
-still reads its own options by hand from :class:`Option` tuples (``option_defaults``,
-``revise``) and hands the rest to :class:`~uuv_ocp.solvers.nlp.NlpSolver`'s parser.
+and iterations are each algorithm's) becomes a dataclass by :func:`make_options_class`.
 
 A default the backend works out when it is built (from the machine, the environment or
 another option) is :data:`AUTO` with a ``meaning`` saying how, and the constructor replaces
@@ -309,7 +307,9 @@ def parse_options(
             check = f.metadata["option"].check
             value = options[f.name]
             label = f"options[{f.name!r}] of {solver!r}"  # names the parameter and the backend
-            values[f.name] = value if check is None else check(label, value)
+            # the declared AUTO default handed back (option_defaults) means the same as absent
+            automatic = value is AUTO and f.default is AUTO
+            values[f.name] = value if check is None or automatic else check(label, value)
     return options_class(**values)
 
 

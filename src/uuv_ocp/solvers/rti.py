@@ -91,8 +91,21 @@ from uuv_ocp.native.hpipm import check_choice
 from uuv_ocp.native.runtime import COMPILED_ENV
 from uuv_ocp.solvers.base import DeferredPlan, reraise_interrupt
 from uuv_ocp.solvers.ipopt import ipopt_options
-from uuv_ocp.solvers.nlp import NLP_OPTIONS, NlpSolver
-from uuv_ocp.solvers.options import AUTO, Option, one_of, option_defaults, option_names, revise
+from uuv_ocp.solvers.nlp import NlpOptions, NlpSolver
+from uuv_ocp.solvers.options import (
+    AUTO,
+    Option,
+    among,
+    declaration,
+    mapping,
+    one_of,
+    option,
+    option_names,
+    optional,
+    parse_options,
+    positive_float,
+    positive_int,
+)
 from uuv_ocp.solvers.result import Attempt, Iterate, SolveResult, Stage, Variant
 from uuv_ocp.solvers.rti_ocp import (
     OCP_QP_DEFAULTS,
@@ -121,28 +134,52 @@ COLD_STARTS = ("ipopt", "converged", "rti")
 #: Iteration limit of the converged mode and of a cold start by Gauss–Newton steps.
 RTI_MAX_ITER = 50
 
-RTI_OPTIONS: tuple[Option, ...] = (
-    *revise(
-        NLP_OPTIONS,
-        max_iter={"meaning": f"{RTI_MAX_ITER} (converged mode and cold starts by SQP steps)"},
-        plugin_options={
-            "description": "must stay empty (no nlpsol plugin): the QP's options are `qpsol_options`"
-        },
-    ),
-    Option("mode", "rti", one_of(MODES), "one Gauss–Newton SQP step per call, or iterate to `tol`"),
-    Option("iterations", 1, "int >= 1", "SQP steps per call in `rti` mode"),
-    Option("tol", 1e-8, "float > 0", "step-size tolerance of the converged mode (scaled variables)"),
-    Option("cold_start", "ipopt", one_of(COLD_STARTS), "how a call without a warm start is solved"),
-    Option(
-        "qpsol",
+
+@dataclass(frozen=True)
+class RtiOptions(NlpOptions):
+    """Options of :class:`RtiSolver`: those of :class:`NlpOptions` (two revised) and its own."""
+
+    max_iter: int | None = option(
+        None,
+        "int >= 1 or `None`",
+        "iteration limit of one attempt of the plugin",
+        meaning=f"{RTI_MAX_ITER} (converged mode and cold starts by SQP steps)",
+        check=optional(positive_int),
+    )
+    plugin_options: dict = option(
+        {},
+        "dict",
+        "must stay empty (no nlpsol plugin): the QP's options are `qpsol_options`",
+        check=mapping,
+    )
+    mode: str = option(
+        "rti",
+        one_of(MODES),
+        "one Gauss–Newton SQP step per call, or iterate to `tol`",
+        check=among(MODES),
+    )
+    iterations: int = option(1, "int >= 1", "SQP steps per call in `rti` mode", check=positive_int)
+    tol: float = option(
+        1e-8,
+        "float > 0",
+        "step-size tolerance of the converged mode (scaled variables)",
+        check=positive_float,
+    )
+    cold_start: str = option(
+        "ipopt",
+        one_of(COLD_STARTS),
+        "how a call without a warm start is solved",
+        check=among(COLD_STARTS),
+    )
+    qpsol: str = option(
         "auto",
         one_of(("auto", *QP_SOLVERS)),
         "QP solver: `hpipm-ocp`, the whole step in C on HPIPM's OCP-QP API, or a CasADi `conic` "
         "plugin on the full-space QP; `auto`: `hpipm-ocp` where a C compiler exists and "
         "`UUV_OCP_COMPILED` is not 0, else `hpipm` (no compiler: one warning)",
-    ),
-    Option(
-        "qpsol_options",
+        check=among(("auto", *QP_SOLVERS)),
+    )
+    qpsol_options: Any = option(
         AUTO,
         "dict",
         "options of the QP solver (`hpipm-ocp`: `mode`, `iter_max`, `tol_stat`, `tol_eq`, "
@@ -150,14 +187,17 @@ RTI_OPTIONS: tuple[Option, ...] = (
         "`qpsol='auto'`, options with other keys, e.g. CasADi's `{'hpipm': {...}}`, select `hpipm`)",
         meaning="`HPIPM_DEFAULTS` (residuals 1e-10) for hpipm in converged mode, `OCP_QP_CONVERGED` "
         "(balance mode, 1e-10) for hpipm-ocp in converged mode, else `{}`",
-    ),
-    Option(
-        "qp_tolerance",
+        check=mapping,
+    )
+    qp_tolerance: float = option(
         1e-6,
         "float > 0",
         "largest violation of the linearised constraints a QP solution may have to count as solved",
-    ),
-)
+        check=positive_float,
+    )
+
+
+RTI_OPTIONS: tuple[Option, ...] = declaration(RtiOptions)
 
 
 @dataclass(frozen=True)
@@ -367,36 +407,34 @@ class RtiSolver(NlpSolver):
     name = "sqp-rti"
     plugin = "rti"
     default_max_iter = RTI_MAX_ITER
+    Options = RtiOptions
     OPTIONS = RTI_OPTIONS
     option_names = option_names(RTI_OPTIONS)
+    # set from the parsed RtiOptions (qpsol and qpsol_options as resolved for this machine)
+    mode: str
+    iterations: int
+    tol: float
+    cold_start: str
+    qpsol: str
+    qpsol_options: dict[str, Any]
+    qp_tolerance: float
 
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None) -> None:
-        options = dict(options or {})
-        default = option_defaults(self.OPTIONS)
-        self.mode = check.choice("options['mode']", options.pop("mode", default["mode"]), MODES)
-        self.iterations = check.positive_int(
-            "options['iterations']", options.pop("iterations", default["iterations"])
-        )
-        self.tol = check.positive_float("options['tol']", options.pop("tol", default["tol"]))
-        self.cold_start = check.choice(
-            "options['cold_start']", options.pop("cold_start", default["cold_start"]), COLD_STARTS
-        )
-        qpsol = check.choice(
-            "options['qpsol']", options.pop("qpsol", default["qpsol"]), ("auto", *QP_SOLVERS)
-        )
-        qpsol_options = options.pop("qpsol_options", default["qpsol_options"])
+        # every value is checked, and the QP options resolved, before the build in NlpSolver
+        settings = parse_options(self.Options, options, self.name, self.option_names)
+        mode, qpsol, qpsol_options = settings.mode, settings.qpsol, settings.qpsol_options
         given_qp_options = qpsol_options
         # options written for CasADi's conic interface (e.g. {"hpipm": {...}}) keep that path
         conic_options = isinstance(given_qp_options, dict) and not set(given_qp_options) <= set(
             OCP_QP_DEFAULTS
         )
-        self.qpsol = ("hpipm" if conic_options else _automatic_qpsol()) if qpsol == "auto" else qpsol
-        tight = self.qpsol == "hpipm" and self.mode == "converged"
+        resolved = ("hpipm" if conic_options else _automatic_qpsol()) if qpsol == "auto" else qpsol
+        tight = resolved == "hpipm" and mode == "converged"
         ocp_keys_only = isinstance(qpsol_options, dict) and bool(qpsol_options) and not conic_options
-        if qpsol == "auto" and self.qpsol == "hpipm" and ocp_keys_only:
+        if qpsol == "auto" and resolved == "hpipm" and ocp_keys_only:
             # options of the C step where it cannot be built: checked, then left out (CasADi's
             # conic interface would refuse them at the first solve)
-            ocp_qp_options(dict(qpsol_options), self.mode == "converged", problem.spec().horizon)
+            ocp_qp_options(dict(qpsol_options), mode == "converged", problem.spec().horizon)
             warnings.warn(
                 f"sqp-rti: qpsol_options {sorted(qpsol_options)} are options of the C step "
                 "(qpsol='hpipm-ocp'), which is not built here; CasADi's hpipm interface runs with "
@@ -407,28 +445,23 @@ class RtiSolver(NlpSolver):
             qpsol_options = AUTO
         if qpsol_options is AUTO:
             qpsol_options = HPIPM_DEFAULTS if tight else {}
-        if not isinstance(qpsol_options, dict):
-            raise ValueError(f"options['qpsol_options'] must be a dict, got {check.shown(qpsol_options)}")
-        self.qpsol_options = dict(qpsol_options)
-        self.ocp_qp_options: dict[str, Any] = {}
-        if self.qpsol == "hpipm-ocp":
-            self.ocp_qp_options = ocp_qp_options(
-                {} if given_qp_options is AUTO else self.qpsol_options,
-                self.mode == "converged",
+        ocp_qp: dict[str, Any] = {}
+        if resolved == "hpipm-ocp":
+            ocp_qp = ocp_qp_options(
+                {} if given_qp_options is AUTO else dict(qpsol_options),
+                mode == "converged",
                 problem.spec().horizon,
             )
         # UUV_OCP_HPIPM is read when the C step is built, inside the first warm step: a bad
         # value found there would send every step to the closed loop's fallback instead
-        check_choice(native_needed=self.qpsol == "hpipm-ocp")
-        self.qp_tolerance = check.positive_float(
-            "options['qp_tolerance']", options.pop("qp_tolerance", default["qp_tolerance"])
-        )
-        super().__init__(problem, options)
-        if self.plugin_options:
+        check_choice(native_needed=resolved == "hpipm-ocp")
+        if settings.plugin_options:
             raise ValueError(
                 "options['plugin_options'] is not used by 'sqp-rti' (no nlpsol plugin); pass the QP "
-                f"solver's options as options['qpsol_options'], got {check.shown(self.plugin_options)}"
+                f"solver's options as options['qpsol_options'], got {check.shown(settings.plugin_options)}"
             )
+        super().__init__(problem, options)  # sets self.mode, self.tol, ... from the same options
+        self.qpsol, self.qpsol_options, self.ocp_qp_options = resolved, dict(qpsol_options), ocp_qp
         self._qp_structure: dict[str, tuple[ca.Function, ca.Sparsity, ca.Sparsity]] = {}
         self._linearisations: dict[tuple[str, bool], BufferedFunction] = {}
         self._steps: dict[str, BufferedFunction] = {}

@@ -27,8 +27,12 @@ Every run is a checked record (``uuv_ocp.studies.records``: checksummed, written
 in ``--out`` (default ``out/bench_estimation``): an interrupted benchmark resumes where it
 stopped, and a damaged record is recomputed.
 
+``--timing``: only the per-step CPU time of each registered estimator (``Estimator.step`` over
+200 seeded steps of the sensors' schedule, after 50 warm-up steps; median, ms) on s2 and the
+BlueROV2 survey, compiled to C and on CasADi's virtual machine, one process.
+
 Run: ``python -m benchmarks.bench_estimation [--seeds 20] [--cases s1,s2,...,bluerov2]
-[--rows oracle,ekf,...] [--out DIR]``.
+[--rows oracle,ekf,...] [--out DIR] [--timing]``.
 """
 
 from __future__ import annotations
@@ -36,6 +40,7 @@ from __future__ import annotations
 import argparse
 import math
 import re
+import time
 import warnings
 from pathlib import Path
 
@@ -137,6 +142,34 @@ def run_case(case: str, rows: tuple[str, ...], seeds: int, out: Path, bar: tqdm)
     return results
 
 
+def timing(steps: int = 200) -> str:
+    """Per-step CPU time (ms) of each registered estimator, compiled and on the VM (module doc)."""
+    lines = ["| case | estimator | compiled ms | virtual machine ms |", "|---|---|---|---|"]
+    for case in ("s2", "bluerov2"):
+        problem, start = case_problem(case)
+        sensors = uo.Sensors.auv(problem.vehicle)
+        rng = np.random.default_rng(1)
+        measurements = [sensors.measure(k, problem.dt, start, rng) for k in range(steps + 50)]
+        control = np.zeros(problem.spec().control_size)
+        for name in uo.available_estimators():
+            cells = []
+            for compiled in (True, False):
+                options = uo.EstimatorOptions(compiled=compiled)
+                estimator = uo.Estimator(problem, name, sensors=sensors, options=options)
+                estimator.reset(start)
+                times = []
+                for k, measurement in enumerate(measurements):
+                    begin = time.process_time()
+                    estimator.step(control, measurement)
+                    if k >= 50:
+                        times.append(time.process_time() - begin)
+                cells.append(
+                    f"{1e3 * float(np.median(times)):.3f}" if estimator.compiled or not compiled else "—"
+                )
+            lines.append(f"| {case} | {name} | {cells[0]} | {cells[1]} |")
+    return "\n".join(lines)
+
+
 def _median(values: list[dict], key: str) -> float:
     found = [v[key] for v in values if key in v]
     return float(np.median(found)) if found else math.nan
@@ -177,7 +210,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", default=",".join(CASES))
     parser.add_argument("--rows", default=",".join(ROWS))
     parser.add_argument("--out", type=Path, default=Path("out/bench_estimation"))
+    parser.add_argument("--timing", action="store_true", help="only the estimators' per-step time")
     arguments = parser.parse_args(argv)
+    if arguments.timing:
+        print(timing())
+        return 0
     cases = tuple(arguments.cases.split(","))
     rows = tuple(arguments.rows.split(","))
     for name, chosen, allowed in (("--cases", cases, CASES), ("--rows", rows, ROWS)):

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from conftest import needs_compiler
 from uuv_ocp.estimation import Estimator, EstimatorOptions, Measurement, Sensor, Sensors
 
 DT = 0.1
@@ -382,3 +383,28 @@ def test_an_estimated_current_the_loop_cannot_hand_over_is_refused():
     assert estimator.model.nc == 1
     with pytest.raises(ValueError, match="estimator estimates a current of 1 entries"):
         uo.simulate(uo.NMPC(ocp, "ipopt"), [1.0], 1.0, estimator=estimator, parameters={"current": 0.0})
+
+
+@needs_compiler
+def test_the_compiled_ekf_step_equals_the_virtual_machines():
+    """The one-call step compiled to C (the default where a compiler exists) is the VM's, to rounding."""
+    vehicle = uo.Vehicle.rexrov()
+    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=5)
+    sensors = uo.Sensors.auv(vehicle)
+    filters = [
+        uo.Estimator(problem, "ekf", sensors=sensors, options=EstimatorOptions(compiled=compiled))
+        for compiled in (True, False)
+    ]
+    assert [f.compiled for f in filters] == [True, False]
+    x0 = problem.reference.initial_state(0.0)
+    rng = np.random.default_rng(3)
+    for ekf in filters:
+        ekf.reset(x0)
+    for k in range(60):
+        measurement = sensors.measure(k, problem.dt, x0 + 0.01 * k, rng)
+        u = rng.normal(0.0, 100.0, 3)
+        compiled, interpreted = (ekf.step(u, measurement) for ekf in filters)
+        np.testing.assert_allclose(compiled.augmented, interpreted.augmented, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(compiled.covariance, interpreted.covariance, rtol=1e-10, atol=1e-14)
+    with pytest.raises(ValueError, match="options.compiled"):
+        EstimatorOptions(compiled="yes")

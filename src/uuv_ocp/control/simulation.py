@@ -458,8 +458,9 @@ def simulate(
     # current is then zero); a time-invariant problem is always asked at t = 0
     told = currents if current_known else np.zeros_like(currents)
     # an estimator that models no current (current_model="none") leaves the controller naive
-    estimated = estimator is not None and not current_known and nc > 0 and estimator.model.nc > 0
-    if estimated and estimator is not None and estimator.model.nc != nc:
+    estimating = estimator is not None and not current_known and estimator.model.nc > 0
+    estimated = estimating and nc > 0
+    if estimating and estimator is not None and estimator.model.nc != nc:
         # e.g. an Ocp whose "current" parameter the estimator estimates: the loop has no channel
         # to hand it to the controller (its current is in parameters=), so say so
         raise ValueError(

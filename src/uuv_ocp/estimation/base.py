@@ -33,6 +33,7 @@ from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.estimation.sensors import Measurement, Sensors
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.native.runtime import compiled_by_default
 
 CURRENT_MODELS = ("random_walk", "gauss_markov", "none")
 
@@ -84,6 +85,10 @@ class EstimatorOptions:
         κ = 0 keep every weight non-negative (the predicted covariance stays positive
         semi-definite; α = 1e-3, the textbook choice, gives a centre weight of −1e6 and loses
         six digits to cancellation).
+    compiled : bool or None
+        Compile the EKF's one-call step to C when the estimator is built (cached on disk by
+        content; CasADi's virtual machine if that fails, with one warning).  ``None`` (default):
+        wherever a C compiler exists, unless the environment sets ``UUV_OCP_COMPILED=0``.
     """
 
     state_std: float | tuple[float, ...] = 1e-3
@@ -100,6 +105,7 @@ class EstimatorOptions:
     alpha: float = 1.0
     beta: float = 2.0
     kappa: float = 0.0
+    compiled: bool | None = None
 
     def __post_init__(self) -> None:
         """Check the scalar fields (``ValueError`` names the field); the per-state ones on use."""
@@ -110,6 +116,8 @@ class EstimatorOptions:
                 f"options.current_parameter must be a str or None, got {check.shown(self.current_parameter)}"
             )
         check.boolean("options.bias", self.bias)
+        if self.compiled is not None:
+            check.boolean("options.compiled", self.compiled)
         for name in (
             "current_std",
             "current_time_constant",
@@ -307,6 +315,8 @@ class Estimator:
     """
 
     name = "estimator"
+    #: whether the class has a step it compiles to C (``options.compiled``; the EKF)
+    compiles = False
 
     def __new__(cls, problem: Any = None, method: str = "ekf", **_: Any) -> Any:
         """Dispatch ``Estimator(problem, name, ...)`` to the class registered as ``name``."""
@@ -349,6 +359,11 @@ class Estimator:
         self.x = np.zeros(self.model.size)
         self.P = self.model.P0.copy()
         self.steps = 0
+        self.compiled = self.compiles and (
+            compiled_by_default("the estimator runs on CasADi's virtual machine", stacklevel=4)
+            if options.compiled is None
+            else options.compiled
+        )
         with BUILD_LOCK:
             self._build()
 

@@ -13,16 +13,17 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.estimation.base import Estimate, Estimator, buffered, register_estimator
 from uuv_ocp.estimation.sensors import Measurement
 from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.native.compile import default_cache_directory, load_or_fallback
 
 
 class ExtendedKalmanFilter(Estimator):
     """EKF (module doc); build with ``uo.Estimator(problem, "ekf", sensors=...)``."""
 
     name = "ekf"
+    compiles = True
 
     def _build(self) -> None:
         m = self.model
@@ -35,43 +36,49 @@ class ExtendedKalmanFilter(Estimator):
         h, H = h_at(predicted)
         covariance = F @ P @ F.T + ca.DM(m.Q)
         self._predict = buffered("ekf_predict", [*m.inputs, P], [predicted, covariance, h, H])
-        # what a fused step (predict and update in one call, per combination of sensors) uses
-        self._symbols = (P, predicted, 0.5 * (covariance + covariance.T), h, H)
-        self._fused: dict[tuple[int, ...], BufferedFunction] = {}
         self._measure = buffered("ekf_measure", [m.xa], list(h_at(m.xa)))
         self._h: np.ndarray | None = None
         self._H: np.ndarray | None = None
         self._identity = np.eye(n)
+        self._fused = self._fused_step(P, predicted, 0.5 * (covariance + covariance.T), h, H)
+        self._z = np.zeros(self.R.size)
+        self._mask = np.zeros(self.R.size)
 
-    def _fused_step(self, sensors: tuple[int, ...]) -> BufferedFunction:
-        """Return the one-call predict-and-update of a combination of reporting sensors.
+    def _fused_step(
+        self, P: ca.SX, predicted: ca.SX, covariance: ca.SX, h: ca.SX, H: ca.SX
+    ) -> BufferedFunction:
+        """Return the one-call predict-and-update for every combination of reporting sensors.
 
-        The same arithmetic as :meth:`predict` then :meth:`correct` (the update's solve is
-        CasADi's symbolic QR instead of LAPACK's LU: equal to rounding); built on first use of
-        the combination (a schedule has a handful).
+        The same arithmetic as :meth:`predict` then :meth:`correct`, on all the stacked outputs
+        with a 0/1 ``mask``: a row that did not report has its ``H`` row and innovation zeroed
+        and unit variance, so ``S`` is block-diagonal in it and its gain column is zero (the
+        update is the one of the reporting rows alone, to rounding).  One Function, built and,
+        where a C compiler exists, compiled here, so no step builds anything; the solve is
+        CasADi's symbolic QR (LAPACK's LU in :meth:`correct`: equal to rounding).
         """
-        fused = self._fused.get(sensors)
-        if fused is not None:
-            return fused
         m = self.model
-        rows = self.rows(sensors).tolist()
-        P, predicted, covariance, h, H = self._symbols
-        with BUILD_LOCK:  # CasADi expressions are built here
-            z = ca.SX.sym("z", len(rows))
-            y = z - h[rows]
-            for i, row in enumerate(rows):  # angles: the innovation wrapped into (−π, π]
-                if self.angular[row]:
-                    y[i] = ca.atan2(ca.sin(y[i]), ca.cos(y[i]))
-            Hr = H[rows, :]
-            R = ca.diag(ca.DM(self.R[rows]))
-            PHt = covariance @ Hr.T
-            S = Hr @ PHt + R
-            K = ca.solve(S, PHt.T).T
-            A = ca.DM.eye(m.size) - K @ Hr
-            updated = A @ covariance @ A.T + K @ R @ K.T
-            outputs = [predicted + K @ y, 0.5 * (updated + updated.T), y, S]
-        fused = self._fused[sensors] = buffered("ekf_step", [*m.inputs, P, z], outputs)
-        return fused
+        outputs = len(self.R)
+        z, mask = ca.SX.sym("z", outputs), ca.SX.sym("mask", outputs)
+        y = z - h
+        for row in np.flatnonzero(self.angular):  # angles: the innovation wrapped into (−π, π]
+            y[int(row)] = ca.atan2(ca.sin(y[int(row)]), ca.cos(y[int(row)]))
+        y = mask * y
+        Hm = ca.diag(mask) @ H
+        R = ca.diag(mask * ca.DM(self.R) + (1 - mask))
+        PHt = covariance @ Hm.T
+        S = Hm @ PHt + R
+        K = ca.solve(S, PHt.T).T
+        A = ca.DM.eye(m.size) - K @ Hm
+        updated = A @ covariance @ A.T + K @ R @ K.T
+        fused = ca.Function(
+            "uuv_ocp_ekf_step",
+            [*m.inputs, P, z, mask],
+            [ca.densify(o) for o in (predicted + K @ y, 0.5 * (updated + updated.T), y, S)],
+        )
+        if self.compiled:
+            loaded, library = load_or_fallback([fused], default_cache_directory(), name="uuv_ocp_ekf")
+            fused, self.compiled = loaded[fused.name()], library is not None
+        return BufferedFunction(fused)
 
     def step(self, u: object, measurement: Measurement) -> Estimate:
         """:meth:`predict` under ``u`` and :meth:`correct` with ``measurement``, in one CasADi call."""
@@ -80,14 +87,17 @@ class ExtendedKalmanFilter(Estimator):
             self.predict(u)
             return self.estimate(measurement.step)
         m = self.model
-        n, size = m.size, rows.size
-        x, P, y, S = self._fused_step(measurement.sensors)(
-            self.x, self._control(u), m.p_stage, m.p_global, self.P, measurement.values
-        )
+        n = m.size
+        z, mask = self._z, self._mask
+        z.fill(0.0)
+        mask.fill(0.0)
+        z[rows], mask[rows] = measurement.values, 1.0
+        x, P, y, S = self._fused(self.x, self._control(u), m.p_stage, m.p_global, self.P, z, mask)
         self.x, self.P = x, P.reshape(n, n, order="F")
         self._h = self._H = None
         self.steps += 1
-        return self.estimate(measurement.step, measurement.sensors, y, S.reshape(size, size, order="F"))
+        S = S.reshape(z.size, z.size, order="F")[np.ix_(rows, rows)]
+        return self.estimate(measurement.step, measurement.sensors, y[rows], S)
 
     def _reset_hook(self) -> None:
         self._h = self._H = None

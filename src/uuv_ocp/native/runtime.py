@@ -108,6 +108,23 @@ void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state_lo, uint64_t inc_hi,
 #: ``UUV_OCP_COMPILED=0`` / ``1`` overrides ``compiled="auto"`` of the swarms and ``qpsol="auto"`` of sqp-rti
 COMPILED_ENV = "UUV_OCP_COMPILED"
 
+def compiled_by_default(fallback: str, stacklevel: int = 3) -> bool:
+    """Whether an ``"auto"`` build compiles to C: a C compiler exists and ``UUV_OCP_COMPILED`` is not 0.
+
+    ``UUV_OCP_COMPILED=0`` (the test suite's setting) keeps CasADi's virtual machine without a
+    build, silently; without a C compiler one ``RuntimeWarning`` says what runs instead
+    (``fallback``, e.g. ``"the swarm runs on CasADi's virtual machine"``).
+    """
+    if os.environ.get(COMPILED_ENV, "auto").strip().lower() in ("0", "false", "no"):
+        return False
+    try:
+        find_c_compiler()
+    except CompilerNotFoundError as error:
+        warnings.warn(f"no C compiler ({error}): {fallback}", RuntimeWarning, stacklevel=stacklevel + 1)
+        return False
+    return True
+
+
 #: ``nmpc_builder`` of :func:`generate_c`: builds the ``nmpc_step`` library of a problem
 NmpcBuilder = Callable[[Transcribed, Path, bool, bool, int, tuple[str, ...], str], CompiledLibrary]
 

@@ -67,7 +67,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import time
 import warnings
 from dataclasses import dataclass
@@ -82,13 +81,11 @@ from uuv_ocp.build import Transcribed
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.native.compile import (
     CodegenError,
-    CompilerNotFoundError,
     default_cache_directory,
-    find_c_compiler,
     load_or_fallback,
 )
 from uuv_ocp.native.hpipm import check_choice
-from uuv_ocp.native.runtime import COMPILED_ENV
+from uuv_ocp.native.runtime import compiled_by_default
 from uuv_ocp.solvers.base import DeferredPlan, reraise_interrupt
 from uuv_ocp.solvers.ipopt import ipopt_options
 from uuv_ocp.solvers.nlp import NlpOptions, NlpSolver
@@ -1053,18 +1050,8 @@ def _automatic_qpsol() -> str:
     ``UUV_OCP_COMPILED=0`` (the test suite's setting, as for the swarms) keeps CasADi's path
     without a build; without a C compiler one ``RuntimeWarning`` says so.
     """
-    if os.environ.get(COMPILED_ENV, "auto").strip().lower() in ("0", "false", "no"):
-        return "hpipm"
-    try:
-        find_c_compiler()
-    except CompilerNotFoundError as error:
-        warnings.warn(
-            f"sqp-rti: no C compiler ({error}); the QP goes through CasADi's hpipm interface",
-            RuntimeWarning,
-            stacklevel=4,
-        )
-        return "hpipm"
-    return "hpipm-ocp"
+    automatic = compiled_by_default("sqp-rti's QP goes through CasADi's hpipm interface", stacklevel=4)
+    return "hpipm-ocp" if automatic else "hpipm"
 
 
 @serialised

@@ -39,7 +39,6 @@ from __future__ import annotations
 import functools
 import os
 import time
-import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -50,8 +49,7 @@ from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE, score_terms
 from uuv_ocp.native.buffered import BufferedFunction
-from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
-from uuv_ocp.native.runtime import COMPILED_ENV, NativeIgwo, compiled_build, uses_pcg64
+from uuv_ocp.native.runtime import COMPILED_ENV, NativeIgwo, compiled_build, compiled_by_default, uses_pcg64
 from uuv_ocp.optimize import ALGORITHMS, ImprovedGreyWolf, MinimizeResult, minimize
 from uuv_ocp.solvers.options import (
     AUTO,
@@ -92,19 +90,7 @@ def _compiled_default(value: object) -> bool:
     ~20 s and is then cached on disk by content.
     """
     if value == "auto":
-        setting = os.environ.get(COMPILED_ENV, "auto").strip().lower()
-        if setting in ("0", "false", "no"):
-            return False
-        try:
-            find_c_compiler()
-        except CompilerNotFoundError as error:
-            warnings.warn(
-                f"no C compiler ({error}): the swarm runs on CasADi's virtual machine",
-                RuntimeWarning,
-                stacklevel=4,
-            )
-            return False
-        return True
+        return compiled_by_default("the swarm runs on CasADi's virtual machine", stacklevel=4)
     return check.boolean("options['compiled']", value)
 
 

@@ -71,12 +71,19 @@ def test_more_trials_reuse_the_first_ones_and_match_an_uninterrupted_run(tmp_pat
         {"mismatch": False},
         {"noise_std": (0.0,) * 6},
         {"reference": "s3"},
+        {"estimator": "ekf"},
     ],
 )
 def test_every_setting_but_the_trial_count_is_part_of_the_key(change):
     assert small(**change).name != small().name
     assert small(**change).trial_settings(0) != small().trial_settings(0)
     assert small(trials=7).name == small().name
+
+
+def test_a_campaign_without_an_estimator_keeps_the_key_it_had_before_there_was_one():
+    # records written before estimators existed are read back: no estimator, no key entry
+    assert "estimator" not in small().settings() and "sensors" not in small().settings()
+    assert small(estimator="ekf").settings()["estimator"] == "ekf"
 
 
 def test_summary_matches_the_trials_and_trials_differ(uninterrupted):
@@ -241,6 +248,7 @@ def test_an_unwritable_output_folder_is_one_error_before_any_work(tmp_path, caps
         ({"noise_std": (0.1,) * 5}, "noise_std"),
         ({"vehicle": "bluerov2-heavy"}, "controller_model"),
         ({"dt": 0.0}, "dt"),
+        ({"estimator": "kalman"}, "estimator must be one of"),
     ],
 )
 def test_bad_configuration_raises(changes, name):

@@ -318,6 +318,22 @@ def test_the_example_campaign_file_runs_at_reduced_size(tmp_path, capsys):
     assert (out / "quick.toml").read_text() == reduced.read_text()
 
 
+def test_a_campaign_file_names_an_estimator_and_writes_it_back(tmp_path):
+    from uuv_ocp.studies.campaign import to_toml
+
+    path = tmp_path / "ekf.toml"
+    path.write_text(
+        '[campaign]\nreference = "s2"\nsolver = "sqp"\n'
+        '[disturbance]\ncurrent_known = false\nestimator = "ekf"\n'
+    )
+    (config,) = load_campaign_file(path).configs
+    assert config.estimator == "ekf" and not config.current_known
+    again = tmp_path / "again.toml"
+    again.write_text(to_toml([config]))
+    assert load_campaign_file(again).configs == (config,)
+    assert "estimator" not in to_toml([small()])  # none: the key is left out, as before
+
+
 def test_a_campaign_file_with_an_unknown_key_is_one_error_naming_it(tmp_path, capsys):
     bad = tmp_path / "bad.toml"
     bad.write_text('[campaign]\nreference = "s2"\ntrails = 3\n')

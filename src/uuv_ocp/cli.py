@@ -611,11 +611,13 @@ def _dispatch(args: argparse.Namespace) -> int:
     print()
     print(f"NMPC tracking, {vehicle.name}, N = {horizon}, dt = {dt} s, terminal equality, solver {solver}")
     estimators = sorted({estimator for _, estimator, _ in jobs if estimator is not None})
+    oracle = any(estimator is None for _, estimator, _ in jobs)
     if current is not None:
-        told = "unknown to the controller" if estimators else "known to the controller"
+        told = "known to the controller"
+        if estimators:
+            told = "unknown to the controller" + (", told to the oracle's" if oracle else "")
         print(f"constant current {current.speed:g} m/s towards {current.direction:g} rad ({told})")
     if estimators:
-        oracle = any(estimator is None for _, estimator, _ in jobs)
         print(
             f"loop {'/'.join(estimators)}: state and current estimated by an {'/'.join(estimators).upper()} "
             f"from {_sensor_list(vehicle)}"

@@ -180,3 +180,56 @@ def test_a_saved_run_keeps_S_and_one_saved_without_it_shows_raw_innovations(esti
     line = lines(axis, "innovation")[0]
     gyro = run.innovations[:, -1]
     np.testing.assert_array_equal(line.get_ydata(), gyro[np.isfinite(gyro)])
+
+
+def test_a_six_dof_run_gets_three_current_components_depth_and_every_velocity():
+    """A 6-DOF run made by hand (no solver): panels by the layout's roles, units from it."""
+    from uuv_ocp.model import Vehicle6DOF
+
+    layout = Vehicle6DOF.bluerov2_heavy().layout
+    sensors = uo.Sensors.auv(layout)
+    rng = np.random.default_rng(0)
+    n, nx, m = 20, layout.state_dim, sum(sensors.sizes)
+    dropped = np.zeros((n, len(sensors)), dtype=bool)
+    dropped[[3, 7], 1] = True  # the DVL dropped two samples
+    run = uo.ClosedLoopResult(
+        t=0.1 * np.arange(n + 1),
+        states=rng.standard_normal((n + 1, nx)),
+        controls=np.zeros((n, 6)),
+        reference=np.zeros((n + 1, nx)),
+        solve_times=np.zeros(n),
+        iterations=np.zeros(n, dtype=int),
+        fallback_steps=np.zeros(n, dtype=bool),
+        relaxed_steps=np.zeros(n, dtype=bool),
+        currents=rng.standard_normal((n + 1, 3)),
+        statuses=("ok",) * n,
+        solver="fake",
+        state_names=layout.state_names,
+        state_units=layout.state_units,
+        state_roles=layout.state_roles,
+        estimated_states=rng.standard_normal((n, nx)),
+        estimated_currents=rng.standard_normal((n, 3)),
+        estimate_variances=rng.uniform(0.01, 1.0, (n, nx + 3)),
+        innovations=rng.standard_normal((n, m)),
+        estimate_times=np.zeros(n),
+        innovation_variances=rng.uniform(0.5, 2.0, (n, m)),
+        measurement_values=rng.standard_normal((n, m)),
+        measurement_dropped=dropped,
+        sensor_names=sensors.names,
+        sensor_sizes=sensors.sizes,
+    )
+    axes = visible_axes(plotting.estimation_figure(run))
+    labels = [axis.get_ylabel() for axis in axes]
+    assert labels[:3] == ["c_x (m/s)", "c_y (m/s)", "c_z (m/s)"]
+    assert labels[3:7] == ["x (m)", "y (m)", "z (m)", "ψ (rad)"]
+    assert [label.split(" ")[-1] for label in labels[7:13]] == [
+        f"({unit})" for unit in layout.state_units[6:]
+    ]
+    assert len(axes) == 3 + 10 + len(sensors)
+    dvl = axes[13 + 1]
+    np.testing.assert_array_equal(only(dvl, "dropout").get_xdata(), run.t[[3, 7]])
+    depth = axes[-1]
+    assert depth.get_title().startswith("depth") and lines(depth, "dropout") == []
+    z = axes[5]
+    sigma = np.sqrt(run.estimate_variances[:, 2])
+    np.testing.assert_allclose(only(z, "band_upper").get_ydata(), run.estimated_states[:, 2] + 2 * sigma)

@@ -792,7 +792,9 @@ def estimation_figure(run: ClosedLoopResult, title: str = "", *, sigmas: float =
                 np.zeros(dropped.size),
                 "x",
                 color="tab:red",
-                ms=6,
+                ms=8,
+                mew=2.0,
+                zorder=5,  # above the innovations, which pass through the zero line
                 label="dropout",
                 gid=ESTIMATE_GIDS["dropout"],
             )

@@ -71,12 +71,19 @@ def test_more_trials_reuse_the_first_ones_and_match_an_uninterrupted_run(tmp_pat
         {"mismatch": False},
         {"noise_std": (0.0,) * 6},
         {"reference": "s3"},
+        {"estimator": "ekf"},
     ],
 )
 def test_every_setting_but_the_trial_count_is_part_of_the_key(change):
     assert small(**change).name != small().name
     assert small(**change).trial_settings(0) != small().trial_settings(0)
     assert small(trials=7).name == small().name
+
+
+def test_a_campaign_without_an_estimator_keeps_the_key_it_had_before_there_was_one():
+    # records written before estimators existed are read back: no estimator, no key entry
+    assert "estimator" not in small().settings() and "sensors" not in small().settings()
+    assert small(estimator="ekf").settings()["estimator"] == "ekf"
 
 
 def test_summary_matches_the_trials_and_trials_differ(uninterrupted):
@@ -241,6 +248,7 @@ def test_an_unwritable_output_folder_is_one_error_before_any_work(tmp_path, caps
         ({"noise_std": (0.1,) * 5}, "noise_std"),
         ({"vehicle": "bluerov2-heavy"}, "controller_model"),
         ({"dt": 0.0}, "dt"),
+        ({"estimator": "kalman"}, "estimator must be one of"),
     ],
 )
 def test_bad_configuration_raises(changes, name):
@@ -308,6 +316,22 @@ def test_the_example_campaign_file_runs_at_reduced_size(tmp_path, capsys):
         assert config.solver in table and (out / config.name / "trial_0000.npz").exists()
         assert load_campaign_file(out / config.name / "config.toml").configs[0] == config
     assert (out / "quick.toml").read_text() == reduced.read_text()
+
+
+def test_a_campaign_file_names_an_estimator_and_writes_it_back(tmp_path):
+    from uuv_ocp.studies.campaign import to_toml
+
+    path = tmp_path / "ekf.toml"
+    path.write_text(
+        '[campaign]\nreference = "s2"\nsolver = "sqp"\n'
+        '[disturbance]\ncurrent_known = false\nestimator = "ekf"\n'
+    )
+    (config,) = load_campaign_file(path).configs
+    assert config.estimator == "ekf" and not config.current_known
+    again = tmp_path / "again.toml"
+    again.write_text(to_toml([config]))
+    assert load_campaign_file(again).configs == (config,)
+    assert "estimator" not in to_toml([small()])  # none: the key is left out, as before
 
 
 def test_a_campaign_file_with_an_unknown_key_is_one_error_naming_it(tmp_path, capsys):

@@ -4,6 +4,7 @@ import pytest
 
 import uuv_ocp as uo
 from uuv_ocp import cli
+from uuv_ocp.reference.path import PAPER_REFERENCES
 from uuv_ocp.studies.compare import track_references
 
 
@@ -222,7 +223,7 @@ def test_track_and_demo_show_progress_where_bars_are_drawn_unless_quiet(capsys, 
     calls = []
 
     def fake(names, solver, **options):
-        calls.append((list(names), options["progress"], options["current"]))
+        calls.append((list(names), options["progress"], options["current"], options["estimator"]))
         return []
 
     monkeypatch.setattr(cli, "track_references", fake)
@@ -234,10 +235,14 @@ def test_track_and_demo_show_progress_where_bars_are_drawn_unless_quiet(capsys, 
     assert calls[0][2] == Current(speed=0.2, direction=0.0)
     calls.clear()
     assert cli.main(["track", "-r", "s2", "--quiet", "--out", str(tmp_path)]) == 0
-    assert capsys.readouterr().err == "" and calls == [(calls[0][0], False, None)]
+    assert capsys.readouterr().err == "" and calls == [(calls[0][0], False, None, None)]
     calls.clear()
     assert cli.main(["demo", "-q", "--out", str(tmp_path)]) == 0
-    assert capsys.readouterr().err == "" and len(calls) == 10 and not any(call[1] for call in calls)
+    assert capsys.readouterr().err == "" and len(calls) == 11 and not any(call[1] for call in calls)
+    # the realistic loop on the ten references (current unknown, EKF), then the oracle on s2
+    assert [call[0] for call in calls] == [[name] for name in PAPER_REFERENCES] + [["s2"]]
+    assert [call[3] for call in calls] == ["ekf"] * 10 + [None]
+    assert all(call[2] == Current(speed=0.5, direction=1.0) for call in calls)
     monkeypatch.setenv(ENVIRONMENT_VARIABLE, "auto")  # not a terminal: silent, as the bars are
     assert cli.main(["track", "-r", "s2", "--out", str(tmp_path)]) == 0
     assert capsys.readouterr().err == ""
@@ -301,3 +306,32 @@ def test_a_bad_vehicle_class_is_one_line_and_exit_2(spec, message, capsys, monke
     assert cli.main(["track", "--vehicle", spec, "-r", "s2", "--duration", "0.5"]) == 2
     error = capsys.readouterr().err.strip()
     assert message in error and len(error.splitlines()) == 1
+
+
+def test_track_with_an_estimator_runs_the_realistic_loop_and_says_so(tmp_path, capsys):
+    import numpy as np
+
+    from uuv_ocp.control.simulation import ClosedLoopResult
+
+    out = str(tmp_path)
+    flags = ["track", "-r", "s2", "--duration", "0.5", "--horizon", "5", "--current", "0.3,1.2", "-q"]
+    assert cli.main([*flags, "--estimator", "ekf", "--out", out]) == 0
+    printed = capsys.readouterr().out
+    assert "(unknown to the controller)" in printed
+    assert "estimated by an EKF from position 1 Hz, dvl 5 Hz, attitude 10 Hz, gyro 10 Hz" in printed
+    header, _, row = printed.split("ms\n", 1)[1].splitlines()[:3]
+    assert header.split()[:3] == ["ref", "solver", "loop"] and row.split()[:3] == ["s2", "ipopt", "ekf"]
+    (record,) = (tmp_path / "runs").glob("s2_ipopt_*.npz")
+    run = ClosedLoopResult.load(record)
+    assert run.measurements.sensors == ("position", "dvl", "attitude", "gyro")
+    # the run logged the EKF's current (started from zero: in 0.5 s it is not yet the truth)
+    estimated = run.estimates.currents
+    assert estimated.shape == (5, 2) and not np.allclose(estimated, run.currents[:5], atol=0.01)
+    assert (tmp_path / "s2_estimation.png").stat().st_size > 1000
+    # the oracle on the same current is another configuration, its own record, no loop column
+    assert cli.main([*flags, "--out", out]) == 0
+    assert "loop" not in capsys.readouterr().out
+    assert len(list((tmp_path / "runs").glob("s2_ipopt_*.npz"))) == 2
+    assert cli.main([*flags, "--estimator", "ekff", "--out", out]) == 2
+    line = _one_error_line(capsys)
+    assert line.startswith("error: --estimator must be one of") and "did you mean 'ekf'?" in line

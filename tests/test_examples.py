@@ -164,6 +164,8 @@ def test_readme_ten_line_example_runs():
     exec(compile(code.replace("duration=10.0", "duration=1.0"), "README.md", "exec"), namespace)
     assert namespace["run"].failures == 0
     assert namespace["res"].controls.shape == (20, 3)
+    # the realistic loop: the controller ran on the EKF's estimates of state and current
+    assert namespace["run"].measurements.sensors == ("position", "dvl", "attitude", "gyro")
 
 
 def test_readme_custom_ocp_example_runs():

@@ -30,7 +30,12 @@ from uuv_ocp.studies.compare import format_tracking_table, track_references
 from uuv_ocp.studies.executors import SchedulerUnreachable, WorkerCrashed
 from uuv_ocp.studies.records import StorageError, write_text
 
-DEMO_HINT = "start with `uuv-ocp demo` (all ten paper references, NMPC + IPOPT, 30 s each)"
+DEMO_HINT = "start with `uuv-ocp demo` (all ten paper references, NMPC + IPOPT + EKF, 30 s each)"
+#: The demo's current (m/s, rad): constant, unknown to the controller, estimated by the EKF
+DEMO_CURRENT = (0.5, 1.0)
+DEMO_ESTIMATOR = "ekf"
+#: The reference of the demo's oracle row (the controller told the true state and current)
+ORACLE_REFERENCE = "s2"
 _VEHICLE_HELP = f"{' | '.join(VEHICLE_PRESETS)} | FILE.toml | FILE.py:CLASS (docs/vehicles.md)"
 _REFERENCE_HELP = (
     f"{PAPER_REFERENCES[0]}..{PAPER_REFERENCES[-1]} | waypoints FILE | lawnmower FILE | hold X,Y,PSI | "
@@ -83,7 +88,11 @@ def _parser() -> argparse.ArgumentParser:
     )
     commands = parser.add_subparsers(dest="command")
 
-    demo = commands.add_parser("demo", help="track all ten paper references with NMPC + IPOPT for 30 s")
+    demo = commands.add_parser(
+        "demo",
+        help="track all ten paper references with NMPC + IPOPT for 30 s under a current the "
+        "controller does not know (an EKF estimates it), and s2 with the oracle",
+    )
     demo.add_argument("--out", default="out", help="output folder (figures, saved runs)")
     demo.add_argument("--fresh", action="store_true", help="recompute runs already saved in --out")
     demo.add_argument("--quiet", "-q", action="store_true", help="no progress on standard error")
@@ -102,7 +111,15 @@ def _parser() -> argparse.ArgumentParser:
         metavar="SPEED,DIRECTION",
         default=None,
         help="constant current: speed (m/s, >= 0) and direction of the flow (rad, 0 = +x), "
-        "e.g. 0.3,1.57; told to the controller (default: still water)",
+        "e.g. 0.3,1.57; told to the controller unless --estimator is given (default: still water)",
+    )
+    track.add_argument(
+        "--estimator",
+        "-e",
+        default=None,
+        help="the current is unknown to the controller, which gets the state and current this "
+        "estimator (ekf | ukf | ...: uuv_ocp.available_estimators()) infers from the vehicle's "
+        "sensors (uo.Sensors.auv); default: none, the oracle (true state, current told)",
     )
     track.add_argument("--quiet", "-q", action="store_true", help="no progress on standard error")
 
@@ -276,10 +293,25 @@ def _current(text: str | None):
         raise _flag_error("--current", "current", error) from None
 
 
+def _estimator(name: str | None) -> str | None:
+    """Check ``--estimator NAME`` against the registered estimators (the nearest one suggested)."""
+    if name is None:
+        return None
+    from uuv_ocp.estimation import available_estimators
+
+    names = available_estimators()
+    if name not in names:
+        guess = _nearest(name, names)
+        hint = f"; did you mean {guess!r}?" if guess is not None else ""
+        raise _UsageError(f"--estimator must be one of {', '.join(names)}, got {name!r}{hint}")
+    return name
+
+
 def _check_track(args: argparse.Namespace) -> tuple[Any, list]:
     """Validate the ``track`` flags; return the vehicle and the references."""
     args.solver = _solver("--solver", args.solver)
     args.current = _current(args.current)
+    args.estimator = _estimator(args.estimator)
     _finite("--duration", args.duration)
     _finite("--dt", args.dt)
     _horizon(args.horizon)
@@ -528,12 +560,16 @@ def _dispatch(args: argparse.Namespace) -> int:
         except OSError as error:
             return _fail(f"{error.strerror or error}: {error.filename or ''}")
     if command == "demo":
+        from uuv_ocp.control.disturbances import Current
         from uuv_ocp.model.planar import Vehicle
 
         _output_folder(args.out)
         vehicle: Any = Vehicle.rexrov()
-        names: list = list(PAPER_REFERENCES)
-        solver, duration, horizon, dt, current = "ipopt", 30.0, 20, 0.1, None
+        solver, duration, horizon, dt = "ipopt", 30.0, 20, 0.1
+        current: Any = Current(DEMO_CURRENT[0], DEMO_CURRENT[1])
+        # the realistic loop on every reference, then the oracle beside it on s2
+        jobs: list = [(name, DEMO_ESTIMATOR, "") for name in PAPER_REFERENCES]
+        jobs.append((ORACLE_REFERENCE, None, "oracle_"))
     else:
         vehicle, names = _check_track(args)
         solver, duration, horizon, dt, current = (
@@ -543,13 +579,14 @@ def _dispatch(args: argparse.Namespace) -> int:
             args.dt,
             args.current,
         )
+        jobs = [(name, args.estimator, "") for name in names]
     start = time.perf_counter()
     rows: list = []
     try:
-        for index, name in enumerate(names, 1):
+        for index, (name, estimator, prefix) in enumerate(jobs, 1):
             # one reference at a time, so that each says it has started before its controller
             # is built (seconds, minutes under load) and its own bar appears
-            _announce(index, len(names), name, solver, quiet=args.quiet)
+            _announce(index, len(jobs), name, solver, estimator, quiet=args.quiet)
             rows += track_references(
                 [name],
                 solver,
@@ -561,6 +598,8 @@ def _dispatch(args: argparse.Namespace) -> int:
                 fresh=args.fresh,
                 progress=not args.quiet,
                 current=current,
+                estimator=estimator,
+                prefix=prefix,
             )
     except KeyboardInterrupt as interrupt:
         print(f"\ninterrupted: {interrupt}. Run the same command again to resume.", file=sys.stderr)
@@ -571,10 +610,18 @@ def _dispatch(args: argparse.Namespace) -> int:
         return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
     print()
     print(f"NMPC tracking, {vehicle.name}, N = {horizon}, dt = {dt} s, terminal equality, solver {solver}")
+    estimators = sorted({estimator for _, estimator, _ in jobs if estimator is not None})
+    oracle = any(estimator is None for _, estimator, _ in jobs)
     if current is not None:
+        told = "known to the controller"
+        if estimators:
+            told = "unknown to the controller" + (", told to the oracle's" if oracle else "")
+        print(f"constant current {current.speed:g} m/s towards {current.direction:g} rad ({told})")
+    if estimators:
         print(
-            f"constant current {current.speed:g} m/s towards {current.direction:g} rad "
-            "(known to the controller)"
+            f"loop {'/'.join(estimators)}: state and current estimated by an {'/'.join(estimators).upper()} "
+            f"from {_sensor_list(vehicle)}"
+            + ("; loop oracle: told the true state and current" if oracle else "")
         )
     print("errors in m over the whole run and for t >= t0 + 5 s; solve times per step in ms")
     print(format_tracking_table(rows))
@@ -582,13 +629,23 @@ def _dispatch(args: argparse.Namespace) -> int:
     return 0
 
 
-def _announce(index: int, count: int, reference: Any, solver: str, *, quiet: bool) -> None:
-    """``[2/10] s3 with ipopt`` on standard error, where progress bars are drawn."""
+def _announce(
+    index: int, count: int, reference: Any, solver: str, estimator: str | None, *, quiet: bool
+) -> None:
+    """``[2/10] s3 with ipopt`` (``+ ekf``) on standard error, where progress bars are drawn."""
     from uuv_ocp.progress import drawn
 
     if drawn(not quiet):
         name = reference if isinstance(reference, str) else reference.name
-        print(f"[{index}/{count}] {name} with {solver}", file=sys.stderr, flush=True)
+        loop = f" + {estimator}" if estimator else ""
+        print(f"[{index}/{count}] {name} with {solver}{loop}", file=sys.stderr, flush=True)
+
+
+def _sensor_list(vehicle: Any) -> str:
+    """``position 1 Hz, dvl 5 Hz, ...``: the sensors of :meth:`Sensors.auv` on ``vehicle``."""
+    from uuv_ocp.estimation import Sensors
+
+    return ", ".join(f"{sensor.name} {sensor.rate:g} Hz" for sensor in Sensors.auv(vehicle))
 
 
 if __name__ == "__main__":

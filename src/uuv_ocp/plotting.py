@@ -10,6 +10,8 @@ of them, labelled by ``labels=`` (default: the solver names, numbered when they 
 * :func:`thrust_figure`: the applied controls against their bounds;
 * :func:`state_figure`: heading and velocities (and depth for a 6-DOF vehicle) with the
   reference;
+* :func:`estimation_figure`: a run with an estimator: estimated against true current and
+  state with ±2σ bands, the normalised innovation of every sensor output, sensor dropouts;
 * :func:`comparison_figure`: cost, violation and time per solve of :func:`uuv_ocp.compare`
   rows;
 * :func:`closed_loop_animation` and :func:`save_animation`: a closed loop as a GIF or MP4.
@@ -47,6 +49,7 @@ __all__ = [
     "closed_loop_animation",
     "comparison_figure",
     "error_figure",
+    "estimation_figure",
     "obstacle_figure",
     "save_animation",
     "save_figure",
@@ -647,6 +650,170 @@ def state_figure(
         axis.xaxis.set_tick_params(labelbottom=True)
     figure.suptitle(title or "Heading and velocities")
     _mark_legend(axes[0], drawn)
+    figure.tight_layout()
+    return figure
+
+
+# ------------------------------------------------------------------------- estimation
+#: gid of the lines :func:`estimation_figure` draws, so that a test or a user can find them
+ESTIMATE_GIDS = {
+    "true": "true",
+    "estimate": "estimate",
+    "lower": "band_lower",
+    "upper": "band_upper",
+    "innovation": "innovation",
+    "dropout": "dropout",
+}
+
+
+def _estimate_panels(run: ClosedLoopResult, nx: int) -> list[tuple[int, str, str]]:
+    """Return (state index, y label, title) of the position, heading and velocity states of ``run``."""
+    layout = _layout([run])
+    units = dict(zip(run.state_names, run.state_units, strict=False))
+    keys: list[str] = [key for key in ("x", "y", "z", "psi") if key in layout]
+    keys += [key for key in layout if key not in ("x", "y", "z", "psi")]
+    panels = []
+    for key in keys:
+        if layout[key] >= nx:
+            continue
+        default = {"x": ("x (m)", "position x"), "y": ("y (m)", "position y")}.get(key)
+        label, title = _STATE_PANELS.get(key, default or (f"{key} ({units.get(key) or '-'})", key))
+        panels.append((layout[key], label, title))
+    return panels
+
+
+def estimation_figure(run: ClosedLoopResult, title: str = "", *, sigmas: float = 2.0) -> Figure:
+    """Draw what the estimator of a closed loop made of its sensors: estimates, bands, innovations.
+
+    Parameters
+    ----------
+    run : ClosedLoopResult
+        A run of :func:`uuv_ocp.simulate` with ``estimator=`` (``run.estimates`` is not ``None``).
+    title : str
+        Figure title (default ``"State and current estimation"``).
+    sigmas : float
+        Half-width of the bands in standard deviations, > 0 (default 2: ≈ 95 % for a Gaussian).
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        Panels against ``t (s)``, three per row:
+
+        * each current component ``c_x, c_y (, c_z)`` (m/s, inertial): the true current
+          (black, dashed) and the estimate with the band ``ĉ ± sigmas·√P_cc``;
+        * each position, the heading and each velocity (by the run's ``state_roles``; their
+          units): the true state and the estimate with ``x̂ ± sigmas·√P_xx``;
+        * each sensor: its outputs' innovations normalised by ``√S`` (dimensionless, N(0, 1)
+          for a consistent filter; dotted lines at ±``sigmas``), drawn at the steps it
+          reported, and its dropouts (a due sample that did not arrive) as red crosses on the
+          zero line.  A run saved before ``S`` was recorded gets the raw innovations (the
+          outputs' units).
+
+        Every line carries a ``gid`` from :data:`ESTIMATE_GIDS` (``"estimate"``,
+        ``"band_lower"``, ``"band_upper"``, ``"true"``, ``"innovation"``, ``"dropout"``).
+
+    Raises
+    ------
+    ValueError
+        ``run`` is not a ClosedLoopResult, has no estimates, or ``sigmas`` is not > 0.
+    """
+    (run,) = _as_runs(run)
+    estimates, measurements = run.estimates, run.measurements
+    if estimates is None or measurements is None:
+        raise ValueError(
+            "run must come from uo.simulate(..., estimator=uo.Estimator(...)): it has no run.estimates"
+        )
+    if not (isinstance(sigmas, int | float) and not isinstance(sigmas, bool) and math.isfinite(sigmas)):
+        raise ValueError(f"sigmas must be a finite number > 0, got {sigmas!r}")
+    if sigmas <= 0:
+        raise ValueError(f"sigmas must be a finite number > 0, got {sigmas!r}")
+    t = estimates.t
+    n, nx, nc = t.size, estimates.states.shape[1], estimates.currents.shape[1]
+    spread = sigmas * np.sqrt(np.maximum(estimates.variances, 0.0))
+    # (true values, estimate, its spread, y label, title) of every estimate panel
+    panels: list[tuple[np.ndarray, np.ndarray, np.ndarray, str, str]] = []
+    for index in range(nc):
+        axis_name = "xyz"[index] if nc <= 3 else str(index + 1)
+        truth = run.currents[:n, index] if index < run.currents.shape[1] else np.full(n, np.nan)
+        panels.append(
+            (
+                truth,
+                estimates.currents[:, index],
+                spread[:, nx + index],
+                f"c_{axis_name} (m/s)",
+                f"current {axis_name} (inertial)",
+            )
+        )
+    for index, label, panel_title in _estimate_panels(run, nx):
+        panels.append(
+            (run.states[:n, index], estimates.states[:, index], spread[:, index], label, panel_title)
+        )
+    sensors = list(zip(measurements.sensors, measurements.sizes, strict=True))
+    count = len(panels) + len(sensors)
+    columns = 3
+    rows = math.ceil(count / columns)
+    figure, grid = _subplots(rows, columns, sharex=True, squeeze=False, figsize=(12.0, 1.0 + 2.0 * rows))
+    axes = list(grid.ravel())
+    band_label = f"±{sigmas:g}σ"
+    for axis, (truth, estimate, width, label, panel_title) in zip(axes, panels, strict=False):
+        axis.fill_between(
+            t, estimate - width, estimate + width, color="C0", alpha=0.2, lw=0, label=band_label
+        )
+        axis.plot(t, estimate - width, color="C0", lw=0.5, gid=ESTIMATE_GIDS["lower"])
+        axis.plot(t, estimate + width, color="C0", lw=0.5, gid=ESTIMATE_GIDS["upper"])
+        axis.plot(t, truth, "k--", lw=1.0, label="true", gid=ESTIMATE_GIDS["true"])
+        axis.plot(t, estimate, color="C0", lw=1.2, label="estimate", gid=ESTIMATE_GIDS["estimate"])
+        axis.set_ylabel(label)
+        axis.set_title(panel_title, fontsize="medium")
+    variances = estimates.innovation_variances
+    normalised = bool(np.any(np.isfinite(variances)))
+    offsets = np.concatenate([[0], np.cumsum(measurements.sizes)]).astype(int)
+    for number, (axis, (name, size)) in enumerate(zip(axes[len(panels) :], sensors, strict=False)):
+        for output in range(size):
+            column = offsets[number] + output
+            values = estimates.innovations[:, column]
+            if normalised:
+                values = values / np.sqrt(variances[:, column])
+            reported = np.isfinite(values)
+            axis.plot(
+                t[reported],
+                values[reported],
+                ".-",
+                ms=3,
+                lw=0.6,
+                color=f"C{output}",
+                label=f"output {output + 1}",
+                gid=ESTIMATE_GIDS["innovation"],
+            )
+        dropped = np.flatnonzero(measurements.dropped[:, number])
+        if dropped.size:
+            axis.plot(
+                t[dropped],
+                np.zeros(dropped.size),
+                "x",
+                color="tab:red",
+                ms=8,
+                mew=2.0,
+                zorder=5,  # above the innovations, which pass through the zero line
+                label="dropout",
+                gid=ESTIMATE_GIDS["dropout"],
+            )
+        if normalised:
+            for level in (-sigmas, sigmas):
+                axis.axhline(level, color="k", ls=":", lw=0.8)
+        axis.set_ylabel("ν/√S (-)" if normalised else "ν (output units)")
+        axis.set_title(f"{name}: {'normalised ' if normalised else ''}innovation", fontsize="medium")
+        axis.legend(loc="best", fontsize="x-small")
+    for axis in axes[:count]:
+        axis.grid(True, alpha=0.3)
+    for spare in axes[count:]:
+        spare.set_visible(False)
+    for axis in axes[max(0, count - columns) : count]:
+        axis.set_xlabel("t (s)")
+        axis.xaxis.set_tick_params(labelbottom=True)
+    if panels:
+        axes[0].legend(loc="best", fontsize="small")
+    figure.suptitle(title or "State and current estimation")
     figure.tight_layout()
     return figure
 

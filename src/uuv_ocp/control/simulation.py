@@ -64,6 +64,10 @@ class EstimateLog:
         Innovations of the stacked sensor outputs; NaN where a sensor did not report.
     times : numpy.ndarray, shape (n,)
         Wall-clock time of each estimator step (s).
+    innovation_variances : numpy.ndarray, shape (n, m)
+        Diagonal of each innovation's predicted covariance ``S`` (the outputs' units squared;
+        ``innovations / sqrt(innovation_variances)`` is N(0, 1) for a consistent filter); NaN
+        where a sensor did not report, or for a run saved before it was recorded.
     """
 
     t: np.ndarray
@@ -72,6 +76,7 @@ class EstimateLog:
     variances: np.ndarray
     innovations: np.ndarray
     times: np.ndarray
+    innovation_variances: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -156,6 +161,7 @@ class ClosedLoopResult:
         ``""``; the vehicle's ``layout.state_roles``): plots and metrics find the positions,
         the heading and the velocities by role, whatever the vehicle names them.
     estimated_states, estimated_currents, estimate_variances, innovations, estimate_times : optional
+    innovation_variances : optional
         Arrays of a run with an estimator: :attr:`estimates` (:class:`EstimateLog`); empty otherwise.
     measurement_values, measurement_dropped, sensor_names, sensor_sizes : optional
         A run with an estimator: :attr:`measurements` (:class:`MeasurementLog`); empty otherwise.
@@ -185,6 +191,7 @@ class ClosedLoopResult:
     estimate_variances: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     innovations: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     estimate_times: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    innovation_variances: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     measurement_values: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     measurement_dropped: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
     sensor_names: tuple[str, ...] = ()
@@ -197,6 +204,7 @@ class ClosedLoopResult:
         "estimate_variances",
         "innovations",
         "estimate_times",
+        "innovation_variances",
         "measurement_values",
         "measurement_dropped",
     )
@@ -207,6 +215,10 @@ class ClosedLoopResult:
         if not self.sensor_names:
             return None
         n = self.estimated_states.shape[0]
+        # runs saved before S was recorded: NaN (unknown), of the innovations' shape
+        variances = self.innovation_variances
+        if variances.shape != self.innovations.shape:
+            variances = np.full(self.innovations.shape, np.nan)
         return EstimateLog(
             self.t[:n],
             self.estimated_states,
@@ -214,6 +226,7 @@ class ClosedLoopResult:
             self.estimate_variances,
             self.innovations,
             self.estimate_times,
+            variances,
         )
 
     @property
@@ -602,6 +615,7 @@ class _Log:
             "estimate_variances": np.full((steps, model.size), np.nan),
             "innovations": np.full((steps, m), np.nan),
             "estimate_times": np.zeros(steps),
+            "innovation_variances": np.full((steps, m), np.nan),
             "measurement_values": np.full((steps, m), np.nan),
             "measurement_dropped": np.zeros((steps, len(sensors)), dtype=bool),
         }
@@ -615,6 +629,8 @@ class _Log:
         log["estimated_currents"][k] = estimate.current
         log["estimate_variances"][k] = np.diag(estimate.covariance)
         log["innovations"][k, rows] = estimate.innovations
+        if estimate.innovation_covariance.shape == (rows.size, rows.size):  # else unknown: NaN
+            log["innovation_variances"][k, rows] = np.diag(estimate.innovation_covariance)
         log["estimate_times"][k] = elapsed
         log["measurement_values"][k, rows] = measurement.values
         log["measurement_dropped"][k, list(measurement.dropped)] = True

@@ -42,6 +42,8 @@ from uuv_ocp._version import __version__
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
+from uuv_ocp.estimation.base import Estimator, available_estimators
+from uuv_ocp.estimation.sensors import Sensors
 from uuv_ocp.interrupts import check_interrupt, remember_interrupts
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.reference.path import Reference
@@ -144,6 +146,13 @@ class CampaignConfig:
         Sampling time (s), > 0.
     current_decay : float
         Gauss–Markov decay rate of the current's speed and direction (1/s), >= 0.
+    estimator : str or None
+        ``None`` (default): the controller gets the state plus ``noise_std`` noise (and the
+        current if ``current_known``).  A name of :func:`uuv_ocp.available_estimators`
+        (``"ekf"``, ...): the controller gets the state, and unless ``current_known`` the
+        current, that this estimator infers from the vehicle's sensor suite
+        (:meth:`Sensors.auv <uuv_ocp.Sensors.auv>` of the controller's model; the sensors
+        carry their own noise, so ``noise_std`` is not used).
     """
 
     reference: str = "s2"
@@ -162,6 +171,7 @@ class CampaignConfig:
     controller_model: str | None = None
     dt: float = 0.1
     current_decay: float = 0.1
+    estimator: str | None = None
 
     def __post_init__(self) -> None:
         """Validate the fields (``ValueError`` names the first bad one)."""
@@ -184,6 +194,10 @@ class CampaignConfig:
         )
         check.boolean("mismatch", self.mismatch)
         check.boolean("current_known", self.current_known)
+        if self.estimator is not None and self.estimator not in available_estimators():
+            raise ValueError(
+                f"estimator must be one of {available_estimators()} or None, got {self.estimator!r}"
+            )
         object.__setattr__(self, "horizon", check.positive_int("horizon", self.horizon))
         object.__setattr__(self, "dt", check.positive_float("dt", self.dt))
         object.__setattr__(self, "seed", check.positive_int("seed", self.seed, minimum=0))
@@ -249,6 +263,10 @@ class CampaignConfig:
         problem = self.problem()
         duration = self.run_duration(problem)
         values = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "trials"}
+        if self.estimator is None:  # the campaigns without one keep the names they had
+            del values["estimator"]
+        else:
+            values["sensors"] = "auv"
         values.update(
             model=self.model_spec,
             plant_content=self.plant(),
@@ -324,6 +342,11 @@ def trial_task(config: CampaignConfig, index: int) -> ClosedLoopResult:
     problem = config.problem()
     current, noise, simulation_seed = _trial_setup(config, index)
     controller = NMPC(problem, config.solver, options=config.solver_options or None, seed=simulation_seed)
+    # with an estimator the sensors carry the noise; the estimator runs on the controller's model
+    sensing: dict[str, Any] = {"noise": noise}
+    if config.estimator is not None:
+        sensors = Sensors.auv(problem.vehicle)
+        sensing = {"estimator": Estimator(problem, config.estimator, sensors=sensors)}
     try:
         return simulate(
             controller,
@@ -331,9 +354,9 @@ def trial_task(config: CampaignConfig, index: int) -> ClosedLoopResult:
             config.run_duration(problem),
             current=current,
             current_known=config.current_known,
-            noise=noise,
             plant=config.plant(),
             seed=simulation_seed,
+            **sensing,
         )
     except SimulationInterrupted as stop:  # no record of an unfinished trial is written
         raise KeyboardInterrupt(f"trial {index} interrupted; finished trials are saved") from stop
@@ -575,7 +598,15 @@ CAMPAIGN_KEYS = (
     "dt",
     "seed",
 )
-DISTURBANCE_KEYS = ("max_current", "current_noise", "current_decay", "current_known", "noise_std", "mismatch")
+DISTURBANCE_KEYS = (
+    "max_current",
+    "current_noise",
+    "current_decay",
+    "current_known",
+    "noise_std",
+    "mismatch",
+    "estimator",
+)
 
 
 def _toml_value(value: Any) -> str:
@@ -606,7 +637,11 @@ def to_toml(configs: Sequence[CampaignConfig]) -> str:
         elif getattr(first, key) is not None:
             lines.append(f"{key} = {_toml_value(getattr(first, key))}")
     lines.append("\n[disturbance]")
-    lines += [f"{key} = {_toml_value(getattr(first, key))}" for key in DISTURBANCE_KEYS]
+    lines += [
+        f"{key} = {_toml_value(getattr(first, key))}"
+        for key in DISTURBANCE_KEYS
+        if getattr(first, key) is not None  # no estimator: the key is left out
+    ]
     for config in configs:
         if config.solver_options:
             lines.append(f'\n[solver_options."{config.solver}"]')

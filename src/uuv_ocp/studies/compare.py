@@ -17,6 +17,7 @@ import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -26,11 +27,13 @@ from uuv_ocp.build import Transcribed
 from uuv_ocp.control.disturbances import Current
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import SimulationInterrupted, simulate
+from uuv_ocp.estimation.base import Estimator, available_estimators
+from uuv_ocp.estimation.sensors import Sensors
 from uuv_ocp.interrupts import check_interrupt, remember_interrupts
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE, instance_parameters, score_terms
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
-from uuv_ocp.plotting import save_tracking_figures
+from uuv_ocp.plotting import estimation_figure, save_figure, save_tracking_figures
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
 from uuv_ocp.solvers import REGISTRY, get_solver
 from uuv_ocp.studies.records import config_key, read_record, write_record
@@ -49,6 +52,9 @@ class TrackingRow:
     duration: float
     reference_speed_max: float
     note: str
+    #: what the controller was given: ``"oracle"`` (the true state, and the true current when
+    #: there is one) or the name of the estimator of state and current (``"ekf"``, ...)
+    loop: str = "oracle"
 
 
 def unreachable_from(reference: Reference, vehicle: AnyVehicle, t0: float, duration: float) -> float | None:
@@ -93,11 +99,12 @@ def run_settings(
     t0: float,
     duration: float,
     current: Current | None = None,
+    estimator: str | None = None,
 ) -> dict:
     """Return the whole configuration of one :func:`track_references` run (its record's key).
 
-    A ``current`` enters only when given, so that the keys of runs in still water stay those
-    that earlier versions wrote.
+    A ``current`` and an ``estimator`` (with its sensors) enter only when given, so that the
+    keys of oracle runs stay those that earlier versions wrote.
     """
     reference = problem.reference
     times = np.linspace(t0, t0 + duration + problem.horizon * problem.dt, 257)
@@ -115,6 +122,7 @@ def run_settings(
         "duration": duration,
         "version": __version__,
         **({"current": current} if current is not None else {}),
+        **({"estimator": estimator, "sensors": "auv"} if estimator is not None else {}),
     }
 
 
@@ -132,16 +140,26 @@ def track_references(
     figures: bool = True,
     solver_options: dict | None = None,
     current: Current | None = None,
+    estimator: str | None = None,
+    prefix: str = "",
 ) -> list[TrackingRow]:
     """Closed-loop NMPC on each reference (paper name or :class:`Reference`) from rest; resumable.
 
-    ``current`` acts on the plant and is told to the controller (:func:`simulate`'s
-    ``current_known``); ``None`` is still water.
+    ``current`` acts on the plant (``None``: still water).  Without ``estimator`` the loop is
+    the oracle: the controller gets the true state and is told the current.  With
+    ``estimator`` (a name of :func:`uuv_ocp.available_estimators`, e.g. ``"ekf"``) the current
+    is unknown to the controller: it gets the state and the current that estimator infers
+    from the vehicle's sensor suite :meth:`Sensors.auv <uuv_ocp.Sensors.auv>` (position fix,
+    DVL with dropouts, attitude, gyro; depth on a 6-DOF vehicle), seeded with 0.
 
     Returns one :class:`TrackingRow` per reference and, when ``figures`` is true, writes
-    ``<ref>_xoy.png``, ``<ref>_errors.png``, ``<ref>_thrust.png`` and ``<ref>_states.png`` into
-    ``out_dir``, the part of the run where the path is faster than the vehicle shaded.
+    ``<prefix><ref>_xoy.png``, ``_errors.png``, ``_thrust.png`` and ``_states.png`` into
+    ``out_dir``, the part of the run where the path is faster than the vehicle shaded, and
+    with an estimator ``<prefix><ref>_estimation.png``
+    (:func:`~uuv_ocp.plotting.estimation_figure`).
     """
+    if estimator is not None and estimator not in available_estimators():
+        raise ValueError(f"estimator must be one of {available_estimators()} or None, got {estimator!r}")
     vehicle = vehicle or Vehicle.rexrov()
     out_dir = Path(out_dir)
     runs_dir = out_dir / "runs"
@@ -155,10 +173,11 @@ def track_references(
             problem = TrackingProblem(vehicle, reference, horizon=horizon, dt=dt)
             t0 = reference.t_start
             run_duration = min(duration, problem.latest_start() - t0)
-            settings = run_settings(problem, solver, solver_options, t0, run_duration, current)
+            settings = run_settings(problem, solver, solver_options, t0, run_duration, current, estimator)
             label = re.sub(
                 r"[^A-Za-z0-9_.-]+", "-", f"{name}_{solver}"
             )  # a file name whatever the path's name
+            loop = estimator or "oracle"
             path = runs_dir / f"{label}_{config_key(settings)[:12]}.npz"
             saved = (
                 None if fresh else read_record(path, settings, steps=int(np.floor(run_duration / dt + 1e-9)))
@@ -167,6 +186,12 @@ def track_references(
                 run = saved[0]
             else:
                 controller = NMPC(problem, solver, options=solver_options)
+                estimation: dict[str, Any] = {}
+                if estimator is not None:
+                    estimation = {
+                        "estimator": Estimator(problem, estimator, sensors=Sensors.auv(vehicle)),
+                        "seed": 0,
+                    }
                 with warnings.catch_warnings():  # the row's note says it (_reach)
                     warnings.simplefilter("ignore", ReferenceSpeedWarning)
                     try:
@@ -176,7 +201,8 @@ def track_references(
                             run_duration,
                             current=current,
                             progress=progress,
-                            label=f"{name} {solver}",
+                            label=f"{name} {solver}" + (f" {estimator}" if estimator else ""),
+                            **estimation,
                         )
                     except SimulationInterrupted as stop:  # the unfinished run is not saved
                         raise KeyboardInterrupt(
@@ -188,12 +214,15 @@ def track_references(
                 save_tracking_figures(
                     run,
                     out_dir,
-                    prefix=f"{name}_",
-                    labels=[f"{name} {solver}"],
+                    prefix=f"{prefix}{name}_",
+                    labels=[f"{name} {solver}" + (f", {estimator}" if estimator else "")],
                     vehicle=vehicle,
                     unreachable_from=unreachable,
                 )
-            rows.append(TrackingRow(name, solver, run.metrics(), run_duration, speed_max, note))
+                if estimator is not None:
+                    figure = estimation_figure(run, f"{name}: {estimator} estimates, current unknown")
+                    save_figure(figure, out_dir / f"{prefix}{name}_estimation.png")
+            rows.append(TrackingRow(name, solver, run.metrics(), run_duration, speed_max, note, loop))
     return rows
 
 
@@ -207,6 +236,10 @@ def format_tracking_table(rows: Sequence[TrackingRow]) -> str:
     columns = [
         ("ref", 4, lambda r: r.reference),
         ("solver", 7, lambda r: r.solver),
+    ]
+    if any(row.loop != "oracle" for row in rows):  # what each controller was given
+        columns += [("loop", 6, lambda r: r.loop)]
+    columns += [
         ("T(s)", 5, lambda r: f"{r.duration:.1f}"),
         ("max|ex|", 8, lambda r: f"{r.metrics['max_abs_ex']:.3f}"),
         ("max|ey|", 8, lambda r: f"{r.metrics['max_abs_ey']:.3f}"),

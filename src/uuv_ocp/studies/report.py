@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from uuv_ocp.control.simulation import ClosedLoopResult, simulate
+from uuv_ocp.estimation.sensors import Sensors
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.optimize.schedules import convergence_factor
 from uuv_ocp.plotting import error_figure, save_figure, xoy_figure
@@ -61,6 +62,8 @@ __all__ = ["AGREEMENT_FACTOR", "HOLDS", "NOT_COMPARABLE", "NOT_HOLD", "Verdict",
 
 #: Ratio ours/paper within [1/2, 2]: same magnitude (see the module doc).
 AGREEMENT_FACTOR = 2.0
+#: Headers of the column "current unknown, estimated" of Tables 1–2, by axis
+ESTIMATED_COLUMNS = {"x": "current unknown, estimated x", "y": "current unknown, estimated y"}
 HOLDS, NOT_HOLD, NOT_COMPARABLE = "holds", "does not hold", "not comparable"
 #: Resolution (PNG dpi) of the report's figures: small files for a committed report.
 FIGURE_DPI = 80
@@ -165,7 +168,9 @@ def _paired_rows(
     ours: Mapping[str, _Stats],
     metric: str,
     label: str,
+    estimated: Mapping[str, _Stats] | None = None,
 ) -> list[dict]:
+    """Return a table's rows beside the paper's (``estimated``: with "current unknown, estimated")."""
     rows = []
     for key in keys:
         px, py = paper.get(key, (math.nan, math.nan))
@@ -184,6 +189,10 @@ def _paired_rows(
         if metric == "var" and stats:
             row["ours std x (m)"] = stats.summary["mean_std_ex"]
             row["ours std y (m)"] = stats.summary["mean_std_ey"]
+        if estimated is not None:
+            other = estimated.get(key)
+            for axis, column in ESTIMATED_COLUMNS.items():
+                row[column] = other.summary[f"mean_{metric}_e{axis}"] if other else "not run"
         rows.append(row)
     return rows
 
@@ -546,6 +555,23 @@ def _settings_rows(settings: Any) -> list[dict]:
         },
         {"setting": "seed", "value": f"{settings.seed} (trial i: numpy default_rng([seed, i]))"},
     ]
+    if settings.estimator is not None:
+        sensors = ", ".join(
+            f"{sensor.name} {fmt(sensor.rate)} Hz σ {fmt(sensor.std[0])}"
+            + (f" ({fmt(100 * sensor.dropout)} % dropouts)" if sensor.dropout else "")
+            for sensor in Sensors.auv(Vehicle.rexrov())
+        )
+        rows.append(
+            {
+                "setting": "column “current unknown, estimated” (Tables 1–2)",
+                "value": f"{TABLE_SOLVER} again on each reference with the same trials, the current "
+                "unknown to the controller: it gets the state and current that an "
+                f"{settings.estimator.upper()} infers on its (rounded) model from the sensors "
+                f"{sensors} (m, m/s, rad, rad/s; "
+                "`uo.Sensors.auv`), which replace the full-state noise; the verdicts are on the paper's "
+                "setting",
+            }
+        )
     return rows
 
 
@@ -554,6 +580,7 @@ def write_report(
     campaigns: Mapping[tuple[str, str], CampaignResult],
     elapsed: Mapping[tuple[str, str], float],
     out_dir: Path,
+    estimated: Mapping[str, CampaignResult] | None = None,
 ) -> Any:
     """Compute every table, verdict and figure from the campaigns and write the report.
 
@@ -565,6 +592,9 @@ def write_report(
         Wall time of each campaign in this call (s).
     out_dir : Path
         Where ``report.md``, ``results.json`` and ``figures/`` go.
+    estimated : mapping of str to CampaignResult, optional
+        The campaigns of the column "current unknown, estimated" by reference
+        (``settings.estimator``); they enter Tables 1–2, not the verdicts.
 
     Returns
     -------
@@ -580,9 +610,19 @@ def write_report(
     limits = {ref: speed_limit(ref, settings.duration) for ref in settings.references}
     all_limits = {ref: speed_limit(ref, 30.0) for ref in paper_data.REFERENCES}
 
+    # the column "current unknown, estimated" (None: no column)
+    column = (
+        {ref: _stats(result) for ref, result in (estimated or {}).items()}
+        if settings.estimator is not None
+        else None
+    )
     tables: dict[str, list[dict]] = {
-        "table1": _paired_rows(settings.references, paper_data.TABLE1_MAX_ABS, igwo, "max_abs", "reference"),
-        "table2": _paired_rows(settings.references, paper_data.TABLE2_COVARIANCE, igwo, "var", "reference"),
+        "table1": _paired_rows(
+            settings.references, paper_data.TABLE1_MAX_ABS, igwo, "max_abs", "reference", column
+        ),
+        "table2": _paired_rows(
+            settings.references, paper_data.TABLE2_COVARIANCE, igwo, "var", "reference", column
+        ),
         "table3": _paired_rows(settings.solvers, paper_data.TABLE3_COVARIANCE, comparison, "var", "solver"),
         "table4": _paired_rows(settings.solvers, paper_data.TABLE4_MAX_ABS, comparison, "max_abs", "solver"),
     }
@@ -687,13 +727,37 @@ def write_report(
             }
             for (ref, solver), result in campaigns.items()
         ],
+        "estimated_campaigns": [
+            {"reference": ref, "estimator": settings.estimator, "directory": str(result.directory)}
+            for ref, result in (estimated or {}).items()
+        ],
         "tables": tables,
         "verdicts": [asdict(verdict) for verdict in verdicts],
     }
     (out_dir / "results.json").write_text(json.dumps(results, indent=1, default=str), encoding="utf-8")
     return ReproductionResult(
-        settings, dict(campaigns), dict(elapsed), report, figures, tables, tuple(verdicts)
+        settings,
+        dict(campaigns),
+        dict(elapsed),
+        report,
+        figures,
+        tables,
+        tuple(verdicts),
+        dict(estimated or {}),
     )
+
+
+def _estimated_note(settings: Any) -> list[str]:
+    """Return the lines under Table 1 that say what its column "current unknown, estimated" is."""
+    if settings.estimator is None:
+        return []
+    return [
+        f"*Current unknown, estimated*: the same {TABLE_SOLVER} campaigns (same trials, currents and "
+        f"seeds), the controller told neither the state nor the current but given what an "
+        f"{settings.estimator.upper()} infers from the vehicle's sensors (Settings); the paper's setting, "
+        "which the verdicts judge, hands the controller the true current.",
+        "",
+    ]
 
 
 def _write_figures(
@@ -782,6 +846,8 @@ def _render(
     counts = {name: sum(v.verdict == name for v in verdicts) for name in (HOLDS, NOT_HOLD, NOT_COMPARABLE)}
     command = "uuv-ocp reproduce" + (" --quick" if settings.quick else "") + f" --trials {settings.trials}"
     paired = ["paper x", "ours x", "ours/paper x", "paper y", "ours y", "ours/paper y"]
+    # the column "current unknown, estimated" beside the paper's setting (Tables 1–2)
+    beside = list(ESTIMATED_COLUMNS.values()) if settings.estimator is not None else []
     s8, s9 = limits["s8"], limits["s9"]
     total = sum(elapsed.values())
     surge_thrust = Vehicle.rexrov().max_thrust[0]
@@ -826,11 +892,12 @@ def _render(
         "",
         "## Table 1: maximum absolute tracking error (IGWO, m)",
         "",
-        _markdown(tables["table1"], ["reference", *paired]),
+        _markdown(tables["table1"], ["reference", *paired, *beside]),
         "",
+        *_estimated_note(settings),
         "## Table 2: tracking error covariance (IGWO; ours: variance, m²)",
         "",
-        _markdown(tables["table2"], ["reference", *paired, "ours std x (m)", "ours std y (m)"]),
+        _markdown(tables["table2"], ["reference", *paired, "ours std x (m)", "ours std y (m)", *beside]),
         "",
         "## Table 3: tracking error covariance by solver (s2; ours: variance, m²)",
         "",

@@ -7,7 +7,11 @@ parameters against the exact plant — and writes ``report.md`` with the paper's
 beside ours, the equivalents of its Figures 5 and 7–12, the solve time per step of every
 solver, a measured time-to-band and a verdict on every claim (:mod:`uuv_ocp.studies.report`).
 The paper's numbers come from :mod:`uuv_ocp.studies.paper_data`; every other number in the
-report is computed from the saved trials.
+report is computed from the saved trials.  Beside the paper's setting (the current known to
+the controller, the full state measured with noise), Tables 1–2 get a column "current unknown,
+estimated": the IGWO campaigns again, the controller given the state and current an EKF
+infers from the vehicle's sensors (:attr:`ReproductionSettings.estimator`); the verdicts stay
+on the paper's setting.
 
 Campaigns resume: a rerun of the same command loads the finished trials and runs only the
 missing ones, so Ctrl-C loses at most the trials in progress.
@@ -25,6 +29,7 @@ from uuv_ocp.studies.campaign import CampaignResult, run_campaign
 from uuv_ocp.studies.report import write_report
 from uuv_ocp.studies.reproduction import (
     COMPARISON_REFERENCE,
+    ESTIMATOR,
     FULL_BUDGETS,
     HYBRID,
     PRIMARY_BAND,
@@ -45,6 +50,7 @@ from uuv_ocp.studies.reproduction import (
 
 __all__ = [
     "COMPARISON_REFERENCE",
+    "ESTIMATOR",
     "FULL_BUDGETS",
     "HYBRID",
     "PRIMARY_BAND",
@@ -115,16 +121,23 @@ def reproduce(
     out.mkdir(parents=True, exist_ok=True)
     campaigns: dict[tuple[str, str], CampaignResult] = {}
     elapsed: dict[tuple[str, str], float] = {}
+    estimated: dict[str, CampaignResult] = {}
     configs = settings.configs()
-    for number, config in enumerate(configs, start=1):
+    extra = settings.estimated_configs()
+    total = len(configs) + len(extra)
+    for number, config in enumerate([*configs, *extra], start=1):
+        column = config.estimator is not None
         if progress:
-            print(
-                f"[{number}/{len(configs)}] {config.reference} {config.solver}", file=sys.stderr, flush=True
-            )
+            loop = f" + {config.estimator} (current unknown)" if column else ""
+            print(f"[{number}/{total}] {config.reference} {config.solver}{loop}", file=sys.stderr, flush=True)
         start = time.perf_counter()
         result = run_campaign(
             config, out / "campaigns", executor=executor, workers=workers, progress=progress
         )
+        if column:  # its time counts in the total, under its own key
+            estimated[config.reference] = result
+            elapsed[config.reference, f"{config.solver}, {config.estimator}"] = time.perf_counter() - start
+            continue
         elapsed[config.reference, config.solver] = time.perf_counter() - start
         campaigns[config.reference, config.solver] = result
-    return write_report(settings, campaigns, elapsed, out)
+    return write_report(settings, campaigns, elapsed, out, estimated)

@@ -19,6 +19,7 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.control.simulation import ClosedLoopResult
+from uuv_ocp.estimation.base import available_estimators
 from uuv_ocp.model.planar import Vehicle
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
 from uuv_ocp.solvers import REGISTRY
@@ -26,6 +27,7 @@ from uuv_ocp.studies import paper_data
 from uuv_ocp.studies.campaign import CampaignConfig, CampaignResult
 
 __all__ = [
+    "ESTIMATOR",
     "FULL_BUDGETS",
     "HYBRID",
     "QUICK_BUDGETS",
@@ -62,6 +64,8 @@ COMPARISON_REFERENCE = "s2"
 #: case II (:data:`paper_data.STABLE_LEVEL`), and a tighter one.
 PRIMARY_BAND = paper_data.STABLE_LEVEL[COMPARISON_REFERENCE][1]
 TIGHT_BAND = 0.1
+#: The estimator of the column "current unknown, estimated" beside the paper's setting
+ESTIMATOR = "ekf"
 
 
 # ------------------------------------------------------------------------------ metrics
@@ -230,6 +234,13 @@ class ReproductionSettings:
     campaign : CampaignConfig
         Disturbance and model settings shared by every campaign (its reference, solver,
         trials, duration, seed and options are replaced per campaign).
+    estimator : str or None
+        The column "current unknown, estimated" of Tables 1–2: the :data:`TABLE_SOLVER`
+        campaigns run again, by the same code, with the current unknown to the controller,
+        which gets the state and the current this estimator infers from the vehicle's sensors
+        (:meth:`Sensors.auv <uuv_ocp.Sensors.auv>`; they replace the full-state noise).
+        Default :data:`ESTIMATOR`; ``None``: no column.  The verdicts stay on the paper's
+        setting.
     """
 
     references: tuple[str, ...] = paper_data.REFERENCES
@@ -242,6 +253,7 @@ class ReproductionSettings:
     quick: bool = False
     every_pair: bool = False
     campaign: CampaignConfig = field(default_factory=lambda: CampaignConfig(mismatch=True))
+    estimator: str | None = ESTIMATOR
 
     def __post_init__(self) -> None:
         """Validate the fields (``ValueError`` names the first bad one)."""
@@ -279,6 +291,10 @@ class ReproductionSettings:
         object.__setattr__(self, "swarm_options", MappingProxyType(dict(self.swarm_options)))
         if not isinstance(self.campaign, CampaignConfig):
             raise ValueError(f"campaign must be a CampaignConfig, got {type(self.campaign).__name__}")
+        if self.estimator is not None and self.estimator not in available_estimators():
+            raise ValueError(
+                f"estimator must be one of {available_estimators()} or None, got {self.estimator!r}"
+            )
 
     @classmethod
     def quick_settings(cls, **changes: Any) -> ReproductionSettings:
@@ -303,9 +319,15 @@ class ReproductionSettings:
         options = {"population": population, "iterations": iterations, **self.swarm_options}
         return {"swarm": options} if plus else options
 
-    def config(self, reference: str, solver: str) -> CampaignConfig:
-        """Return the campaign of one reference and solver."""
+    def config(self, reference: str, solver: str, *, estimated: bool = False) -> CampaignConfig:
+        """Return the campaign of one reference and solver (``estimated``: of the estimated column)."""
         base = self.campaign
+        if estimated:
+            if self.estimator is None:
+                raise ValueError("estimated=True needs settings.estimator (it is None: no such column)")
+            changes: dict[str, Any] = {"estimator": self.estimator, "current_known": False}
+        else:
+            changes = {"current_known": base.current_known}
         return CampaignConfig(
             reference=reference,
             solver=solver,
@@ -315,10 +337,10 @@ class ReproductionSettings:
             current_noise=base.current_noise,
             noise_std=base.noise_std,
             mismatch=base.mismatch,
-            current_known=base.current_known,
             horizon=base.horizon,
             seed=self.seed,
             solver_options=self.solver_options(solver),
+            **changes,
         )
 
     def pairs(self) -> list[tuple[str, str]]:
@@ -331,8 +353,20 @@ class ReproductionSettings:
         ]
 
     def configs(self) -> list[CampaignConfig]:
-        """Every campaign, in the order of :meth:`pairs`."""
+        """Every campaign of the paper's setting, in the order of :meth:`pairs`."""
         return [self.config(reference, solver) for reference, solver in self.pairs()]
+
+    def estimated_references(self) -> tuple[str, ...]:
+        """Return the references of the estimated column: :data:`TABLE_SOLVER`'s (none without it)."""
+        if self.estimator is None:
+            return ()
+        return tuple(reference for reference, solver in self.pairs() if solver == TABLE_SOLVER)
+
+    def estimated_configs(self) -> list[CampaignConfig]:
+        """Return the campaigns of the column "current unknown, estimated", by reference."""
+        return [
+            self.config(reference, TABLE_SOLVER, estimated=True) for reference in self.estimated_references()
+        ]
 
 
 # ------------------------------------------------------------------------------ results
@@ -355,6 +389,9 @@ class ReproductionResult:
         ``"time_to_band"``, ``"speed_limits"``, ``"all_solvers"``).
     verdicts : tuple of Verdict
         One per claim of the paper (:class:`uuv_ocp.studies.report.Verdict`).
+    estimated : mapping of str to CampaignResult
+        The campaigns of the column "current unknown, estimated", by reference (empty
+        without ``settings.estimator``).
     """
 
     settings: ReproductionSettings
@@ -364,6 +401,7 @@ class ReproductionResult:
     figures: Mapping[str, Path]
     tables: Mapping[str, list[dict]]
     verdicts: tuple[Any, ...]
+    estimated: Mapping[str, CampaignResult] = field(default_factory=dict)
 
 
 def load_trials(result: CampaignResult) -> list[ClosedLoopResult]:

@@ -35,6 +35,7 @@ from uuv_ocp.estimation.sensors import Measurement, Sensors
 from uuv_ocp.native.buffered import BufferedFunction
 
 CURRENT_MODELS = ("random_walk", "gauss_markov")
+MHE_MODES = ("full", "rti")
 
 
 def _per_state(name: str, value: object, size: int) -> np.ndarray:
@@ -82,6 +83,17 @@ class EstimatorOptions:
         κ = 0 keep every weight non-negative (the predicted covariance stays positive
         semi-definite; α = 1e-3, the textbook choice, gives a centre weight of −1e6 and loses
         six digits to cancellation).
+    horizon : int
+        The MHE's window, in control steps (>= 1).  Default 20 (2 s at 10 Hz: two position
+        fixes of a 1 Hz USBL in every window).
+    mode : {"full", "rti"}
+        The MHE's solve: Gauss–Newton to convergence (``"full"``, default) or one Gauss–Newton
+        step per control step from the shifted previous solution (``"rti"``).
+    max_iterations : int
+        The full solve's largest number of Gauss–Newton iterations per step (>= 1).  Default 20.
+    tolerance : float
+        The full solve stops when the Gauss–Newton decrement ``bᵀδ`` (twice the predicted
+        decrease of the cost) is below ``tolerance · max(1, cost)``, > 0.  Default 1e-10.
     """
 
     state_std: float | tuple[float, ...] = 1e-3
@@ -98,6 +110,10 @@ class EstimatorOptions:
     alpha: float = 1.0
     beta: float = 2.0
     kappa: float = 0.0
+    horizon: int = 20
+    mode: str = "full"
+    max_iterations: int = 20
+    tolerance: float = 1e-10
 
     def __post_init__(self) -> None:
         """Check the scalar fields (``ValueError`` names the field); the per-state ones on use."""
@@ -123,6 +139,10 @@ class EstimatorOptions:
         set_field(self, "alpha", alpha)
         set_field(self, "beta", check.nonnegative_float("options.beta", self.beta))
         set_field(self, "kappa", check.nonnegative_float("options.kappa", self.kappa))
+        set_field(self, "horizon", check.positive_int("options.horizon", self.horizon))
+        check.choice("options.mode", self.mode, MHE_MODES)
+        set_field(self, "max_iterations", check.positive_int("options.max_iterations", self.max_iterations))
+        set_field(self, "tolerance", check.positive_float("options.tolerance", self.tolerance))
         for name in ("state_std", "initial_state_std"):
             value = getattr(self, name)
             if isinstance(value, (list, np.ndarray)):
@@ -280,8 +300,10 @@ class Estimator:
     """A state and current estimator on a problem's own model, chosen by name.
 
     ``Estimator(problem, "ekf", sensors=...)`` returns the registered class of that name
-    (:func:`available_estimators`): ``"ekf"`` (:class:`~uuv_ocp.estimation.ekf.ExtendedKalmanFilter`)
-    or ``"ukf"`` (:class:`~uuv_ocp.estimation.ukf.UnscentedKalmanFilter`).
+    (:func:`available_estimators`): ``"ekf"``
+    (:class:`~uuv_ocp.estimation.ekf.ExtendedKalmanFilter`), ``"ukf"``
+    (:class:`~uuv_ocp.estimation.ukf.UnscentedKalmanFilter`) or ``"mhe"``
+    (:class:`~uuv_ocp.estimation.mhe.MovingHorizonEstimator`).
 
     Parameters
     ----------

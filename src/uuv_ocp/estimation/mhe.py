@@ -64,8 +64,17 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from uuv_ocp.estimation.base import Estimate, Estimator, buffered, register_estimator
+from uuv_ocp._concurrency import BUILD_LOCK
+from uuv_ocp.estimation.base import Estimate, Estimator, register_estimator
 from uuv_ocp.estimation.sensors import Measurement
+from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.native.compile import default_cache_directory, load_or_fallback
+
+
+def _function(name: str, inputs: list[ca.SX], outputs: list[ca.SX]) -> ca.Function:
+    """Return a Function of dense outputs (a sparse one would make BufferedFunction wrap it in MX)."""
+    with BUILD_LOCK:
+        return ca.Function(name, inputs, [ca.densify(output) for output in outputs])
 
 
 def _cholesky(A: ca.SX) -> list[list[ca.SX]]:
@@ -105,8 +114,20 @@ def _backward(L: list[list[ca.SX]], B: ca.SX) -> ca.SX:
     return ca.vertcat(*rows)
 
 
+def _gram(V: ca.SX) -> ca.SX:
+    """``Vᵀ V``, each entry of the symmetric result computed once."""
+    n = V.shape[1]
+    G = ca.SX(n, n)
+    for j in range(n):
+        for i in range(j, n):
+            G[i, j] = ca.dot(V[:, i], V[:, j])
+            if i != j:
+                G[j, i] = G[i, j]
+    return G
+
+
 def _wrapped(residual: ca.SX, angular: np.ndarray) -> ca.SX:
-    """The residual with its angular entries wrapped into (−π, π] (derivative 1)."""
+    """Return the residual with its angular entries wrapped into (−π, π] (derivative 1)."""
     entries = [
         ca.atan2(ca.sin(residual[i]), ca.cos(residual[i])) if angular[i] else residual[i]
         for i in range(residual.shape[0])
@@ -140,8 +161,10 @@ class MovingHorizonEstimator(Estimator):
         fx, Fx = f(*m.inputs)
         hp, Hp = h(fx)
         covariance = Fx @ P @ Fx.T + Q
-        self._predict = buffered("mhe_predict", [*m.inputs, P], [fx, 0.5 * (covariance + covariance.T), hp, Hp])
-        self._measure = buffered("mhe_measure", [m.xa], list(h(m.xa)))
+        functions = [
+            _function("mhe_predict", [*m.inputs, P], [fx, 0.5 * (covariance + covariance.T), hp, Hp]),
+            _function("mhe_measure", [m.xa], list(h(m.xa))),
+        ]
 
         # the arrival cost's filtering update (module doc), linearised at the smoothed node
         xbar, xs = ca.SX.sym("xbar", n), ca.SX.sym("xs", n)
@@ -160,10 +183,12 @@ class MovingHorizonEstimator(Estimator):
         prior_P = 0.5 * (prior_P + prior_P.T)
         factor = _cholesky(prior_P)
         prior_Pinv = _backward(factor, _forward(factor, ca.SX.eye(n)))
-        self._arrival = buffered(
-            "mhe_arrival",
-            [xbar, P, xs, m.u, m.ps, m.pg, z, mask],
-            [prior, prior_P, 0.5 * (prior_Pinv + prior_Pinv.T)],
+        functions.append(
+            _function(
+                "mhe_arrival",
+                [xbar, P, xs, m.u, m.ps, m.pg, z, mask],
+                [prior, prior_P, 0.5 * (prior_Pinv + prior_Pinv.T)],
+            )
         )
 
         # one Gauss–Newton step of the whole window (module doc)
@@ -184,9 +209,7 @@ class MovingHorizonEstimator(Estimator):
             weight = W[:, i] * Rinv
             residual = _wrapped(Z[:, i] - hi, self.angular)
             deviation = xbar_in - X[:, i]
-            diag_blocks.append(
-                Hi.T @ ca.diag(weight) @ Hi + prior_weight[i] * Pinv + ghost[i] * ca.SX.eye(n)
-            )
+            diag_blocks.append(Hi.T @ ca.diag(weight) @ Hi + prior_weight[i] * Pinv + ghost[i] * ca.SX.eye(n))
             rhs.append(Hi.T @ (weight * residual) + prior_weight[i] * (Pinv @ deviation))
             cost += 0.5 * ca.dot(weight * residual, residual)
             cost += 0.5 * prior_weight[i] * ca.dot(deviation, Pinv @ deviation)
@@ -196,7 +219,7 @@ class MovingHorizonEstimator(Estimator):
             qi = active[i] * q
             residual = X[:, i + 1] - fi
             QF = ca.diag(qi) @ Fi
-            diag_blocks[i] += Fi.T @ QF
+            diag_blocks[i] += _gram(ca.diag(ca.sqrt(qi)) @ Fi)
             diag_blocks[i + 1] += ca.diag(qi)
             couplings.append(-QF)
             rhs[i] += QF.T @ residual
@@ -209,9 +232,8 @@ class MovingHorizonEstimator(Estimator):
             C = couplings[i - 1]
             # C D⁻¹ Cᵀ = Vᵀ V with V = L⁻¹ Cᵀ
             V = _forward(factors[-1], C.T)
-            D = diag_blocks[i] - V.T @ V
             reduced.append(rhs[i] - V.T @ _forward(factors[-1], reduced[-1]))
-            factors.append(_cholesky(0.5 * (D + D.T)))
+            factors.append(_cholesky(diag_blocks[i] - _gram(V)))
         steps: list[ca.SX] = [ca.SX(0)] * nodes
         steps[-1] = _backward(factors[-1], _forward(factors[-1], reduced[-1]))
         for i in reversed(range(nodes - 1)):
@@ -221,16 +243,33 @@ class MovingHorizonEstimator(Estimator):
         newest = _backward(factors[-1], _forward(factors[-1], ca.SX.eye(n)))
         decrement = sum((ca.dot(rhs[i], steps[i]) for i in range(nodes)), ca.SX(0))
         inputs = [X, U, Z, W, active, prior_weight, ghost, xbar_in, Pinv, m.ps, m.pg]
-        self._gauss_newton = buffered(
-            "mhe_gauss_newton", inputs, [step, 0.5 * (newest + newest.T), cost, decrement]
+        functions.append(
+            _function("mhe_gauss_newton", inputs, [step, 0.5 * (newest + newest.T), cost, decrement])
         )
-        self._cost = buffered("mhe_cost", inputs, [cost])
+        functions.append(_function("mhe_cost", inputs, [cost]))
+        by_name = {function.name(): function for function in functions}
+        self.compiled = False
+        if o.compiled:
+            # -O1: gcc -O3 takes minutes on the straight-line Gauss–Newton step for no gain in
+            # speed (docs/benchmarks.md); verified against the VM, cached by content
+            loaded, library = load_or_fallback(
+                functions,
+                default_cache_directory(),
+                name="uuv_ocp_mhe",
+                flags=("-O1", "-fPIC", "-shared"),
+                tolerance=1e-9,
+            )
+            by_name, self.compiled = loaded, library is not None
+        self._predict, self._measure, self._arrival, self._gauss_newton, self._cost = (
+            BufferedFunction(by_name[name])
+            for name in ("mhe_predict", "mhe_measure", "mhe_arrival", "mhe_gauss_newton", "mhe_cost")
+        )
         self._nodes = nodes
         self._window_reset()
 
     # ------------------------------------------------------------- the window
     def _window_reset(self) -> None:
-        """An empty window: node ``M`` only, holding the prior (``self.x``, ``self.P``)."""
+        """Empty the window: node ``M`` only, holding the prior (``self.x``, ``self.P``)."""
         m, M = self.model, self.horizon
         nodes, rows = M + 1, self.R.size
         self._X = np.tile(self.x[:, None], (1, nodes))

@@ -62,7 +62,11 @@ def test_mhe_on_a_linear_ocp_equals_the_kalman_filter_and_the_rts_smoother(mode,
     """Window M = 5 over 40 steps: after the window is full its arrival cost carries the past."""
     horizon, steps = 5, 40
     options = EstimatorOptions(
-        state_std=tuple(STATE_STD), initial_state_std=tuple(PRIOR_STD), horizon=horizon, mode=mode, compiled=compiled
+        state_std=tuple(STATE_STD),
+        initial_state_std=tuple(PRIOR_STD),
+        horizon=horizon,
+        mode=mode,
+        compiled=compiled,
     )
     mhe = Estimator(linear_ocp(), "mhe", sensors=linear_sensors(), options=options)
     assert isinstance(mhe, MovingHorizonEstimator)
@@ -98,7 +102,9 @@ def test_mhe_innovations_are_the_kalman_filters():
         theirs = ekf.correct(measurement) if k == 0 else ekf.step(u, measurement)
         assert ours.sensors == theirs.sensors
         np.testing.assert_allclose(ours.innovations, theirs.innovations, rtol=0, atol=1e-10)
-        np.testing.assert_allclose(ours.innovation_covariance, theirs.innovation_covariance, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(
+            ours.innovation_covariance, theirs.innovation_covariance, rtol=0, atol=1e-12
+        )
 
 
 def window_by_ipopt(mhe):
@@ -118,12 +124,22 @@ def window_by_ipopt(mhe):
         rows = np.flatnonzero(mhe._W[:, node])
         if rows.size:
             y = ca.DM(mhe._Z[rows, node]) - h(X[:, i])[rows.tolist()]
-            y = ca.vertcat(*[ca.atan2(ca.sin(y[j]), ca.cos(y[j])) if mhe.angular[r] else y[j] for j, r in enumerate(rows)])
+            y = ca.vertcat(
+                *[
+                    ca.atan2(ca.sin(y[j]), ca.cos(y[j])) if mhe.angular[r] else y[j]
+                    for j, r in enumerate(rows)
+                ]
+            )
             cost += ca.sumsqr(y * np.sqrt(Rinv[rows]))
         if i < L:
             w = X[:, i + 1] - f(X[:, i], mhe._U[:, node], m.p_stage, m.p_global)
             cost += ca.bilin(ca.DM(Qinv), w, w)
-    solver = ca.nlpsol("window", "ipopt", {"x": ca.vec(X), "f": cost}, {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": 1e-10})
+    solver = ca.nlpsol(
+        "window",
+        "ipopt",
+        {"x": ca.vec(X), "f": cost},
+        {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": 1e-10},
+    )
     # started away from the MHE's answer (from it ipopt stops at once: search direction too small)
     start = window + np.random.default_rng(0).normal(0.0, 0.01, window.shape)
     solution = solver(x0=ca.vec(ca.DM(start)))
@@ -141,7 +157,14 @@ def rexrov_runs():
     for method in ("mhe", "ekf"):
         estimator = uo.Estimator(problem, method, sensors=uo.Sensors.auv(vehicle))
         runs[method] = (
-            uo.simulate(uo.NMPC(problem, "sqp-rti"), x0=x0, duration=20.0, current=current, estimator=estimator, seed=1),
+            uo.simulate(
+                uo.NMPC(problem, "sqp-rti"),
+                x0=x0,
+                duration=20.0,
+                current=current,
+                estimator=estimator,
+                seed=1,
+            ),
             estimator,
         )
     return runs
@@ -186,3 +209,37 @@ def test_bad_mhe_options_are_named():
         mhe.correct(Measurement(0, (0, 1), np.zeros(1)))
     with pytest.raises(ValueError, match="u must"):
         mhe.predict([np.nan])
+
+
+def test_heading_crossing_pi_many_times_equals_the_ekf():
+    """A compass on a turning vehicle: every residual of the window and the arrival cost wrapped.
+
+    ``h = atan2(sin ψ, cos ψ)`` has derivative 1 everywhere, so with wrapped residuals the
+    model is linear-Gaussian and the MHE equals the EKF (which wraps its innovations).
+    """
+    ocp = uo.Ocp(horizon=3, dt=DT)
+    psi = ocp.state("psi", 1)
+    r = ocp.control("r", 1, lower=-2.0, upper=2.0)
+    ocp.set_der(psi, r)
+    ocp.add_stage_cost(residual=psi, weight=1.0)
+    compass = ca.Function("compass", [psi], [ca.atan2(ca.sin(psi), ca.cos(psi))])
+    sensors = uo.Sensors([uo.Sensor("heading", compass, 10.0, 0.05, angular=(True,))])
+    options = EstimatorOptions(state_std=0.01, initial_state_std=0.1, horizon=3)
+    mhe, ekf = (Estimator(ocp, method, sensors=sensors, options=options) for method in ("mhe", "ekf"))
+    rng = np.random.default_rng(5)
+    truth = 3.0
+    for estimator in (mhe, ekf):
+        estimator.reset([truth])
+    crossings = 0
+    for k in range(120):
+        u = np.array([1.5])
+        if k:
+            crossings += int(
+                np.floor((truth + np.pi) / (2 * np.pi)) != np.floor((truth + 0.15 + np.pi) / (2 * np.pi))
+            )
+            truth = truth + 0.15 + rng.normal(0.0, 0.01)
+        measurement = sensors.measure(k, DT, np.array([truth]), rng)
+        ours = mhe.correct(measurement) if k == 0 else mhe.step(u, measurement)
+        theirs = ekf.correct(measurement) if k == 0 else ekf.step(u, measurement)
+        np.testing.assert_allclose(ours.state, theirs.state, rtol=0, atol=1e-9)
+    assert crossings >= 2

@@ -1,12 +1,15 @@
-"""The moving-horizon estimator against independent references: a numpy Kalman filter and
-Rauch–Tung–Striebel smoother on a linear system, the EKF on the RexROV, ipopt on the window."""
+"""The moving-horizon estimator against independent references.
+
+A numpy Kalman filter and Rauch–Tung–Striebel smoother on a linear system, the EKF on the
+RexROV, ipopt on the window.
+"""
 
 import casadi as ca
 import numpy as np
 import pytest
-from test_estimation import DT, A, B, linear_ocp, linear_sensors, rk4_linear
 
 import uuv_ocp as uo
+from test_estimation import DT, A, B, linear_ocp, linear_sensors, rk4_linear
 from uuv_ocp.estimation import Estimator, EstimatorOptions, Measurement, MovingHorizonEstimator
 
 STATE_STD = np.array([0.01, 0.02])
@@ -42,7 +45,7 @@ def kalman_and_smoother(x0, controls, measurements):
 
 
 def linear_run(steps, seed=7):
-    """Controls and multi-rate, dropping measurements of the damped spring."""
+    """Return the controls and the multi-rate, dropping measurements of the damped spring."""
     sensors = linear_sensors()
     rng = np.random.default_rng(seed)
     phi, gamma = rk4_linear(A, B, DT)
@@ -108,7 +111,7 @@ def test_mhe_innovations_are_the_kalman_filters():
 
 
 def window_by_ipopt(mhe):
-    """The window's MHE problem written out independently and solved by ipopt."""
+    """Solve the window's MHE problem, written out independently and solved by ipopt."""
     m = mhe.model
     steps, window = mhe.window
     L = steps.size - 1

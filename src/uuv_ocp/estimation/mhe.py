@@ -352,11 +352,12 @@ class MovingHorizonEstimator(Estimator):
         m = self.model
         innovations, S = np.zeros(0), np.zeros((0, 0))
         if rows.size:
-            if self.steps == 0 or self._h is None:  # no prediction: linearise at the estimate
+            h, H = self._h, self._H
+            if h is None or H is None:  # no prediction since the last solve: at the estimate
                 h, H = self._measure(self.x)
-                self._h, self._H = h, H.reshape(h.size, m.size, order="F")
-            H = self._H[rows]
-            innovations = self._residual(rows, measurement.values, self._h[rows])
+                H = H.reshape(h.size, m.size, order="F")
+            H = H[rows]
+            innovations = self._residual(rows, measurement.values, h[rows])
             S = H @ self.P @ H.T + np.diag(self.R[rows])
             self._Z[rows, -1] = measurement.values
             self._W[rows, -1] = 1.0

@@ -212,6 +212,8 @@ def test_bad_mhe_options_are_named():
         mhe.correct(Measurement(0, (0, 1), np.zeros(1)))
     with pytest.raises(ValueError, match="u must"):
         mhe.predict([np.nan])
+    with pytest.raises(ValueError, match="covariance must be positive definite for the MHE"):
+        mhe.reset([0.0, 0.0], covariance=np.diag([1.0, 0.0]))
 
 
 def test_heading_crossing_pi_many_times_equals_the_ekf():

@@ -279,7 +279,14 @@ class MovingHorizonEstimator(Estimator):
         self._length = 0  # intervals in the window
         self._prior = self.x.copy()
         self._prior_P = self.P.copy()
-        self._prior_Pinv = np.linalg.inv(self.P)
+        try:  # the arrival cost weighs with P⁻¹: a merely semi-definite prior has none
+            factor = np.linalg.cholesky(self.P)
+        except np.linalg.LinAlgError:
+            raise ValueError(
+                "covariance must be positive definite for the MHE (its arrival cost is P⁻¹)"
+            ) from None
+        inverse = np.linalg.inv(factor)
+        self._prior_Pinv = inverse.T @ inverse
         self._sensors: tuple[int, ...] = ()
         self._h: np.ndarray | None = None
         self._H: np.ndarray | None = None

@@ -9,19 +9,25 @@ together (only the estimator's step is timed, as ``simulate`` times it).
 * 6-DOF BlueROV2 Heavy on the dive path of ``bench_6dof`` (15 augmented states), NMPC
   sqp-rti N = 20.
 
-Run: ``python -m benchmarks.bench_mhe`` (``--quick``: the 3-DOF vehicle only).
+Run: ``python -m benchmarks.bench_mhe`` (``--quick``: the 3-DOF vehicle only;
+``--flags [--6dof]``: the Gauss–Newton step alone, on CasADi's VM and compiled at -O1, -O2 and
+-O3, each build in a fresh temporary folder, so every flag pays its full build time).
 """
 
 from __future__ import annotations
 
 import sys
+import tempfile
 import time
+import timeit
 
 import numpy as np
 
 import uuv_ocp as uo
 from benchmarks.bench_6dof import problem as dive_problem
 from uuv_ocp.estimation import Measurement
+from uuv_ocp.native.buffered import BufferedFunction
+from uuv_ocp.native.compile import compile_functions
 
 VARIANTS = (
     ("ekf", {}),
@@ -87,6 +93,32 @@ def bench(name: str, problem: uo.TrackingProblem, controller: str, duration: flo
         )
 
 
+def flags(six_dof: bool = False) -> None:
+    """Print µs per call of the Gauss–Newton step (fixed inputs) and its build time, per flag."""
+    if six_dof:
+        problem = dive_problem()
+    else:
+        problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=10)
+    sensors = uo.Sensors.auv(problem.vehicle)
+    options = uo.EstimatorOptions(horizon=20, mode="rti")
+    step = uo.Estimator(problem, "mhe", sensors=sensors, options=options)._gauss_newton
+    function = step.function
+    rng = np.random.default_rng(0)
+    inputs = [rng.random(function.size_in(i)) for i in range(function.n_in())]
+    print(f"\nGauss–Newton step, {function.n_instructions()} instructions")
+    print(f"VM   {1e6 * timeit.timeit(lambda: step(*inputs), number=300) / 300:8.1f} µs")
+    for flag in ("-O1", "-O2", "-O3"):
+        with tempfile.TemporaryDirectory() as folder:
+            start = time.perf_counter()
+            library = compile_functions(
+                [function], folder, name="bench_mhe", flags=(flag, "-fPIC", "-shared")
+            )
+            built = time.perf_counter() - start
+            compiled = BufferedFunction(library.functions[function.name()])
+            each = timeit.timeit(lambda call=compiled: call(*inputs), number=2000) / 2000
+        print(f"{flag}  {1e6 * each:8.1f} µs, built in {built:.1f} s")
+
+
 def main(quick: bool = False) -> None:
     """Run the 3-DOF RexROV and (unless ``quick``) the 6-DOF BlueROV2 benchmark."""
     rexrov = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=10)
@@ -96,4 +128,7 @@ def main(quick: bool = False) -> None:
 
 
 if __name__ == "__main__":
-    main(quick="--quick" in sys.argv)
+    if "--flags" in sys.argv:
+        flags(six_dof="--6dof" in sys.argv)
+    else:
+        main(quick="--quick" in sys.argv)

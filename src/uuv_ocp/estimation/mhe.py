@@ -250,11 +250,15 @@ class MovingHorizonEstimator(Estimator):
         by_name = {function.name(): function for function in functions}
         self.compiled = False
         if o.compiled:
-            # the package's -O3: on the straight-line Gauss–Newton step it runs ≈ 1.9× faster
-            # than -O1 for ≈ 1.5–1.8× the build time (docs/benchmarks.md); verified against the
-            # VM, cached by content
+            # -O1: no flag was faster on the straight-line Gauss–Newton step in three runs, and
+            # -O1 builds in about half the time of -O2/-O3 (docs/benchmarks.md); verified
+            # against the VM, cached by content
             loaded, library = load_or_fallback(
-                functions, default_cache_directory(), name="uuv_ocp_mhe", tolerance=1e-9
+                functions,
+                default_cache_directory(),
+                name="uuv_ocp_mhe",
+                flags=("-O1", "-fPIC", "-shared"),
+                tolerance=1e-9,
             )
             by_name, self.compiled = loaded, library is not None
         self._predict, self._measure, self._arrival, self._gauss_newton, self._cost = (

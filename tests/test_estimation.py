@@ -136,7 +136,7 @@ def test_ukf_on_a_nonlinear_example_equals_filterpy():
         np.testing.assert_allclose(estimate.covariance, reference.P, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("method", ["ekf", "ukf"])
+@pytest.mark.parametrize("method", ["ekf", "ukf", "mhe"])
 def test_nees_and_nis_over_seeded_runs_lie_in_their_chi_square_bands(method):
     """Over 50 seeded runs of the linear system the mean NEES and NIS are χ²-consistent."""
     chi2 = pytest.importorskip("scipy.stats").chi2
@@ -174,7 +174,8 @@ def test_estimator_by_name_and_bad_inputs_name_the_parameter():
     problem, sensors = linear_ocp(), linear_sensors()
     assert type(Estimator(problem, "ekf", sensors=sensors)).__name__ == "ExtendedKalmanFilter"
     assert type(Estimator(problem, "UKF", sensors=sensors)).__name__ == "UnscentedKalmanFilter"
-    assert set(uo.available_estimators()) >= {"ekf", "ukf"}
+    assert type(Estimator(problem, "mhe", sensors=sensors)).__name__ == "MovingHorizonEstimator"
+    assert set(uo.available_estimators()) >= {"ekf", "ukf", "mhe"}
     with pytest.raises(ValueError, match="method must be one of"):
         Estimator(problem, "kalman", sensors=sensors)
     with pytest.raises(ValueError, match="sensors must be a uuv_ocp.Sensors"):
@@ -305,7 +306,7 @@ def test_simulate_refuses_bad_estimation_arguments_by_name(offset_runs):
         uo.simulate(mpc, x0, 1.0, estimator=uo.Estimator(other, "ekf", sensors=sensors))
 
 
-@pytest.mark.parametrize("method", ["ekf", "ukf"])
+@pytest.mark.parametrize("method", ["ekf", "ukf", "mhe"])
 def test_heading_innovations_are_wrapped_across_pi(method):
     """A heading of π − 0.005 measured as −π + 0.005: an innovation of 0.01 rad, not −2π."""
     ocp = uo.Ocp(horizon=3, dt=DT)

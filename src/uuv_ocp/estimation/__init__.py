@@ -1,7 +1,7 @@
 """State and current estimation: sensors as data, and estimators on the controller's own model.
 
 :class:`~uuv_ocp.estimation.sensors.Sensors` says what is measured, how often and how noisily;
-:class:`~uuv_ocp.estimation.base.Estimator` (``"ekf"``, ``"ukf"``) estimates the state and the
+:class:`~uuv_ocp.estimation.base.Estimator` (``"ekf"``, ``"ukf"``, ``"mhe"``) estimates the state and the
 ocean current from them on the problem's own discrete model (docs/estimation.md).
 """
 
@@ -13,6 +13,7 @@ from uuv_ocp.estimation.base import (
     register_estimator,
 )
 from uuv_ocp.estimation.ekf import ExtendedKalmanFilter
+from uuv_ocp.estimation.mhe import MovingHorizonEstimator
 from uuv_ocp.estimation.sensors import Measurement, Sensor, Sensors
 from uuv_ocp.estimation.ukf import UnscentedKalmanFilter
 
@@ -22,6 +23,7 @@ __all__ = [
     "EstimatorOptions",
     "ExtendedKalmanFilter",
     "Measurement",
+    "MovingHorizonEstimator",
     "Sensor",
     "Sensors",
     "UnscentedKalmanFilter",

@@ -108,6 +108,7 @@ void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state_lo, uint64_t inc_hi,
 #: ``UUV_OCP_COMPILED=0`` / ``1`` overrides ``compiled="auto"`` of the swarms and ``qpsol="auto"`` of sqp-rti
 COMPILED_ENV = "UUV_OCP_COMPILED"
 
+
 def compiled_by_default(fallback: str, stacklevel: int = 3) -> bool:
     """Whether an ``"auto"`` build compiles to C: a C compiler exists and ``UUV_OCP_COMPILED`` is not 0.
 

@@ -75,14 +75,18 @@ def main(
     horizon: int = 20,
     out: str | Path | None = "out/obstacles.png",
     options: dict[str, dict] | None = None,
+    only: tuple[str, ...] | None = None,
 ) -> dict[str, dict[str, Outcome]]:
     """Run every course with every solver; print the table; write the figure if ``out``.
 
-    ``options`` maps a solver name to its options (default: each solver's own).
+    ``options`` maps a solver name to its options (default: each solver's own); ``only``: the
+    names of the courses to run (default: all; the figure needs the RexROV's).
     """
     results: dict[str, dict[str, Outcome]] = {}
     print(f"{'vehicle':<16}{'solver':<13}{'obstacle m':>11}{'margin m':>10}{'fail':>6}{'median ms':>11}")
     for course in courses(horizon):
+        if only is not None and course.name not in only:
+            continue
         results[course.name] = {}
         for solver in solvers:
             controller = uo.NMPC(course.problem, solver, options=(options or {}).get(solver), seed=1)

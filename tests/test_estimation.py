@@ -136,7 +136,7 @@ def test_ukf_on_a_nonlinear_example_equals_filterpy():
         np.testing.assert_allclose(estimate.covariance, reference.P, rtol=0, atol=1e-9)
 
 
-@pytest.mark.parametrize("method", ["ekf", "ukf", "mhe"])
+@pytest.mark.parametrize("method", uo.available_estimators())  # every registered estimator
 def test_nees_and_nis_over_seeded_runs_lie_in_their_chi_square_bands(method):
     """Over 50 seeded runs of the linear system the mean NEES and NIS are χ²-consistent."""
     chi2 = pytest.importorskip("scipy.stats").chi2
@@ -306,17 +306,11 @@ def test_simulate_refuses_bad_estimation_arguments_by_name(offset_runs):
         uo.simulate(mpc, x0, 1.0, estimator=uo.Estimator(other, "ekf", sensors=sensors))
 
 
-@pytest.mark.parametrize("method", ["ekf", "ukf", "mhe"])
+@pytest.mark.parametrize("method", uo.available_estimators())  # every registered estimator
 def test_heading_innovations_are_wrapped_across_pi(method):
     """A heading of π − 0.005 measured as −π + 0.005: an innovation of 0.01 rad, not −2π."""
-    ocp = uo.Ocp(horizon=3, dt=DT)
-    psi = ocp.state("psi", 1)
-    r = ocp.control("r", 1, lower=-1.0, upper=1.0)
-    ocp.set_der(psi, r)
-    ocp.add_stage_cost(residual=psi, weight=1.0)
     # a compass reports the heading wrapped into (−π, π]: the sigma points straddle ±π
-    wrapped = ca.Function("compass", [psi], [ca.atan2(ca.sin(psi), ca.cos(psi))])
-    sensors = Sensors([Sensor("heading", wrapped, 10.0, 0.01, angular=(True,))])
+    ocp, sensors = compass_ocp(DT, rate_bound=1.0, std=0.01)
     estimator = Estimator(ocp, method, sensors=sensors, options=EstimatorOptions(initial_state_std=0.02))
     for use_step in (False, True):
         estimator.reset([np.pi - 0.005])
@@ -409,3 +403,14 @@ def test_the_compiled_ekf_step_equals_the_virtual_machines():
         np.testing.assert_allclose(compiled.covariance, interpreted.covariance, rtol=1e-10, atol=1e-14)
     with pytest.raises(ValueError, match="options.compiled"):
         EstimatorOptions(compiled="yes")
+
+
+def compass_ocp(dt, rate_bound, std):
+    """Return an Ocp of a heading ψ turned at a bounded rate and a compass reporting it in (−π, π]."""
+    ocp = uo.Ocp(horizon=3, dt=dt)
+    psi = ocp.state("psi", 1)
+    r = ocp.control("r", 1, lower=-rate_bound, upper=rate_bound)
+    ocp.set_der(psi, r)
+    ocp.add_stage_cost(residual=psi, weight=1.0)
+    compass = ca.Function("compass", [psi], [ca.atan2(ca.sin(psi), ca.cos(psi))])
+    return ocp, uo.Sensors([uo.Sensor("heading", compass, 10.0, std, angular=(True,))])

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
-from test_estimation import DT, A, B, linear_ocp, linear_sensors, rk4_linear
+from test_estimation import DT, A, B, compass_ocp, linear_ocp, linear_sensors, rk4_linear
 from uuv_ocp.estimation import Estimator, EstimatorOptions, Measurement, MovingHorizonEstimator
 from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
 
@@ -228,13 +228,7 @@ def test_heading_crossing_pi_many_times_equals_the_ekf():
     ``h = atan2(sin ψ, cos ψ)`` has derivative 1 everywhere, so with wrapped residuals the
     model is linear-Gaussian and the MHE equals the EKF (which wraps its innovations).
     """
-    ocp = uo.Ocp(horizon=3, dt=DT)
-    psi = ocp.state("psi", 1)
-    r = ocp.control("r", 1, lower=-2.0, upper=2.0)
-    ocp.set_der(psi, r)
-    ocp.add_stage_cost(residual=psi, weight=1.0)
-    compass = ca.Function("compass", [psi], [ca.atan2(ca.sin(psi), ca.cos(psi))])
-    sensors = uo.Sensors([uo.Sensor("heading", compass, 10.0, 0.05, angular=(True,))])
+    ocp, sensors = compass_ocp(DT, rate_bound=2.0, std=0.05)
     options = EstimatorOptions(state_std=0.01, initial_state_std=0.1, horizon=3)
     mhe, ekf = (Estimator(ocp, method, sensors=sensors, options=options) for method in ("mhe", "ekf"))
     rng = np.random.default_rng(5)

@@ -30,7 +30,7 @@ from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.native.compile import compile_functions
 
 VARIANTS = (
-    ("ekf", {}),
+    ("ekf", {"compiled": False}),  # the VM, as the MHE rows without compiled=True
     ("mhe", {"mode": "rti"}),
     ("mhe", {"mode": "full"}),
     ("mhe", {"mode": "rti", "compiled": True}),

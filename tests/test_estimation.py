@@ -414,3 +414,33 @@ def compass_ocp(dt, rate_bound, std):
     ocp.add_stage_cost(residual=psi, weight=1.0)
     compass = ca.Function("compass", [psi], [ca.atan2(ca.sin(psi), ca.cos(psi))])
     return ocp, uo.Sensors([uo.Sensor("heading", compass, 10.0, std, angular=(True,))])
+
+
+def test_a_sensor_that_did_not_report_never_poisons_the_ekf():
+    """A range to a beacon is undefined (NaN Jacobian) at the beacon.
+
+    When it did not report, the one-call step equals predict-then-correct on the reporting rows,
+    which never touch it.
+    """
+    ocp = uo.Ocp(horizon=3, dt=DT)
+    x = ocp.state("x", 2)
+    u = ocp.control("u", 2, lower=-1.0, upper=1.0)
+    ocp.set_der(x, u)
+    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
+    at = ca.SX.sym("x", 2)
+    beacon_range = ca.Function("range", [at], [ca.sqrt(at[0] ** 2 + at[1] ** 2)])
+    # and a signal strength ∝ 1/range, infinite there (its innovation is too)
+    strength = ca.Function("strength", [at], [1.0 / ca.sqrt(at[0] ** 2 + at[1] ** 2)])
+    fix = Sensor.of_states("fix", [0, 1], 2, 10.0, 0.1)
+    sensors = Sensors([fix, Sensor("range", beacon_range, 1.0, 0.1), Sensor("strength", strength, 1.0, 0.1)])
+    options = EstimatorOptions(compiled=False)
+    fused, split = (Estimator(ocp, "ekf", sensors=sensors, options=options) for _ in range(2))
+    for ekf in (fused, split):
+        ekf.reset([0.0, 0.0])
+    measurement = Measurement(1, (0,), np.array([0.01, -0.02]))  # the fix only, at the beacon
+    one_call = fused.step([0.0, 0.0], measurement)
+    split.predict([0.0, 0.0])
+    reference = split.correct(measurement)
+    assert np.all(np.isfinite(one_call.augmented)) and np.all(np.isfinite(one_call.covariance))
+    np.testing.assert_allclose(one_call.augmented, reference.augmented, atol=1e-12)
+    np.testing.assert_allclose(one_call.covariance, reference.covariance, atol=1e-12)

@@ -101,8 +101,9 @@ class EstimatorOptions:
         Compile the estimator's step to C when it is built (``uuv_ocp.native.compile``, cached
         on disk by content; CasADi's virtual machine if that fails, with one warning).
         ``None`` (default): the EKF compiles wherever a C compiler exists, unless the
-        environment sets ``UUV_OCP_COMPILED=0`` (a build of a second or two); the MHE runs on
-        the virtual machine (its first build takes 15 s on the RexROV, 5 min on the BlueROV2:
+        environment sets ``UUV_OCP_COMPILED=0`` (the first build takes seconds for the RexROV,
+        about a minute for a 6-DOF vehicle, then it is read from the cache); the MHE runs on the
+        virtual machine (its first build takes 15 s for the RexROV, 5 min for the BlueROV2:
         ask for it with ``True``); the UKF has no compiled step.
     """
 

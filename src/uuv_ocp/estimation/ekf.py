@@ -62,8 +62,10 @@ class ExtendedKalmanFilter(Estimator):
         y = z - h
         for row in np.flatnonzero(self.angular):  # angles: the innovation wrapped into (−π, π]
             y[int(row)] = ca.atan2(ca.sin(y[int(row)]), ca.cos(y[int(row)]))
-        y = mask * y
-        Hm = ca.diag(mask) @ H
+        # if_else, not a product: a row that did not report may be NaN or Inf where its sensor
+        # is undefined (a range at its beacon), and 0 · NaN is NaN
+        y = ca.if_else(mask, y, 0)
+        Hm = ca.if_else(ca.repmat(mask, 1, m.size), H, 0)
         R = ca.diag(mask * ca.DM(self.R) + (1 - mask))
         PHt = covariance @ Hm.T
         S = Hm @ PHt + R

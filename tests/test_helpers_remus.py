@@ -103,6 +103,49 @@ def test_at_rest_only_the_restoring_moments_act():
         np.testing.assert_allclose(remus100_derivative(x, [*fins, 0.0])[6:], 0.0, atol=0.0)
 
 
+# ------------------------------------------------------------------ hydrodynamics
+def test_pure_sway_meets_cross_flow_and_axial_drag():
+    # ν = [0, v, 0, 0, 0, 0]: gnc.py crossFlowDrag sums −½ ρ T C_D,2D |v| v dx over the 21 stations
+    # x = −L/2, …, L/2 with dx = L/20 (so over 1.05 L), T = D = 0.19 m; C_D,2D by linear
+    # interpolation of Hoerner's table at B/2T = 0.5 between (0.4933, 1.2108) and (0.5585, 1.0836).
+    # forceLiftDrag takes α = atan2(0, 0) = 0, so the *axial* drag ½ ρ U_r² S CD_0 acts in surge
+    # although the flow is sideways (as in the source).  Linear sway damping M_22/20 e^{−3|v|}.
+    mats = remus100_matrices()
+    cd_2d = 1.2108 + (0.5 - 0.4933) / (0.5585 - 0.4933) * (1.0836 - 1.2108)
+    area = 0.7 * LENGTH * DIAMETER
+    cd_0 = 0.42 * math.pi * B**2 / area
+    for v in (-0.7, -0.2, 0.05, 0.4, 1.1):
+        forces = mats.m_total @ remus100_derivative(_state(nu=(0, v, 0, 0, 0, 0)), [0, 0, 0])[:6]
+        sway = -0.5 * RHO * DIAMETER * cd_2d * abs(v) * v * 21 * LENGTH / 20
+        sway -= mats.m_total[1, 1] / 20.0 * math.exp(-3.0 * abs(v)) * v
+        expected = np.array([-0.5 * RHO * v**2 * area * cd_0, sway, 0, 0, 0, 0])
+        np.testing.assert_allclose(forces, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_hull_lift_and_drag_from_the_angle_of_attack():
+    # ν = [u, 0, w, 0, 0, 0]: Beard-McLain wing of gnc.py forceLiftDrag with span D and area S:
+    # AR = D²/S, CL = π AR / (1 + √(1 + (AR/2)²)) α, CD = CD_0 + CL²/(π 0.7 AR), rotated by
+    # α = atan2(w, u).  The added-mass Munk moment in pitch, m (k_2 − k_1) u w, is one of the C_A
+    # terms the source zeroes, so no pitch moment appears.  Linear damping M_11/20 e^{−3U_r},
+    # M_33/20 (heave has no speed factor).
+    rng = np.random.default_rng(13)
+    mats = remus100_matrices()
+    area = 0.7 * LENGTH * DIAMETER
+    aspect = DIAMETER**2 / area
+    cd_0 = 0.42 * math.pi * B**2 / area
+    for _ in range(10):
+        u, w = rng.uniform(0.2, 2.5), rng.uniform(-0.5, 0.5)
+        forces = mats.m_total @ remus100_derivative(_state(nu=(u, 0, w, 0, 0, 0)), [0, 0, 0])[:6]
+        alpha, speed2 = math.atan2(w, u), u**2 + w**2
+        cl = math.pi * aspect / (1.0 + math.sqrt(1.0 + (aspect / 2.0) ** 2)) * alpha
+        cd = cd_0 + cl**2 / (math.pi * 0.7 * aspect)
+        lift, drag = 0.5 * RHO * speed2 * area * cl, 0.5 * RHO * speed2 * area * cd
+        surge = -drag * math.cos(alpha) + lift * math.sin(alpha)
+        surge -= mats.m_total[0, 0] / 20.0 * math.exp(-3.0 * math.sqrt(speed2)) * u
+        heave = -drag * math.sin(alpha) - lift * math.cos(alpha) - mats.m_total[2, 2] / 20.0 * w
+        np.testing.assert_allclose(forces, [surge, 0, heave, 0, 0, 0], rtol=1e-12, atol=1e-12)
+
+
 # -------------------------------------------------------------------- symmetries
 def test_rudder_moment_is_odd_and_as_published():
     # On a straight run (v = r = 0, p = q = 0) the yaw row of M is decoupled and only the rudder

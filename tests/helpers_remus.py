@@ -228,8 +228,10 @@ class Remus100Matrices:
         (Lamb's k-factors of the prolate spheroid) and their sum (6×6, kg and kg·m²).
     damping : numpy.ndarray
         diag of the low-speed linear damping before the exp(−3 U_r) factor on surge and sway.
+    area_s : float
+        Planform area S = 0.7 L diam (m²), "S = 70% of rectangle L * diam".
     cd_0 : float
-        Parasitic drag coefficient CD_0 = Cd π b² / S with Cd = 0.42, S = 0.7 L diam (-).
+        Parasitic drag coefficient CD_0 = Cd π b² / S with Cd = 0.42 (-).
     """
 
     mass: float

@@ -372,7 +372,10 @@ class Remus100:
 
     @property
     def linear_damping(self) -> np.ndarray:
-        """Diagonal of ``D`` at zero relative speed (N·s/m, N·m·s/rad); surge and sway decay as ``e^{−3U_r}``."""
+        """Diagonal of ``D`` at zero relative speed (N·s/m, N·m·s/rad).
+
+        Surge and sway decay as ``e^{−3U_r}`` with the relative speed ``U_r`` (m/s).
+        """
         mass = self.mass_matrix
         height = self.centre_of_gravity[2] - self.centre_of_buoyancy[2]
         roll = math.sqrt(self.weight * height / mass[3, 3])

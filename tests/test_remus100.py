@@ -25,7 +25,7 @@ PUBLISHED_SPEED = 2.5  # m/s at 1525 rpm, remus100.py's module docstring (see ab
 
 
 def _current_ned(speed: float, direction: float) -> np.ndarray:
-    """The reference's ``(V_c, β_c)`` as the package's NED current ``[V_x, V_y, V_z]`` (m/s)."""
+    """Return the reference's ``(V_c, β_c)`` as the package's NED current ``[V_x, V_y, V_z]`` (m/s)."""
     return np.array([speed * math.cos(direction), speed * math.sin(direction), 0.0])
 
 
@@ -209,7 +209,8 @@ def test_the_cli_tracks_with_the_preset_name(tmp_path, capsys):
 
     line = tmp_path / "line.toml"
     line.write_text(
-        '[reference]\nkind = "waypoints"\npoints = [[0, 0, 10], [100, 0, 10]]\nspeed = 1.5\nturn_radius = 2.0\n'
+        '[reference]\nkind = "waypoints"\npoints = [[0, 0, 10], [100, 0, 10]]\n'
+        "speed = 1.5\nturn_radius = 2.0\n"
     )
     argv = ["track", "--vehicle", "remus100", "-r", str(line), "--duration", "0.5", "--horizon", "5"]
     assert cli.main([*argv, "--out", str(tmp_path / "out")]) == 0

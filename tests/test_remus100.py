@@ -10,6 +10,7 @@ speed of 2.5 m/s is obtained when the propeller runs at 1525 rpm in zero current
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -207,11 +208,7 @@ def test_the_cli_tracks_with_the_preset_name(tmp_path, capsys):
     from uuv_ocp import cli
     from uuv_ocp.control.simulation import ClosedLoopResult
 
-    line = tmp_path / "line.toml"
-    line.write_text(
-        '[reference]\nkind = "waypoints"\npoints = [[0, 0, 10], [100, 0, 10]]\n'
-        "speed = 1.5\nturn_radius = 2.0\n"
-    )
+    line = Path(__file__).resolve().parents[1] / "examples" / "paths" / "straight_10m.toml"
     argv = ["track", "--vehicle", "remus100", "-r", str(line), "--duration", "0.5", "--horizon", "5"]
     assert cli.main([*argv, "--out", str(tmp_path / "out")]) == 0
     assert "remus100" in capsys.readouterr().out

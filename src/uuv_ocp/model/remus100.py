@@ -166,16 +166,19 @@ class Remus100:
 
     Parameters
     ----------
-    length, diameter : float
-        Hull length L = 1.6 m and diameter D = 0.19 m (the source; Prestero 2001), > 0, L > D.
+    length : float
+        Hull length L = 1.6 m (the source; Prestero 2001), > diameter.
+    diameter : float
+        Hull diameter D = 0.19 m (the source; Prestero 2001), > 0.
     water_density : float
         ρ = 1026 kg/m³ (the source; ``gnc.crossFlowDrag`` and ``forceLiftDrag`` hard-code the same).
     gravity : float
         g = 9.81 m/s².
-    centre_of_gravity, centre_of_buoyancy : tuple of 3 floats
-        ``r_g = (0, 0, 0.02)`` m and ``r_b = (0, 0, 0)`` m from the body origin (the source's
-        ``r_bg``, ``r_bb``).  ``z_g − z_b`` must be > 0 (the roll and pitch natural frequencies
-        of the damping need a stable metacentric height).
+    centre_of_gravity : tuple of 3 floats
+        ``r_g = (0, 0, 0.02)`` m from the body origin (the source's ``r_bg``).  ``z_g − z_b``
+        must be > 0 m: the roll and pitch natural frequencies of the damping need it.
+    centre_of_buoyancy : tuple of 3 floats
+        ``r_b = (0, 0, 0)`` m: the body origin (the source's ``r_bb``).
     axial_drag_coefficient : float
         Hull drag coefficient ``C_d = 0.42`` on the frontal area π(D/2)² (Allen et al. 2000).
     roll_added_inertia_ratio : float
@@ -183,29 +186,45 @@ class Remus100:
     fin_area : float
         Area of one fin, 0.00665 m²; the rudder and the stern plane each count two
         (``A_r = A_s = 2 S_fin``).
-    rudder_lift_slope, stern_plane_lift_slope : float
-        ``C_Lδ = 0.5`` and ``0.7`` (1/rad).
-    surge_time_constant, sway_time_constant, yaw_time_constant : float
-        Linear-damping time constants 20, 20 (heave equal to sway) and 1 s.
-    roll_damping_ratio, pitch_damping_ratio : float
-        Relative damping ratios 0.3 and 0.8.
+    rudder_lift_slope : float
+        Rudder lift slope ``C_Lδ,r = 0.5`` (1/rad).
+    stern_plane_lift_slope : float
+        Stern-plane lift slope ``C_Lδ,s = 0.7`` (1/rad).
+    surge_time_constant : float
+        Linear surge damping ``M₁₁ / T``, T = 20 s.
+    sway_time_constant : float
+        Linear sway and heave damping ``M₂₂ / T``, ``M₃₃ / T``, T = 20 s.
+    yaw_time_constant : float
+        Linear yaw damping ``M₆₆ / T``, T = 1 s.
+    roll_damping_ratio : float
+        Relative damping ratio in roll, 0.3.
+    pitch_damping_ratio : float
+        Relative damping ratio in pitch, 0.8.
     propeller_diameter : float
         0.14 m ("5.5 inches").
-    thrust_deduction, wake_fraction : float
-        ``t = 0.1`` and ``w = 0.056`` (``V_a = (1 − w) U = 0.944 U``, Allen et al. 2000).
+    thrust_deduction : float
+        ``t = 0.1``, in [0, 1).
+    wake_fraction : float
+        ``w = 0.056``: ``V_a = (1 − w) U = 0.944 U`` (Allen et al. 2000), in [0, 1).
     max_advance_ratio : float
         ``J_max = 0.6632 = 0.944 × 2.5 / (0.14 × 1525/60)``.
-    thrust_coefficients, torque_coefficients : tuple of 2 floats
-        ``(K_T0, K_Tmax) = (0.4566, 0.1798)`` and ``(K_Q0, K_Qmax) = (0.0700, 0.0312)`` at
-        ``J = 0`` and ``J_max`` (MSS ``wageningen``, 3 blades, blade-area ratio 0.718).
+    thrust_coefficients : tuple of 2 floats
+        ``(K_T0, K_Tmax) = (0.4566, 0.1798)`` at ``J = 0`` and ``J_max`` (MSS ``wageningen``,
+        3 blades, blade-area ratio 0.718).
+    torque_coefficients : tuple of 2 floats
+        ``(K_Q0, K_Qmax) = (0.0700, 0.0312)``, likewise.
     roll_torque_scale : float
         Factor 0.1 on the propeller's roll moment ("to match exp. results").
-    max_rudder, max_stern_plane : float
-        Fin bounds, 15° each (rad).
+    max_rudder : float
+        Rudder bound, 15° (rad), in (0, π/2).
+    max_stern_plane : float
+        Stern-plane bound, 15° (rad), in (0, π/2).
     max_propeller_speed : float
-        1525 rpm.
-    fin_time_constant, propeller_time_constant : float
-        The source's actuator lags 0.1 s and 1.0 s; here they give the rate bounds only.
+        Propeller bound, 1525 rpm.
+    fin_time_constant : float
+        The source's fin lag, 0.1 s; here it gives the fins' rate bound only.
+    propeller_time_constant : float
+        The source's propeller lag, 1.0 s; here it gives the propeller's rate bound only.
     name : str
         Label in tables and plots.
     """

@@ -162,6 +162,21 @@ def test_bad_parameters_are_refused_by_name(change, message):
         uo.Remus100(**change)
 
 
+def test_a_vehicle_file_starts_from_the_preset(tmp_path):
+    import dataclasses
+
+    from uuv_ocp.specs import vehicle_from_spec
+
+    path = tmp_path / "remus30.toml"
+    path.write_text('[vehicle]\npreset = "remus100"\nname = "remus-30"\nmax_rudder = 0.5236\n')
+    vehicle = vehicle_from_spec(path)
+    assert vehicle == dataclasses.replace(uo.Remus100(), name="remus-30", max_rudder=0.5236)
+    assert vehicle.control_bound[0] == 0.5236
+    path.write_text('[vehicle]\npreset = "remus100"\nmax_rudder = 2.0\n')
+    with pytest.raises(ValueError, match=r"remus30\.toml: max_rudder must be an angle in \(0, π/2\) rad"):
+        vehicle_from_spec(path)
+
+
 def test_a_straight_line_at_cruise_speed_is_tracked_in_closed_loop():
     """TrackingProblem + simulate through the protocol only; the plant replayed independently."""
     from scipy.integrate import solve_ivp

@@ -25,6 +25,13 @@ Where this reference departs from the source on purpose (nowhere in the equation
   :func:`remus100_derivative`);
 - the source inverts ``M`` once with ``np.linalg.inv``; here ``np.linalg.solve`` is used
   (identical to rounding, ~1e-16 relative).
+
+Other versions of "the" REMUS 100 model differ, so an implementation compared with this one must
+follow the same file: older commits of remus100.py (e.g. 25b1e153) have ±30° fins, fin areas
+0.10 × 0.05 m², T_yaw = 5 s with the exp(−3 U_r) factor on yaw too, four C_A entries zeroed, the
+full K_prop in roll, pitch moment +x_s Z_s and a misplaced bracket in Lamb's β_0; MSS
+``VESSELS/models/remus100.m`` (2025) scales a and b by 1.0096 (m = 31.9 kg), limits the fins to
+±20°, uses gravity at 63.4° N and a cross-flow drag with heave and pitch terms.
 """
 
 from __future__ import annotations
@@ -221,8 +228,10 @@ class Remus100Matrices:
         (Lamb's k-factors of the prolate spheroid) and their sum (6×6, kg and kg·m²).
     damping : numpy.ndarray
         diag of the low-speed linear damping before the exp(−3 U_r) factor on surge and sway.
+    area_s : float
+        Planform area S = 0.7 L diam (m²), "S = 70% of rectangle L * diam".
     cd_0 : float
-        Parasitic drag coefficient CD_0 = Cd π b² / S with Cd = 0.42, S = 0.7 L diam (-).
+        Parasitic drag coefficient CD_0 = Cd π b² / S with Cd = 0.42 (-).
     """
 
     mass: float

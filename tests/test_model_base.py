@@ -115,9 +115,9 @@ def test_vehicles_conform(vehicle):
     assert len(vehicle.control_bound) == len(vehicle.control_rate_bound) == layout.control_dim
 
 
-def test_the_registry_covers_both_built_in_classes():
+def test_the_registry_covers_every_built_in_class():
     kinds = {type(vehicle) for vehicle in built_in_vehicles()}
-    assert kinds == {uo.Vehicle, uo.Vehicle6DOF}
+    assert kinds == {uo.Vehicle, uo.Vehicle6DOF, uo.Remus100}
 
 
 def _rhs(vehicle, x, u, current=None):

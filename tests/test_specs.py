@@ -7,7 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from uuv_ocp import Vehicle, Vehicle6DOF
+from uuv_ocp import Remus100, Vehicle, Vehicle6DOF
 from uuv_ocp.reference.path import WAYPOINT_HOLD
 from uuv_ocp.specs import (
     CSV_SPEED,
@@ -23,7 +23,8 @@ def test_presets_by_name_are_the_classmethods():
     assert vehicle_from_spec("rexrov-controller") == Vehicle.rexrov_controller_model()
     assert isinstance(vehicle_from_spec("bluerov2-heavy"), Vehicle6DOF)
     assert vehicle_from_spec("rexrov2").name == Vehicle6DOF.rexrov2().name
-    assert set(VEHICLE_PRESETS) == {"rexrov", "rexrov-controller", "bluerov2-heavy", "rexrov2"}
+    assert vehicle_from_spec("remus100") == Remus100()
+    assert set(VEHICLE_PRESETS) == {"rexrov", "rexrov-controller", "bluerov2-heavy", "rexrov2", "remus100"}
 
 
 def test_vehicle_file_overrides_a_preset_and_its_dynamics_follow(tmp_path):

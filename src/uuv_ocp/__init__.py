@@ -25,6 +25,7 @@ from uuv_ocp.judge import score
 from uuv_ocp.model.base import VehicleLayout, VehicleModel
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.model.remus100 import Remus100
 from uuv_ocp.model.thrusters import ThrusterConfiguration
 from uuv_ocp.native.runtime import GeneratedCode
 from uuv_ocp.obstacles import Obstacle
@@ -63,6 +64,7 @@ __all__ = [
     "Obstacle",
     "Ocp",
     "Reference",
+    "Remus100",
     "Sensor",
     "Sensors",
     "SimulationInterrupted",

@@ -13,6 +13,7 @@ Vehicle file (TOML)::
     [vehicle]
     model = "planar"          # "planar" (3-DOF) or "6dof"; implied by a preset
     preset = "rexrov"         # optional: start from a preset and override the fields below
+                              # (preset = "remus100" takes the fields of Remus100)
     name = "my-rov"
     mass = 1500.0             # any field of Vehicle / Vehicle6DOF, in its documented units
 
@@ -50,17 +51,20 @@ from uuv_ocp._validation import shown
 from uuv_ocp.model.base import check_vehicle
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.planar import Vehicle
+from uuv_ocp.model.remus100 import Remus100
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
 from uuv_ocp.solvers.base import reraise_interrupt
 
-AnyVehicle = Vehicle | Vehicle6DOF
+AnyVehicle = Vehicle | Vehicle6DOF | Remus100
 
-#: Vehicle presets by name: 3-DOF planar and 6-DOF Fossen models.
+#: Vehicle presets by name: 3-DOF planar and 6-DOF Fossen models, and the REMUS 100 torpedo
+#: (6-DOF, controls [rudder, stern plane, propeller rpm]).
 VEHICLE_PRESETS: dict[str, Callable[[], AnyVehicle]] = {
     "rexrov": Vehicle.rexrov,
     "rexrov-controller": Vehicle.rexrov_controller_model,
     "bluerov2-heavy": Vehicle6DOF.bluerov2_heavy,
     "rexrov2": Vehicle6DOF.rexrov2,
+    "remus100": Remus100,
 }
 #: Reference kinds a spec or a ``[reference]`` table may name.
 REFERENCE_KINDS = ("waypoints", "lawnmower", "hold", "paper")

@@ -135,6 +135,16 @@ def _wrapped(residual: ca.SX, angular: np.ndarray) -> ca.SX:
     return ca.vertcat(*entries) if entries else residual
 
 
+def _masked(mask: ca.SX, value: ca.SX) -> ca.SX:
+    """Return ``value`` with the rows whose ``mask`` entry is 0 set to 0, even if NaN or Inf there.
+
+    ``mask * value`` would not do: 0 · NaN = NaN, and a sensor that did not report may have an
+    undefined output or Jacobian at the linearisation point (a range or bearing at its beacon).
+    """
+    rows = [ca.if_else(mask[r], value[r, :], ca.SX.zeros(1, value.shape[1])) for r in range(value.shape[0])]
+    return ca.vertcat(*rows) if rows else value
+
+
 class MovingHorizonEstimator(Estimator):
     """MHE (module doc); build with ``uo.Estimator(problem, "mhe", sensors=...)``.
 
@@ -170,9 +180,9 @@ class MovingHorizonEstimator(Estimator):
         xbar, xs = ca.SX.sym("xbar", n), ca.SX.sym("xs", n)
         z, mask = ca.SX.sym("z", rows), ca.SX.sym("mask", rows)
         h0, H0 = h(xs)
-        H0 = ca.diag(mask) @ H0  # rows that did not report: zero (no information)
+        H0 = _masked(mask, H0)  # rows that did not report: zero (no information)
         R = ca.diag(ca.DM(self.R))
-        innovation = mask * (_wrapped(z - h0, self.angular) - H0 @ (xbar - xs))
+        innovation = _masked(mask, _wrapped(z - h0, self.angular) - H0 @ (xbar - xs))
         PHt = P @ H0.T
         K = ca.solve(H0 @ PHt + R, PHt.T).T
         A = ca.DM.eye(n) - K @ H0
@@ -206,8 +216,9 @@ class MovingHorizonEstimator(Estimator):
         cost = ca.SX(0)
         for i in range(nodes):
             hi, Hi = h(X[:, i])
+            Hi = _masked(W[:, i], Hi)
             weight = W[:, i] * Rinv
-            residual = _wrapped(Z[:, i] - hi, self.angular)
+            residual = _masked(W[:, i], _wrapped(Z[:, i] - hi, self.angular))
             deviation = xbar_in - X[:, i]
             diag_blocks.append(Hi.T @ ca.diag(weight) @ Hi + prior_weight[i] * Pinv + ghost[i] * ca.SX.eye(n))
             rhs.append(Hi.T @ (weight * residual) + prior_weight[i] * (Pinv @ deviation))

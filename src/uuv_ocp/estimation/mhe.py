@@ -54,6 +54,15 @@ smoothed noise; on a linear-Gaussian model the update above is the Kalman filter
 equals the Kalman filter at the newest node and the Rauch–Tung–Striebel smoother over the window
 (``tests/test_mhe.py``).
 
+**Undefined measurements.**  A sensor that did not report never enters (its rows are masked with
+``if_else``, so a NaN or Inf of its ``h`` or Jacobian at the linearisation point is not multiplied
+by the zero weight).  A sensor that reported but is undefined where the window is linearised
+(a range at its beacon) gives no Gauss–Newton direction: the solve does not move (the estimate
+stays the last iterate with the covariance of the last finite linearisation, the prediction's if
+there is none), and when that node leaves the window the undefined rows are dropped from the
+arrival cost.  The full solve also stays put when no step along the Gauss–Newton direction decreases the
+cost (Armijo fails down to a step of 1e-8).
+
 **Innovations.**  As the EKF's: the newest step's reporting rows against the prediction
 ``f(x̂_{k−1}, u_{k−1})``, with ``S = H P⁻ Hᵀ + R`` and ``P⁻ = F P_{k−1} Fᵀ + Q`` from the
 previous step's covariance.
@@ -335,16 +344,15 @@ class MovingHorizonEstimator(Estimator):
         u = self._control(u)
         if self._length == M:
             # the oldest node leaves: its information goes into the prior (module doc)
-            prior, prior_P, prior_Pinv = self._arrival(
-                self._prior,
-                self._prior_P,
-                self._X[:, 0],
-                self._U[:, 0],
-                m.p_stage,
-                m.p_global,
-                self._Z[:, 0],
-                self._W[:, 0],
-            )
+            leaving = (self._prior, self._prior_P, self._X[:, 0], self._U[:, 0], m.p_stage, m.p_global)
+            prior, prior_P, prior_Pinv = self._arrival(*leaving, self._Z[:, 0], self._W[:, 0])
+            if not (np.isfinite(prior).all() and np.isfinite(prior_Pinv).all()):
+                # a reporting sensor undefined at the leaving node (the solve could not move it
+                # off a range's beacon): those rows are dropped, the others kept
+                h, H = self._measure(self._X[:, 0])
+                H = H.reshape(h.size, m.size, order="F")
+                defined = np.isfinite(h) & np.isfinite(H).all(axis=1)
+                prior, prior_P, prior_Pinv = self._arrival(*leaving, self._Z[:, 0], self._W[:, 0] * defined)
             n = m.size
             self._prior = prior
             self._prior_P = prior_P.reshape(n, n, order="F")
@@ -398,11 +406,22 @@ class MovingHorizonEstimator(Estimator):
         fixed_tail = (m.p_stage, m.p_global)
         iterations = 1 if o.mode == "rti" else o.max_iterations
         X = self._X
+        # no finite linearisation at all: the estimate stays the prediction (x⁻, P⁻ of predict)
         covariance = None
         done, stale = 0, False
         for _ in range(iterations):
-            step, covariance, cost, decrement = self._gauss_newton(X, *fixed, *fixed_tail)
+            step, linearised, cost, decrement = self._gauss_newton(X, *fixed, *fixed_tail)
             done, stale = done + 1, False
+            if not (
+                np.isfinite(step).all()
+                and np.isfinite(linearised).all()
+                and np.isfinite(cost).all()
+                and np.isfinite(decrement).all()
+            ):
+                # a reporting sensor undefined at X (a range at its beacon): no direction to
+                # move in; X stays, with the covariance of the last finite linearisation
+                break
+            covariance = linearised
             step = step.reshape(n, self._nodes, order="F")
             if o.mode == "rti":
                 # the covariance of the linearisation the step used (as the RTI's own)
@@ -412,18 +431,27 @@ class MovingHorizonEstimator(Estimator):
             slope = float(decrement[0])
             if slope <= o.tolerance * max(1.0, float(cost[0])):
                 break
-            alpha = 1.0
-            while True:
+            alpha, accepted = 1.0, False
+            while alpha >= 1e-8:
                 trial = X + alpha * step
                 (trial_cost,) = self._cost(trial, *fixed, *fixed_tail)
-                if trial_cost[0] <= cost[0] - 1e-4 * alpha * slope or alpha < 1e-8:
+                # a NaN trial cost fails the test: a shorter step
+                if trial_cost[0] <= cost[0] - 1e-4 * alpha * slope:
+                    accepted = True
                     break
                 alpha *= 0.5
+            if not accepted:
+                # no step decreases the cost (rounding at the minimiser, or a cost undefined
+                # along the step): X stays, and its covariance is this linearisation's
+                break
             X, stale = trial, True
         if stale and o.mode == "full":
-            # out of iterations after a move: the covariance at the last iterate
-            _, covariance, _, _ = self._gauss_newton(X, *fixed, *fixed_tail)
-        assert covariance is not None
+            # out of iterations after a move: the covariance at the last iterate, if finite
+            _, linearised, _, _ = self._gauss_newton(X, *fixed, *fixed_tail)
+            if np.isfinite(linearised).all():
+                covariance = linearised
+        if covariance is None:
+            covariance = self.P
         self._X = X
         self.iterations = done
         self.x = X[:, -1].copy()

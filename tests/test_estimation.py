@@ -414,3 +414,43 @@ def compass_ocp(dt, rate_bound, std):
     ocp.add_stage_cost(residual=psi, weight=1.0)
     compass = ca.Function("compass", [psi], [ca.atan2(ca.sin(psi), ca.cos(psi))])
     return ocp, uo.Sensors([uo.Sensor("heading", compass, 10.0, std, angular=(True,))])
+
+
+def estimator_state(estimator):
+    """Everything a refused call must leave as it was: mean, covariance, steps (the MHE: window)."""
+    state = [estimator.x.copy(), estimator.P.copy(), estimator.steps]
+    if hasattr(estimator, "window"):
+        steps, window = estimator.window
+        state += [steps, window]
+    return state
+
+
+def assert_same_state(before, after):
+    assert len(before) == len(after)
+    for a, b in zip(before, after, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("method", uo.available_estimators())  # every registered estimator
+def test_a_refused_step_leaves_the_estimator_as_it_was(method):
+    """A measurement that does not fit is refused before the prediction moves anything.
+
+    The estimator that refused it then steps exactly as a twin that never saw the call.
+    """
+    options = EstimatorOptions(horizon=3)
+    estimator, twin = (
+        Estimator(linear_ocp(), method, sensors=linear_sensors(), options=options) for _ in "ab"
+    )
+    for e in (estimator, twin):
+        e.reset([1.0, 0.0])
+        for k in range(1, 3):  # a window holding data
+            e.step([0.5], Measurement(k, (0,), np.array([1.0 + 0.1 * k])))
+    before = estimator_state(estimator)
+    for bad in (Measurement(3, (0, 1), np.zeros(1)), "not a measurement"):
+        with pytest.raises(ValueError, match="measurement"):
+            estimator.step([0.5], bad)
+        assert_same_state(before, estimator_state(estimator))
+    good = Measurement(3, (0, 1), np.array([1.3, 0.2]))
+    ours, theirs = estimator.step([0.5], good), twin.step([0.5], good)
+    np.testing.assert_array_equal(ours.state, theirs.state)
+    np.testing.assert_array_equal(ours.covariance, theirs.covariance)

@@ -458,7 +458,12 @@ class Estimator:
         return self.estimate(measurement.step, measurement.sensors, innovations, S)
 
     def step(self, u: object, measurement: Measurement) -> Estimate:
-        """:meth:`predict` under ``u``, then :meth:`correct` with ``measurement``."""
+        """:meth:`predict` under ``u``, then :meth:`correct` with ``measurement``.
+
+        A measurement that does not fit is refused before the prediction: a refused step leaves
+        the estimator as it was.
+        """
+        self.measured_rows(measurement)
         self.predict(u)
         return self.correct(measurement)
 

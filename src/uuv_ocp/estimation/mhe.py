@@ -392,11 +392,6 @@ class MovingHorizonEstimator(Estimator):
         self._h = self._H = None
         return self.estimate(measurement.step, measurement.sensors, innovations, S)
 
-    def step(self, u: object, measurement: Measurement) -> Estimate:
-        """:meth:`predict` under ``u``, then :meth:`correct` with ``measurement``."""
-        self.predict(u)
-        return self.correct(measurement)
-
     def _solve(self) -> None:
         """Gauss–Newton on the window: one step (``"rti"``) or to convergence (``"full"``)."""
         m, o = self.model, self.options

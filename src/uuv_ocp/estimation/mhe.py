@@ -154,6 +154,18 @@ def _masked(mask: ca.SX, value: ca.SX) -> ca.SX:
     return ca.vertcat(*rows) if rows else value
 
 
+def _information(P: np.ndarray) -> np.ndarray:
+    """Return ``P⁻¹``; ``ValueError`` if ``P`` is not positive definite."""
+    try:  # the arrival cost weighs with P⁻¹: a merely semi-definite prior has none
+        factor = np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        raise ValueError(
+            "covariance must be positive definite for the MHE (its arrival cost is P⁻¹)"
+        ) from None
+    inverse = np.linalg.inv(factor)
+    return inverse.T @ inverse
+
+
 class MovingHorizonEstimator(Estimator):
     """MHE (module doc); build with ``uo.Estimator(problem, "mhe", sensors=...)``.
 
@@ -300,18 +312,14 @@ class MovingHorizonEstimator(Estimator):
         self._length = 0  # intervals in the window
         self._prior = self.x.copy()
         self._prior_P = self.P.copy()
-        try:  # the arrival cost weighs with P⁻¹: a merely semi-definite prior has none
-            factor = np.linalg.cholesky(self.P)
-        except np.linalg.LinAlgError:
-            raise ValueError(
-                "covariance must be positive definite for the MHE (its arrival cost is P⁻¹)"
-            ) from None
-        inverse = np.linalg.inv(factor)
-        self._prior_Pinv = inverse.T @ inverse
+        self._prior_Pinv = _information(self.P)
         self._sensors: tuple[int, ...] = ()
         self._h: np.ndarray | None = None
         self._H: np.ndarray | None = None
         self.iterations = 0
+
+    def _check_prior(self, P: np.ndarray) -> None:
+        _information(P)
 
     def _reset_hook(self) -> None:
         self._window_reset()

@@ -444,3 +444,70 @@ def test_a_sensor_that_did_not_report_never_poisons_the_ekf():
     assert np.all(np.isfinite(one_call.augmented)) and np.all(np.isfinite(one_call.covariance))
     np.testing.assert_allclose(one_call.augmented, reference.augmented, atol=1e-12)
     np.testing.assert_allclose(one_call.covariance, reference.covariance, atol=1e-12)
+
+
+def estimator_state(estimator):
+    """Everything a refused call must leave as it was: mean, covariance, steps (the MHE: window)."""
+    state = [estimator.x.copy(), estimator.P.copy(), estimator.steps]
+    if hasattr(estimator, "window"):
+        steps, window = estimator.window
+        state += [steps, window]
+    return state
+
+
+def assert_same_state(before, after):
+    assert len(before) == len(after)
+    for a, b in zip(before, after, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("method", uo.available_estimators())  # every registered estimator
+def test_a_refused_step_leaves_the_estimator_as_it_was(method):
+    """A measurement that does not fit is refused before the prediction moves anything.
+
+    The estimator that refused it then steps exactly as a twin that never saw the call.
+    """
+    options = EstimatorOptions(horizon=3)
+    estimator, twin = (
+        Estimator(linear_ocp(), method, sensors=linear_sensors(), options=options) for _ in "ab"
+    )
+    for e in (estimator, twin):
+        e.reset([1.0, 0.0])
+        for k in range(1, 3):  # a window holding data
+            e.step([0.5], Measurement(k, (0,), np.array([1.0 + 0.1 * k])))
+    before = estimator_state(estimator)
+    for bad in (Measurement(3, (0, 1), np.zeros(1)), "not a measurement"):
+        with pytest.raises(ValueError, match="measurement"):
+            estimator.step([0.5], bad)
+        assert_same_state(before, estimator_state(estimator))
+    good = Measurement(3, (0, 1), np.array([1.3, 0.2]))
+    ours, theirs = estimator.step([0.5], good), twin.step([0.5], good)
+    np.testing.assert_array_equal(ours.state, theirs.state)
+    np.testing.assert_array_equal(ours.covariance, theirs.covariance)
+
+
+@pytest.mark.parametrize("method", uo.available_estimators())  # every registered estimator
+def test_a_refused_reset_leaves_the_estimator_as_it_was(method):
+    """A covariance the estimator cannot start from is refused before anything is assigned.
+
+    Indefinite: every estimator refuses it; semi-definite: the MHE (its arrival cost is P⁻¹).
+    The estimator that refused the reset then steps exactly as a twin that never saw the call.
+    """
+    options = EstimatorOptions(horizon=3)
+    estimator, twin = (
+        Estimator(linear_ocp(), method, sensors=linear_sensors(), options=options) for _ in "ab"
+    )
+    for e in (estimator, twin):
+        e.reset([1.0, 0.0])
+        for k in range(1, 6):  # a full window, its arrival cost updated
+            e.step([0.5], Measurement(k, (0,), np.array([1.0 + 0.1 * k])))
+    before = estimator_state(estimator)
+    refused = [np.diag([1.0, -1.0])] + ([np.diag([1.0, 0.0])] if method == "mhe" else [])
+    for covariance in refused:
+        with pytest.raises(ValueError, match="covariance must be"):
+            estimator.reset([5.0, 5.0], covariance=covariance)
+        assert_same_state(before, estimator_state(estimator))
+    good = Measurement(6, (0, 1), np.array([1.3, 0.2]))
+    ours, theirs = estimator.step([0.5], good), twin.step([0.5], good)
+    np.testing.assert_array_equal(ours.state, theirs.state)
+    np.testing.assert_array_equal(ours.covariance, theirs.covariance)

@@ -248,3 +248,119 @@ def test_heading_crossing_pi_many_times_equals_the_ekf():
         theirs = ekf.correct(measurement) if k == 0 else ekf.step(u, measurement)
         np.testing.assert_allclose(ours.state, theirs.state, rtol=0, atol=1e-9)
     assert crossings >= 2
+
+
+def beacon_problem() -> tuple[uo.Ocp, uo.Sensors]:
+    """``ẋ = u`` in the plane: a position fix at 10 Hz and a range to a beacon at the origin at 1 Hz.
+
+    The range ``sqrt(x² + y²)`` has no Jacobian at the beacon (0/0: NaN).
+    """
+    ocp = uo.Ocp(horizon=3, dt=DT)
+    x = ocp.state("x", 2)
+    u = ocp.control("u", 2, lower=-1.0, upper=1.0)
+    ocp.set_der(x, u)
+    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
+    xs = ca.SX.sym("x", 2)
+    beacon_range = ca.Function("range", [xs], [ca.sqrt(xs[0] ** 2 + xs[1] ** 2)])
+    sensors = uo.Sensors(
+        [uo.Sensor.of_states("position", [0, 1], 2, 10.0, 0.1), uo.Sensor("range", beacon_range, 1.0, 0.1)]
+    )
+    return ocp, sensors
+
+
+@pytest.mark.parametrize(("mode", "compiled"), [("full", False), ("rti", False), ("rti", True)])
+def test_a_silent_sensor_undefined_at_the_estimate_does_not_poison_the_mhe(mode, compiled):
+    """Only the position fix reports; the range's NaN Jacobian at the beacon must not enter.
+
+    The estimate sits exactly at the beacon for the first steps (zero fixes, zero controls): every
+    window node and the arrival cost's linearisation point are at the origin.  The model and the
+    position fix are linear, so the MHE equals the EKF's ``predict`` then ``correct``, which uses
+    the reporting rows only (an independent reference).
+    """
+    if compiled:
+        try:
+            find_c_compiler()
+        except CompilerNotFoundError:
+            pytest.skip("no C compiler")
+    ocp, sensors = beacon_problem()
+    options = EstimatorOptions(horizon=2, mode=mode, compiled=compiled)
+    mhe = Estimator(ocp, "mhe", sensors=sensors, options=options)
+    ekf = Estimator(ocp, "ekf", sensors=sensors, options=EstimatorOptions(compiled=False))
+    for estimator in (mhe, ekf):
+        estimator.reset([0.0, 0.0])
+    rng = np.random.default_rng(3)
+    for k in range(1, 10):
+        fix = np.zeros(2) if k < 6 else rng.normal(0.0, 0.1, 2)  # at the beacon, then off it
+        measurement = Measurement(k, (0,), fix)
+        ours = mhe.step(np.zeros(2), measurement)
+        ekf.predict(np.zeros(2))
+        theirs = ekf.correct(measurement)
+        assert np.isfinite(ours.state).all() and np.isfinite(ours.covariance).all()
+        np.testing.assert_allclose(ours.state, theirs.state, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(ours.covariance, theirs.covariance, rtol=0, atol=1e-12)
+    assert mhe.window[0].size == 3  # the window slid: the arrival cost was updated at the beacon
+
+
+@pytest.mark.parametrize("mode", ["full", "rti"])
+def test_a_reporting_sensor_undefined_at_the_estimate_does_not_move_the_mhe(mode):
+    """The range reports while the estimate sits on its beacon: no Gauss–Newton direction exists.
+
+    The range's Jacobian at the beacon is 0/0 on a reporting row (no mask can remove it), so the
+    step is NaN.  The solve must not move: the estimate stays the prediction (the EKF's
+    ``predict``).  While that node is in the window no solve can move; when it leaves, its range is
+    dropped from the arrival cost, and the model and the position fix being linear, the MHE then
+    equals the EKF that was given the position fixes only (an independent reference).
+    """
+    ocp, sensors = beacon_problem()
+    mhe = Estimator(ocp, "mhe", sensors=sensors, options=EstimatorOptions(horizon=2, mode=mode))
+    ekf = Estimator(ocp, "ekf", sensors=sensors, options=EstimatorOptions(compiled=False))
+    for estimator in (mhe, ekf):
+        estimator.reset([0.0, 0.0])
+    predicted = Estimator(ocp, "ekf", sensors=sensors, options=EstimatorOptions(compiled=False))
+    predicted.reset([0.0, 0.0])
+    predicted.predict(np.zeros(2))
+    ours = mhe.step(np.zeros(2), Measurement(1, (0, 1), np.zeros(3)))  # at the beacon: range 0
+    np.testing.assert_array_equal(ours.state, predicted.x)
+    np.testing.assert_allclose(ours.covariance, predicted.P, rtol=0, atol=1e-15)
+    ekf.predict(np.zeros(2))
+    ekf.correct(Measurement(1, (0,), np.zeros(2)))
+    rng = np.random.default_rng(4)
+    for k in range(2, 9):
+        measurement = Measurement(k, (0,), rng.normal(0.0, 0.1, 2))
+        ours = mhe.step(np.zeros(2), measurement)
+        ekf.predict(np.zeros(2))
+        theirs = ekf.correct(measurement)
+        assert np.isfinite(ours.state).all() and np.isfinite(ours.covariance).all()
+        if mhe.window[0][0] > 1:  # step 1's node has left the window
+            np.testing.assert_allclose(ours.state, theirs.state, rtol=0, atol=1e-12)
+            np.testing.assert_allclose(ours.covariance, theirs.covariance, rtol=0, atol=1e-12)
+    assert mhe.window[0][0] > 1
+
+
+def test_the_full_solve_does_not_move_when_no_step_decreases_the_cost():
+    """Armijo failing down to the smallest step: the window keeps its iterate.
+
+    No smooth window makes Gauss–Newton's descent direction fail at every step length, so the
+    cost the line search sees is raised by 1e6 (the cost at the iterate, from the Gauss–Newton
+    Function, is not): every trial fails.  The window must then stay the prediction exactly.
+    """
+    mhe = Estimator(linear_ocp(), "mhe", sensors=linear_sensors(), options=EstimatorOptions(horizon=3))
+    mhe.reset([1.0, 0.0])
+    true_cost = mhe._cost
+    trials = []
+
+    def raised(*arguments):
+        trials.append(1)
+        (cost,) = true_cost(*arguments)
+        return (cost + 1e6,)
+
+    mhe._cost = raised
+    predicted = Estimator(
+        linear_ocp(), "ekf", sensors=linear_sensors(), options=EstimatorOptions(compiled=False)
+    )
+    predicted.reset([1.0, 0.0])
+    predicted.predict([0.5])
+    estimate = mhe.step([0.5], Measurement(1, (0,), np.array([1.2])))
+    assert len(trials) > 20  # the line search ran down to its smallest step
+    np.testing.assert_array_equal(estimate.state, predicted.x)
+    assert mhe.iterations == 1

@@ -421,18 +421,24 @@ class Estimator:
         m = self.model
         x = check.finite_array("x0", x0, (m.nx,))
         c = np.zeros(m.nc) if current is None else check.finite_array("current", current, (m.nc,))
-        self.x = np.concatenate([x, c, np.zeros(m.nb)])
         if covariance is None:
-            self.P = m.P0.copy()
+            P = m.P0.copy()
         else:
             P = check.finite_array("covariance", covariance, (m.size, m.size))
             eigenvalues = np.linalg.eigvalsh(0.5 * (P + P.T))
             # rounding-level negative eigenvalues (a covariance read back from an Estimate) pass
             if not np.allclose(P, P.T) or eigenvalues.min() < -1e-12 * max(1.0, eigenvalues.max()):
                 raise ValueError("covariance must be symmetric positive semi-definite")
-            self.P = P.copy()
+            P = P.copy()
+        # every check before the first assignment: a refused reset leaves the estimator as it was
+        self._check_prior(P)
+        self.x = np.concatenate([x, c, np.zeros(m.nb)])
+        self.P = P
         self.steps = 0
         self._reset_hook()
+
+    def _check_prior(self, P: np.ndarray) -> None:
+        """Refuse (``ValueError``) a prior covariance this estimator cannot start from (none set yet)."""
 
     def _reset_hook(self) -> None:
         pass
@@ -459,7 +465,12 @@ class Estimator:
         return self.estimate(measurement.step, measurement.sensors, innovations, S)
 
     def step(self, u: object, measurement: Measurement) -> Estimate:
-        """:meth:`predict` under ``u``, then :meth:`correct` with ``measurement``."""
+        """:meth:`predict` under ``u``, then :meth:`correct` with ``measurement``.
+
+        A measurement that does not fit is refused before the prediction: a refused step leaves
+        the estimator as it was.
+        """
+        self.measured_rows(measurement)
         self.predict(u)
         return self.correct(measurement)
 

@@ -54,6 +54,15 @@ smoothed noise; on a linear-Gaussian model the update above is the Kalman filter
 equals the Kalman filter at the newest node and the Rauch–Tung–Striebel smoother over the window
 (``tests/test_mhe.py``).
 
+**Undefined measurements.**  A sensor that did not report never enters (its rows are masked with
+``if_else``, so a NaN or Inf of its ``h`` or Jacobian at the linearisation point is not multiplied
+by the zero weight).  A sensor that reported but is undefined where the window is linearised
+(a range at its beacon) gives no Gauss–Newton direction: the solve does not move (the estimate
+stays the last iterate with the covariance of the last finite linearisation, the prediction's if
+there is none), and when that node leaves the window the undefined rows are dropped from the
+arrival cost.  The full solve also stays put when no step along the Gauss–Newton direction decreases the
+cost (Armijo fails down to a step of 1e-8).
+
 **Innovations.**  As the EKF's: the newest step's reporting rows against the prediction
 ``f(x̂_{k−1}, u_{k−1})``, with ``S = H P⁻ Hᵀ + R`` and ``P⁻ = F P_{k−1} Fᵀ + Q`` from the
 previous step's covariance.
@@ -135,6 +144,28 @@ def _wrapped(residual: ca.SX, angular: np.ndarray) -> ca.SX:
     return ca.vertcat(*entries) if entries else residual
 
 
+def _masked(mask: ca.SX, value: ca.SX) -> ca.SX:
+    """Return ``value`` with the rows whose ``mask`` entry is 0 set to 0, even if NaN or Inf there.
+
+    ``mask * value`` would not do: 0 · NaN = NaN, and a sensor that did not report may have an
+    undefined output or Jacobian at the linearisation point (a range or bearing at its beacon).
+    """
+    rows = [ca.if_else(mask[r], value[r, :], ca.SX.zeros(1, value.shape[1])) for r in range(value.shape[0])]
+    return ca.vertcat(*rows) if rows else value
+
+
+def _information(P: np.ndarray) -> np.ndarray:
+    """Return ``P⁻¹``; ``ValueError`` if ``P`` is not positive definite."""
+    try:  # the arrival cost weighs with P⁻¹: a merely semi-definite prior has none
+        factor = np.linalg.cholesky(P)
+    except np.linalg.LinAlgError:
+        raise ValueError(
+            "covariance must be positive definite for the MHE (its arrival cost is P⁻¹)"
+        ) from None
+    inverse = np.linalg.inv(factor)
+    return inverse.T @ inverse
+
+
 class MovingHorizonEstimator(Estimator):
     """MHE (module doc); build with ``uo.Estimator(problem, "mhe", sensors=...)``.
 
@@ -170,9 +201,9 @@ class MovingHorizonEstimator(Estimator):
         xbar, xs = ca.SX.sym("xbar", n), ca.SX.sym("xs", n)
         z, mask = ca.SX.sym("z", rows), ca.SX.sym("mask", rows)
         h0, H0 = h(xs)
-        H0 = ca.diag(mask) @ H0  # rows that did not report: zero (no information)
+        H0 = _masked(mask, H0)  # rows that did not report: zero (no information)
         R = ca.diag(ca.DM(self.R))
-        innovation = mask * (_wrapped(z - h0, self.angular) - H0 @ (xbar - xs))
+        innovation = _masked(mask, _wrapped(z - h0, self.angular) - H0 @ (xbar - xs))
         PHt = P @ H0.T
         K = ca.solve(H0 @ PHt + R, PHt.T).T
         A = ca.DM.eye(n) - K @ H0
@@ -206,8 +237,9 @@ class MovingHorizonEstimator(Estimator):
         cost = ca.SX(0)
         for i in range(nodes):
             hi, Hi = h(X[:, i])
+            Hi = _masked(W[:, i], Hi)
             weight = W[:, i] * Rinv
-            residual = _wrapped(Z[:, i] - hi, self.angular)
+            residual = _masked(W[:, i], _wrapped(Z[:, i] - hi, self.angular))
             deviation = xbar_in - X[:, i]
             diag_blocks.append(Hi.T @ ca.diag(weight) @ Hi + prior_weight[i] * Pinv + ghost[i] * ca.SX.eye(n))
             rhs.append(Hi.T @ (weight * residual) + prior_weight[i] * (Pinv @ deviation))
@@ -280,18 +312,14 @@ class MovingHorizonEstimator(Estimator):
         self._length = 0  # intervals in the window
         self._prior = self.x.copy()
         self._prior_P = self.P.copy()
-        try:  # the arrival cost weighs with P⁻¹: a merely semi-definite prior has none
-            factor = np.linalg.cholesky(self.P)
-        except np.linalg.LinAlgError:
-            raise ValueError(
-                "covariance must be positive definite for the MHE (its arrival cost is P⁻¹)"
-            ) from None
-        inverse = np.linalg.inv(factor)
-        self._prior_Pinv = inverse.T @ inverse
+        self._prior_Pinv = _information(self.P)
         self._sensors: tuple[int, ...] = ()
         self._h: np.ndarray | None = None
         self._H: np.ndarray | None = None
         self.iterations = 0
+
+    def _check_prior(self, P: np.ndarray) -> None:
+        _information(P)
 
     def _reset_hook(self) -> None:
         self._window_reset()
@@ -324,16 +352,15 @@ class MovingHorizonEstimator(Estimator):
         u = self._control(u)
         if self._length == M:
             # the oldest node leaves: its information goes into the prior (module doc)
-            prior, prior_P, prior_Pinv = self._arrival(
-                self._prior,
-                self._prior_P,
-                self._X[:, 0],
-                self._U[:, 0],
-                m.p_stage,
-                m.p_global,
-                self._Z[:, 0],
-                self._W[:, 0],
-            )
+            leaving = (self._prior, self._prior_P, self._X[:, 0], self._U[:, 0], m.p_stage, m.p_global)
+            prior, prior_P, prior_Pinv = self._arrival(*leaving, self._Z[:, 0], self._W[:, 0])
+            if not (np.isfinite(prior).all() and np.isfinite(prior_Pinv).all()):
+                # a reporting sensor undefined at the leaving node (the solve could not move it
+                # off a range's beacon): those rows are dropped, the others kept
+                h, H = self._measure(self._X[:, 0])
+                H = H.reshape(h.size, m.size, order="F")
+                defined = np.isfinite(h) & np.isfinite(H).all(axis=1)
+                prior, prior_P, prior_Pinv = self._arrival(*leaving, self._Z[:, 0], self._W[:, 0] * defined)
             n = m.size
             self._prior = prior
             self._prior_P = prior_P.reshape(n, n, order="F")
@@ -373,11 +400,6 @@ class MovingHorizonEstimator(Estimator):
         self._h = self._H = None
         return self.estimate(measurement.step, measurement.sensors, innovations, S)
 
-    def step(self, u: object, measurement: Measurement) -> Estimate:
-        """:meth:`predict` under ``u``, then :meth:`correct` with ``measurement``."""
-        self.predict(u)
-        return self.correct(measurement)
-
     def _solve(self) -> None:
         """Gauss–Newton on the window: one step (``"rti"``) or to convergence (``"full"``)."""
         m, o = self.model, self.options
@@ -387,11 +409,22 @@ class MovingHorizonEstimator(Estimator):
         fixed_tail = (m.p_stage, m.p_global)
         iterations = 1 if o.mode == "rti" else o.max_iterations
         X = self._X
+        # no finite linearisation at all: the estimate stays the prediction (x⁻, P⁻ of predict)
         covariance = None
         done, stale = 0, False
         for _ in range(iterations):
-            step, covariance, cost, decrement = self._gauss_newton(X, *fixed, *fixed_tail)
+            step, linearised, cost, decrement = self._gauss_newton(X, *fixed, *fixed_tail)
             done, stale = done + 1, False
+            if not (
+                np.isfinite(step).all()
+                and np.isfinite(linearised).all()
+                and np.isfinite(cost).all()
+                and np.isfinite(decrement).all()
+            ):
+                # a reporting sensor undefined at X (a range at its beacon): no direction to
+                # move in; X stays, with the covariance of the last finite linearisation
+                break
+            covariance = linearised
             step = step.reshape(n, self._nodes, order="F")
             if o.mode == "rti":
                 # the covariance of the linearisation the step used (as the RTI's own)
@@ -401,18 +434,27 @@ class MovingHorizonEstimator(Estimator):
             slope = float(decrement[0])
             if slope <= o.tolerance * max(1.0, float(cost[0])):
                 break
-            alpha = 1.0
-            while True:
+            alpha, accepted = 1.0, False
+            while alpha >= 1e-8:
                 trial = X + alpha * step
                 (trial_cost,) = self._cost(trial, *fixed, *fixed_tail)
-                if trial_cost[0] <= cost[0] - 1e-4 * alpha * slope or alpha < 1e-8:
+                # a NaN trial cost fails the test: a shorter step
+                if trial_cost[0] <= cost[0] - 1e-4 * alpha * slope:
+                    accepted = True
                     break
                 alpha *= 0.5
+            if not accepted:
+                # no step decreases the cost (rounding at the minimiser, or a cost undefined
+                # along the step): X stays, and its covariance is this linearisation's
+                break
             X, stale = trial, True
         if stale and o.mode == "full":
-            # out of iterations after a move: the covariance at the last iterate
-            _, covariance, _, _ = self._gauss_newton(X, *fixed, *fixed_tail)
-        assert covariance is not None
+            # out of iterations after a move: the covariance at the last iterate, if finite
+            _, linearised, _, _ = self._gauss_newton(X, *fixed, *fixed_tail)
+            if np.isfinite(linearised).all():
+                covariance = linearised
+        if covariance is None:
+            covariance = self.P
         self._X = X
         self.iterations = done
         self.x = X[:, -1].copy()

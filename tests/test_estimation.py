@@ -422,13 +422,7 @@ def test_a_sensor_that_did_not_report_never_poisons_the_ekf():
     When it did not report, the one-call step equals predict-then-correct on the reporting rows,
     which never touch it.
     """
-    ocp = uo.Ocp(horizon=3, dt=DT)
-    x = ocp.state("x", 2)
-    u = ocp.control("u", 2, lower=-1.0, upper=1.0)
-    ocp.set_der(x, u)
-    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
-    at = ca.SX.sym("x", 2)
-    beacon_range = ca.Function("range", [at], [ca.sqrt(at[0] ** 2 + at[1] ** 2)])
+    ocp, at, beacon_range = beacon_ocp()
     # and a signal strength ∝ 1/range, infinite there (its innovation is too)
     strength = ca.Function("strength", [at], [1.0 / ca.sqrt(at[0] ** 2 + at[1] ** 2)])
     fix = Sensor.of_states("fix", [0, 1], 2, 10.0, 0.1)
@@ -511,3 +505,17 @@ def test_a_refused_reset_leaves_the_estimator_as_it_was(method):
     ours, theirs = estimator.step([0.5], good), twin.step([0.5], good)
     np.testing.assert_array_equal(ours.state, theirs.state)
     np.testing.assert_array_equal(ours.covariance, theirs.covariance)
+
+
+def beacon_ocp():
+    """Return a planar point moved by its velocity, a symbol of its position and its range to a beacon.
+
+    The beacon is at the origin, where the range ``sqrt(x² + y²)`` has no Jacobian (0/0: NaN).
+    """
+    ocp = uo.Ocp(horizon=3, dt=DT)
+    x = ocp.state("x", 2)
+    u = ocp.control("u", 2, lower=-1.0, upper=1.0)
+    ocp.set_der(x, u)
+    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
+    at = ca.SX.sym("x", 2)
+    return ocp, at, ca.Function("range", [at], [ca.sqrt(at[0] ** 2 + at[1] ** 2)])

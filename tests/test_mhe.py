@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
-from test_estimation import DT, A, B, compass_ocp, linear_ocp, linear_sensors, rk4_linear
+from test_estimation import DT, A, B, beacon_ocp, compass_ocp, linear_ocp, linear_sensors, rk4_linear
 from uuv_ocp.estimation import Estimator, EstimatorOptions, Measurement, MovingHorizonEstimator
 from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
 
@@ -255,13 +255,7 @@ def beacon_problem() -> tuple[uo.Ocp, uo.Sensors]:
 
     The range ``sqrt(x² + y²)`` has no Jacobian at the beacon (0/0: NaN).
     """
-    ocp = uo.Ocp(horizon=3, dt=DT)
-    x = ocp.state("x", 2)
-    u = ocp.control("u", 2, lower=-1.0, upper=1.0)
-    ocp.set_der(x, u)
-    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
-    xs = ca.SX.sym("x", 2)
-    beacon_range = ca.Function("range", [xs], [ca.sqrt(xs[0] ** 2 + xs[1] ** 2)])
+    ocp, _, beacon_range = beacon_ocp()
     sensors = uo.Sensors(
         [uo.Sensor.of_states("position", [0, 1], 2, 10.0, 0.1), uo.Sensor("range", beacon_range, 1.0, 0.1)]
     )

@@ -623,3 +623,25 @@ def test_an_index_a_read_only_connection_cannot_recover_is_recovered_not_refused
         result = run_campaign(small(), two_campaigns, workers=1, progress=False)
     assert result.resumed == 3 and not result.recomputed
     assert len(query_trials(two_campaigns)) == 5
+
+
+def test_the_resume_sweeps_temporaries_of_dead_writers_on_this_host_only(tmp_path):
+    """A writer SIGKILLed mid-write leaves its temporary file; only provably dead ones go."""
+    import socket
+    import subprocess
+
+    from uuv_ocp.studies.records import sweep_temporaries
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])  # a pid that has ended
+    dead.wait()
+    host = socket.gethostname()
+    names = {
+        "dead": f".trial_0001.{host}-{dead.pid}.ab12cd_3.tmp",
+        "alive": f".trial_0002.{host}-{os.getpid()}.zz99yy00.tmp",  # this process: a live writer
+        "remote": f".trial_0003.other-host.example-{dead.pid}.ab12cd_3.tmp",  # unknown to this host
+        "foreign": ".index.sqlite.tmp",  # not a record's
+    }
+    for name in names.values():
+        (tmp_path / name).write_bytes(b"half a record")
+    assert sweep_temporaries(tmp_path) == 1
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(n for k, n in names.items() if k != "dead")

@@ -69,6 +69,7 @@ from uuv_ocp.studies.records import (
     index_trial,
     query_trials,
     read_record,
+    sweep_temporaries,
     write_record,
     write_text,
 )
@@ -546,6 +547,7 @@ def _resume(
     for c, config in enumerate(configs):  # resumed trials load in milliseconds: not part of the bar's rate
         directory = out / config.name
         directory.mkdir(exist_ok=True)
+        sweep_temporaries(directory)  # what writers killed mid-write left
         steps = config.steps()
         for index in range(config.trials):
             existed = _trial_path(directory, index).exists()

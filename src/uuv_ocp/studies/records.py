@@ -6,10 +6,12 @@ A *record* is one :class:`~uuv_ocp.control.simulation.ClosedLoopResult` in a com
 ``record_checksum``).  :func:`write_record` writes it under a unique temporary name in the same
 folder (:func:`tempfile.mkstemp`) and renames it into place (:func:`os.replace`, atomic), so two
 writers of the same record never see each other's half-written file and a killed writer leaves
-no record.  :func:`read_record` trusts nothing: a file that does not load (truncated, empty), has
-no checksum, fails it (altered: NaN-filled, shortened), was written for another configuration
-(copied from another trial or campaign), or is inconsistent in itself is reported by path with a
-:class:`RecordWarning` and treated as missing, so the caller recomputes it.
+no record (its temporary file, named by its host and process, is removed by the next resume:
+:func:`sweep_temporaries`).  :func:`read_record` trusts nothing: a file that does not load
+(truncated, empty), has no checksum, fails it (altered: NaN-filled, shortened), was written
+for another configuration (copied from another trial or campaign), or is inconsistent in
+itself is reported by path with a :class:`RecordWarning` and treated as missing, so the
+caller recomputes it.
 
 A path that is not a regular file (a FIFO, a socket, a device, a directory) is never opened: it
 is reported the same way, moved aside (renamed ``<name>.damaged-<UTC time>``) when it can be, and
@@ -61,6 +63,8 @@ import hashlib
 import json
 import math
 import os
+import re
+import socket
 import sqlite3
 import stat
 import sys
@@ -262,6 +266,45 @@ def check_writable(folder: str | Path, name: str = "out_dir") -> Path:
     return path
 
 
+#: ``.<stem>.<host>-<pid>.<random>.tmp``: a record's temporary file names its writer
+_TEMPORARY = re.compile(r"\.(?P<stem>[^.]+)\.(?P<host>.+)-(?P<pid>\d+)\.\w+\.tmp\Z")
+
+
+def _temporary_prefix(stem: str) -> str:
+    """Prefix of a record's temporary file: its writer's host and process, for :func:`sweep_temporaries`."""
+    return f".{stem}.{socket.gethostname()}-{os.getpid()}."
+
+
+def sweep_temporaries(folder: str | Path) -> int:
+    """Remove the temporary files of record writers on this host that no longer run; return how many.
+
+    A writer killed between creating its temporary file and renaming it (SIGKILL, a lost node)
+    cannot remove it.  Only files named by a process of this host that does not exist are
+    removed: a live writer's (another campaign in the same folder) and those of other hosts
+    on a shared folder are left alone.
+    """
+    host, removed = socket.gethostname(), 0
+    for path in Path(folder).glob(".*.tmp"):
+        match = _TEMPORARY.match(path.name)
+        if match is None or match["host"] != host or _running(int(match["pid"])):
+            continue
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+            removed += 1
+    return removed
+
+
+def _running(pid: int) -> bool:
+    """Whether process ``pid`` exists on this host (another user's counts)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
 def write_record(path: str | Path, run: ClosedLoopResult, config: Mapping[str, Any]) -> str:
     """Write ``run`` with ``config`` and their checksum to ``path`` atomically; return the checksum."""
     path = Path(path)
@@ -270,7 +313,9 @@ def write_record(path: str | Path, run: ClosedLoopResult, config: Mapping[str, A
     digest = checksum(arrays, config_json)
     temporary = None
     try:
-        handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.stem}.", suffix=".tmp")
+        handle, temporary = tempfile.mkstemp(
+            dir=path.parent, prefix=_temporary_prefix(path.stem), suffix=".tmp"
+        )
         with os.fdopen(handle, "wb") as stream:
             np.savez_compressed(
                 stream, **arrays, record_config=np.array(config_json), record_checksum=np.array(digest)

@@ -86,6 +86,29 @@ def _skew(a):
     )
 
 
+def mass_coriolis_matrix(mass: np.ndarray, nu):
+    """``m2c(M, ν) = [[0, −S(M₁₁ν₁ + M₁₂ν₂)], [−S(…), −S(M₂₁ν₁ + M₂₂ν₂)]]`` (Fossen 2011 eq. 6.43).
+
+    Parameters
+    ----------
+    mass : numpy.ndarray, shape (6, 6)
+        A mass matrix (kg, kg·m, kg·m²): the added mass, or a symmetric rigid-body one.
+    nu : casadi.SX, MX or DM, shape (6,)
+        Velocity ``[u, v, w, p, q, r]`` (m/s, rad/s).
+
+    Returns
+    -------
+    casadi.SX, MX or DM, shape (6, 6)
+    """
+    linear, angular = nu[0:3], nu[3:6]
+    a1 = ca.DM(mass[0:3, 0:3]) @ linear + ca.DM(mass[0:3, 3:6]) @ angular
+    a2 = ca.DM(mass[3:6, 0:3]) @ linear + ca.DM(mass[3:6, 3:6]) @ angular
+    return ca.vertcat(
+        ca.horzcat(ca.DM.zeros(3, 3), -_skew(a1)),
+        ca.horzcat(-_skew(a1), -_skew(a2)),
+    )
+
+
 def _column(value, length: int):
     """Return a CasADi column: symbolic input unchanged, numbers as a ``DM`` of ``length`` rows."""
     if isinstance(value, (ca.SX, ca.MX, ca.DM)):
@@ -656,15 +679,7 @@ class Vehicle6DOF:
         casadi.SX, MX or DM, shape (6, 6)
             Skew-symmetric matrix.
         """
-        nu = _column(nu, 6)
-        added = np.array(self.added_mass)
-        linear, angular = nu[0:3], nu[3:6]
-        a1 = ca.DM(added[0:3, 0:3]) @ linear + ca.DM(added[0:3, 3:6]) @ angular
-        a2 = ca.DM(added[3:6, 0:3]) @ linear + ca.DM(added[3:6, 3:6]) @ angular
-        return ca.vertcat(
-            ca.horzcat(ca.DM.zeros(3, 3), -_skew(a1)),
-            ca.horzcat(-_skew(a1), -_skew(a2)),
-        )
+        return mass_coriolis_matrix(np.array(self.added_mass), _column(nu, 6))
 
     def coriolis_matrix(self, nu):
         """``C(ν) = C_RB(ν) + C_A(ν)``, shape (6, 6); see the two terms."""

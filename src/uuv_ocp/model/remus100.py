@@ -109,7 +109,13 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import serialised
 from uuv_ocp.model.base import VehicleLayout
-from uuv_ocp.model.fossen6dof import STATE_NAMES, STATE_UNITS, euler_rate_matrix, rotation_matrix
+from uuv_ocp.model.fossen6dof import (
+    STATE_NAMES,
+    STATE_UNITS,
+    euler_rate_matrix,
+    mass_coriolis_matrix,
+    rotation_matrix,
+)
 
 CONTROL_NAMES = ("delta_r", "delta_s", "n")
 CONTROL_UNITS = ("rad", "rad", "rpm")
@@ -131,25 +137,9 @@ LINEAR_DAMPING_DECAY = 3.0  # D_11, D_22 scaled by exp(-3 U_r) (s/m)
 SPAN_AREA_FRACTION = 0.7  # S = 0.7 L D: 70 % of the rectangle L × D
 
 
-def _skew(a):
-    """Cross-product matrix ``S(a)`` (Fossen 2021 eq. 2.10) of a symbolic or numeric 3-vector."""
-    return ca.vertcat(
-        ca.horzcat(0, -a[2], a[1]),
-        ca.horzcat(a[2], 0, -a[0]),
-        ca.horzcat(-a[1], a[0], 0),
-    )
-
-
 def _coriolis(mass_matrix: np.ndarray, nu):
-    """``m2c(M, ν)``: ``[[0, −S(M₁₁ν₁ + M₁₂ν₂)], [−S(…), −S(M₂₁ν₁ + M₂₂ν₂)]]`` (Fossen 2021 eq. 3.60)."""
-    m = 0.5 * (mass_matrix + mass_matrix.T)
-    linear, angular = nu[0:3], nu[3:6]
-    a1 = ca.DM(m[0:3, 0:3]) @ linear + ca.DM(m[0:3, 3:6]) @ angular
-    a2 = ca.DM(m[3:6, 0:3]) @ linear + ca.DM(m[3:6, 3:6]) @ angular
-    return ca.vertcat(
-        ca.horzcat(ca.SX.zeros(3, 3), -_skew(a1)),
-        ca.horzcat(-_skew(a1), -_skew(a2)),
-    )
+    """``m2c(M, ν)`` of the symmetric part of ``M``, as the source's ``m2c`` (Fossen 2021 eq. 3.60)."""
+    return mass_coriolis_matrix(0.5 * (mass_matrix + mass_matrix.T), nu)
 
 
 def _norm(squared):

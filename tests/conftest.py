@@ -20,7 +20,7 @@ os.environ.setdefault("UUV_OCP_COMPILED", "0")
 # checkout keeps its compiled C between runs (a cold cache recompiles every C step: see
 # docs/codegen.md for the measured cost); UUV_OCP_TEST_CACHE chooses another folder.  The C step
 # links the wheel's HPIPM unless the run asks otherwise (UUV_OCP_HPIPM=native make test), so a
-# native build made by tests/test_native_hpipm.py does not change the tests that run after it.
+# native build made by tests/native/test_hpipm.py does not change the tests that run after it.
 os.environ["UUV_OCP_CACHE"] = os.environ.get("UUV_OCP_TEST_CACHE", "").strip() or str(
     Path(__file__).resolve().parent.parent / "build" / "test-cache"
 )

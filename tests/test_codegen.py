@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
-from conftest import needs_compiler
-from helpers_c import build_and_run
+from tests.conftest import needs_compiler
+from tests.helpers_c import build_and_run
 from uuv_ocp import codegen
 from uuv_ocp.optimize import minimize
 
@@ -67,7 +67,7 @@ def test_all_c_igwo_step_starts_from_the_virtual_machines_fitness(s2_problem, fe
     """All-C vs the Python IGWO on the virtual machine: same initial pack, same fitness.
 
     Same up to the SIMD kernel's sin/cos rounding.  (Bit-identity with the Python IGWO on the
-    same compiled kernel is tested in test_codegen_simd.py.)
+    same compiled kernel is tested in native/test_simd.py.)
     """
     x0, t0 = feasible_start
     p = s2_problem.parameters(x0, t0)

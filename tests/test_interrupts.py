@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from helpers_campaign import small
+from tests.helpers_campaign import small
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.interrupts import check_interrupt, remember_interrupts
 from uuv_ocp.studies.campaign import run_campaign

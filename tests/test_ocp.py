@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
-from conftest import needs_compiler
+from tests.conftest import needs_compiler
 
 DT = 0.1
 HORIZON = 12

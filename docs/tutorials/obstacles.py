@@ -26,7 +26,7 @@ OBSTACLES = (ROCK, DIVER)
 
 @dataclass(frozen=True)
 class Outcome:
-    """What :func:`main` returns (tests/test_docs.py checks it)."""
+    """What :func:`main` returns (tests/system/test_docs.py checks it)."""
 
     problem: uo.TrackingProblem
     runs: dict  # label -> ClosedLoopResult

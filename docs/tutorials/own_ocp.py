@@ -55,7 +55,7 @@ def parking_ocp(horizon: int = 30, dt: float = 0.33) -> uo.Ocp:
 
 @dataclass(frozen=True)
 class Outcome:
-    """What :func:`main` returns (tests/test_docs.py checks it)."""
+    """What :func:`main` returns (tests/system/test_docs.py checks it)."""
 
     ocp: uo.Ocp
     parameters: dict

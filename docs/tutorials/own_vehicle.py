@@ -49,7 +49,7 @@ SPATIAL = Vehicle6DOF(
 
 @dataclass(frozen=True)
 class Outcome:
-    """What :func:`main` returns (tests/test_docs.py checks it)."""
+    """What :func:`main` returns (tests/system/test_docs.py checks it)."""
 
     planar_run: uo.ClosedLoopResult
     spatial_run: uo.ClosedLoopResult

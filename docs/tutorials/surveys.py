@@ -22,7 +22,7 @@ SPEED = 0.5  # m/s along the path (the RexROV's surge top speed is about 1.6 m/s
 
 @dataclass(frozen=True)
 class Outcome:
-    """What :func:`main` returns (tests/test_docs.py checks it)."""
+    """What :func:`main` returns (tests/system/test_docs.py checks it)."""
 
     lawnmower: uo.Reference
     square: uo.Reference

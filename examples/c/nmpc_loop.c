@@ -3,7 +3,7 @@
  *   generate_c(problem, "build", functions=("model_step", "nmpc_step"))
  *   cc nmpc_loop.c -Ibuild build/uuv_ocp_nmpc_<hash>.so build/uuv_ocp_gen_<hash>.so \
  *      -Wl,-rpath,'$ORIGIN' -lm -o build/nmpc_loop
- *   ./build/nmpc_loop loop.txt          (written by tests/test_codegen_nmpc.py)
+ *   ./build/nmpc_loop loop.txt          (written by tests/solvers/test_rti_export.py)
  *
  * loop.txt: nx nu np nw steps, then x0[nx] u_prev[nu] w[nw] and p[steps][np] (the reference
  * window of each step; nmpc_step replaces its state and last-control blocks).  The plant is the

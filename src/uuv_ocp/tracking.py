@@ -593,7 +593,7 @@ class TrackingProblem(Transcribed):
         window = self.reference_window(t0, heading=x0[heading_index])
         u_prev = self.ocp.check_previous(u_prev)
         # every part is checked above (the window is finite by construction): written straight
-        # into p at the places of Ocp.pack (tests/test_fast_paths.py checks p against
+        # into p at the places of Ocp.pack (tests/control/test_mpc_fast_paths.py checks p against
         # Ocp.parameters, the general validated path, on random instances)
         p = np.empty(layout.size)
         p[layout.x0] = x0

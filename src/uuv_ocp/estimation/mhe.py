@@ -52,7 +52,7 @@ official example ``mhe_spring_damper.py`` (casadi#4226) uses the weight ``R⁻¹
 needs the covariance ``R``, adds ``Q⁻¹`` unmapped by the noise Jacobian, and propagates with the
 smoothed noise; on a linear-Gaussian model the update above is the Kalman filter's, and the MHE
 equals the Kalman filter at the newest node and the Rauch–Tung–Striebel smoother over the window
-(``tests/test_mhe.py``).
+(``tests/estimation/test_mhe.py``).
 
 **Undefined measurements.**  A sensor that did not report never enters (its rows are masked with
 ``if_else``, so a NaN or Inf of its ``h`` or Jacobian at the linearisation point is not multiplied

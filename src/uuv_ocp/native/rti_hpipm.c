@@ -717,16 +717,16 @@ static int rti_ipm_run(rti_memory* m, struct d_ocp_qp_ipm_arg* arg, struct d_ocp
  * iterative refinement stall on the ill-conditioned cold QPs of the generated nmpc_step, 67 of
  * 100 on s2 with partial condensing) is solved again in ROBUST mode: its last iterate is no
  * solution, only a feasible point, and was up to 1.2e-4 of a control's range off the QP's
- * solution (tests/test_rti.py::test_a_qp_hpipm_does_not_solve_is_rescued_in_robust_mode). */
+ * solution (tests/solvers/test_rti.py::test_a_qp_hpipm_does_not_solve_is_rescued_in_robust_mode). */
 static int rti_hpipm_solve(rti_memory* m) {
   int k, iterations;
   if (m->cond_n) {
     /* the whole QP, in the feedback: condensing only the right-hand side there (the matrices
      * condensed in the preparation) rounds differently from condensing all of it, and a step
      * from a preparation must equal the same step without one, bit for bit (3e-8 N apart on an
-     * s2 control with the wheel's HPIPM, tests/test_rti.py's resident steps); with HPIPM 0.1.2
+     * s2 control with the wheel's HPIPM, tests/solvers/test_rti.py's resident steps); with HPIPM 0.1.2
      * the right-hand side alone gave a feedback 17 N off a fresh step's
-     * (tests/test_rti.py::test_prepare_then_feedback_equals_step).  Steps that rti_eq_solve
+     * (tests/solvers/test_rti.py::test_prepare_then_feedback_equals_step).  Steps that rti_eq_solve
      * solves condense nothing. */
     d_part_cond_qp_cond(&m->qp, &m->pqp, &m->cond_arg, &m->cond_ws);
   }

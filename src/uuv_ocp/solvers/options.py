@@ -26,7 +26,7 @@ How a backend declares its options (e.g. :mod:`uuv_ocp.solvers.slsqp`)::
 Then add a marker ``<!-- solver-options: slsqp -->`` where its section of ``docs/solvers.md``
 lists the options; the hook replaces it by the table.  The registry finds a declaration as the
 ``OPTIONS`` attribute of the registered factory (a class attribute, or an attribute set on a
-factory function: :func:`~uuv_ocp.solvers.swarm.swarm_factory`); ``tests/test_solver_options.py``
+factory function: :func:`~uuv_ocp.solvers.swarm.swarm_factory`); ``tests/solvers/test_options.py``
 fails for a registered backend without one, for a default the backend does not hold, and for an
 Options dataclass that is not its declaration.  A computed declaration (the swarms': population
 and iterations are each algorithm's) becomes a dataclass by :func:`make_options_class`.
@@ -34,7 +34,7 @@ and iterations are each algorithm's) becomes a dataclass by :func:`make_options_
 A default the backend works out when it is built (from the machine, the environment or
 another option) is :data:`AUTO` with a ``meaning`` saying how, and the constructor replaces
 :data:`AUTO` by that value (``value = rule() if value is AUTO else value``;
-``expected_held`` of ``tests/test_solver_options.py`` computes each rule independently, so a
+``expected_held`` of ``tests/solvers/test_options.py`` computes each rule independently, so a
 new one needs a line there); a ``None`` default has a ``meaning`` too (what ``None`` stands
 for).
 """

@@ -771,7 +771,7 @@ class RtiSolver(NlpSolver):
         3. otherwise, and after a failed fast step, :meth:`solve` with its fallback chain.
 
         A :class:`CStepPlan` holds the numbers :meth:`solve` gives (its ``result()`` builds the
-        same :class:`SolveResult`, judge included; tests/test_rti.py checks them bit for bit).
+        same :class:`SolveResult`, judge included; tests/solvers/test_rti.py checks them bit for bit).
         """
         if self._prepared is not None:
             iterate = _shifted(warm_start)

@@ -462,7 +462,7 @@ def c_source(
     (``uuv_rti_resident_step``).
 
     ``pi_sign``: HPIPM's dynamics multiplier ``π_k`` is minus CasADi's ``λ`` of the gap row
-    ``X_{k+1} − F`` (checked by stationarity of the QP's Lagrangian in tests/test_rti.py).
+    ``X_{k+1} − F`` (checked by stationarity of the QP's Lagrangian in tests/solvers/test_rti.py).
     """
     n = layout.horizon
     nx = [len(v) for v in layout.xvar]

@@ -1,0 +1,521 @@
+"""Estimators against independent references: a numpy Kalman filter, filterpy's UKF, NEES."""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import uuv_ocp as uo
+from tests.conftest import needs_compiler
+from uuv_ocp.estimation import Estimator, EstimatorOptions, Measurement, Sensor, Sensors
+
+DT = 0.1
+A = np.array([[0.0, 1.0], [-1.0, -0.4]])
+B = np.array([[0.0], [1.0]])
+
+
+def linear_ocp() -> uo.Ocp:
+    """``ẋ = A x + B u``: position and velocity of a damped spring, force input."""
+    ocp = uo.Ocp(horizon=5, dt=DT)
+    x = ocp.state("x", 2)
+    u = ocp.control("u", 1, lower=-10.0, upper=10.0)
+    ocp.set_der(x, ca.DM(A) @ x + ca.DM(B) @ u)
+    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
+    return ocp
+
+
+def rk4_linear(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """One RK4 step of ``ẋ = a x + b u`` (u held) as ``x⁺ = Φ x + Γ u``: its Taylor polynomial."""
+    n = a.shape[0]
+    ah = a * h
+    phi = np.eye(n) + ah + ah @ ah / 2 + ah @ ah @ ah / 6 + ah @ ah @ ah @ ah / 24
+    gamma = (np.eye(n) * h + ah * h / 2 + ah @ ah * h / 6 + ah @ ah @ ah * h / 24) @ b
+    return phi, gamma
+
+
+def linear_sensors() -> Sensors:
+    return Sensors(
+        [
+            Sensor.of_states("position", [0], 2, 10.0, 0.1),
+            Sensor.of_states("velocity", [1], 2, 5.0, 0.05, dropout=0.2),
+        ]
+    )
+
+
+def test_ekf_on_a_linear_ocp_equals_a_numpy_kalman_filter():
+    problem, sensors = linear_ocp(), linear_sensors()
+    options = EstimatorOptions(state_std=(0.01, 0.02), initial_state_std=(0.5, 0.3))
+    ekf = Estimator(problem, "ekf", sensors=sensors, options=options)
+    x0 = np.array([1.0, -0.5])
+    ekf.reset(x0 + [0.3, 0.1])
+    rng = np.random.default_rng(7)
+    phi, gamma = rk4_linear(A, B, DT)
+    Q, R = np.diag([0.01**2, 0.02**2]), np.array([0.1**2, 0.05**2])
+    H_all = np.eye(2)
+    x_ref, P_ref = x0 + [0.3, 0.1], np.diag([0.5**2, 0.3**2])
+    truth = x0.copy()
+    used = 0
+    for k in range(60):
+        u = np.array([np.sin(0.3 * k)])
+        if k:
+            truth = phi @ truth + gamma @ u + rng.normal(0, [0.01, 0.02])
+            x_ref, P_ref = phi @ x_ref + gamma @ u, phi @ P_ref @ phi.T + Q
+        measurement = sensors.measure(k, DT, truth, rng)
+        estimate = ekf.correct(measurement) if k == 0 else ekf.step(u, measurement)
+        rows = list(measurement.sensors)  # position is row 0, velocity row 1
+        if rows:
+            H = H_all[rows]
+            S = H @ P_ref @ H.T + np.diag(R[rows])
+            K = P_ref @ H.T @ np.linalg.inv(S)
+            x_ref = x_ref + K @ (measurement.values - H @ x_ref)
+            P_ref = (np.eye(2) - K @ H) @ P_ref
+            used += len(rows)
+        np.testing.assert_allclose(estimate.state, x_ref, rtol=0, atol=1e-10)
+        np.testing.assert_allclose(estimate.covariance, P_ref, rtol=0, atol=1e-10)
+    assert used > 60  # the velocity sensor reported at some steps and dropped out at others
+
+
+def pendulum_ocp() -> uo.Ocp:
+    ocp = uo.Ocp(horizon=5, dt=DT)
+    x = ocp.state("x", 2)
+    u = ocp.control("u", 1, lower=-5.0, upper=5.0)
+    ocp.set_der(x, ca.vertcat(x[1], -ca.sin(x[0]) - 0.2 * x[1] + u))
+    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
+    return ocp
+
+
+def pendulum_rk4(x: np.ndarray, u: float) -> np.ndarray:
+    def f(s):
+        return np.array([s[1], -np.sin(s[0]) - 0.2 * s[1] + u])
+
+    k1 = f(x)
+    k2 = f(x + DT / 2 * k1)
+    k3 = f(x + DT / 2 * k2)
+    k4 = f(x + DT * k3)
+    return x + DT / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def test_ukf_on_a_nonlinear_example_equals_filterpy():
+    filterpy = pytest.importorskip("filterpy.kalman")
+    x = ca.SX.sym("x", 2)
+    # a nonlinear scalar measurement of the pendulum's angle
+    sensors = Sensors([Sensor("sine", ca.Function("h", [x], [ca.sin(x[0]) + 0.1 * x[0] ** 3]), 10.0, 0.05)])
+    alpha, beta, kappa = 0.5, 2.0, 1.0
+    options = EstimatorOptions(
+        state_std=(0.02, 0.05), initial_state_std=(0.4, 0.3), alpha=alpha, beta=beta, kappa=kappa
+    )
+    ukf = Estimator(pendulum_ocp(), "ukf", sensors=sensors, options=options)
+    start = np.array([0.8, 0.0])
+    ukf.reset(start)
+
+    control = {"u": 0.0}
+    points = filterpy.MerweScaledSigmaPoints(2, alpha=alpha, beta=beta, kappa=kappa)
+    reference = filterpy.UnscentedKalmanFilter(
+        dim_x=2,
+        dim_z=1,
+        dt=DT,
+        hx=lambda s: np.array([np.sin(s[0]) + 0.1 * s[0] ** 3]),
+        fx=lambda s, _dt: pendulum_rk4(s, control["u"]),
+        points=points,
+    )
+    reference.x, reference.P = start.copy(), np.diag([0.4**2, 0.3**2])
+    reference.Q, reference.R = np.diag([0.02**2, 0.05**2]), np.array([[0.05**2]])
+    rng = np.random.default_rng(3)
+    truth = np.array([1.0, 0.3])
+    for k in range(40):
+        u = 0.5 * np.cos(0.2 * k)
+        control["u"] = u
+        truth = pendulum_rk4(truth, u)
+        z = np.sin(truth[0]) + 0.1 * truth[0] ** 3 + 0.05 * rng.standard_normal()
+        reported = k % 3 != 2  # some steps without a measurement
+        measurement = Measurement(k + 1, (0,) if reported else (), np.array([z]) if reported else np.zeros(0))
+        estimate = ukf.step(np.array([u]), measurement)
+        reference.predict()
+        if reported:
+            reference.update(np.array([z]))
+        np.testing.assert_allclose(estimate.state, reference.x, rtol=0, atol=1e-9)
+        np.testing.assert_allclose(estimate.covariance, reference.P, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("method", uo.available_estimators())  # every registered estimator
+def test_nees_and_nis_over_seeded_runs_lie_in_their_chi_square_bands(method):
+    """Over 50 seeded runs of the linear system the mean NEES and NIS are χ²-consistent."""
+    chi2 = pytest.importorskip("scipy.stats").chi2
+    problem, sensors = linear_ocp(), linear_sensors()
+    std = np.array([0.01, 0.02])
+    options = EstimatorOptions(state_std=tuple(std), initial_state_std=(0.5, 0.3))
+    estimator = Estimator(problem, method, sensors=sensors, options=options)
+    phi, gamma = rk4_linear(A, B, DT)
+    runs, steps = 50, 40
+    nees = np.zeros(runs)
+    nis, nis_dof = 0.0, 0
+    for run in range(runs):
+        rng = np.random.default_rng(100 + run)
+        truth = np.array([1.0, -0.5]) + rng.normal(0, [0.5, 0.3])
+        estimator.reset([1.0, -0.5])
+        for k in range(steps):
+            u = np.array([np.sin(0.3 * k)])
+            if k:
+                truth = phi @ truth + gamma @ u + rng.normal(0, std)
+            measurement = sensors.measure(k, DT, truth, rng)
+            estimate = estimator.correct(measurement) if k == 0 else estimator.step(u, measurement)
+            y, S = estimate.innovations, estimate.innovation_covariance
+            if y.size:
+                nis += float(y @ np.linalg.solve(S, y))
+                nis_dof += y.size
+        error = truth - estimate.state
+        nees[run] = error @ np.linalg.solve(estimate.covariance, error)
+    low, high = chi2.ppf([0.025, 0.975], 2 * runs) / runs
+    assert low <= nees.mean() <= high
+    low, high = chi2.ppf([0.025, 0.975], nis_dof) / nis_dof
+    assert low <= nis / nis_dof <= high
+
+
+def test_estimator_by_name_and_bad_inputs_name_the_parameter():
+    problem, sensors = linear_ocp(), linear_sensors()
+    assert type(Estimator(problem, "ekf", sensors=sensors)).__name__ == "ExtendedKalmanFilter"
+    assert type(Estimator(problem, "UKF", sensors=sensors)).__name__ == "UnscentedKalmanFilter"
+    assert type(Estimator(problem, "mhe", sensors=sensors)).__name__ == "MovingHorizonEstimator"
+    assert set(uo.available_estimators()) >= {"ekf", "ukf", "mhe"}
+    with pytest.raises(ValueError, match="method must be one of"):
+        Estimator(problem, "kalman", sensors=sensors)
+    with pytest.raises(ValueError, match="sensors must be a uuv_ocp.Sensors"):
+        Estimator(problem, "ekf", sensors=[1])
+    with pytest.raises(ValueError, match="sensors must measure the problem's 2 states"):
+        Estimator(problem, "ekf", sensors=Sensors([Sensor.of_states("p", [0], 3, 1.0, 0.1)]))
+    with pytest.raises(ValueError, match="options.current_model"):
+        EstimatorOptions(current_model="brownian")
+    with pytest.raises(ValueError, match="options.alpha"):
+        EstimatorOptions(alpha=2.0)
+    with pytest.raises(ValueError, match="options.state_std"):
+        Estimator(problem, "ekf", sensors=sensors, options=EstimatorOptions(state_std=(0.1, -1.0)))
+    estimator = Estimator(problem, "ekf", sensors=sensors)
+    with pytest.raises(ValueError, match="x0 must have shape"):
+        estimator.reset([1.0])
+    estimator.reset([1.0, 0.0])
+    with pytest.raises(ValueError, match="u must"):
+        estimator.predict([np.nan])
+    with pytest.raises(ValueError, match="measurement.values must have 2 entries"):
+        estimator.correct(Measurement(0, (0, 1), np.zeros(1)))
+
+
+def test_tracking_problem_state_is_augmented_with_the_layout_current():
+    vehicle = uo.Vehicle.rexrov()
+    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=5)
+    estimator = Estimator(problem, "ekf", sensors=Sensors.auv(vehicle), options=EstimatorOptions(bias=True))
+    assert estimator.model.nc == vehicle.layout.current_dim == 2
+    assert estimator.model.size == 6 + 2 + 3
+    estimator.reset(np.zeros(6), current=[0.1, -0.2])
+    estimate = estimator.estimate()
+    np.testing.assert_array_equal(estimate.current, [0.1, -0.2])
+    assert estimate.bias.shape == (3,)
+
+
+def _precise_sensors():
+    """Precise sensors, so that the estimate's own noise (not the offset) is far below the naive offset."""
+    return uo.Sensors(
+        [
+            uo.Sensor.of_states("pose", [0, 1, 2], 6, 10.0, (1e-3, 1e-3, 5e-4), angular=(False, False, True)),
+            uo.Sensor.of_states("dvl", [3, 4, 5], 6, 10.0, (1e-3, 1e-3, 5e-4)),
+        ]
+    )
+
+
+@pytest.fixture(scope="module")
+def offset_runs():
+    """s2 (RexROV) under a constant current of 0.8 m/s unknown to the controller: EKF vs naive."""
+    vehicle = uo.Vehicle.rexrov()
+    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=10)
+    sensors = _precise_sensors()
+    x0, current = problem.reference.initial_state(0.0), uo.Current(0.8, 1.0)
+    estimator = uo.Estimator(problem, "ekf", sensors=sensors)
+    common = dict(x0=x0, duration=30.0, current=current, seed=1)
+    estimated = uo.simulate(uo.NMPC(problem, "sqp-rti"), estimator=estimator, **common)
+    naive = uo.simulate(uo.NMPC(problem, "sqp-rti"), current_known=False, **common)
+    return estimated, naive
+
+
+def test_an_estimator_that_models_no_current_leaves_the_controller_naive(offset_runs):
+    estimated, naive = offset_runs
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=10)
+    options = uo.EstimatorOptions(current_model="none")
+    blind = uo.Estimator(problem, "ekf", sensors=_precise_sensors(), options=options)
+    assert blind.model.nc == 0 and blind.model.size == 6
+    run = uo.simulate(
+        uo.NMPC(problem, "sqp-rti"),
+        x0=problem.reference.initial_state(0.0),
+        duration=30.0,
+        current=uo.Current(0.8, 1.0),
+        seed=1,
+        estimator=blind,
+    )
+    assert run.estimates.currents.shape == (run.controls.shape[0], 0)
+    offset = np.linalg.norm(run.errors[-100:].mean(axis=0))
+    naive_offset = np.linalg.norm(naive.errors[-100:].mean(axis=0))
+    # on estimated states the controller keeps the naive controller's offset (the filter takes
+    # the current's push for process noise), ten times what the current-estimating loop leaves
+    assert offset > 0.5 * naive_offset
+    assert offset > 10 * np.linalg.norm(estimated.errors[-100:].mean(axis=0))
+
+
+def test_offset_free_nmpc_with_the_ekf_removes_the_naive_controllers_offset(offset_runs):
+    estimated, naive = offset_runs
+    # the mean position error over the last 10 s: the offset (the noise averages out)
+    offset = np.linalg.norm(estimated.errors[-100:].mean(axis=0))
+    naive_offset = np.linalg.norm(naive.errors[-100:].mean(axis=0))
+    assert naive_offset > 5e-3
+    assert offset < 1e-3 and offset < naive_offset / 10
+    # the controller was told the estimated current, which converged to the true one
+    np.testing.assert_allclose(estimated.estimates.currents[-1], estimated.currents[-1], atol=0.01)
+    assert naive.estimates is None and naive.measurements is None
+
+
+def test_a_run_records_its_estimates_and_measurements_and_saves_them(offset_runs, tmp_path):
+    run = offset_runs[0]
+    n = run.controls.shape[0]
+    estimates, measurements = run.estimates, run.measurements
+    assert estimates.states.shape == (n, 6) and estimates.currents.shape == (n, 2)
+    assert estimates.variances.shape == (n, 8) and np.all(estimates.variances > 0)
+    assert measurements.sensors == ("pose", "dvl") and measurements.sizes == (3, 3)
+    assert measurements.values.shape == (n, 6) and np.all(np.isfinite(measurements.values))
+    # the estimate the controller got at step 0 is the reset state corrected by the first fixes
+    assert np.linalg.norm(estimates.states[0] - run.states[0]) < 0.01
+    run.save(tmp_path / "run.npz")
+    loaded = uo.ClosedLoopResult.load(tmp_path / "run.npz")
+    for field in uo.ClosedLoopResult.ESTIMATION_FIELDS:
+        np.testing.assert_array_equal(getattr(loaded, field), getattr(run, field))
+    assert loaded.measurements.sensors == ("pose", "dvl") and loaded.measurements.sizes == (3, 3)
+
+
+def test_simulate_refuses_bad_estimation_arguments_by_name(offset_runs):
+    vehicle = uo.Vehicle.rexrov()
+    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=5)
+    mpc = uo.NMPC(problem, "sqp-rti")
+    x0 = problem.reference.initial_state(0.0)
+    sensors = uo.Sensors.auv(vehicle)
+    estimator = uo.Estimator(problem, "ekf", sensors=sensors)
+    with pytest.raises(ValueError, match="estimator must be a uuv_ocp.Estimator"):
+        uo.simulate(mpc, x0, 1.0, estimator="ekf")
+    with pytest.raises(ValueError, match="sensors needs an estimator"):
+        uo.simulate(mpc, x0, 1.0, sensors=sensors)
+    with pytest.raises(ValueError, match="noise is the full-state noise"):
+        uo.simulate(mpc, x0, 1.0, estimator=estimator, noise=uo.MeasurementNoise((0.1,) * 6))
+    with pytest.raises(ValueError, match="sensors must be the estimator's own"):
+        uo.simulate(mpc, x0, 1.0, estimator=estimator, sensors=uo.Sensors(list(sensors)[:2]))
+    other = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=6)
+    with pytest.raises(ValueError, match="estimator must be built on the controller's problem"):
+        uo.simulate(mpc, x0, 1.0, estimator=uo.Estimator(other, "ekf", sensors=sensors))
+
+
+@pytest.mark.parametrize("method", uo.available_estimators())  # every registered estimator
+def test_heading_innovations_are_wrapped_across_pi(method):
+    """A heading of π − 0.005 measured as −π + 0.005: an innovation of 0.01 rad, not −2π."""
+    # a compass reports the heading wrapped into (−π, π]: the sigma points straddle ±π
+    ocp, sensors = compass_ocp(DT, rate_bound=1.0, std=0.01)
+    estimator = Estimator(ocp, method, sensors=sensors, options=EstimatorOptions(initial_state_std=0.02))
+    for use_step in (False, True):
+        estimator.reset([np.pi - 0.005])
+        measurement = Measurement(1, (0,), np.array([-np.pi + 0.005]))
+        estimate = estimator.step([0.0], measurement) if use_step else estimator.correct(measurement)
+        np.testing.assert_allclose(estimate.innovations, [0.01], atol=1e-6)
+        assert abs(np.angle(np.exp(1j * (estimate.state[0] - np.pi)))) < 0.006
+
+
+def test_closed_loop_on_a_user_ocp_runs_on_the_estimate():
+    """An Ocp without a current: the controller gets the EKF's state, which follows the plant."""
+    problem = linear_ocp()
+    estimator = Estimator(problem, "ekf", sensors=linear_sensors())
+    run = uo.simulate(uo.NMPC(problem, "ipopt"), x0=[1.0, 0.0], duration=3.0, estimator=estimator, seed=2)
+    n = run.controls.shape[0]
+    assert run.fault is None and n == 30
+    assert run.estimates.currents.shape == (n, 0)
+    error = run.estimates.states - run.states[:n]
+    assert np.sqrt(np.mean(error**2)) < 0.1  # sensors of 0.1 and 0.05 σ
+    # the position sensor reports at every step, the velocity one at 5 Hz when it does not drop out
+    assert np.all(np.isfinite(run.measurements.values[:, 0]))
+    assert np.all(np.isnan(run.measurements.values[1::2, 1]))
+
+
+def test_review_fixes_name_what_is_wrong():
+    """A misspelt current parameter, a method another class implements, and PSD rounding."""
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=5)
+    sensors = Sensors.auv(problem.vehicle)
+    with pytest.raises(ValueError, match="options.current_parameter must name a stagewise parameter"):
+        Estimator(problem, "ekf", sensors=sensors, options=EstimatorOptions(current_parameter="curent"))
+    from uuv_ocp.estimation.ekf import ExtendedKalmanFilter
+
+    with pytest.raises(ValueError, match="method 'ukf' names UnscentedKalmanFilter"):
+        ExtendedKalmanFilter(problem, "ukf", sensors=sensors)
+    estimator = Estimator(problem, "ekf", sensors=sensors)
+    estimator.reset(problem.initial_state())
+    covariance = estimator.P.copy()
+    covariance[0, 0] = -1e-18  # rounding below zero on a PSD matrix: accepted
+    estimator.reset(problem.initial_state(), covariance=covariance)
+    covariance[0, 0] = -1e-3
+    with pytest.raises(ValueError, match="covariance must be symmetric positive semi-definite"):
+        estimator.reset(problem.initial_state(), covariance=covariance)
+
+
+def test_ukf_square_root_survives_a_sensor_far_more_precise_than_the_prior():
+    from uuv_ocp.estimation.ukf import _square_root
+
+    vectors = np.linalg.qr(np.random.default_rng(0).normal(size=(4, 4)))[0]
+    broken = vectors @ np.diag([1e6, 1.0, 1e-6, -1e-10]) @ vectors.T  # lost definiteness to rounding
+    with pytest.raises(np.linalg.LinAlgError):
+        np.linalg.cholesky(broken)
+    root = _square_root(broken)
+    np.testing.assert_allclose(root @ root.T, vectors @ np.diag([1e6, 1.0, 1e-6, 0.0]) @ vectors.T, atol=1e-8)
+
+
+def test_an_estimated_current_the_loop_cannot_hand_over_is_refused():
+    ocp = uo.Ocp(horizon=5, dt=0.1)
+    x = ocp.state("x")
+    u = ocp.control("u", lower=-1.0, upper=1.0)
+    current = ocp.parameter("current", stagewise=True)
+    ocp.set_der(x, u + current)
+    ocp.add_stage_cost(x**2 + u**2)
+    sensors = Sensors([Sensor.of_states("fix", [0], 1, 10.0, 0.01)])
+    estimator = Estimator(ocp, "ekf", sensors=sensors, parameters={"current": 0.0})
+    assert estimator.model.nc == 1
+    with pytest.raises(ValueError, match="estimator estimates a current of 1 entries"):
+        uo.simulate(uo.NMPC(ocp, "ipopt"), [1.0], 1.0, estimator=estimator, parameters={"current": 0.0})
+
+
+@needs_compiler
+def test_the_compiled_ekf_step_equals_the_virtual_machines():
+    """The one-call step compiled to C (the default where a compiler exists) is the VM's, to rounding."""
+    vehicle = uo.Vehicle.rexrov()
+    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=5)
+    sensors = uo.Sensors.auv(vehicle)
+    filters = [
+        uo.Estimator(problem, "ekf", sensors=sensors, options=EstimatorOptions(compiled=compiled))
+        for compiled in (True, False)
+    ]
+    assert [f.compiled for f in filters] == [True, False]
+    x0 = problem.reference.initial_state(0.0)
+    rng = np.random.default_rng(3)
+    for ekf in filters:
+        ekf.reset(x0)
+    for k in range(60):
+        measurement = sensors.measure(k, problem.dt, x0 + 0.01 * k, rng)
+        u = rng.normal(0.0, 100.0, 3)
+        compiled, interpreted = (ekf.step(u, measurement) for ekf in filters)
+        np.testing.assert_allclose(compiled.augmented, interpreted.augmented, rtol=1e-12, atol=1e-12)
+        np.testing.assert_allclose(compiled.covariance, interpreted.covariance, rtol=1e-10, atol=1e-14)
+    with pytest.raises(ValueError, match="options.compiled"):
+        EstimatorOptions(compiled="yes")
+
+
+def compass_ocp(dt, rate_bound, std):
+    """Return an Ocp of a heading ψ turned at a bounded rate and a compass reporting it in (−π, π]."""
+    ocp = uo.Ocp(horizon=3, dt=dt)
+    psi = ocp.state("psi", 1)
+    r = ocp.control("r", 1, lower=-rate_bound, upper=rate_bound)
+    ocp.set_der(psi, r)
+    ocp.add_stage_cost(residual=psi, weight=1.0)
+    compass = ca.Function("compass", [psi], [ca.atan2(ca.sin(psi), ca.cos(psi))])
+    return ocp, uo.Sensors([uo.Sensor("heading", compass, 10.0, std, angular=(True,))])
+
+
+def test_a_sensor_that_did_not_report_never_poisons_the_ekf():
+    """A range to a beacon is undefined (NaN Jacobian) at the beacon.
+
+    When it did not report, the one-call step equals predict-then-correct on the reporting rows,
+    which never touch it.
+    """
+    ocp, at, beacon_range = beacon_ocp()
+    # and a signal strength ∝ 1/range, infinite there (its innovation is too)
+    strength = ca.Function("strength", [at], [1.0 / ca.sqrt(at[0] ** 2 + at[1] ** 2)])
+    fix = Sensor.of_states("fix", [0, 1], 2, 10.0, 0.1)
+    sensors = Sensors([fix, Sensor("range", beacon_range, 1.0, 0.1), Sensor("strength", strength, 1.0, 0.1)])
+    options = EstimatorOptions(compiled=False)
+    fused, split = (Estimator(ocp, "ekf", sensors=sensors, options=options) for _ in range(2))
+    for ekf in (fused, split):
+        ekf.reset([0.0, 0.0])
+    measurement = Measurement(1, (0,), np.array([0.01, -0.02]))  # the fix only, at the beacon
+    one_call = fused.step([0.0, 0.0], measurement)
+    split.predict([0.0, 0.0])
+    reference = split.correct(measurement)
+    assert np.all(np.isfinite(one_call.augmented)) and np.all(np.isfinite(one_call.covariance))
+    np.testing.assert_allclose(one_call.augmented, reference.augmented, atol=1e-12)
+    np.testing.assert_allclose(one_call.covariance, reference.covariance, atol=1e-12)
+
+
+def estimator_state(estimator):
+    """Everything a refused call must leave as it was: mean, covariance, steps (the MHE: window)."""
+    state = [estimator.x.copy(), estimator.P.copy(), estimator.steps]
+    if hasattr(estimator, "window"):
+        steps, window = estimator.window
+        state += [steps, window]
+    return state
+
+
+def assert_same_state(before, after):
+    assert len(before) == len(after)
+    for a, b in zip(before, after, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+@pytest.mark.parametrize("method", uo.available_estimators())  # every registered estimator
+def test_a_refused_step_leaves_the_estimator_as_it_was(method):
+    """A measurement that does not fit is refused before the prediction moves anything.
+
+    The estimator that refused it then steps exactly as a twin that never saw the call.
+    """
+    options = EstimatorOptions(horizon=3)
+    estimator, twin = (
+        Estimator(linear_ocp(), method, sensors=linear_sensors(), options=options) for _ in "ab"
+    )
+    for e in (estimator, twin):
+        e.reset([1.0, 0.0])
+        for k in range(1, 3):  # a window holding data
+            e.step([0.5], Measurement(k, (0,), np.array([1.0 + 0.1 * k])))
+    before = estimator_state(estimator)
+    for bad in (Measurement(3, (0, 1), np.zeros(1)), "not a measurement"):
+        with pytest.raises(ValueError, match="measurement"):
+            estimator.step([0.5], bad)
+        assert_same_state(before, estimator_state(estimator))
+    good = Measurement(3, (0, 1), np.array([1.3, 0.2]))
+    ours, theirs = estimator.step([0.5], good), twin.step([0.5], good)
+    np.testing.assert_array_equal(ours.state, theirs.state)
+    np.testing.assert_array_equal(ours.covariance, theirs.covariance)
+
+
+@pytest.mark.parametrize("method", uo.available_estimators())  # every registered estimator
+def test_a_refused_reset_leaves_the_estimator_as_it_was(method):
+    """A covariance the estimator cannot start from is refused before anything is assigned.
+
+    Indefinite: every estimator refuses it; semi-definite: the MHE (its arrival cost is P⁻¹).
+    The estimator that refused the reset then steps exactly as a twin that never saw the call.
+    """
+    options = EstimatorOptions(horizon=3)
+    estimator, twin = (
+        Estimator(linear_ocp(), method, sensors=linear_sensors(), options=options) for _ in "ab"
+    )
+    for e in (estimator, twin):
+        e.reset([1.0, 0.0])
+        for k in range(1, 6):  # a full window, its arrival cost updated
+            e.step([0.5], Measurement(k, (0,), np.array([1.0 + 0.1 * k])))
+    before = estimator_state(estimator)
+    refused = [np.diag([1.0, -1.0])] + ([np.diag([1.0, 0.0])] if method == "mhe" else [])
+    for covariance in refused:
+        with pytest.raises(ValueError, match="covariance must be"):
+            estimator.reset([5.0, 5.0], covariance=covariance)
+        assert_same_state(before, estimator_state(estimator))
+    good = Measurement(6, (0, 1), np.array([1.3, 0.2]))
+    ours, theirs = estimator.step([0.5], good), twin.step([0.5], good)
+    np.testing.assert_array_equal(ours.state, theirs.state)
+    np.testing.assert_array_equal(ours.covariance, theirs.covariance)
+
+
+def beacon_ocp():
+    """Return a planar point moved by its velocity, a symbol of its position and its range to a beacon.
+
+    The beacon is at the origin, where the range ``sqrt(x² + y²)`` has no Jacobian (0/0: NaN).
+    """
+    ocp = uo.Ocp(horizon=3, dt=DT)
+    x = ocp.state("x", 2)
+    u = ocp.control("u", 2, lower=-1.0, upper=1.0)
+    ocp.set_der(x, u)
+    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
+    at = ca.SX.sym("x", 2)
+    return ocp, at, ca.Function("range", [at], [ca.sqrt(at[0] ** 2 + at[1] ** 2)])

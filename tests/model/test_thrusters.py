@@ -1,0 +1,68 @@
+"""Thruster configurations (uuv_ocp.model.thrusters): allocation matrices against their geometry.
+
+The columns are checked against direction and moment written out here, the BlueROV2 Heavy's
+limits against its published geometry, the RexROV 2's matrix against uuv_simulator's TAM.yaml.
+"""
+
+import numpy as np
+
+from uuv_ocp.model.fossen6dof import Vehicle6DOF
+from uuv_ocp.model.thrusters import ThrusterConfiguration
+
+
+def test_allocation_columns_are_direction_and_moment():
+    rng = np.random.default_rng(8)
+    positions = rng.normal(size=(5, 3))
+    directions = rng.normal(size=(5, 3))
+    directions /= np.linalg.norm(directions, axis=1, keepdims=True)
+    config = ThrusterConfiguration(positions, directions, max_thrust=np.full(5, 10.0))
+    allocation = config.allocation
+    assert allocation.shape == (6, 5)
+    for i, ((rx, ry, rz), (dx, dy, dz)) in enumerate(zip(positions, directions, strict=True)):
+        moment = [ry * dz - rz * dy, rz * dx - rx * dz, rx * dy - ry * dx]
+        np.testing.assert_allclose(allocation[:, i], [dx, dy, dz, *moment], rtol=1e-14, atol=1e-15)
+
+
+def test_bluerov2_heavy_allocation_has_full_rank_and_known_limits():
+    config = ThrusterConfiguration.bluerov2_heavy()
+    assert config.count == 8
+    assert np.linalg.matrix_rank(config.allocation) == 6
+    h = np.sqrt(0.5)
+    expected = [4 * 40 * h, 4 * 40 * h, 4 * 40, 4 * 40 * 0.218, 4 * 40 * 0.12, 4 * 40 * (0.156 + 0.111) * h]
+    np.testing.assert_allclose(config.generalised_force_limits(), expected, rtol=1e-7)
+    np.testing.assert_allclose(Vehicle6DOF.bluerov2_heavy().max_thrust, expected, rtol=1e-7)
+
+
+def test_rexrov2_allocation_matches_the_simulator_tam():
+    # rexrov2_control/config/TAM.yaml (uuvsimulator/rexrov2), ROS body frame x fwd, y port, z up
+    tam = np.array(
+        [
+            [0.0, 0.2588192276583895, 0.0, 0.0, 0.9063078136609996, 0.9063078136609996],
+            [1.0, 0.0, 0.3826835895134471, 0.3826835895134471, 0.4226182046445928, -0.4226182046445928],
+            [0.0, 0.9659257773733522, 0.9238794674182862, -0.9238794674182862, 0.0, 0.0],
+            [
+                -0.2373,
+                0.0,
+                -0.6957355424885819,
+                -0.6957355424885819,
+                -0.10159741639656011,
+                0.10159741639656011,
+            ],
+            [
+                0.0,
+                0.946145736358475,
+                -0.7995252448269914,
+                0.7995253373805782,
+                0.2178763984041043,
+                0.2178763984041043,
+            ],
+            [0.4878, 0.0, 0.3311744245549398, 0.33117433217493447, -0.7638899192332406, 0.7638899192332406],
+        ]
+    )
+    flip = np.diag([1.0, -1.0, -1.0, 1.0, -1.0, -1.0])
+    config = ThrusterConfiguration.rexrov2()
+    np.testing.assert_allclose(flip @ config.allocation, tam, atol=1e-6)
+    # square and invertible: the pure-axis limit is f_max / max_i |(T⁻¹)_ik|
+    expected = 1540.0 / np.max(np.abs(np.linalg.inv(config.allocation)), axis=0)
+    np.testing.assert_allclose(config.generalised_force_limits(), expected, rtol=1e-7)
+    np.testing.assert_allclose(Vehicle6DOF.rexrov2().max_thrust, expected, rtol=1e-7)

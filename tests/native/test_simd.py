@@ -1,0 +1,197 @@
+"""SIMD population kernels and the in-C PCG64: checked against libm, the VM and numpy."""
+
+import ctypes
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import uuv_ocp as uo
+from tests.conftest import needs_compiler
+from uuv_ocp import codegen
+from uuv_ocp.native import compile as codegen_core
+from uuv_ocp.native import runtime
+from uuv_ocp.native.simd import UnsupportedOperation, batch_kernel_source
+
+POPULATION = 5  # not a multiple of the lane count: the last group is padded
+
+
+def _compiled_kernel(function: ca.Function, directory, population: int = POPULATION) -> ca.Function:
+    """Compile ``function`` as a SIMD kernel over ``population`` candidates; load it back unverified."""
+    mapped = function.map(f"{function.name()}_exact", "serial", population, [1], [])
+    source = batch_kernel_source(function, f"{function.name()}_simd", population, mapped.name())
+    twin = function.map(f"{function.name()}_simd", "serial", population, [1], [])
+    library = codegen_core.compile_functions(
+        [mapped], directory, flags=codegen.DEFAULT_FLAGS, extra_source=source, external=[twin], verify=False
+    )
+    return library[f"{function.name()}_simd"]
+
+
+def _ulps(actual: np.ndarray, expected: np.ndarray) -> np.ndarray:
+    return np.abs(actual - expected) / np.spacing(np.maximum(np.abs(expected), np.finfo(float).tiny))
+
+
+@needs_compiler
+def test_vector_sin_cos_match_libm_within_two_ulp(tmp_path):
+    x = ca.SX.sym("x", 64)
+    scale = ca.SX.sym("scale")
+    trig = ca.Function("trig", [x, scale], [ca.vertcat(ca.sin(x), ca.cos(x), ca.sin(scale * x))])
+    kernel = _compiled_kernel(trig, tmp_path)
+    rng = np.random.default_rng(3)
+    near_quadrants = np.pi / 2 * np.arange(-40, 40) + rng.normal(0, 1e-9, 80)
+    values = np.concatenate(
+        [
+            rng.uniform(-4, 4, 120),
+            rng.uniform(-1e5, 1e5, 60),
+            near_quadrants,
+            [0.0, -0.0, 1e-300, -1e-300, 1e-8, np.pi, -np.pi / 4, np.pi / 4],
+            [1.00001e5, 3e7, -1e12, 1e300, np.inf, -np.inf, np.nan],  # libm lane by lane
+        ]
+    )
+    values = np.resize(values, (POPULATION, 64))
+    out = np.array(kernel(values.T, 1.0)).T
+    sine, cosine, scaled = out[:, :64], out[:, 64:128], out[:, 128:]
+    finite = np.isfinite(values)
+    assert np.max(_ulps(sine[finite], np.sin(values[finite]))) <= 2.0
+    assert np.max(_ulps(cosine[finite], np.cos(values[finite]))) <= 2.0
+    assert np.all(np.isnan(sine[~finite])) and np.all(np.isnan(cosine[~finite]))
+    large = np.abs(values) > 1e5
+    np.testing.assert_array_equal(sine[large & finite], np.sin(values[large & finite]))
+    np.testing.assert_array_equal(scaled, sine)  # sin(1 * x) through the unpaired path
+    # a candidate's value does not depend on its lane or its neighbours
+    swapped = np.array(kernel(values[::-1].T, 1.0)).T[::-1]
+    np.testing.assert_array_equal(swapped, out)
+
+
+@needs_compiler
+def test_other_operations_are_bit_identical_to_the_virtual_machine(tmp_path):
+    x = ca.SX.sym("x", 4)
+    p = ca.SX.sym("p", 2)
+    shared = ca.exp(p[0]) * p[1]  # depends on p only: hoisted, scalar
+    outputs = ca.vertcat(
+        ca.fabs(x),
+        ca.fmax(x, p[0]),
+        ca.fmin(p[1], x),
+        ca.exp(x) + shared,  # lane-wise libm fallback
+        ca.atan2(x, p[1]),
+        x / (1 + x * x) - 2 * x,
+        ca.if_else(x > 0, x, 0.5 * x),
+        ca.sqrt(ca.fabs(x)),
+    )
+    function = ca.Function("ops", [x, p], [outputs])
+    kernel = _compiled_kernel(function, tmp_path)
+    rng = np.random.default_rng(4)
+    for _ in range(5):
+        candidates = rng.normal(0, 3, (4, POPULATION))
+        candidates[0, 0] = np.nan  # fmax/fmin: a NaN loses against a number, as in C99
+        parameters = rng.normal(size=2)
+        expected = np.array(function.map(POPULATION, "serial")(candidates, parameters))
+        np.testing.assert_array_equal(np.array(kernel(candidates, parameters)), expected)
+
+
+def test_unsupported_functions_are_refused():
+    x = ca.MX.sym("x", 3)
+    with pytest.raises(UnsupportedOperation, match="SX"):
+        batch_kernel_source(ca.Function("f", [x], [ca.sin(x)]), "f_simd", 4, "f_exact")
+    y = ca.SX.sym("y", 3)
+    with pytest.raises(UnsupportedOperation, match="dense column"):
+        batch_kernel_source(ca.Function("g", [y], [ca.SX(3, 3)]), "g_simd", 4, "g_exact")
+
+
+@needs_compiler
+def test_problem_kernel_agrees_with_the_virtual_machine(tmp_path, s2_problem, feasible_start):
+    build = codegen.generate_c(s2_problem, tmp_path, functions=("cost_batch",), population=20)
+    assert build.simd
+    exact = codegen.symbolic_functions(s2_problem, 20)["cost_batch"]
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0)
+    rng = np.random.default_rng(5)
+    for spread in (0.05, 0.5, 1.0):
+        candidates = np.clip(rng.normal(0, spread, (s2_problem.control_dim, 20)), -1, 1)
+        want = np.array(exact(candidates, p)).ravel()
+        got = np.array(build["cost_batch"](candidates, p)).ravel()
+        np.testing.assert_allclose(got, want, rtol=1e-13)
+        np.testing.assert_array_equal(np.array(build["cost_batch_exact"](candidates, p)).ravel(), want)
+
+
+@needs_compiler
+@pytest.mark.parametrize("count", [1, 7, 9600, 288001])
+def test_c_pcg64_draws_numpys_numbers_and_advances_the_same(tmp_path, s2_problem, count):
+    native = codegen.NativeIgwo(codegen.compiled_build(s2_problem, 20))
+    generator = np.random.default_rng(count)
+    state = generator.bit_generator.state["state"]
+    out = np.empty(count)
+    words = (*runtime._split(state["state"]), *runtime._split(state["inc"]))
+    native.random(*words, out.ctypes.data_as(ctypes.POINTER(ctypes.c_double)), count)
+    np.testing.assert_array_equal(out, generator.random(count))
+
+
+@needs_compiler
+@pytest.mark.parametrize(
+    "rng_thread", [True, False, 2, 3], ids=["worker", "one-thread", "worker-late", "worker-late-odd"]
+)
+def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
+    s2_problem, feasible_start, rng_thread, monkeypatch
+):
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0)
+    native = uo.new_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": bool(rng_thread)})
+    # test modes of the C step: 2 never uses the worker's blocks, 3 uses only its even ones
+    monkeypatch.setattr(native, "rng_thread", rng_thread)
+    runs = []
+    run = native.native.run
+    monkeypatch.setattr(native.native, "run", lambda *args, **kw: runs.append(run(*args, **kw)) or runs[-1])
+    python = uo.new_solver(s2_problem, "igwo", {"compiled": True})
+    python.native = None  # the Python loop over the same compiled kernel
+    for seed in (1, 2):
+        in_c, in_python = np.random.default_rng(seed), np.random.default_rng(seed)
+        actual = native.solve(p, None, in_c)
+        expected = python.solve(p, None, in_python)
+        late = runs[-1]["late_blocks"]  # of blocks 1..29, those the step drew itself
+        expected_late = {False: 0, 2: native.iterations - 1, 3: native.iterations // 2}
+        assert late == expected_late.get(rng_thread, late)
+        assert 0 <= late <= native.iterations - 1
+        assert ("late with" in actual.status) == (late > 0)
+        np.testing.assert_array_equal(actual.controls, expected.controls)
+        np.testing.assert_array_equal(actual.history, expected.history)
+        assert in_c.bit_generator.state == in_python.bit_generator.state
+        # compiled score and rollout are the judge's own functions
+        cost, violation = uo.score(s2_problem, actual.controls, x0=x0, t0=t0)
+        assert actual.cost == pytest.approx(cost, rel=1e-13)
+        np.testing.assert_allclose(actual.states, s2_problem.rollout(actual.controls, p), rtol=1e-13)
+    # a generator on another bit generator: the draws are made in numpy and passed in
+    other = native.solve(p, None, np.random.Generator(np.random.Philox(1)))
+    reference = python.solve(p, None, np.random.Generator(np.random.Philox(1)))
+    np.testing.assert_array_equal(other.controls, reference.controls)
+
+
+def test_bad_rng_thread_option_is_named(s2_problem):
+    with pytest.raises(ValueError, match="rng_thread"):
+        uo.get_solver(s2_problem, "igwo", {"rng_thread": "yes"})
+
+
+def test_native_builds_are_keyed_by_the_processor():
+    assert codegen_core._machine_key(("-O3",)) == ()
+    (key,) = codegen_core._machine_key(("-O3", "-march=native"))
+    assert key
+
+
+def test_a_per_function_tolerance_loosens_only_the_function_it_names():
+    """The SIMD kernel's looser check (codegen.SIMD_TOLERANCE) must not leak to the other functions."""
+    from uuv_ocp.native.compile import VerificationError, _verify
+
+    x = ca.SX.sym("x", 3)
+    exact = {name: ca.Function(name, [x], [x]) for name in ("cost_batch", "rollout")}
+    # "compiled" twins 5e-12 off, as the SIMD kernel's few-ulp sin/cos amplified by a rollout
+    off = {name: ca.Function(name, [x], [x * (1 + 5e-12) + 5e-12]) for name in exact}
+    loose = {"cost_batch": 1e-10}
+    errors = _verify([exact["cost_batch"]], off, np.random.default_rng(0), 1e-12, loose)
+    assert 1e-12 < errors["cost_batch"] <= 1e-10
+    with pytest.raises(VerificationError, match="'rollout'.*tolerance 1.0e-12"):
+        _verify(list(exact.values()), off, np.random.default_rng(0), 1e-12, loose)
+
+
+def test_a_bad_per_function_tolerance_is_named(tmp_path):
+    x = ca.SX.sym("x")
+    with pytest.raises(ValueError, match=r"tolerances\['f'\] must be a number >= 0, got -1"):
+        codegen_core.compile_functions([ca.Function("f", [x], [x])], tmp_path, tolerances={"f": -1})

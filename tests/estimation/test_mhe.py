@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
-from tests.estimation.test_estimators import (
+from tests.estimation.helpers import (
     DT,
     A,
     B,

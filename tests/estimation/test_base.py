@@ -1,139 +1,15 @@
-"""Estimators against independent references: a numpy Kalman filter, filterpy's UKF, NEES."""
+"""The Estimator API (uuv_ocp.estimation.base) over every registered estimator: NEES/NIS, offset-free NMPC.
 
-import casadi as ca
+Registry-wide tests (a new estimator is tested by registering it), the closed loop with an
+estimator against the naive controller, bad inputs, refused steps and resets.
+"""
+
 import numpy as np
 import pytest
 
 import uuv_ocp as uo
-from tests.conftest import needs_compiler
+from tests.estimation.helpers import DT, A, B, compass_ocp, linear_ocp, linear_sensors, rk4_linear
 from uuv_ocp.estimation import Estimator, EstimatorOptions, Measurement, Sensor, Sensors
-
-DT = 0.1
-A = np.array([[0.0, 1.0], [-1.0, -0.4]])
-B = np.array([[0.0], [1.0]])
-
-
-def linear_ocp() -> uo.Ocp:
-    """``ẋ = A x + B u``: position and velocity of a damped spring, force input."""
-    ocp = uo.Ocp(horizon=5, dt=DT)
-    x = ocp.state("x", 2)
-    u = ocp.control("u", 1, lower=-10.0, upper=10.0)
-    ocp.set_der(x, ca.DM(A) @ x + ca.DM(B) @ u)
-    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
-    return ocp
-
-
-def rk4_linear(a: np.ndarray, b: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
-    """One RK4 step of ``ẋ = a x + b u`` (u held) as ``x⁺ = Φ x + Γ u``: its Taylor polynomial."""
-    n = a.shape[0]
-    ah = a * h
-    phi = np.eye(n) + ah + ah @ ah / 2 + ah @ ah @ ah / 6 + ah @ ah @ ah @ ah / 24
-    gamma = (np.eye(n) * h + ah * h / 2 + ah @ ah * h / 6 + ah @ ah @ ah * h / 24) @ b
-    return phi, gamma
-
-
-def linear_sensors() -> Sensors:
-    return Sensors(
-        [
-            Sensor.of_states("position", [0], 2, 10.0, 0.1),
-            Sensor.of_states("velocity", [1], 2, 5.0, 0.05, dropout=0.2),
-        ]
-    )
-
-
-def test_ekf_on_a_linear_ocp_equals_a_numpy_kalman_filter():
-    problem, sensors = linear_ocp(), linear_sensors()
-    options = EstimatorOptions(state_std=(0.01, 0.02), initial_state_std=(0.5, 0.3))
-    ekf = Estimator(problem, "ekf", sensors=sensors, options=options)
-    x0 = np.array([1.0, -0.5])
-    ekf.reset(x0 + [0.3, 0.1])
-    rng = np.random.default_rng(7)
-    phi, gamma = rk4_linear(A, B, DT)
-    Q, R = np.diag([0.01**2, 0.02**2]), np.array([0.1**2, 0.05**2])
-    H_all = np.eye(2)
-    x_ref, P_ref = x0 + [0.3, 0.1], np.diag([0.5**2, 0.3**2])
-    truth = x0.copy()
-    used = 0
-    for k in range(60):
-        u = np.array([np.sin(0.3 * k)])
-        if k:
-            truth = phi @ truth + gamma @ u + rng.normal(0, [0.01, 0.02])
-            x_ref, P_ref = phi @ x_ref + gamma @ u, phi @ P_ref @ phi.T + Q
-        measurement = sensors.measure(k, DT, truth, rng)
-        estimate = ekf.correct(measurement) if k == 0 else ekf.step(u, measurement)
-        rows = list(measurement.sensors)  # position is row 0, velocity row 1
-        if rows:
-            H = H_all[rows]
-            S = H @ P_ref @ H.T + np.diag(R[rows])
-            K = P_ref @ H.T @ np.linalg.inv(S)
-            x_ref = x_ref + K @ (measurement.values - H @ x_ref)
-            P_ref = (np.eye(2) - K @ H) @ P_ref
-            used += len(rows)
-        np.testing.assert_allclose(estimate.state, x_ref, rtol=0, atol=1e-10)
-        np.testing.assert_allclose(estimate.covariance, P_ref, rtol=0, atol=1e-10)
-    assert used > 60  # the velocity sensor reported at some steps and dropped out at others
-
-
-def pendulum_ocp() -> uo.Ocp:
-    ocp = uo.Ocp(horizon=5, dt=DT)
-    x = ocp.state("x", 2)
-    u = ocp.control("u", 1, lower=-5.0, upper=5.0)
-    ocp.set_der(x, ca.vertcat(x[1], -ca.sin(x[0]) - 0.2 * x[1] + u))
-    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
-    return ocp
-
-
-def pendulum_rk4(x: np.ndarray, u: float) -> np.ndarray:
-    def f(s):
-        return np.array([s[1], -np.sin(s[0]) - 0.2 * s[1] + u])
-
-    k1 = f(x)
-    k2 = f(x + DT / 2 * k1)
-    k3 = f(x + DT / 2 * k2)
-    k4 = f(x + DT * k3)
-    return x + DT / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-
-
-def test_ukf_on_a_nonlinear_example_equals_filterpy():
-    filterpy = pytest.importorskip("filterpy.kalman")
-    x = ca.SX.sym("x", 2)
-    # a nonlinear scalar measurement of the pendulum's angle
-    sensors = Sensors([Sensor("sine", ca.Function("h", [x], [ca.sin(x[0]) + 0.1 * x[0] ** 3]), 10.0, 0.05)])
-    alpha, beta, kappa = 0.5, 2.0, 1.0
-    options = EstimatorOptions(
-        state_std=(0.02, 0.05), initial_state_std=(0.4, 0.3), alpha=alpha, beta=beta, kappa=kappa
-    )
-    ukf = Estimator(pendulum_ocp(), "ukf", sensors=sensors, options=options)
-    start = np.array([0.8, 0.0])
-    ukf.reset(start)
-
-    control = {"u": 0.0}
-    points = filterpy.MerweScaledSigmaPoints(2, alpha=alpha, beta=beta, kappa=kappa)
-    reference = filterpy.UnscentedKalmanFilter(
-        dim_x=2,
-        dim_z=1,
-        dt=DT,
-        hx=lambda s: np.array([np.sin(s[0]) + 0.1 * s[0] ** 3]),
-        fx=lambda s, _dt: pendulum_rk4(s, control["u"]),
-        points=points,
-    )
-    reference.x, reference.P = start.copy(), np.diag([0.4**2, 0.3**2])
-    reference.Q, reference.R = np.diag([0.02**2, 0.05**2]), np.array([[0.05**2]])
-    rng = np.random.default_rng(3)
-    truth = np.array([1.0, 0.3])
-    for k in range(40):
-        u = 0.5 * np.cos(0.2 * k)
-        control["u"] = u
-        truth = pendulum_rk4(truth, u)
-        z = np.sin(truth[0]) + 0.1 * truth[0] ** 3 + 0.05 * rng.standard_normal()
-        reported = k % 3 != 2  # some steps without a measurement
-        measurement = Measurement(k + 1, (0,) if reported else (), np.array([z]) if reported else np.zeros(0))
-        estimate = ukf.step(np.array([u]), measurement)
-        reference.predict()
-        if reported:
-            reference.update(np.array([z]))
-        np.testing.assert_allclose(estimate.state, reference.x, rtol=0, atol=1e-9)
-        np.testing.assert_allclose(estimate.covariance, reference.P, rtol=0, atol=1e-9)
 
 
 @pytest.mark.parametrize("method", uo.available_estimators())  # every registered estimator
@@ -355,17 +231,6 @@ def test_review_fixes_name_what_is_wrong():
         estimator.reset(problem.initial_state(), covariance=covariance)
 
 
-def test_ukf_square_root_survives_a_sensor_far_more_precise_than_the_prior():
-    from uuv_ocp.estimation.ukf import _square_root
-
-    vectors = np.linalg.qr(np.random.default_rng(0).normal(size=(4, 4)))[0]
-    broken = vectors @ np.diag([1e6, 1.0, 1e-6, -1e-10]) @ vectors.T  # lost definiteness to rounding
-    with pytest.raises(np.linalg.LinAlgError):
-        np.linalg.cholesky(broken)
-    root = _square_root(broken)
-    np.testing.assert_allclose(root @ root.T, vectors @ np.diag([1e6, 1.0, 1e-6, 0.0]) @ vectors.T, atol=1e-8)
-
-
 def test_an_estimated_current_the_loop_cannot_hand_over_is_refused():
     ocp = uo.Ocp(horizon=5, dt=0.1)
     x = ocp.state("x")
@@ -378,66 +243,6 @@ def test_an_estimated_current_the_loop_cannot_hand_over_is_refused():
     assert estimator.model.nc == 1
     with pytest.raises(ValueError, match="estimator estimates a current of 1 entries"):
         uo.simulate(uo.NMPC(ocp, "ipopt"), [1.0], 1.0, estimator=estimator, parameters={"current": 0.0})
-
-
-@needs_compiler
-def test_the_compiled_ekf_step_equals_the_virtual_machines():
-    """The one-call step compiled to C (the default where a compiler exists) is the VM's, to rounding."""
-    vehicle = uo.Vehicle.rexrov()
-    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=5)
-    sensors = uo.Sensors.auv(vehicle)
-    filters = [
-        uo.Estimator(problem, "ekf", sensors=sensors, options=EstimatorOptions(compiled=compiled))
-        for compiled in (True, False)
-    ]
-    assert [f.compiled for f in filters] == [True, False]
-    x0 = problem.reference.initial_state(0.0)
-    rng = np.random.default_rng(3)
-    for ekf in filters:
-        ekf.reset(x0)
-    for k in range(60):
-        measurement = sensors.measure(k, problem.dt, x0 + 0.01 * k, rng)
-        u = rng.normal(0.0, 100.0, 3)
-        compiled, interpreted = (ekf.step(u, measurement) for ekf in filters)
-        np.testing.assert_allclose(compiled.augmented, interpreted.augmented, rtol=1e-12, atol=1e-12)
-        np.testing.assert_allclose(compiled.covariance, interpreted.covariance, rtol=1e-10, atol=1e-14)
-    with pytest.raises(ValueError, match="options.compiled"):
-        EstimatorOptions(compiled="yes")
-
-
-def compass_ocp(dt, rate_bound, std):
-    """Return an Ocp of a heading ψ turned at a bounded rate and a compass reporting it in (−π, π]."""
-    ocp = uo.Ocp(horizon=3, dt=dt)
-    psi = ocp.state("psi", 1)
-    r = ocp.control("r", 1, lower=-rate_bound, upper=rate_bound)
-    ocp.set_der(psi, r)
-    ocp.add_stage_cost(residual=psi, weight=1.0)
-    compass = ca.Function("compass", [psi], [ca.atan2(ca.sin(psi), ca.cos(psi))])
-    return ocp, uo.Sensors([uo.Sensor("heading", compass, 10.0, std, angular=(True,))])
-
-
-def test_a_sensor_that_did_not_report_never_poisons_the_ekf():
-    """A range to a beacon is undefined (NaN Jacobian) at the beacon.
-
-    When it did not report, the one-call step equals predict-then-correct on the reporting rows,
-    which never touch it.
-    """
-    ocp, at, beacon_range = beacon_ocp()
-    # and a signal strength ∝ 1/range, infinite there (its innovation is too)
-    strength = ca.Function("strength", [at], [1.0 / ca.sqrt(at[0] ** 2 + at[1] ** 2)])
-    fix = Sensor.of_states("fix", [0, 1], 2, 10.0, 0.1)
-    sensors = Sensors([fix, Sensor("range", beacon_range, 1.0, 0.1), Sensor("strength", strength, 1.0, 0.1)])
-    options = EstimatorOptions(compiled=False)
-    fused, split = (Estimator(ocp, "ekf", sensors=sensors, options=options) for _ in range(2))
-    for ekf in (fused, split):
-        ekf.reset([0.0, 0.0])
-    measurement = Measurement(1, (0,), np.array([0.01, -0.02]))  # the fix only, at the beacon
-    one_call = fused.step([0.0, 0.0], measurement)
-    split.predict([0.0, 0.0])
-    reference = split.correct(measurement)
-    assert np.all(np.isfinite(one_call.augmented)) and np.all(np.isfinite(one_call.covariance))
-    np.testing.assert_allclose(one_call.augmented, reference.augmented, atol=1e-12)
-    np.testing.assert_allclose(one_call.covariance, reference.covariance, atol=1e-12)
 
 
 def estimator_state(estimator):
@@ -505,17 +310,3 @@ def test_a_refused_reset_leaves_the_estimator_as_it_was(method):
     ours, theirs = estimator.step([0.5], good), twin.step([0.5], good)
     np.testing.assert_array_equal(ours.state, theirs.state)
     np.testing.assert_array_equal(ours.covariance, theirs.covariance)
-
-
-def beacon_ocp():
-    """Return a planar point moved by its velocity, a symbol of its position and its range to a beacon.
-
-    The beacon is at the origin, where the range ``sqrt(x² + y²)`` has no Jacobian (0/0: NaN).
-    """
-    ocp = uo.Ocp(horizon=3, dt=DT)
-    x = ocp.state("x", 2)
-    u = ocp.control("u", 2, lower=-1.0, upper=1.0)
-    ocp.set_der(x, u)
-    ocp.add_stage_cost(residual=x, weight=(1.0, 1.0))
-    at = ca.SX.sym("x", 2)
-    return ocp, at, ca.Function("range", [at], [ca.sqrt(at[0] ** 2 + at[1] ** 2)])

@@ -19,6 +19,7 @@ import sys
 import time
 import warnings
 from collections.abc import Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -529,78 +530,111 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _dispatch(args: argparse.Namespace) -> int:
+    """Run the subcommand ``args.command``; return the exit status."""
     command = args.command
     if command == "solvers":
-        if args.name is None:
-            print("\n".join(REGISTRY.names()))
-            return 0
-        from uuv_ocp.solvers.catalog import options_table
-
-        print(options_table(_solver("NAME", args.name)))
-        return 0
+        return _run_solvers(args)
     if command == "campaign":
         return _run_campaign(args)
     if command == "hpipm":
         return _run_hpipm(args)
     if command == "reproduce":
-        try:
-            return _run_reproduce(args)
-        except (ValueError, StorageError, WorkerCrashed) as error:  # one line each
-            return _fail(str(error))
-        except OSError as error:
-            return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
+        return _run_reproduce_guarded(args)
     if command in ("compare", "codegen"):
-        try:
-            return _run_compare(args) if command == "compare" else _run_codegen(args)
-        except ValueError as error:
-            return _fail(str(error))
-        except RuntimeError as error:  # e.g. a compiler's failure: its output, as it came
-            print(f"error: {error}", file=sys.stderr)
-            return 2
-        except OSError as error:
-            return _fail(f"{error.strerror or error}: {error.filename or ''}")
-    if command == "demo":
-        from uuv_ocp.control.disturbances import Current
-        from uuv_ocp.model.planar import Vehicle
+        return _run_compare_or_codegen(args)
+    return _run_tracking(args)
 
-        _output_folder(args.out)
-        vehicle: Any = Vehicle.rexrov()
-        solver, duration, horizon, dt = "ipopt", 30.0, 20, 0.1
-        current: Any = Current(DEMO_CURRENT[0], DEMO_CURRENT[1])
-        # the realistic loop on every reference, then the oracle beside it on s2
-        jobs: list = [(name, DEMO_ESTIMATOR, "") for name in PAPER_REFERENCES]
-        jobs.append((ORACLE_REFERENCE, None, "oracle_"))
-    else:
-        vehicle, names = _check_track(args)
-        solver, duration, horizon, dt, current = (
-            args.solver,
-            args.duration,
-            args.horizon,
-            args.dt,
-            args.current,
-        )
-        jobs = [(name, args.estimator, "") for name in names]
-    start = time.perf_counter()
-    rows: list = []
+
+def _run_solvers(args: argparse.Namespace) -> int:
+    """``uuv-ocp solvers [NAME]``: the registered names, or the options of one."""
+    if args.name is None:
+        print("\n".join(REGISTRY.names()))
+        return 0
+    from uuv_ocp.solvers.catalog import options_table
+
+    print(options_table(_solver("NAME", args.name)))
+    return 0
+
+
+def _run_reproduce_guarded(args: argparse.Namespace) -> int:
+    """``uuv-ocp reproduce``, its failures as one line and exit status 2."""
     try:
-        for index, (name, estimator, prefix) in enumerate(jobs, 1):
-            # one reference at a time, so that each says it has started before its controller
-            # is built (seconds, minutes under load) and its own bar appears
-            _announce(index, len(jobs), name, solver, estimator, quiet=args.quiet)
-            rows += track_references(
-                [name],
-                solver,
-                duration=duration,
-                horizon=horizon,
-                dt=dt,
-                vehicle=vehicle,
-                out_dir=args.out,
-                fresh=args.fresh,
-                progress=not args.quiet,
-                current=current,
-                estimator=estimator,
-                prefix=prefix,
-            )
+        return _run_reproduce(args)
+    except (ValueError, StorageError, WorkerCrashed) as error:  # one line each
+        return _fail(str(error))
+    except OSError as error:
+        return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
+
+
+def _run_compare_or_codegen(args: argparse.Namespace) -> int:
+    """``uuv-ocp compare`` or ``codegen``, its failures on standard error and exit status 2."""
+    try:
+        return _run_compare(args) if args.command == "compare" else _run_codegen(args)
+    except ValueError as error:
+        return _fail(str(error))
+    except RuntimeError as error:  # e.g. a compiler's failure: its output, as it came
+        print(f"error: {error}", file=sys.stderr)
+        return 2
+    except OSError as error:
+        return _fail(f"{error.strerror or error}: {error.filename or ''}")
+
+
+@dataclass(frozen=True)
+class _TrackingPlan:
+    """What ``demo`` or ``track`` runs: the loop's settings and its jobs.
+
+    ``duration`` and ``dt`` in s; ``jobs`` are ``(reference, estimator or None, file prefix)``.
+    """
+
+    vehicle: Any
+    solver: str
+    duration: float
+    horizon: int
+    dt: float
+    current: Any
+    jobs: list
+
+
+def _demo_plan(args: argparse.Namespace) -> _TrackingPlan:
+    """Return the demo's fixed plan: every paper reference with the EKF loop, and the oracle on s2."""
+    from uuv_ocp.control.disturbances import Current
+    from uuv_ocp.model.planar import Vehicle
+
+    _output_folder(args.out)
+    # the realistic loop on every reference, then the oracle beside it on s2
+    jobs: list = [(name, DEMO_ESTIMATOR, "") for name in PAPER_REFERENCES]
+    jobs.append((ORACLE_REFERENCE, None, "oracle_"))
+    return _TrackingPlan(
+        vehicle=Vehicle.rexrov(),
+        solver="ipopt",
+        duration=30.0,
+        horizon=20,
+        dt=0.1,
+        current=Current(DEMO_CURRENT[0], DEMO_CURRENT[1]),
+        jobs=jobs,
+    )
+
+
+def _track_plan(args: argparse.Namespace) -> _TrackingPlan:
+    """Return the plan of ``track`` from its flags, validated (:func:`_check_track`) before anything runs."""
+    vehicle, names = _check_track(args)
+    return _TrackingPlan(
+        vehicle=vehicle,
+        solver=args.solver,
+        duration=args.duration,
+        horizon=args.horizon,
+        dt=args.dt,
+        current=args.current,
+        jobs=[(name, args.estimator, "") for name in names],
+    )
+
+
+def _run_tracking(args: argparse.Namespace) -> int:
+    """``uuv-ocp demo`` or ``track``: run the plan's loops, then print their table."""
+    plan = _demo_plan(args) if args.command == "demo" else _track_plan(args)
+    start = time.perf_counter()
+    try:
+        rows = _track_jobs(plan, args)
     except KeyboardInterrupt as interrupt:
         print(f"\ninterrupted: {interrupt}. Run the same command again to resume.", file=sys.stderr)
         return 130
@@ -608,15 +642,47 @@ def _dispatch(args: argparse.Namespace) -> int:
         return _fail(str(error))
     except OSError as error:
         return _fail(f"--out {args.out}: {error.strerror or error} ({error.filename or args.out})")
+    _print_tracking_summary(plan, rows)
+    print(f"\nfigures and saved runs in {args.out}/  ({time.perf_counter() - start:.1f} s)")
+    return 0
+
+
+def _track_jobs(plan: _TrackingPlan, args: argparse.Namespace) -> list:
+    """Run the plan's jobs one after the other; return their table rows."""
+    rows: list = []
+    for index, (name, estimator, prefix) in enumerate(plan.jobs, 1):
+        # one reference at a time, so that each says it has started before its controller
+        # is built (seconds, minutes under load) and its own bar appears
+        _announce(index, len(plan.jobs), name, plan.solver, estimator, quiet=args.quiet)
+        rows += track_references(
+            [name],
+            plan.solver,
+            duration=plan.duration,
+            horizon=plan.horizon,
+            dt=plan.dt,
+            vehicle=plan.vehicle,
+            out_dir=args.out,
+            fresh=args.fresh,
+            progress=not args.quiet,
+            current=plan.current,
+            estimator=estimator,
+            prefix=prefix,
+        )
+    return rows
+
+
+def _print_tracking_summary(plan: _TrackingPlan, rows: list) -> None:
+    """Print the heading lines (vehicle, current, estimators) and the table of ``rows``."""
+    vehicle = plan.vehicle
     print()
-    print(f"NMPC tracking, {vehicle.name}, N = {horizon}, dt = {dt} s, terminal equality, solver {solver}")
-    estimators = sorted({estimator for _, estimator, _ in jobs if estimator is not None})
-    oracle = any(estimator is None for _, estimator, _ in jobs)
-    if current is not None:
-        told = "known to the controller"
-        if estimators:
-            told = "unknown to the controller" + (", told to the oracle's" if oracle else "")
-        print(f"constant current {current.speed:g} m/s towards {current.direction:g} rad ({told})")
+    print(
+        f"NMPC tracking, {vehicle.name}, N = {plan.horizon}, dt = {plan.dt} s, terminal equality, "
+        f"solver {plan.solver}"
+    )
+    estimators = sorted({estimator for _, estimator, _ in plan.jobs if estimator is not None})
+    oracle = any(estimator is None for _, estimator, _ in plan.jobs)
+    if plan.current is not None:
+        print(_current_line(plan.current, estimators, oracle=oracle))
     if estimators:
         print(
             f"loop {'/'.join(estimators)}: state and current estimated by an {'/'.join(estimators).upper()} "
@@ -625,8 +691,14 @@ def _dispatch(args: argparse.Namespace) -> int:
         )
     print("errors in m over the whole run and for t >= t0 + 5 s; solve times per step in ms")
     print(format_tracking_table(rows))
-    print(f"\nfigures and saved runs in {args.out}/  ({time.perf_counter() - start:.1f} s)")
-    return 0
+
+
+def _current_line(current: Any, estimators: list[str], *, oracle: bool) -> str:
+    """``constant current 0.5 m/s towards 1 rad (...)``: who of the loops is told the current."""
+    told = "known to the controller"
+    if estimators:
+        told = "unknown to the controller" + (", told to the oracle's" if oracle else "")
+    return f"constant current {current.speed:g} m/s towards {current.direction:g} rad ({told})"
 
 
 def _announce(

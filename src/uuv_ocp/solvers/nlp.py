@@ -296,6 +296,25 @@ NLP_OPTIONS: tuple[Option, ...] = declaration(NlpOptions)
 """Rows of :class:`NlpOptions` (the docs' table; subclasses revise defaults and add their own)."""
 
 
+@dataclasses.dataclass
+class _Chain:
+    """The fallback chain of one :meth:`NlpSolver.solve` call: its attempts so far, in order.
+
+    ``skipped`` counts attempts not started after the deadline; ``build_time`` (s) is the time
+    spent building plugins, which the deadline does not count.  One per call, never shared.
+    """
+
+    p: np.ndarray
+    attempts: list[Attempt] = dataclasses.field(default_factory=list)
+    skipped: int = 0
+    build_time: float = 0.0
+
+    @property
+    def last(self) -> Attempt:
+        """The latest attempt."""
+        return self.attempts[-1]
+
+
 class NlpSolver:
     """Solve any :class:`~uuv_ocp.ocp.Ocp` (or tracking preset) with one ``casadi.nlpsol`` plugin.
 
@@ -787,34 +806,38 @@ class NlpSolver:
         start = watchdog.now()
         limit = self.deadline if time_limit is None else check.positive_float("time_limit", time_limit)
         self._clock.at = math.inf if limit is None else start + limit
-        attempts: list[Attempt] = []
-        skipped = 0
-        build_time = 0.0
+        chain = _Chain(p)
+        strategy = self.terminal_strategy if SOFT in self.variants else "hard-first"
+        soft_variant = self._open_chain(chain, warm_start, strategy)
+        self._escalate(chain, warm_start, soft_variant)
+        self._last_resorts(chain, warm_start)
+        self._clock.at = math.inf
+        return self._chain_result(chain, start, limit, strategy)
 
-        def attempt(variant: Variant, warm: Iterate | None, stage: Stage = Stage.PLAIN) -> bool:
-            """Run one attempt unless the deadline has passed (the first one always runs)."""
-            nonlocal skipped
-            nonlocal build_time
-            if attempts and watchdog.now() >= self._clock.at:
-                skipped += 1
-                return False
-            key = (variant, stage, self._uses_still_water(p))
-            if key not in self._solvers and _is_nlpsol(self._stage_plugin(stage)):
-                # building a plugin (0.1-0.5 s, once) is no part of the budget: the clock waits
-                built = watchdog.now()
-                self._solver(*key)
-                spent = watchdog.now() - built
-                build_time += spent
-                self._clock.at += spent
-            attempts.append(self._attempt(variant, p, warm, stage))
-            failed = not attempts[-1].success and stage is not Stage.RESCUE
-            if failed and self.stalled(attempts[-1], p) and self.rescue_options():
-                # stuck next to a solution: the rest of the chain would stall the same way
-                attempt(variant, self._iterate_of(attempts[-1]), Stage.RESCUE)
-            return True
+    def _chain_attempt(
+        self, chain: _Chain, variant: Variant, warm: Iterate | None, stage: Stage = Stage.PLAIN
+    ) -> bool:
+        """Run one attempt unless the deadline has passed (the first one always runs)."""
+        if chain.attempts and watchdog.now() >= self._clock.at:
+            chain.skipped += 1
+            return False
+        key = (variant, stage, self._uses_still_water(chain.p))
+        if key not in self._solvers and _is_nlpsol(self._stage_plugin(stage)):
+            # building a plugin (0.1-0.5 s, once) is no part of the budget: the clock waits
+            built = watchdog.now()
+            self._solver(*key)
+            spent = watchdog.now() - built
+            chain.build_time += spent
+            self._clock.at += spent
+        chain.attempts.append(self._attempt(variant, chain.p, warm, stage))
+        failed = not chain.last.success and stage is not Stage.RESCUE
+        if failed and self.stalled(chain.last, chain.p) and self.rescue_options():
+            # stuck next to a solution: the rest of the chain would stall the same way
+            self._chain_attempt(chain, variant, self._iterate_of(chain.last), Stage.RESCUE)
+        return True
 
-        soft_available = SOFT in self.variants
-        strategy = self.terminal_strategy if soft_available else "hard-first"
+    def _open_chain(self, chain: _Chain, warm_start: Iterate | None, strategy: str) -> Variant:
+        """Run the chain's first attempts (hard or soft, then the cold retry); return the soft variant."""
         soft_first = strategy == "soft" or (
             strategy == "sticky" and warm_start is not None and warm_start.terminal_relaxed
         )
@@ -822,53 +845,73 @@ class NlpSolver:
         if soft_first and warm_start is not None and warm_start.variant in self._escalations:
             soft_variant = Variant(warm_start.variant)  # stay at the escalated penalty while relaxed
         if soft_first:
-            attempt(soft_variant, warm_start)
+            self._chain_attempt(chain, soft_variant, warm_start)
         else:
-            attempt(HARD, warm_start)
-            if not attempts[-1].success and soft_available:
-                attempt(SOFT, warm_start)
-        if not attempts[-1].success and warm_start is not None:
+            self._chain_attempt(chain, HARD, warm_start)
+            if not chain.last.success and SOFT in self.variants:
+                self._chain_attempt(chain, SOFT, warm_start)
+        if not chain.last.success and warm_start is not None:
             # A warm start can sit in a bad region (e.g. after a burst of saturation): one
             # retry from the reference-based cold guess, same NLP variant.
-            attempt(attempts[-1].variant, None)
+            self._chain_attempt(chain, chain.last.variant, None)
+        return soft_variant
+
+    def _escalate(self, chain: _Chain, warm_start: Iterate | None, soft_variant: Variant) -> None:
+        """Raise the soft NLP's penalty, one escalation after another, while its attempts fail."""
         start_index = self._escalations.index(soft_variant) + 1 if soft_variant != SOFT else 0
         for variant in self._escalations[start_index:]:
-            if attempts[-1].success or not attempts[-1].variant.soft:
+            if chain.last.success or not chain.last.variant.soft:
                 break
             # classic exact-penalty update: a larger ρ, warm-started from the closest iterate
-            if not attempt(variant, warm_start):
+            if not self._chain_attempt(chain, variant, warm_start):
                 break
-        if not attempts[-1].success and self.robust_options():
+
+    def _last_resorts(self, chain: _Chain, warm_start: Iterate | None) -> None:
+        """Run the robust retry, then the rescue, each only if the chain has failed so far."""
+        if not chain.last.success and self.robust_options():
             # last resort: the same NLP with the backend's conservative settings
-            attempt(attempts[-1].variant, warm_start, Stage.ROBUST)
-        if not attempts[-1].success and self.rescue_options():
+            self._chain_attempt(chain, chain.last.variant, warm_start, Stage.ROBUST)
+        if not chain.last.success and self.rescue_options():
             # a backend that stalls near a solution (fatrop under inertia correction on
             # non-convex constraints) hands its last iterate, duals included, to another plugin
-            attempt(attempts[-1].variant, self._iterate_of(attempts[-1]), Stage.RESCUE)
-        self._clock.at = math.inf
-        final = attempts[-1]
+            self._chain_attempt(chain, chain.last.variant, self._iterate_of(chain.last), Stage.RESCUE)
+
+    def _chain_result(self, chain: _Chain, start: float, limit: float | None, strategy: str) -> SolveResult:
+        """Return the result of the chain's last attempt; a failure if it was not ready by ``limit``."""
+        final = chain.last
         relaxed = self.relaxed(final.variant, final.primal)
         elapsed = watchdog.now() - start
-        late = limit is not None and elapsed - build_time > limit
+        late = limit is not None and elapsed - chain.build_time > limit
         result = self._result(
-            p, final, attempts, relaxed, elapsed, deadline_hit=late, build_time=build_time or None
+            chain.p,
+            final,
+            chain.attempts,
+            relaxed,
+            elapsed,
+            deadline_hit=late,
+            build_time=chain.build_time or None,
         )
-        elapsed -= build_time
         if not late:
-            return result if result.success else self._rolled_out(result, p)
-        # not ready in time: a failure, whatever the last attempt reached (see module doc)
+            return result if result.success else self._rolled_out(result, chain.p)
+        return self._late_result(chain, result, limit, elapsed - chain.build_time, strategy)
+
+    def _late_result(
+        self, chain: _Chain, result: SolveResult, limit: float | None, elapsed: float, strategy: str
+    ) -> SolveResult:
+        """Return ``result`` as a failure: not ready in time, whatever its last attempt reached."""
+        skipped = chain.skipped
         reason = f"{skipped} further attempt(s) not started" if skipped else "no attempt skipped"
         iterate = result.iterate
-        if strategy == "sticky" and soft_available and final.variant == HARD:
+        if strategy == "sticky" and SOFT in self.variants and chain.last.variant == HARD:
             # a warm start from this iterate (a closed loop keeps it) goes to the soft NLP, which
             # is always feasible: a hard NLP that never finishes in time would never yield to it
             iterate = dataclasses.replace(iterate, terminal_relaxed=True)
         return dataclasses.replace(
-            self._rolled_out(result, p),
+            self._rolled_out(result, chain.p),
             success=False,
             iterate=iterate,
             status=(
-                f"deadline: {limit:g} s exceeded ({elapsed:.3g} s, {len(attempts)} attempt(s), "
+                f"deadline: {limit:g} s exceeded ({elapsed:.3g} s, {len(chain.attempts)} attempt(s), "
                 f"{reason}); last attempt: {result.status}"
             ),
             details=result.details.replace(attempts_skipped=skipped),

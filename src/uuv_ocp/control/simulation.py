@@ -457,33 +457,27 @@ def simulate(
         substeps=plant_substeps,
     )
     steps, nc, dt = run.steps, run.current_dim, spec.dt
-    if noise is not None and len(noise.std) != spec.state_dim:
-        raise ValueError(
-            f"noise.std must have {spec.state_dim} entries (one per state), got {len(noise.std)}"
-        )
+    _check_noise(noise, spec.state_dim)
     rng = np.random.default_rng(seed)
-    currents = np.zeros((steps + 1, nc))
-    if nc:
-        sampled = (current or Current()).sample(steps, dt, rng)
-        currents[:, : sampled.shape[1]] = sampled
+    currents = _sampled_currents(current, steps, nc, dt, rng)
     times = run.t0 + dt * np.arange(steps + 1)
-    # what the controller's model is told: the measured current, or none (the instance's
-    # current is then zero); a time-invariant problem is always asked at t = 0
-    told = currents if current_known else np.zeros_like(currents)
-    # an estimator that models no current (current_model="none") leaves the controller naive
-    estimating = estimator is not None and not current_known and estimator.model.nc > 0
-    estimated = estimating and nc > 0
-    if estimating and estimator is not None and estimator.model.nc != nc:
-        # e.g. an Ocp whose "current" parameter the estimator estimates: the loop has no channel
-        # to hand it to the controller (its current is in parameters=), so say so
-        raise ValueError(
-            f"estimator estimates a current of {estimator.model.nc} entries but this closed loop "
-            f"passes the controller a current of {nc} (an Ocp takes its data in parameters=); "
-            "set options.current_parameter to a stagewise parameter the loop hands over, or "
-            "current_known=True"
-        )
-    clock = times if run.time_varying else np.zeros_like(times)
-    known = {"parameters": parameters} if parameters is not None else {}
+    loop = _Loop(
+        controller=controller,
+        run=run,
+        dt=dt,
+        times=times,
+        currents=currents,
+        # what the controller's model is told: the measured current, or none (the instance's
+        # current is then zero); a time-invariant problem is always asked at t = 0
+        told=currents if current_known else np.zeros_like(currents),
+        clock=times if run.time_varying else np.zeros_like(times),
+        known={"parameters": parameters} if parameters is not None else {},
+        rng=rng,
+        noise=noise,
+        estimator=estimator,
+        sensors=sensors,
+        estimated=_current_estimated(estimator, current_known, nc),
+    )
     log = _Log(x0, steps, spec.control_size, plant_substeps if record_substeps else 0, dt)
     if estimator is not None and sensors is not None:
         log.track_estimates(estimator, sensors)
@@ -495,37 +489,8 @@ def simulate(
         remember_interrupts(),
     ):
         try:
-            # everything the steps build (sqp-rti's C step, the cold start's NLP) is built here,
-            # not in the first timed steps (once per controller: builds stay with its backend)
-            if controller.warmed_up:
-                controller.reset()
-            else:
-                controller.warm_up(x0, clock[0], u_prev, told[0] if nc else None, **known)
-            for k in range(steps):
-                check_interrupt()  # a Ctrl-C CasADi swallowed (uuv_ocp.interrupts) stops here
-                told_k = told[k] if nc else None
-                if estimator is not None and sensors is not None:
-                    measurement = sensors.measure(k, dt, log.states[k], rng)
-                    start = time.perf_counter()
-                    estimate = (
-                        estimator.correct(measurement) if k == 0 else estimator.step(u_prev, measurement)
-                    )
-                    log.estimate(k, measurement, estimate, time.perf_counter() - start)
-                    measured = estimate.state
-                    if estimated:
-                        told_k = estimate.current
-                else:
-                    measured = log.states[k] + (noise.sample(rng) if noise is not None else 0.0)
-                if not np.all(np.isfinite(measured)):  # the controller would fail on it: stop here
-                    log.fault = f"non-finite measurement at t = {times[k]:.6g} s (step {k})"
-                    break
-                start = time.perf_counter()
-                output = controller.step(measured, clock[k], u_prev, told_k, **known)
-                log.controller_step(k, output, time.perf_counter() - start)
-                if not log.plant_step(k, run.plant_step, currents[k], times):
-                    break
-                u_prev = log.controls[k]
-                bar.update(1, postfix=f"fail={int(log.fallback[: k + 1].sum())}")
+            loop.warm_up(x0, u_prev)
+            loop.run_steps(log, u_prev, bar)
         except KeyboardInterrupt:
             interrupted = True
             interrupt_handled()
@@ -533,6 +498,108 @@ def simulate(
     if interrupted:
         raise SimulationInterrupted(closed_loop)
     return closed_loop
+
+
+def _check_noise(noise: MeasurementNoise | None, state_dim: int) -> None:
+    """Refuse full-state noise whose size is not the state's (``ValueError`` naming ``noise.std``)."""
+    if noise is not None and len(noise.std) != state_dim:
+        raise ValueError(f"noise.std must have {state_dim} entries (one per state), got {len(noise.std)}")
+
+
+def _sampled_currents(
+    current: Current | None, steps: int, nc: int, dt: float, rng: np.random.Generator
+) -> np.ndarray:
+    """Return the true current at every control instant, shape (steps + 1, nc) (m/s; zeros if nc = 0)."""
+    currents = np.zeros((steps + 1, nc))
+    if nc:
+        sampled = (current or Current()).sample(steps, dt, rng)
+        currents[:, : sampled.shape[1]] = sampled
+    return currents
+
+
+def _current_estimated(estimator: Estimator | None, current_known: bool, nc: int) -> bool:
+    """Whether the controller is told the estimated current; ``ValueError`` if the loop cannot pass it."""
+    # an estimator that models no current (current_model="none") leaves the controller naive
+    estimating = estimator is not None and not current_known and estimator.model.nc > 0
+    if estimating and estimator is not None and estimator.model.nc != nc:
+        # e.g. an Ocp whose "current" parameter the estimator estimates: the loop has no channel
+        # to hand it to the controller (its current is in parameters=), so say so
+        raise ValueError(
+            f"estimator estimates a current of {estimator.model.nc} entries but this closed loop "
+            f"passes the controller a current of {nc} (an Ocp takes its data in parameters=); "
+            "set options.current_parameter to a stagewise parameter the loop hands over, or "
+            "current_known=True"
+        )
+    return estimating and nc > 0
+
+
+@dataclass(frozen=True)
+class _Loop:
+    """What every step of one :func:`simulate` run reads; its steps write into a :class:`_Log`.
+
+    ``times`` are the control instants (s); ``clock`` the times the controller is asked at
+    (zeros for a time-invariant problem); ``currents`` the true current per instant and
+    ``told`` what the controller's model is told of it (m/s); ``estimated``: the controller
+    gets the estimator's current instead.
+    """
+
+    controller: NMPC
+    run: Any
+    dt: float
+    times: np.ndarray
+    currents: np.ndarray
+    told: np.ndarray
+    clock: np.ndarray
+    known: dict[str, Any]
+    rng: np.random.Generator
+    noise: MeasurementNoise | None
+    estimator: Estimator | None
+    sensors: Sensors | None
+    estimated: bool
+
+    def warm_up(self, x0: np.ndarray, u_prev: np.ndarray) -> None:
+        """Build what the controller's steps build (once per controller), or reset it if built."""
+        # everything the steps build (sqp-rti's C step, the cold start's NLP) is built here,
+        # not in the first timed steps (once per controller: builds stay with its backend)
+        controller = self.controller
+        if controller.warmed_up:
+            controller.reset()
+        else:
+            told = self.told[0] if self.run.current_dim else None
+            controller.warm_up(x0, self.clock[0], u_prev, told, **self.known)
+
+    def run_steps(self, log: _Log, u_prev: np.ndarray, bar: ProgressBar) -> None:
+        """Run the steps one after the other until the end, a fault or an interrupt."""
+        for k in range(self.run.steps):
+            check_interrupt()  # a Ctrl-C CasADi swallowed (uuv_ocp.interrupts) stops here
+            if not self.step(log, k, u_prev):
+                break
+            u_prev = log.controls[k]
+            bar.update(1, postfix=f"fail={int(log.fallback[: k + 1].sum())}")
+
+    def step(self, log: _Log, k: int, u_prev: np.ndarray) -> bool:
+        """Measure, control and move the plant over step ``k``; ``False`` (``log.fault`` set) ends the run."""
+        measured, told_k = self.measure(log, k, u_prev)
+        if not np.all(np.isfinite(measured)):  # the controller would fail on it: stop here
+            log.fault = f"non-finite measurement at t = {self.times[k]:.6g} s (step {k})"
+            return False
+        start = time.perf_counter()
+        output = self.controller.step(measured, self.clock[k], u_prev, told_k, **self.known)
+        log.controller_step(k, output, time.perf_counter() - start)
+        return log.plant_step(k, self.run.plant_step, self.currents[k], self.times)
+
+    def measure(self, log: _Log, k: int, u_prev: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+        """Return what the controller gets at step ``k``: the measured (or estimated) state and current."""
+        told_k = self.told[k] if self.run.current_dim else None
+        if self.estimator is None or self.sensors is None:
+            noise = self.noise.sample(self.rng) if self.noise is not None else 0.0
+            return log.states[k] + noise, told_k
+        measurement = self.sensors.measure(k, self.dt, log.states[k], self.rng)
+        start = time.perf_counter()
+        estimator = self.estimator
+        estimate = estimator.correct(measurement) if k == 0 else estimator.step(u_prev, measurement)
+        log.estimate(k, measurement, estimate, time.perf_counter() - start)
+        return estimate.state, (estimate.current if self.estimated else told_k)
 
 
 def _check_arguments(

@@ -122,7 +122,7 @@ class LosOptions:
     nomoto_time_constant : float
         Nomoto T (s), > 0 (source: the yaw time constant, 1).
     heading_reference_frequency : float
-        ω (rad/s), > 0, of the heading reference model (source: 0.1; default 0.5, so that ψ_d
+        ω (rad/s), > 0, of the heading reference model (source: 0.1; default 1.0, so that ψ_d
         follows the LOS command).
     heading_reference_damping : float
         ζ, > 0, of the heading reference model (source: 1).
@@ -151,7 +151,7 @@ class LosOptions:
     heave_gain: float = 5.0
     nomoto_gain: float = 5.0 / 20.0
     nomoto_time_constant: float = 1.0
-    heading_reference_frequency: float = 0.5
+    heading_reference_frequency: float = 1.0
     heading_reference_damping: float = 1.0
     max_yaw_rate: float = math.radians(15.0)
     smc_lambda: float = 0.1

@@ -86,6 +86,31 @@ def test_steps_integrate_the_book_law():
     assert guidance.step(first).heading_command == pytest.approx(psi1, abs=1e-12)
 
 
+def test_on_a_turning_arc_the_command_follows_the_path_tangent():
+    """A vehicle moved along the 30 m arc of a 90° corner: ψ_ref is the circle's tangent.
+
+    The arc of ``Reference.waypoints`` at the corner (100, 0) has its centre at (70, 30); where
+    the tangent heading is φ the point is ``(70 + 30 sin φ, 30 − 30 cos φ)``.  Plain LOS on the
+    chord polyline (within 5 cm of the arc) would step by the chord angle at each switch.
+    """
+    points = [(0.0, 0.0, DEPTH), (100.0, 0.0, DEPTH), (100.0, 100.0, DEPTH)]
+    reference = uo.Reference.waypoints(points, speed=1.5, turn_radius=30.0)
+    problem = uo.TrackingProblem(uo.Remus100(), reference, horizon=1, dt=DT)
+    guidance = uo.LosGuidance(problem, uo.LosOptions(kappa=0.0))
+    guidance.warm_up(np.zeros(12))
+    assert len(guidance.path) > 10  # the arc is many chords
+    state = np.zeros(12)
+    state[2] = DEPTH
+    for x in np.arange(0.0, 70.0, 1.5):  # the straight leg first: the switches are walked
+        state[:2] = (x, 0.0)
+        assert guidance.step(state).heading_command == pytest.approx(0.0, abs=6e-3)
+    commands = []
+    for phi in np.linspace(0.0, math.pi / 2, 100):
+        state[:2] = (70.0 + 30.0 * math.sin(phi), 30.0 - 30.0 * math.cos(phi))
+        commands.append(guidance.step(state).heading_command - phi)
+    assert np.max(np.abs(commands)) < 6e-3  # Δ = 10 m: 5 cm off the chord is 0.005 rad
+
+
 def cross_current_run(kappa):
     guidance = uo.LosGuidance(straight_problem(), uo.LosOptions(lookahead=10.0, kappa=kappa))
     x0 = np.zeros(12)

@@ -33,7 +33,17 @@ The path is the reference's horizontal (and depth) curve as a polyline: the refe
 along its window and simplified (Ramer–Douglas–Peucker) to within ``path_tolerance`` m, so the
 straight legs of :meth:`Reference.waypoints <uuv_ocp.reference.path.Reference.waypoints>` and
 :meth:`~uuv_ocp.reference.path.Reference.lawnmower` are single segments and their turning arcs
-chords (:func:`path_points` is the one place that reads the path).
+chords (:func:`path_points` is the one place that reads the path).  On a chord of a curve (both
+of its ends' path tangents within :data:`SMOOTH_ANGLE` of the chord) ``π_h`` is the path's
+tangent, turned linearly along the chord from the tangent at its start to the one at its end:
+the path-tangential angle of Fossen's LOS for curved paths (2021, §12.4).  A *smooth* waypoint
+(the path tangent there within :data:`SMOOTH_ANGLE` of both segments) is switched as the
+vehicle passes it (``R = 0``), so ``π_h`` stays continuous along a curve; the radius of
+acceptance serves the corners.  With the chords' own directions, every switch on an arc steps
+``ψ_ref`` by the chord angle, and the heading autopilot's acceleration feedforward turns each
+step into a rudder spike (a sawtooth that doubled the fin activity of the lawnmower
+benchmark).  On a straight leg the tangents are the leg's direction, and the law is the
+straight-line ILOS above.
 
 Autopilots
 ----------
@@ -81,11 +91,25 @@ COMMANDS = ("delta_r", "delta_s", "n")
 SAMPLES_PER_METRE = 20.0
 #: Samples of a window at most (a 10 km survey at 20 per metre).
 MAX_SAMPLES = 200_000
+#: A segment whose end tangents both lie within this angle (rad) of its direction is a chord of
+#: a smooth curve: ``π_h`` follows the tangent along it (module doc); else a corner's leg.
+SMOOTH_ANGLE = 0.35
 
 
 def ssa(angle: float) -> float:
     """Smallest signed angle: ``angle`` wrapped to [−π, π) (rad)."""
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _along(path: np.ndarray, k: int, north: float, east: float) -> float:
+    """Distance (m) the point ``(north, east)`` lies past the end of segment ``k``, along it."""
+    direction = path[k + 1, :2] - path[k, :2]
+    return float((np.array([north, east]) - path[k + 1, :2]) @ direction / np.linalg.norm(direction))
+
+
+def _wrapped(angles: np.ndarray) -> np.ndarray:
+    """:func:`ssa` of an array of angles (rad)."""
+    return (angles + np.pi) % (2.0 * np.pi) - np.pi
 
 
 @dataclass(frozen=True)
@@ -226,12 +250,13 @@ def ilos_heading(
 
 
 def path_points(problem: Any, tolerance: float) -> np.ndarray:
-    """Return the problem's geometric path as a polyline ``(n, 3)`` of ``[x, y, z]`` (m), n >= 2.
+    """Return the problem's geometric path as a polyline ``(n, 4)`` of ``[x, y, z, ψ_t]``, n >= 2.
 
     The one place that reads the path: a :class:`~uuv_ocp.tracking.TrackingProblem`'s (and any
     problem with a ``reference``) reference sampled over its window and simplified to within
     ``tolerance`` m (Ramer–Douglas–Peucker); points where it stands still (a hold) are dropped.
-    A planar reference has depth 0.
+    Positions in m (a planar reference has depth 0), ``ψ_t`` the reference's heading there
+    (rad, the path tangent unless the reference sets its own heading).
     """
     reference = getattr(problem, "reference", None)
     if reference is None or not hasattr(reference, "evaluate"):
@@ -248,16 +273,17 @@ def path_points(problem: Any, tolerance: float) -> np.ndarray:
     speed = float(np.max(np.abs(states[:, reference._surge_index])))  # a scale for the sampling
     count = int(min(MAX_SAMPLES, max(2, math.ceil(span * max(speed, 0.1) * SAMPLES_PER_METRE) + 1)))
     states = reference.evaluate(np.linspace(reference.t_start, reference.t_end, count))
-    xyz = np.zeros((count, 3))
-    xyz[:, :2] = states[:, :2]
+    points = np.zeros((count, 4))
+    points[:, :2] = states[:, :2]
     if reference.spatial:
-        xyz[:, 2] = states[:, 2]
+        points[:, 2] = states[:, 2]
+    points[:, 3] = states[:, reference.heading_index]
     moved = np.ones(count, dtype=bool)
-    moved[1:] = np.linalg.norm(np.diff(xyz[:, :2], axis=0), axis=1) > 1e-9
-    xyz = xyz[moved]
-    if len(xyz) < 2:
+    moved[1:] = np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1) > 1e-9
+    points = points[moved]
+    if len(points) < 2:
         raise ValueError(f"problem.reference {reference.name!r} does not move: no path to follow")
-    return xyz[_simplified(xyz, tolerance)]
+    return points[_simplified(points[:, :3], tolerance)]
 
 
 def _simplified(points: np.ndarray, tolerance: float) -> np.ndarray:
@@ -398,6 +424,8 @@ class LosGuidance:
         self._bound = np.asarray(problem.vehicle.control_bound, dtype=float)
         self._rate_step = np.asarray(problem.vehicle.control_rate_bound, dtype=float) * problem.dt
         self.path: np.ndarray | None = None
+        self._smooth_segment = np.zeros(0, dtype=bool)  # per segment / point of path (_build)
+        self._smooth_joint = np.zeros(0, dtype=bool)
         self.propeller_speed: float | None = None
         #: whether :meth:`warm_up` has run
         self.warmed_up = False
@@ -427,7 +455,14 @@ class LosGuidance:
 
     def _build(self) -> None:
         if self.path is None:
-            self.path = path_points(self.problem, self.options.path_tolerance)
+            path = path_points(self.problem, self.options.path_tolerance)
+            chords = np.arctan2(np.diff(path[:, 1]), np.diff(path[:, 0]))
+            # per point: how far the path tangent turns off the outgoing and the incoming segment
+            outgoing = np.abs(_wrapped(path[:, 3] - np.append(chords, chords[-1])))
+            incoming = np.abs(_wrapped(path[:, 3] - np.insert(chords, 0, chords[0])))
+            self._smooth_segment = (outgoing[:-1] < SMOOTH_ANGLE) & (incoming[1:] < SMOOTH_ANGLE)
+            self._smooth_joint = (outgoing < SMOOTH_ANGLE) & (incoming < SMOOTH_ANGLE)
+            self.path = path
         if self.propeller_speed is None:
             self.propeller_speed = cruise_propeller_speed(self.problem.vehicle, self.options.speed)
 
@@ -458,14 +493,25 @@ class LosGuidance:
 
         # ILOS on the active segment; switch when within the radius of acceptance (ILOSpsi:
         # this step's command is the segment's that was active when it started)
-        path, k = self.path, self._segment
-        start, end = self._segment_ends(k)
+        path, last_segment = self.path, len(self.path) - 2
+        k = self._segment
+        # a smooth waypoint (module doc) is switched as soon as it is passed, before the command
+        while k < last_segment and self._smooth_joint[k + 1] and _along(path, k, north, east) > 0.0:
+            k += 1
+        self._segment = k
+        start, end = path[k], path[k + 1]
         psi_ref, y_int_dot, along, cross = ilos_heading(
             (north, east), (start[0], start[1]), (end[0], end[1]), self._y_int, o.lookahead, o.kappa
         )
         length = float(np.hypot(*(end[:2] - start[:2])))
-        if k + 1 < len(path) - 1 and length - along < min(o.acceptance_radius, 0.5 * length):
-            self._segment = k + 1
+        if self._smooth_segment[k]:  # a chord of a curve: π_h is the path's tangent (module doc)
+            chord = math.atan2(end[1] - start[1], end[0] - start[0])
+            first, last = ssa(start[3] - chord), ssa(end[3] - chord)
+            psi_ref += first + min(max(along / length, 0.0), 1.0) * (last - first)
+        # a corner within the radius of acceptance, after the command (ILOSpsi's order)
+        if k < last_segment and not self._smooth_joint[k + 1]:
+            if length - along < min(o.acceptance_radius, 0.5 * length):
+                self._segment = k + 1
         self._y_int += h * y_int_dot
         # the path's depth at the projection on the segment (the last one: its end depth)
         fraction = min(max(along / length, 0.0), 1.0)
@@ -512,10 +558,6 @@ class LosGuidance:
             pitch_command=theta_d,
             segment=k,
         )
-
-    def _segment_ends(self, k: int) -> tuple[np.ndarray, np.ndarray]:
-        assert self.path is not None
-        return self.path[k], self.path[k + 1]
 
     def _admissible(self, command: np.ndarray, u_prev: object | None) -> np.ndarray:
         """Clip to the box, then to the rate bound around ``u_prev`` (which lies in the box)."""

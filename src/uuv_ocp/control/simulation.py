@@ -1,4 +1,4 @@
-"""Closed-loop simulation: an NMPC controller against a finely integrated plant.
+"""Closed-loop simulation: a controller (an NMPC, a guidance law) against a finely integrated plant.
 
 The plant is the vehicle model (possibly with different parameters: model mismatch) integrated
 with RK4 at ``plant_substeps`` steps per control interval (default 10, i.e. 10 ms for

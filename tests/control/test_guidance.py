@@ -216,7 +216,7 @@ def test_bad_problems_are_refused_by_name():
     rexrov = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=5)
     with pytest.raises(ValueError, match="problem.vehicle must be steered by rudder"):
         uo.LosGuidance(rexrov)
-    with pytest.raises(ValueError, match="problem must be a uuv_ocp.TrackingProblem"):
+    with pytest.raises(ValueError, match="problem must have a vehicle, a dt and a reference path"):
         uo.LosGuidance(rexrov.ocp)
     with pytest.raises(ValueError, match="options must be a uuv_ocp.LosOptions"):
         uo.LosGuidance(straight_problem(), {"kappa": 0.1})

@@ -388,6 +388,8 @@ class LosGuidance:
         The vehicle (controls ``[δ_r, δ_s, n]``: :class:`~uuv_ocp.Remus100` or one of its
         structure) and the reference whose geometric path is followed; its ``dt`` is the
         guidance's sample time.  ``simulate`` takes the plant and the time window from it.
+        Any problem with ``vehicle``, ``dt``, ``reference`` and ``check_state(x)`` will do (a
+        path-following preset); the vehicle's states are read by the layout's indices.
     options : LosOptions, optional
         Gains (default ``LosOptions()``).
 
@@ -398,10 +400,12 @@ class LosGuidance:
     integral states and the reference model (initialised from the first measured state).
     """
 
-    def __init__(self, problem: TrackingProblem, options: LosOptions | None = None) -> None:
-        if not isinstance(problem, TrackingProblem):
+    def __init__(self, problem: TrackingProblem | Any, options: LosOptions | None = None) -> None:
+        # what the guidance reads of its problem, not its class: a path-following problem with a
+        # vehicle, a sample time and a reference path serves as well (path_points reads the path)
+        if not all(hasattr(problem, name) for name in ("vehicle", "dt", "reference", "check_state")):
             raise ValueError(
-                f"problem must be a uuv_ocp.TrackingProblem (a vehicle and a reference path), "
+                "problem must have a vehicle, a dt and a reference path (a uuv_ocp.TrackingProblem), "
                 f"got {type(problem).__name__}"
             )
         names = tuple(problem.vehicle.layout.control_names)

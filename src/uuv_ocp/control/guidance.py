@@ -25,9 +25,9 @@ whose crab angle against a cross current needs a steady cross-track offset
 ``y_e = Δ tan(crab)``; the integral state supplies that angle instead).  A vehicle right of
 the path (``y_e > 0``) is told to turn left, and vice versa.  The next segment becomes active
 when the along-track distance left, ``d − x_e``, is below the radius of acceptance ``R``
-(``ILOSpsi``'s switching criterion), with ``R`` capped at half of each segment's length so that
-the short chords of a turn are switched one by one; after the last waypoint the last bearing
-is held.  ``y_int`` is kept across switches (as ``ILOSpsi``).
+(``ILOSpsi``'s switching criterion; ``R`` capped at half of the segment's length), and this
+step's command is still the old segment's (``ILOSpsi``'s order); after the last waypoint the
+last bearing is held.  ``y_int`` is kept across switches (as ``ILOSpsi``).
 
 The path is the reference's horizontal (and depth) curve as a polyline: the reference sampled
 along its window and simplified (Ramer–Douglas–Peucker) to within ``path_tolerance`` m, so the

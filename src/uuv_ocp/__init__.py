@@ -8,8 +8,9 @@ Importing the package has no side effects: nothing is built, compiled or plotted
 
 from uuv_ocp._version import __version__ as __version__
 from uuv_ocp.control.disturbances import Current, GaussMarkov, MeasurementNoise
+from uuv_ocp.control.guidance import GuidanceStep, LosGuidance, LosOptions
 from uuv_ocp.control.mpc import NMPC, StepOutput, StepRecord
-from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
+from uuv_ocp.control.simulation import ClosedLoopResult, Controller, SimulationInterrupted, simulate
 from uuv_ocp.estimation import (
     Estimate,
     Estimator,
@@ -50,13 +51,17 @@ from uuv_ocp.tracking import TrackingProblem, Weights
 __all__ = [
     "PAPER_REFERENCES",
     "ClosedLoopResult",
+    "Controller",
     "Current",
     "Estimate",
     "Estimator",
     "EstimatorOptions",
     "GeneratedCode",
     "GaussMarkov",
+    "GuidanceStep",
     "Iterate",
+    "LosGuidance",
+    "LosOptions",
     "MinimizeResult",
     "Measurement",
     "MeasurementNoise",

@@ -1,4 +1,4 @@
-"""Closed-loop simulation: an NMPC controller against a finely integrated plant.
+"""Closed-loop simulation: a controller (an NMPC, a guidance law) against a finely integrated plant.
 
 The plant is the vehicle model (possibly with different parameters: model mismatch) integrated
 with RK4 at ``plant_substeps`` steps per control interval (default 10, i.e. 10 ms for
@@ -18,14 +18,13 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
 from uuv_ocp.control.metrics import position_errors, tracking_metrics
-from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.scenario import scenario
 from uuv_ocp.estimation.base import Estimate, Estimator
 from uuv_ocp.estimation.sensors import Measurement, Sensors
@@ -36,6 +35,36 @@ from uuv_ocp.solvers.base import reraise_interrupt
 #: A plant state entry larger than this in magnitude (SI units) counts as a blow-up fault; below the
 #: plausibility bound (``_validation.PLAUSIBLE_MAGNITUDE``) past which the controller refuses a state.
 BLOW_UP = 1e8
+
+
+@runtime_checkable
+class Controller(Protocol):
+    """What :func:`simulate` needs of a controller: NMPC, LosGuidance or a class of your own.
+
+    ``problem`` gives the loop its plant, window and reference (:mod:`uuv_ocp.control.scenario`);
+    ``solver_name`` labels the run; ``warm_up`` builds what the steps need and is called once
+    (while ``warmed_up`` is false), ``reset`` before every later run.  ``step`` returns a
+    record with ``control`` (the command to apply), ``result`` (a :class:`~uuv_ocp.SolveResult`
+    or ``None``), ``fallback`` and ``deadline_hit`` (bools) and ``message`` (why the fallback
+    was taken, or the status of a step with no result).
+    """
+
+    problem: Any
+    solver_name: str
+    warmed_up: bool
+
+    def reset(self) -> None:
+        """Forget the last run's state (warm starts, integrators)."""
+
+    def warm_up(
+        self, x: Any, t: float = ..., u_prev: Any = ..., current: Any = ..., parameters: Any = ...
+    ) -> None:
+        """Build what the steps need at state ``x`` and time ``t``, then reset."""
+
+    def step(
+        self, x: Any, t: float = ..., u_prev: Any = ..., current: Any = ..., parameters: Any = ...
+    ) -> Any:
+        """Return the record of one step at the measured state ``x`` and time ``t`` (s)."""
 
 
 class SimulationInterrupted(KeyboardInterrupt):
@@ -355,7 +384,7 @@ class ClosedLoopResult:
 
 
 def simulate(
-    controller: NMPC,
+    controller: Controller,
     x0: object,
     duration: float,
     *,
@@ -377,8 +406,9 @@ def simulate(
 
     Parameters
     ----------
-    controller : NMPC
-        The controller: warmed up unless it was already (:meth:`NMPC.warm_up
+    controller : Controller
+        The controller (an :class:`~uuv_ocp.NMPC`, a :class:`~uuv_ocp.LosGuidance`, anything of
+        the :class:`Controller` protocol): warmed up unless it was already (:meth:`NMPC.warm_up
         <uuv_ocp.control.mpc.NMPC.warm_up>`: what its steps build and compile is built before
         the loop, so no timed step compiles), and reset before the run.
     x0 : array_like, shape (nx,)
@@ -612,8 +642,11 @@ def _check_arguments(
     record_substeps: object,
 ) -> None:
     """Refuse a bad argument of :func:`simulate` by name, before anything is built."""
-    if not isinstance(controller, NMPC):
-        raise ValueError(f"controller must be a uuv_ocp.NMPC, got {type(controller).__name__}")
+    if not isinstance(controller, Controller):  # the protocol's members, not a class
+        raise ValueError(
+            "controller must be a uuv_ocp.NMPC, a uuv_ocp.LosGuidance or another Controller "
+            f"(problem, solver_name, warmed_up, reset, warm_up, step), got {type(controller).__name__}"
+        )
     if current_known is not None:
         check.boolean("current_known", current_known)
     check.boolean("progress", progress)
@@ -626,7 +659,9 @@ def _check_arguments(
         raise ValueError(f"noise must be a uuv_ocp.MeasurementNoise or None, got {noise!r}")
 
 
-def _check_estimation(controller: NMPC, estimator: object, sensors: object, noise: object) -> Sensors | None:
+def _check_estimation(
+    controller: Controller, estimator: object, sensors: object, noise: object
+) -> Sensors | None:
     """Return the sensors of a run with an estimator (``None`` without); ``ValueError`` names the argument."""
     if estimator is None:
         if sensors is not None:

@@ -1,0 +1,215 @@
+"""REMUS 100 lawnmower survey under a current: line-of-sight guidance (the marine baseline).
+
+The survey: ``uo.Reference.lawnmower`` of 4 lanes 150 m long, 60 m apart (turn radius 30 m,
+above the REMUS 100's smallest turning radius, about 26 m at 1.5 m/s with the rudder at its
+15°), at 10 m depth; commanded speed 1.5 m/s through the water; the vehicle starts at rest on
+the first waypoint, heading along the first lane.  The current: mean 0.3 m/s in a direction
+drawn from the seed, Gauss–Markov speed and direction noise 0.01 /√s, decay 0.01 /s; unknown to
+every row (the guidance takes none; the NMPC rows will say whether theirs is known or estimated).
+Every run lasts the survey's length at 1.5 m/s plus 60 s; seeds 0..9 by default.
+
+=========  ================================================================================
+row        controller
+=========  ================================================================================
+``ilos``   ``uo.LosGuidance`` at its default options (integral LOS, Δ = 10 m, κ = 0.3)
+``los``    the same with κ = 0 (plain LOS: a steady offset against a cross current)
+=========  ================================================================================
+
+The NMPC path-following rows (``sqp-rti``, ``fatrop``) are to be added when
+``PathFollowingProblem`` lands: a row is a function ``(seed) -> ClosedLoopResult`` in
+:data:`ROWS`.
+
+Metrics, per run, then the median over seeds (and the largest cross-track error over seeds):
+
+* cross-track RMS and max (m): the horizontal distance from the vehicle to the survey path (the
+  reference's curve sampled every 2 cm, the nearest sample; not the guidance's own polyline),
+  over the run until the vehicle passes the last waypoint;
+* depth RMS (m): ``z − 10`` over the whole run;
+* fin activity (deg): ``Σ |Δδ_r| + Σ |Δδ_s|`` over the run's applied commands;
+* energy (kJ): ``∫ P dt`` of the propeller's shaft power ``P = 2π n_s Q`` (torque × shaft
+  speed), ``Q = ρ D_p⁵ (K_Q0 |n_s| n_s + (K_Qmax − K_Q0)/J_max (V_a/D_p) max(n_s, 0))``, the
+  REMUS model's propeller torque (:mod:`uuv_ocp.model.remus100`; the model applies a tenth of
+  it as its roll moment), with ``V_a = (1 − w) U`` at the speed over ground ``U``; the command
+  held over each interval at the interval's first state;
+* the controller's median step time (µs).
+
+Every run is a checked record (``uuv_ocp.studies.records``: checksummed, written atomically)
+in ``--out`` (default ``out/bench_path``): an interrupted benchmark resumes where it stopped,
+and a damaged record is recomputed.
+
+Run: ``python -m benchmarks.bench_path [--seeds 10] [--rows ilos,los] [--out DIR]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import warnings
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+import uuv_ocp as uo
+from uuv_ocp.studies.records import read_record, write_record
+
+DEPTH = 10.0  # m
+SPEED = 1.5  # m/s
+CURRENT = 0.3  # m/s
+LANES, WIDTH, SPACING = 4, 150.0, 60.0  # m
+DT = 0.1  # s
+EXTRA = 60.0  # s after the survey's length at SPEED (a head current slows it)
+PATH_SAMPLE = 0.02  # m between the samples of the path the cross-track error is measured to
+
+
+def survey() -> tuple[uo.TrackingProblem, np.ndarray]:
+    """Return the lawnmower problem (REMUS 100, N = 1: guidance needs no horizon) and the start state."""
+    reference = uo.Reference.lawnmower(
+        (0.0, 0.0), width=WIDTH, spacing=SPACING, lanes=LANES, speed=SPEED, depth=DEPTH, hold=120.0
+    )
+    problem = uo.TrackingProblem(uo.Remus100(), reference, horizon=1, dt=DT)
+    return problem, reference.initial_state(reference.t_start)
+
+
+def path_length(problem: uo.TrackingProblem) -> float:
+    """Horizontal length (m) of the survey path, summed over its samples."""
+    samples = path_samples(problem)
+    return float(np.sum(np.linalg.norm(np.diff(samples, axis=0), axis=1)))
+
+
+def path_samples(problem: uo.TrackingProblem) -> np.ndarray:
+    """Return the survey's horizontal path sampled every :data:`PATH_SAMPLE` m or finer, shape (n, 2)."""
+    reference = problem.reference
+    count = int(math.ceil((reference.t_end - reference.t_start) * SPEED / PATH_SAMPLE)) + 1
+    xy = reference.evaluate(np.linspace(reference.t_start, reference.t_end, count))[:, :2]
+    moved = np.ones(len(xy), dtype=bool)
+    moved[1:] = np.linalg.norm(np.diff(xy, axis=0), axis=1) > 1e-9
+    return xy[moved]
+
+
+def seeded_current(seed: int) -> uo.Current:
+    """Return the current of ``seed``: mean 0.3 m/s, direction drawn from the seed (module doc)."""
+    direction = float(np.random.default_rng(2000 + seed).uniform(-math.pi, math.pi))
+    return uo.Current(CURRENT, direction, speed_noise=0.01, direction_noise=0.01, decay=0.01)
+
+
+def shaft_power(vehicle: uo.Remus100, rpm: np.ndarray, speed: np.ndarray) -> np.ndarray:
+    """Propeller shaft power ``2π n_s Q`` (W) at ``rpm`` and speed over ground ``speed`` (m/s)."""
+    n_s = np.asarray(rpm, dtype=float) / 60.0
+    d_p, j_max = vehicle.propeller_diameter, vehicle.max_advance_ratio
+    kq0, kq_max = vehicle.torque_coefficients
+    advance = (1.0 - vehicle.wake_fraction) * np.asarray(speed) / d_p * np.maximum(n_s, 0.0)
+    torque = vehicle.water_density * d_p**5 * (kq0 * np.abs(n_s) * n_s + (kq_max - kq0) / j_max * advance)
+    return 2.0 * math.pi * n_s * torque
+
+
+def metrics(run: uo.ClosedLoopResult, problem: uo.TrackingProblem, samples: np.ndarray) -> dict[str, float]:
+    """Return the run's cross-track, depth, fin and energy figures (module doc)."""
+    distance, nearest = cKDTree(samples).query(run.states[:, :2])
+    # until the vehicle passes the last waypoint (then the nearest sample is the path's end)
+    on_path = np.ones(len(distance), dtype=bool)
+    past = np.flatnonzero(nearest == len(samples) - 1)
+    if past.size:
+        on_path[past[0] :] = False
+    cross = distance[on_path]
+    fins = np.abs(np.diff(run.controls[:, :2], axis=0)).sum()
+    speed = np.linalg.norm(run.states[:-1, 6:9], axis=1)
+    power = shaft_power(problem.vehicle, run.controls[:, 2], speed)
+    return {
+        "cross_rms": float(np.sqrt(np.mean(cross**2))),
+        "cross_max": float(np.max(cross)),
+        "depth_rms": float(np.sqrt(np.mean((run.states[:, 2] - DEPTH) ** 2))),
+        "fin_deg": float(np.degrees(fins)),
+        "energy_kj": float(np.sum(power) * DT / 1e3),
+        "step_us": float(1e6 * np.median(run.solve_times)),
+        "completed": float(not on_path[-1]),
+    }
+
+
+def _guidance(kappa: float | None) -> Callable[[uo.TrackingProblem], uo.LosGuidance]:
+    def make(problem: uo.TrackingProblem) -> uo.LosGuidance:
+        options = uo.LosOptions(speed=SPEED) if kappa is None else uo.LosOptions(speed=SPEED, kappa=kappa)
+        return uo.LosGuidance(problem, options)
+
+    return make
+
+
+#: Row name -> controller maker on the survey problem (NMPC rows join here).
+ROWS: dict[str, Callable[[uo.TrackingProblem], uo.Controller]] = {
+    "ilos": _guidance(None),
+    "los": _guidance(0.0),
+}
+
+
+def run_row(row: str, seeds: int, out: Path) -> list[dict[str, float]]:
+    """Run (or read back) ``row`` for seeds ``0..seeds-1``; the metrics of each seed."""
+    problem, start = survey()
+    samples = path_samples(problem)
+    duration = path_length(problem) / SPEED + EXTRA
+    controller = ROWS[row](problem)
+    found = []
+    for seed in range(seeds):
+        config = {"bench": "path", "row": row, "seed": seed, "duration": duration, "dt": DT}
+        path = out / f"{row}-{seed:02d}.npz"
+        saved = read_record(path, config)
+        if saved is None:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # the window's end: hold=120 s covers it
+                run = uo.simulate(controller, start, duration, current=seeded_current(seed), seed=seed)
+            write_record(path, run, config)
+        else:
+            run = saved[0]
+        found.append(metrics(run, problem, samples))
+    return found
+
+
+def table(results: dict[str, list[dict[str, float]]]) -> str:
+    """Markdown table: medians over seeds (cross-track max: also the largest over seeds)."""
+    head = [
+        "row",
+        "cross-track RMS m",
+        "cross-track max m (worst seed)",
+        "depth RMS m",
+        "fin activity deg",
+        "energy kJ",
+        "step µs",
+        "seeds done",
+    ]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for row, runs in results.items():
+
+        def median(key: str, runs: list[dict[str, float]] = runs) -> float:
+            return float(np.median([r[key] for r in runs]))
+
+        worst = max(r["cross_max"] for r in runs)
+        done = sum(int(r["completed"]) for r in runs)
+        lines.append(
+            f"| {row} | {median('cross_rms'):.3f} | {median('cross_max'):.2f} ({worst:.2f}) | "
+            f"{median('depth_rms'):.3f} | {median('fin_deg'):.1f} | {median('energy_kj'):.2f} | "
+            f"{median('step_us'):.0f} | {done}/{len(runs)} |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the benchmark (resuming from ``--out``) and print its table."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", type=int, default=10)
+    parser.add_argument("--rows", default=",".join(ROWS))
+    parser.add_argument("--out", type=Path, default=Path("out/bench_path"))
+    arguments = parser.parse_args(argv)
+    rows = tuple(arguments.rows.split(","))
+    unknown = sorted(set(rows) - set(ROWS))
+    if unknown:
+        parser.error(f"--rows must be among {list(ROWS)}, got {unknown}")
+    if arguments.seeds < 1:
+        parser.error(f"--seeds must be >= 1, got {arguments.seeds}")
+    arguments.out.mkdir(parents=True, exist_ok=True)
+    results = {row: run_row(row, arguments.seeds, arguments.out) for row in rows}
+    print(table(results))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -11,6 +11,9 @@ mode).  Its :attr:`TrackingProblem.ocp` declares (DESIGN §4):
   ``2 sin(e/2)`` (so ``(2 sin(e/2))² = 2(1 − cos e)``, wrap-safe);
 * ``V_N = ℓ`` for ``terminal="none"``, a weighted ``‖x_N − x_R,N‖²`` for ``"cost"`` and the
   hard ``x_N = x_R,N`` for ``"equality"`` (the paper; exact-penalty fallback in the solvers);
+* the vehicle's model parameters, if it declares any (``vehicle.model_parameters``: a thruster
+  vehicle's ``health`` and ``thrust_offset``), as global parameters: given per instance as
+  ``parameters={name: value}``, their defaults when omitted, changed without a rebuild;
 * an optional soft position tube ``|e_x|, |e_y| ≤ tube`` (exact L1, ``Weights.tube_penalty``)
   on nodes 1..N.
 

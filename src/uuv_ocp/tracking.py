@@ -11,6 +11,9 @@ mode).  Its :attr:`TrackingProblem.ocp` declares (DESIGN §4):
   ``2 sin(e/2)`` (so ``(2 sin(e/2))² = 2(1 − cos e)``, wrap-safe);
 * ``V_N = ℓ`` for ``terminal="none"``, a weighted ``‖x_N − x_R,N‖²`` for ``"cost"`` and the
   hard ``x_N = x_R,N`` for ``"equality"`` (the paper; exact-penalty fallback in the solvers);
+* the vehicle's model parameters, if it declares any (``vehicle.model_parameters``: a thruster
+  vehicle's ``health`` and ``thrust_offset``), as global parameters: given per instance as
+  ``parameters={name: value}``, their defaults when omitted, changed without a rebuild;
 * an optional soft position tube ``|e_x|, |e_y| ≤ tube`` (exact L1, ``Weights.tube_penalty``)
   on nodes 1..N.
 
@@ -38,7 +41,14 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
-from uuv_ocp.model.base import VehicleLayout, check_vehicle, model_function
+from uuv_ocp.model.base import (
+    ModelParameter,
+    VehicleLayout,
+    check_vehicle,
+    model_function,
+    model_parameters,
+    parametric_model_function,
+)
 from uuv_ocp.obstacles import Obstacle, check_obstacles
 from uuv_ocp.ocp import Ocp, OcpSpec, check_transcription
 from uuv_ocp.reference.path import UNWRAP_STEP, Reference
@@ -53,8 +63,14 @@ def vehicle_dimensions(vehicle: Any) -> tuple[int, int, int]:
     return layout.state_dim, layout.control_dim, layout.current_dim
 
 
-def vehicle_rhs(vehicle: Any, state: ca.SX, control: ca.SX, current: ca.SX) -> ca.SX:
-    """Continuous-time right-hand side of a vehicle model: its dynamics Function on the symbols."""
+def vehicle_rhs(vehicle: Any, state: ca.SX, control: ca.SX, current: ca.SX, *values: ca.SX) -> ca.SX:
+    """Continuous-time right-hand side of a vehicle model: its dynamics Function on the symbols.
+
+    ``values`` are the symbols of the vehicle's model parameters (``model_parameters``, in
+    order): the parametric dynamics then; none for a vehicle that declares none.
+    """
+    if values:
+        return parametric_model_function("vehicle", vehicle)(state, control, current, *values)
     return model_function("vehicle", vehicle)(state, control, current)
 
 
@@ -372,7 +388,9 @@ class TrackingProblem(Transcribed):
         tau = ocp.control("tau", nu, lower=-max_thrust, upper=max_thrust, max_rate=rate)
         ref = ocp.parameter("reference", nx, stagewise=True)
         current = ocp.parameter("current", nc, stagewise=True)
-        ocp.set_der(state, vehicle_rhs(vehicle, state, tau, current))
+        # the vehicle's model parameters (thruster health): global parameters, changed per step
+        values = [ocp.parameter(item.name, item.size) for item in self.model_parameters]
+        ocp.set_der(state, vehicle_rhs(vehicle, state, tau, current, *values))
         error = state - ref
         angles = layout.angles
         wrapped = ca.vertcat(*[2.0 * ca.sin(error[i] / 2.0) if i in angles else error[i] for i in range(nx)])
@@ -415,6 +433,20 @@ class TrackingProblem(Transcribed):
     def still_water_slice(self) -> slice | None:
         """The current over the horizon in ``p``: exact backends specialise the NLP when it is zero."""
         return self.current_slice
+
+    @functools.cached_property  # read on every instance of a closed loop: gathered once
+    def model_parameters(self) -> tuple[ModelParameter, ...]:
+        """The vehicle's model parameters (``vehicle.model_parameters``; ``()`` if it declares none).
+
+        Each is a global parameter of :attr:`ocp`, given per instance as
+        ``parameters={name: value}`` (:meth:`parameters`), its default when omitted.
+        """
+        return model_parameters(self.vehicle)
+
+    def model_parameter_values(self, p: np.ndarray) -> dict[str, np.ndarray]:
+        """Return the model parameters' values in an instance ``p``, by name (copies)."""
+        entries = self.spec().layout.entries
+        return {item.name: np.array(p[entries[item.name][0]]) for item in self.model_parameters}
 
     @property
     def current_slice(self) -> slice:
@@ -544,14 +576,16 @@ class TrackingProblem(Transcribed):
     ) -> np.ndarray:
         """Parameter vector of one instance, in the signature every problem shares.
 
-        A tracking problem takes its data from the reference (``t0``) and ``current``; it
-        refuses ``parameters`` (an Ocp's argument); see :meth:`parameters`.
+        A tracking problem takes its data from the reference (``t0``) and ``current``;
+        ``parameters`` gives values of the vehicle's model parameters (:attr:`model_parameters`)
+        and is refused for a vehicle that declares none; see :meth:`parameters`.
         """
-        if parameters is not None:
+        if parameters is not None and not self.model_parameters:
             raise ValueError(
-                f"parameters= is for an Ocp; a {type(self).__name__} takes x0, t0, u_prev and current"
+                f"parameters= is for an Ocp or a vehicle with model parameters; a {type(self).__name__} "
+                f"of vehicle {getattr(self.vehicle, 'name', '?')!r} takes x0, t0, u_prev and current"
             )
-        return self.parameters(x0, t0, u_prev, current)
+        return self.parameters(x0, t0, u_prev, current, model=parameters)
 
     def parameters(
         self,
@@ -559,8 +593,9 @@ class TrackingProblem(Transcribed):
         t0: float = 0.0,
         u_prev: object | None = None,
         current: object | None = None,
+        model: Mapping[str, object] | None = None,
     ) -> np.ndarray:
-        """Parameter vector ``p = [x0, u_prev, reference window, current]`` of one instance.
+        """Parameter vector ``p = [x0, u_prev, model parameters, reference window, current]`` of one instance.
 
         Parameters
         ----------
@@ -572,8 +607,13 @@ class TrackingProblem(Transcribed):
             Last applied control (N, N·m); defaults to zero; must lie inside the thrust box.
         current : array_like, shape (nc,), (N, nc) or (N+1, nc), optional
             Inertial current velocity (m/s) the model assumes on each interval.
+        model : mapping, optional
+            Values of the vehicle's model parameters by name (:attr:`model_parameters`; e.g.
+            ``{"health": h}`` for a vehicle with thrusters); each omitted one takes its default.
+            ``ValueError`` for an unknown name or a value of the wrong size or out of bounds.
         """
         x0 = self.check_state(x0)
+        model_values = self._model_values(model)
         t0 = self.check_time(t0)
         layout, nc, heading_index = self._parameter_layout
         n = self.horizon
@@ -599,6 +639,8 @@ class TrackingProblem(Transcribed):
         p[layout.x0] = x0
         p[layout.u_prev] = u_prev
         p[layout.entries["reference"][0]] = window.ravel()
+        for name, value in model_values:
+            p[layout.entries[name][0]] = value
         if current is None:
             p[layout.entries["current"][0]] = 0.0
         else:
@@ -609,6 +651,32 @@ class TrackingProblem(Transcribed):
                 if obstacle.is_moving:
                     p[layout.entries[f"obstacle{i}"][0]] = np.ravel(obstacle.centre_at(times))
         return p
+
+    def _model_values(self, model: Mapping[str, object] | None) -> tuple[tuple[str, np.ndarray], ...]:
+        """Return checked values of every model parameter (the defaults where ``model`` omits one)."""
+        declared = self.model_parameters
+        if model is None:
+            return self._default_model_values
+        if not isinstance(model, Mapping):
+            raise ValueError(
+                f"parameters must be a mapping of model parameter names to values, got {model!r}"
+            )
+        names = [item.name for item in declared]
+        unknown = sorted(set(model) - set(names))
+        if unknown:
+            raise ValueError(
+                f"parameters has unknown names {unknown}: vehicle {getattr(self.vehicle, 'name', '?')!r} "
+                f"declares the model parameters {names}"
+            )
+        return tuple(
+            (item.name, item.check(model[item.name]) if item.name in model else np.array(item.default))
+            for item in declared
+        )
+
+    @functools.cached_property
+    def _default_model_values(self) -> tuple[tuple[str, np.ndarray], ...]:
+        """The model parameters' defaults (only read: written into each new ``p``)."""
+        return tuple((item.name, np.array(item.default)) for item in self.model_parameters)
 
     def with_state(self, p: np.ndarray, x0: object) -> np.ndarray:
         """Return a copy of the instance ``p`` (from :meth:`parameters`) with its state set to ``x0``.

@@ -4,6 +4,7 @@ Registry-wide tests (a new estimator is tested by registering it), the closed lo
 estimator against the naive controller, bad inputs, refused steps and resets.
 """
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -310,3 +311,20 @@ def test_a_refused_reset_leaves_the_estimator_as_it_was(method):
     ours, theirs = estimator.step([0.5], good), twin.step([0.5], good)
     np.testing.assert_array_equal(ours.state, theirs.state)
     np.testing.assert_array_equal(ours.covariance, theirs.covariance)
+
+
+def test_an_estimator_of_a_thruster_vehicle_predicts_with_healthy_thrusters():
+    # the estimator's model is the problem's step at fixed parameters: a thruster vehicle's
+    # health must be its default 1 there (zeros would leave the thrusters out of the model);
+    # reference: RK4 of the force model with τ = T f
+    boat = uo.Vehicle6DOF.bluerov2_heavy(thrusters=True)
+    problem = uo.TrackingProblem(boat, uo.Reference.hold((0.0, 0.0, 1.0, 0.0)), horizon=3, dt=0.1)
+    sensors = Sensors([Sensor.of_states("all", range(12), 12, 10.0, 0.01)])
+    model = Estimator(problem, "ekf", sensors=sensors).model
+    prediction = ca.Function("f", model.inputs, [model.f])
+    x = np.r_[0.1, -0.1, 0.9, 0.05, -0.02, 0.4, 0.1, 0.0, -0.05, 0.0, 0.02, 0.1]
+    forces = np.linspace(-30.0, 30.0, 8)
+    xa = np.concatenate([x, np.zeros(model.size - 12)])
+    predicted = np.array(prediction(xa, forces, model.p_stage, model.p_global)).ravel()[:12]
+    expected = np.array(uo.rk4_step(boat.dynamics, 0.1)(x, boat.allocation @ forces, np.zeros(3))).ravel()
+    np.testing.assert_allclose(predicted, expected, rtol=1e-12, atol=1e-12)

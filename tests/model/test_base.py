@@ -445,3 +445,42 @@ def test_a_vehicle_steered_by_propeller_and_rudder_is_brought_onto_its_line():
     assert np.all(np.abs(commands) <= np.asarray(vehicle.control_bound) + 1e-6)
     assert np.max(np.abs(commands[:, 1])) > 0.1  # it steered with the rudder
     assert np.max(np.abs(errors[-20:])) < 0.02  # on the line, at its place, after 6 s
+
+
+def test_model_parameters_are_validated_by_name():
+    from uuv_ocp.model.base import ModelParameter, model_parameters, parametric_model_function
+
+    with pytest.raises(ValueError, match="must not be one of"):
+        ModelParameter("current", 2, (0, 0), (-1, -1), (1, 1))
+    with pytest.raises(ValueError, match="size must be an integer >= 1"):
+        ModelParameter("gain", 0, (), (), ())
+    with pytest.raises(ValueError, match="default must be 2 finite numbers"):
+        ModelParameter("gain", 2, (1.0,), (0, 0), (1, 1))
+    with pytest.raises(ValueError, match="default must lie in"):
+        ModelParameter("gain", 1, (2.0,), (0.0,), (1.0,))
+    with pytest.raises(ValueError, match="lower must be <= upper"):
+        ModelParameter("gain", 1, (0.0,), (1.0,), (0.0,))
+    assert model_parameters(uo.Vehicle.rexrov()) == ()  # declares none: used as before
+    boat = uo.Vehicle6DOF.bluerov2_heavy(thrusters=True)
+    assert [(item.name, item.size, item.unit) for item in model_parameters(boat)] == [
+        ("health", 8, "1"),
+        ("thrust_offset", 8, "N"),
+    ]
+    assert model_parameters(uo.Vehicle6DOF.bluerov2_heavy()) == ()
+    assert parametric_model_function("vehicle", boat).n_in() == 5
+
+    class Broken:  # declares a parameter whose function does not take it
+        name = "broken"
+        layout = boat.layout
+        control_bound = boat.control_bound
+        control_rate_bound = boat.control_rate_bound
+        model_parameters = (ModelParameter("gain", 1, (1.0,), (0.0,), (2.0,)),)
+
+        def model_function(self):
+            return boat.model_function()
+
+        def parametric_model_function(self):
+            return boat.model_function()
+
+    with pytest.raises(ValueError, match=r"parametric_model_function\(\) must map column vectors of sizes"):
+        parametric_model_function("vehicle", Broken())

@@ -66,3 +66,43 @@ def test_rexrov2_allocation_matches_the_simulator_tam():
     expected = 1540.0 / np.max(np.abs(np.linalg.inv(config.allocation)), axis=0)
     np.testing.assert_allclose(config.generalised_force_limits(), expected, rtol=1e-7)
     np.testing.assert_allclose(Vehicle6DOF.rexrov2().max_thrust, expected, rtol=1e-7)
+
+
+def test_rexrov_allocation_matches_the_simulator_tam():
+    # uuv_control/uuv_thruster_manager/config/rexrov/TAM.yaml (uuvsimulator/uuv_simulator),
+    # ROS body frame x fwd, y port, z up; columns are thrusters 0..7
+    tam = np.array(
+        [
+            [0.15974268848446743, 0.15974268848446743, -0.1597424266785477, -0.1597424266785477]
+            + [0.7071068613706476, 0.7071068613706476, -0.7071065406341925, -0.7071065406341925],
+            [-0.2136101154609486, 0.2136101154609486, -0.21360976537047976, 0.21360976537047976]
+            + [0.7071067010024383, -0.7071067010024383, 0.7071070217388206, -0.7071070217388206],
+            [0.9637701967007046, 0.9637701967007046, 0.9637703176884092, 0.9637703176884092]
+            + [0.0, 0.0, 0.0, 0.0],
+            [0.4352320257020549, -0.4352320257020549, 0.4352318810229865, -0.4352318810229865]
+            + [-0.09121676442931455, 0.09121676442931455, -0.09121680580430785, 0.09121680580430785],
+            [0.9430934973994073, 0.9430934973994073, -0.9430934667380182, -0.9430934667380182]
+            + [0.09121678511681354, 0.09121678511681354, -0.09121674374181084, -0.09121674374181084],
+            [0.13688862492470316, -0.13688862492470316, -0.1368884005748274, 0.1368884005748274]
+            + [-0.6487987634902757, 0.6487987634902757, 0.6487987335687417, -0.6487987335687417],
+        ]
+    )
+    flip = np.diag([1.0, -1.0, -1.0, 1.0, -1.0, -1.0])
+    config = ThrusterConfiguration.rexrov()
+    assert config.count == 8 and config.max_thrust == (2000.0,) * 8
+    np.testing.assert_allclose(flip @ config.allocation, tam, atol=1e-6)
+
+
+def test_rexrov_thrusters_reach_the_planar_box_corners_without_saturating():
+    # DESIGN §6: every corner of the 2000 N / 2000 N / 1400 N·m (X, Y, N) box of Vehicle.rexrov
+    # is reachable with |f_i| <= 2000 N; checked with its own LP (feasibility, Z = K = M = 0)
+    from scipy.optimize import linprog
+
+    config = ThrusterConfiguration.rexrov()
+    for signs in np.array(np.meshgrid([-1, 1], [-1, 1], [-1, 1])).reshape(3, -1).T:
+        target = np.zeros(6)
+        target[[0, 1, 5]] = signs * np.array([2000.0, 2000.0, 1400.0])
+        result = linprog(
+            np.zeros(8), A_eq=config.allocation, b_eq=target, bounds=[(-2000.0, 2000.0)] * 8, method="highs"
+        )
+        assert result.status == 0, (signs, result.message)

@@ -24,11 +24,13 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
+from uuv_ocp.control.faults import FaultSchedule, ThrusterFault, fault_schedule
 from uuv_ocp.control.metrics import position_errors, tracking_metrics
 from uuv_ocp.control.scenario import scenario
 from uuv_ocp.estimation.base import Estimate, Estimator
 from uuv_ocp.estimation.sensors import Measurement, Sensors
 from uuv_ocp.interrupts import check_interrupt, interrupt_handled, remember_interrupts
+from uuv_ocp.model.thrusters import ThrusterConfiguration
 from uuv_ocp.progress import ProgressBar
 from uuv_ocp.solvers.base import reraise_interrupt
 
@@ -194,6 +196,11 @@ class ClosedLoopResult:
         Arrays of a run with an estimator: :attr:`estimates` (:class:`EstimateLog`); empty otherwise.
     measurement_values, measurement_dropped, sensor_names, sensor_sizes : optional
         A run with an estimator: :attr:`measurements` (:class:`MeasurementLog`); empty otherwise.
+    thruster_health : numpy.ndarray, shape (n, thrusters), optional
+        A run with thruster faults or a plant-side allocation (:mod:`uuv_ocp.control.faults`):
+        the plant's true effectiveness of each thruster on each interval; empty otherwise.
+    thruster_forces : numpy.ndarray, shape (n, thrusters), optional
+        Such a run's force each thruster delivered on each interval (N, ``h ∘ f + s``).
     """
 
     t: np.ndarray
@@ -225,6 +232,8 @@ class ClosedLoopResult:
     measurement_dropped: np.ndarray = field(default_factory=lambda: np.zeros((0, 0), dtype=bool))
     sensor_names: tuple[str, ...] = ()
     sensor_sizes: tuple[int, ...] = ()
+    thruster_health: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    thruster_forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     #: the fields of a run with an estimator (saved only when there was one)
     ESTIMATION_FIELDS: ClassVar[tuple[str, ...]] = (
@@ -312,8 +321,10 @@ class ClosedLoopResult:
             for key in ("state_names", "state_units", "state_roles")
             if getattr(self, key)
         }
+        faults = {key: getattr(self, key) for key in ("thruster_health", "thruster_forces")}
         return dict(
             **(recorded if self.substep_t.size else {}),
+            **(faults if self.thruster_health.size else {}),
             **named,
             **estimation,
             t=self.t,
@@ -377,6 +388,7 @@ class ClosedLoopResult:
         }
         # a run with an estimator (files of runs without one have none of these)
         fields.update({key: data[key] for key in cls.ESTIMATION_FIELDS if key in data})
+        fields.update({key: data[key] for key in ("thruster_health", "thruster_forces") if key in data})
         if "sensor_names" in data:
             fields["sensor_names"] = tuple(str(name) for name in data["sensor_names"])
             fields["sensor_sizes"] = tuple(int(size) for size in data["sensor_sizes"])
@@ -401,6 +413,9 @@ def simulate(
     label: str = "",
     parameters: dict[str, Any] | None = None,
     record_substeps: bool = False,
+    faults: tuple[ThrusterFault, ...] = (),
+    health_known: bool = False,
+    allocation: ThrusterConfiguration | None = None,
 ) -> ClosedLoopResult:
     """Run ``controller`` in closed loop for ``duration`` seconds.
 
@@ -457,6 +472,19 @@ def simulate(
         Also record the plant state after every one of its ``plant_substeps`` integration
         steps (``substep_t``, ``substep_states``): what happens between control instants, e.g.
         an obstacle's corner cut between two nodes.
+    faults : tuple of ThrusterFault
+        Thruster faults of the plant (:mod:`uuv_ocp.control.faults`): from its time on, a
+        thruster delivers ``h ∘ f + s`` for its command ``f``.  Needs a vehicle whose controls
+        are thruster forces, or ``allocation``.  ``run.thruster_health`` records the plant's
+        true health per interval.
+    health_known : bool
+        Tell the controller the true health and stuck forces at each step (the oracle; its
+        vehicle's ``health`` and ``thrust_offset`` model parameters); otherwise its model
+        keeps them healthy.
+    allocation : ThrusterConfiguration, optional
+        The pseudo-inverse baseline: the controller plans the generalised force (a force
+        vehicle) and the plant maps it to these thrusters by the pseudo-inverse of their
+        healthy allocation matrix, clipped to their bounds (:mod:`uuv_ocp.control.faults`).
 
     Returns
     -------
@@ -491,6 +519,9 @@ def simulate(
     rng = np.random.default_rng(seed)
     currents = _sampled_currents(current, steps, nc, dt, rng)
     times = run.t0 + dt * np.arange(steps + 1)
+    schedule = fault_schedule(
+        faults, problem, steps=steps, t0=run.t0, health_known=health_known, allocation=allocation
+    )
     loop = _Loop(
         controller=controller,
         run=run,
@@ -507,6 +538,7 @@ def simulate(
         estimator=estimator,
         sensors=sensors,
         estimated=_current_estimated(estimator, current_known, nc),
+        schedule=schedule,
     )
     log = _Log(x0, steps, spec.control_size, plant_substeps if record_substeps else 0, dt)
     if estimator is not None and sensors is not None:
@@ -524,7 +556,7 @@ def simulate(
         except KeyboardInterrupt:
             interrupted = True
             interrupt_handled()
-    closed_loop = log.result(times, currents, run, controller.solver_name, interrupted)
+    closed_loop = schedule.recorded(log.result(times, currents, run, controller.solver_name, interrupted))
     if interrupted:
         raise SimulationInterrupted(closed_loop)
     return closed_loop
@@ -573,7 +605,7 @@ class _Loop:
     gets the estimator's current instead.
     """
 
-    controller: NMPC
+    controller: Controller
     run: Any
     dt: float
     times: np.ndarray
@@ -586,6 +618,7 @@ class _Loop:
     estimator: Estimator | None
     sensors: Sensors | None
     estimated: bool
+    schedule: FaultSchedule
 
     def warm_up(self, x0: np.ndarray, u_prev: np.ndarray) -> None:
         """Build what the controller's steps build (once per controller), or reset it if built."""
@@ -614,9 +647,12 @@ class _Loop:
             log.fault = f"non-finite measurement at t = {self.times[k]:.6g} s (step {k})"
             return False
         start = time.perf_counter()
-        output = self.controller.step(measured, self.clock[k], u_prev, told_k, **self.known)
+        output = self.controller.step(
+            measured, self.clock[k], u_prev, told_k, **self.schedule.told(k, self.known)
+        )
         log.controller_step(k, output, time.perf_counter() - start)
-        return log.plant_step(k, self.run.plant_step, self.currents[k], self.times)
+        plant_step = self.schedule.plant_step(self.run.plant_step, k)
+        return log.plant_step(k, plant_step, self.currents[k], self.times)
 
     def measure(self, log: _Log, k: int, u_prev: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Return what the controller gets at step ``k``: the measured (or estimated) state and current."""

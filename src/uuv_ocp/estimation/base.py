@@ -254,6 +254,9 @@ class AugmentedModel:
             raise ValueError(f"parameters is for an Ocp with parameters, got {check.shown(parameters)}")
         else:
             p = np.zeros(spec.layout.size)
+            # a vehicle's model parameters (thruster health) at their defaults, not zero
+            for name, value in getattr(problem, "_default_model_values", ()):
+                p[spec.layout.entries[name][0]] = value
         self.p_global = np.concatenate(
             [p[part] for part, _, stagewise in spec.layout.entries.values() if not stagewise] or [np.zeros(0)]
         )

@@ -15,6 +15,17 @@ A vehicle provides
 * ``model_function()``: the continuous-time dynamics as a :class:`casadi.Function`
   ``(x[nx], u[nu], current[nc]) -> xdot[nx]``, ``u`` in the vehicle's own control units.
 
+Optionally, a vehicle whose model takes parameters that may change between controller steps
+without a rebuild (thruster health, say) provides
+
+* ``model_parameters``: a tuple of :class:`ModelParameter` (name, size, default, bounds, unit);
+* ``parametric_model_function()``: the dynamics ``(x, u, current, *values) -> xdot`` with one
+  input per declared parameter, in order, equal to ``model_function()`` at the defaults.
+
+:class:`~uuv_ocp.TrackingProblem` declares each one as a global parameter of its Ocp (passed
+as ``parameters={name: value}`` to ``NMPC.step``/``prepare``/``uo.solve``; the defaults when
+omitted); a vehicle that declares none is used exactly as before.
+
 The state is ordered pose first, then the velocities (the trailing ``layout.velocities`` block):
 the tracking cost weighs the pose with ``Weights.pose`` and the velocities with
 ``Weights.velocity``.
@@ -216,6 +227,130 @@ class VehicleLayout:
         return states
 
 
+#: Parameter names a TrackingProblem uses itself (a vehicle's model parameters must not take them).
+RESERVED_PARAMETER_NAMES = ("reference", "current")
+
+
+@dataclass(frozen=True)
+class ModelParameter:
+    """A parameter of a vehicle's dynamics that a controller may change at every step.
+
+    Parameters
+    ----------
+    name : str
+        Its name in ``parameters={name: value}`` (not ``reference``, ``current`` or
+        ``obstacle<i>``).
+    size : int
+        Number of entries, >= 1.
+    default : sequence of float
+        The value when none is given (``size`` finite numbers inside the bounds).
+    lower, upper : sequence of float
+        Bounds of each entry (finite, ``lower <= upper``); a value outside is refused.
+    unit : str
+        Unit of the entries (``"1"`` for a dimensionless one).
+    """
+
+    name: str
+    size: int
+    default: tuple[float, ...]
+    lower: tuple[float, ...]
+    upper: tuple[float, ...]
+    unit: str = "1"
+
+    def __post_init__(self) -> None:
+        """Check name, size, bounds and default (``ValueError`` names the field)."""
+        if not isinstance(self.name, str) or not self.name.isidentifier():
+            raise ValueError(f"model parameter name must be an identifier, got {self.name!r}")
+        if self.name in RESERVED_PARAMETER_NAMES or self.name.startswith("obstacle"):
+            raise ValueError(
+                f"model parameter name must not be one of {RESERVED_PARAMETER_NAMES} or obstacle<i> "
+                f"(a TrackingProblem's own parameters), got {self.name!r}"
+            )
+        if isinstance(self.size, bool) or not isinstance(self.size, (int, np.integer)) or self.size < 1:
+            raise ValueError(
+                f"model parameter {self.name!r}: size must be an integer >= 1, got {self.size!r}"
+            )
+        object.__setattr__(self, "size", int(self.size))
+        for field in ("default", "lower", "upper"):
+            try:
+                value = np.array(getattr(self, field), dtype=float)
+            except (TypeError, ValueError) as error:
+                raise ValueError(
+                    f"model parameter {self.name!r}: {field} must be {self.size} numbers, got "
+                    f"{getattr(self, field)!r}"
+                ) from error
+            if value.shape != (self.size,) or not np.all(np.isfinite(value)):
+                raise ValueError(
+                    f"model parameter {self.name!r}: {field} must be {self.size} finite numbers, got "
+                    f"{getattr(self, field)!r}"
+                )
+            object.__setattr__(self, field, tuple(float(v) for v in value))
+        lower, upper, default = (np.array(v) for v in (self.lower, self.upper, self.default))
+        if np.any(lower > upper):
+            raise ValueError(
+                f"model parameter {self.name!r}: lower must be <= upper, got {self.lower} and {self.upper}"
+            )
+        if np.any(default < lower) or np.any(default > upper):
+            raise ValueError(
+                f"model parameter {self.name!r}: default must lie in [lower, upper], got {self.default}"
+            )
+        if not isinstance(self.unit, str):
+            raise ValueError(f"model parameter {self.name!r}: unit must be a string, got {self.unit!r}")
+
+    def check(self, value: object) -> np.ndarray:
+        """Return ``value`` as a float array of shape (size,) inside the bounds, else ``ValueError``."""
+        try:
+            array = np.array(value, dtype=float)
+        except (TypeError, ValueError) as error:
+            raise ValueError(
+                f"parameters[{self.name!r}] must be {self.size} numbers ({self.unit}), got {value!r}"
+            ) from error
+        if array.shape == () and self.size == 1:
+            array = array.reshape(1)
+        if array.shape != (self.size,) or not np.all(np.isfinite(array)):
+            raise ValueError(
+                f"parameters[{self.name!r}] must be {self.size} finite numbers ({self.unit}), got "
+                f"shape {array.shape}: {value!r}"
+            )
+        lower, upper = np.array(self.lower), np.array(self.upper)
+        bad = np.flatnonzero((array < lower) | (array > upper))
+        if bad.size:
+            i = int(bad[0])
+            unit = "" if self.unit == "1" else f" {self.unit}"
+            raise ValueError(
+                f"parameters[{self.name!r}][{i}] must lie in [{lower[i]:g}, {upper[i]:g}]{unit}, "
+                f"got {float(array[i])!r}"
+            )
+        return array
+
+
+def model_parameters(vehicle: object) -> tuple[ModelParameter, ...]:
+    """Return the :class:`ModelParameter` s a vehicle declares (``()`` for one that declares none).
+
+    Raises
+    ------
+    ValueError
+        If ``model_parameters`` is not a tuple of distinct ModelParameter, or the vehicle lacks
+        ``parametric_model_function``.
+    """
+    declared = getattr(vehicle, "model_parameters", ())
+    if declared is None or declared == ():
+        return ()
+    if not isinstance(declared, tuple) or not all(isinstance(item, ModelParameter) for item in declared):
+        raise ValueError(
+            f"vehicle.model_parameters must be a tuple of uuv_ocp.model.base.ModelParameter, got {declared!r}"
+        )
+    names = [item.name for item in declared]
+    if len(set(names)) != len(names):
+        raise ValueError(f"vehicle.model_parameters must have distinct names, got {names}")
+    if not callable(getattr(vehicle, "parametric_model_function", None)):
+        raise ValueError(
+            "a vehicle that declares model_parameters must provide parametric_model_function() "
+            "(x, u, current, *values) -> xdot"
+        )
+    return declared
+
+
 @runtime_checkable
 class VehicleModel(Protocol):
     """What :class:`~uuv_ocp.TrackingProblem`, :func:`~uuv_ocp.simulate`, plots and the CLI need.
@@ -299,5 +434,40 @@ def model_function(name: str, vehicle: VehicleModel) -> ca.Function:
             f"{name}.model_function() must map column vectors of sizes {[s[0] for s in expected]} "
             f"(state, control, current) to {layout.state_dim} derivatives, got inputs "
             f"{[s for s in sizes]} and output {function.size_out(0)}"
+        )
+    return function
+
+
+def parametric_model_function(name: str, vehicle: VehicleModel) -> ca.Function:
+    """Return the dynamics ``(x, u, current, *values) -> xdot`` of a vehicle's model parameters.
+
+    ``vehicle.parametric_model_function()`` checked against the layout and
+    ``model_parameters`` (one input per parameter, of its size); for a vehicle that declares
+    none, :func:`model_function`.
+
+    Raises
+    ------
+    ValueError
+        Naming ``name`` and the expected and actual sizes.
+    """
+    declared = model_parameters(vehicle)
+    if not declared:
+        return model_function(name, vehicle)
+    with BUILD_LOCK:  # a user's class builds CasADi graphs here
+        function = vehicle.parametric_model_function()  # type: ignore[attr-defined]
+    layout = vehicle.layout
+    expected = [(layout.state_dim, 1), (layout.control_dim, 1), (layout.current_dim, 1)]
+    expected += [(item.size, 1) for item in declared]
+    if not isinstance(function, ca.Function) or function.n_out() != 1:
+        raise ValueError(
+            f"{name}.parametric_model_function() must return a casadi.Function, got {function!r}"
+        )
+    sizes = [function.size_in(i) for i in range(function.n_in())]
+    if sizes != expected or function.size_out(0) != (layout.state_dim, 1):
+        raise ValueError(
+            f"{name}.parametric_model_function() must map column vectors of sizes "
+            f"{[s[0] for s in expected]} (state, control, current, then "
+            f"{', '.join(item.name for item in declared)}) to {layout.state_dim} derivatives, got "
+            f"inputs {sizes} and output {function.size_out(0)}"
         )
     return function

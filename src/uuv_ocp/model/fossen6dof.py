@@ -54,7 +54,7 @@ import numpy.typing as npt
 
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import serialised
-from uuv_ocp.model.base import VehicleLayout
+from uuv_ocp.model.base import ModelParameter, VehicleLayout
 from uuv_ocp.model.damping import steady_speed
 from uuv_ocp.model.thrusters import GENERALISED_FORCE_NAMES, ThrusterConfiguration
 
@@ -68,7 +68,7 @@ CURRENT_DIM = 3
 GRAVITY = 9.81  # m/s², used by the presets only
 
 _SYMMETRY_TOLERANCE = 1e-9  # relative to the largest entry
-_CACHED = ("dynamics", "thruster_dynamics")
+_CACHED = ("dynamics", "thruster_dynamics", "faulty_thruster_dynamics")
 
 
 # ---------------------------------------------------------------------- helpers
@@ -524,6 +524,37 @@ class Vehicle6DOF:
         return self.thruster_dynamics if self.thrusters is not None else self.dynamics
 
     @property
+    def model_parameters(self) -> tuple[ModelParameter, ...]:
+        """With thrusters, ``health`` and ``thrust_offset`` (n each); without, none.
+
+        ``health`` h ∈ [0, 1]^n is each thruster's effectiveness (default 1) and
+        ``thrust_offset`` s (N, within ±max_thrust, default 0) a known force a thruster delivers
+        whatever its command: the model's generalised force is ``τ = T (h ∘ f + s)``
+        (:attr:`faulty_thruster_dynamics`).  A thruster that lost effectiveness has
+        ``0 < h_i < 1``; a failed one ``h_i = 0``; one stuck at force ``v`` ``h_i = 0`` and
+        ``s_i = v``.  A :class:`~uuv_ocp.TrackingProblem` makes them parameters of its Ocp:
+        the controller is told a fault with ``parameters={"health": h, "thrust_offset": s}``,
+        without a rebuild.
+        """
+        if self.thrusters is None:
+            return ()
+        count, bounds = self.thrusters.count, self.thrusters.max_thrust
+        return (
+            ModelParameter("health", count, (1.0,) * count, (0.0,) * count, (1.0,) * count, "1"),
+            ModelParameter("thrust_offset", count, (0.0,) * count, tuple(-b for b in bounds), bounds, "N"),
+        )
+
+    def parametric_model_function(self) -> ca.Function:
+        """Return :attr:`faulty_thruster_dynamics` (the dynamics of :attr:`model_parameters`).
+
+        Raises
+        ------
+        AttributeError
+            If the vehicle has no thrusters (it declares no model parameters).
+        """
+        return self.faulty_thruster_dynamics
+
+    @property
     def control_bound(self) -> tuple[float, ...]:
         """Symmetric bound on each control component: ``max_thrust`` or the thrusters' bounds."""
         if self.thrusters is None:
@@ -817,6 +848,36 @@ class Vehicle6DOF:
             [state, forces, current],
             [self.dynamics_expression(state, allocation @ forces, current)],
             ["x", "f", "current"],
+            ["xdot"],
+        )
+
+    @cached_property
+    @serialised
+    def faulty_thruster_dynamics(self) -> ca.Function:
+        """``(x[12], f[n], current[3], health[n], thrust_offset[n]) -> xdot[12]``, ``τ = T (h ∘ f + s)``.
+
+        Inputs are named ``"x"``, ``"f"``, ``"current"``, ``"health"``, ``"thrust_offset"``;
+        equal to :attr:`thruster_dynamics` at ``health = 1``, ``thrust_offset = 0`` (see
+        :attr:`model_parameters`).
+
+        Raises
+        ------
+        AttributeError
+            If the vehicle has no thrusters.
+        """
+        allocation = ca.DM(self.allocation)
+        count = allocation.shape[1]
+        state = ca.SX.sym("x", STATE_DIM)
+        forces = ca.SX.sym("f", count)
+        current = ca.SX.sym("current", CURRENT_DIM)
+        health = ca.SX.sym("health", count)
+        offset = ca.SX.sym("thrust_offset", count)
+        delivered = health * forces + offset
+        return ca.Function(
+            "faulty_thruster_dynamics",
+            [state, forces, current, health, offset],
+            [self.dynamics_expression(state, allocation @ delivered, current)],
+            ["x", "f", "current", "health", "thrust_offset"],
             ["xdot"],
         )
 

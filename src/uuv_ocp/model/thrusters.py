@@ -30,6 +30,26 @@ def _rows(name: str, value: object) -> np.ndarray:
     return check.finite_array(name, array, array.shape)
 
 
+def _from_ros_mounts(
+    mounts: tuple[tuple[tuple[float, float, float], tuple[float, float]], ...],
+) -> tuple[tuple[tuple[float, float, float], ...], tuple[tuple[float, float, float], ...]]:
+    """Positions and directions in Fossen's frame of thrusters mounted as in a uuv_simulator xacro.
+
+    Each mount is ``((x, y, z), (pitch, yaw))`` in the ROS body frame (x forward, y port, z up;
+    m and degrees, roll 0): the thruster pushes along its frame's x axis, i.e.
+    ``(cos yaw cos pitch, sin yaw cos pitch, −sin pitch)``, and ``(x, y, z) → (x, −y, −z)``
+    maps both to x forward, y starboard, z down.
+    """
+    positions = []
+    directions = []
+    for (x, y, z), (pitch_deg, yaw_deg) in mounts:
+        pitch, yaw = math.radians(pitch_deg), math.radians(yaw_deg)
+        direction = (math.cos(yaw) * math.cos(pitch), math.sin(yaw) * math.cos(pitch), -math.sin(pitch))
+        positions.append((x, -y, -z))
+        directions.append((direction[0], -direction[1], -direction[2]))
+    return tuple(positions), tuple(directions)
+
+
 @dataclass(frozen=True)
 class ThrusterConfiguration:
     """Positions, directions and force bounds of a vehicle's fixed thrusters.
@@ -136,6 +156,41 @@ class ThrusterConfiguration:
         )
 
     @classmethod
+    def rexrov(cls) -> ThrusterConfiguration:
+        """Build the eight thrusters of uuv_simulator's RexROV in Fossen's body frame.
+
+        Positions and orientations from ``uuv_descriptions/urdf/rexrov_actuators.xacro``
+        (GitHub ``uuvsimulator/uuv_simulator``): four thrusters pitched about 75° out of the
+        horizontal plane at ``(±0.890895, ±0.334385, 0.528822)`` m and four horizontal ones at
+        45° at ``(±0.412125, ±0.505415, 0.129)`` m (ROS ``base_link``: x forward, y port, z up),
+        in the file's order 0..7.  Each pushes along the x axis of its frame, oriented by
+        ``rpy = (0, pitch, yaw)``, mapped to x forward, y starboard, z down as for
+        :meth:`rexrov2`.  The allocation matches the simulator's
+        ``uuv_control/uuv_thruster_manager/config/rexrov/TAM.yaml`` after the same change of
+        frame.
+
+        Bound 2000 N per thruster: the figure DESIGN §6 states (the planar
+        :meth:`Vehicle.rexrov <uuv_ocp.model.planar.Vehicle.rexrov>`'s thrust box 2000 N /
+        2000 N / 1400 N·m is reachable with it).  The simulator itself sets no useful bound:
+        its ``thruster_manager.yaml`` has ``max_thrust: 100000``.
+        """
+        # (x, y, z) in m and (pitch, yaw) in degrees, as written in rexrov_actuators.xacro
+        mounts = (
+            ((-0.890895, 0.334385, 0.528822), (-74.53, -53.21)),
+            ((-0.890895, -0.334385, 0.528822), (-74.53, 53.21)),
+            ((0.890895, 0.334385, 0.528822), (-105.47, 53.21)),
+            ((0.890895, -0.334385, 0.528822), (-105.47, -53.21)),
+            ((-0.412125, 0.505415, 0.129), (0.0, 45.0)),
+            ((-0.412125, -0.505415, 0.129), (0.0, -45.0)),
+            ((0.412125, 0.505415, 0.129), (0.0, 135.0)),
+            ((0.412125, -0.505415, 0.129), (0.0, -135.0)),
+        )
+        positions, directions = _from_ros_mounts(mounts)
+        return cls(
+            positions=positions, directions=directions, max_thrust=(2000.0,) * 8, name="rexrov-thrusters"
+        )
+
+    @classmethod
     def rexrov2(cls) -> ThrusterConfiguration:
         """Build the six thrusters of uuv_simulator's RexROV2 in Fossen's body frame.
 
@@ -157,16 +212,10 @@ class ThrusterConfiguration:
             ((-0.7076, 0.5129, 0.2404), (0.0, 25.0)),
             ((-0.7076, -0.5129, 0.2404), (0.0, -25.0)),
         )
-        positions = []
-        directions = []
-        for (x, y, z), (pitch_deg, yaw_deg) in mounts:
-            pitch, yaw = math.radians(pitch_deg), math.radians(yaw_deg)
-            direction = (math.cos(yaw) * math.cos(pitch), math.sin(yaw) * math.cos(pitch), -math.sin(pitch))
-            positions.append((x, -y, -z))
-            directions.append((direction[0], -direction[1], -direction[2]))
+        positions, directions = _from_ros_mounts(mounts)
         return cls(
-            positions=tuple(positions),
-            directions=tuple(directions),
+            positions=positions,
+            directions=directions,
             max_thrust=(1540.0,) * 6,
             name="rexrov2-thrusters",
         )

@@ -47,6 +47,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
+from scipy.optimize import minimize_scalar
 
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import BUILD_LOCK
@@ -405,8 +406,9 @@ class PathFollowingProblem(DeclaredPreset):
     def closest_parameter(self, position: object) -> float:
         """Return the path parameter ``s`` (s) of the path point closest to ``position`` (m).
 
-        Exact on the sampled polyline (:attr:`polyline`): the closest point of every segment,
-        then the closest of those; the first on a tie.
+        The closest point of the sampled polyline (:attr:`polyline`; every segment's, then the
+        closest of those, the first on a tie), refined on the exact path by a bounded scalar
+        minimisation (to 1e-10 s) over the neighbouring samples' interval.
         """
         times, points = self.polyline
         position = check.finite_array("position", position, (points.shape[1],))
@@ -416,7 +418,18 @@ class PathFollowingProblem(DeclaredPreset):
         fraction = np.clip(fraction, 0.0, 1.0)
         distance = np.sum((start + fraction[:, None] * chord - position) ** 2, axis=1)
         best = int(np.argmin(distance))
-        return float(times[best] + fraction[best] * (times[best + 1] - times[best]))
+        # the chord's point is within the sampling's sagitta of the path: the exact distance is
+        # minimised next to it, on the two neighbouring samples' interval (bounded Brent)
+        low, high = times[max(best - 1, 0)], times[min(best + 2, times.size - 1)]
+
+        def squared_distance(s: float) -> float:
+            point = np.array(self.geometry(s)[0]).ravel()
+            return float(np.sum((point - position) ** 2))
+
+        found = minimize_scalar(
+            squared_distance, bounds=(low, high), method="bounded", options={"xatol": 1e-10}
+        )
+        return float(found.x)
 
 
 def path_rate(v_s: Any, tangent: Any) -> Any:

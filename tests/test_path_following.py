@@ -41,7 +41,7 @@ def test_remus_converges_to_a_straight_line_from_a_10_m_offset_with_sqp_rti() ->
     start = np.zeros(12)
     start[[1, 2, 6]] = (10.0, 10.0, 1.5)  # 10 m east of the line, at its depth, at cruise speed
     x0 = problem.initial_state(start)
-    assert x0[-1] == pytest.approx(0.0, abs=1e-9)
+    assert x0[-1] == pytest.approx(0.0, abs=1e-6)
     run = uo.simulate(uo.NMPC(problem, solver="sqp-rti"), x0=x0, duration=45.0)
     assert run.fault is None
     cross = _signed_distance_to_line(run.states[:, :2], np.zeros(2), np.array([1.0, 0.0]))
@@ -103,7 +103,9 @@ def test_ipopt_fatrop_and_sqp_reach_the_same_optimum(rexrov_instance) -> None:
 
 def test_a_swarm_plan_holds_every_bound_and_rate(rexrov_instance) -> None:
     problem, x0 = rexrov_instance
-    u_prev = np.r_[np.zeros(3), 0.5]
+    u_prev = np.zeros(
+        4
+    )  # from rest: the speed cost asks for 0.5 m/s, the rate bound allows 0.25 m/s per step
     result = uo.solve(problem, "igwo", x0=x0, u_prev=u_prev, options={"seed": 3, "iterations": 20})
     controls = result.controls
     bound = np.r_[problem.vehicle.control_bound, problem.max_path_speed]

@@ -197,3 +197,44 @@ def test_bad_weights_and_instances_are_refused_by_name() -> None:
         uo.solve(problem, "ipopt", x0=np.zeros(6))  # without the path parameter
     with pytest.raises(ValueError, match="parameters"), warnings.catch_warnings():
         problem.instance_parameters(x0, parameters={"current": [0.0, 0.0]})
+
+
+def _survey(depth: float | None = 10.0) -> uo.Reference:
+    """Return two 40 m lanes 10 m apart at 1.5 m/s (turn radius 5 m), braking to rest at the end."""
+    return uo.Reference.lawnmower(width=40.0, spacing=10.0, lanes=2, speed=1.5, depth=depth)
+
+
+def test_the_path_geometry_is_the_references_position_and_its_derivative() -> None:
+    """p(s) and p'(s) on a 3-D survey with turns: the reference's samples and central differences."""
+    problem = PathFollowingProblem(uo.Remus100(), _survey(), speed=1.5)
+    step = 1e-5
+    for s in np.linspace(1.0, 55.0, 12):  # lanes and the turn
+        samples = problem.path.evaluate([s - step, s, s + step])[:, :3]
+        point, tangent = (np.array(value).ravel() for value in problem.geometry(s))
+        np.testing.assert_allclose(point, samples[1], atol=1e-12)
+        np.testing.assert_allclose(tangent, (samples[2] - samples[0]) / (2 * step), atol=1e-6)
+
+
+def test_the_path_ends_where_the_survey_brakes_to_rest() -> None:
+    """Two lanes of 40 m and a turn of radius 5 m: length 2·40 − 2·5 + 5π m; braking over 5 m."""
+    problem = PathFollowingProblem(uo.Remus100(), _survey(), speed=1.5)
+    length, radius, speed = 80.0 - 10.0 + 5.0 * math.pi, 5.0, 1.5
+    deceleration = speed**2 / (2.0 * radius)
+    cruise_end = (length - radius) / speed
+    # the speed falls linearly from 1.5 m/s; the path ends where it is 10 % of that
+    assert problem.path_end == pytest.approx(cruise_end + 0.9 * speed / deceleration, abs=0.05)
+    unbounded = PathFollowingProblem(uo.Remus100(), _remus_line(), speed=1.5)
+    assert unbounded.path_end == math.inf
+
+
+def test_the_vehicle_stops_at_the_end_of_the_path() -> None:
+    """The RexROV 5 s before the end of a planar survey parks s at path_end and stops there."""
+    problem = PathFollowingProblem(uo.Vehicle.rexrov(), _survey(None), speed=0.5, horizon=10, dt=0.5)
+    point = np.array(problem.geometry(problem.path_end - 5.0)[0]).ravel()
+    x0 = problem.initial_state([*point, math.pi, 0.0, 0.0, 0.0])
+    run = uo.simulate(uo.NMPC(problem, solver="sqp-rti"), x0=x0, duration=40.0)
+    assert run.fault is None
+    end = np.array(problem.geometry(problem.path_end)[0]).ravel()
+    assert run.states[-1, -1] == pytest.approx(problem.path_end, abs=0.02)  # 3 mm of path at 10 % speed
+    assert np.linalg.norm(run.states[-1, :2] - end) < 0.05
+    assert np.linalg.norm(run.states[-1, 3:5]) < 0.02  # at rest

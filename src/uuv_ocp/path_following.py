@@ -33,8 +33,11 @@ parameter is the controller's own state, known exactly, and the plant of :func:`
 closest path point.  :func:`path_errors` measures a run's cross-track, vertical and
 along-track errors by projection on the path.
 
-The path must move where it is followed (``|p'(s)| > 0``): a waypoint reference's final
-braking and hold (``hold > 0``) is no place for ``s`` to reach within a run.
+The path must move where it is followed (``|p'(s)| > 0``).  Where a path of a finite window
+comes to rest (a waypoint reference's final braking and hold), the path parameter stops at
+:attr:`PathFollowingProblem.path_end`, the last time its speed is at least
+:data:`END_SPEED_FRACTION` of its peak: an exact L1 penalty (``weights.terminal_penalty``)
+on ``s > path_end`` at nodes 1..N, so the vehicle comes to the end of the path and stays.
 """
 
 from __future__ import annotations
@@ -62,11 +65,13 @@ from uuv_ocp.tracking import DeclaredPreset, control_limits, current_rows, vehic
 PATH_TERMINAL_MODES = ("cost", "none")
 #: Floor (m/s) under the path speed ``|p'(s)|`` in ``ṡ = v_s / |p'(s)|``: finite where a path rests.
 SPEED_FLOOR = 1e-6
-#: Longest stretch (s of reference time) sampled for the closest-point projection.
+#: Stretch (s of reference time) of an unbounded path sampled for the closest-point projection.
 PROJECTION_SPAN = 3600.0
 #: Most samples of the projection polyline (its step is at least ``PROJECTION_STEP``).
 PROJECTION_SAMPLES = 40_000
 PROJECTION_STEP = 0.02
+#: The path ends where its speed falls below this fraction of its peak for good (``path_end``).
+END_SPEED_FRACTION = 0.1
 
 
 @dataclass(frozen=True)
@@ -316,6 +321,8 @@ class PathFollowingProblem(DeclaredPreset):
             ocp.add_stage_cost(residual=residual, weight=stage, start=1)
         factor = weights.terminal if self.terminal == "cost" else 1.0
         ocp.add_terminal_cost(residual=residual, weight=[factor * w for w in stage])
+        if math.isfinite(self.path_end):  # soft: the plant may overshoot it by an ulp
+            ocp.bounded(-math.inf, s, self.path_end, soft=weights.terminal_penalty)
         horizontal = list(layout.positions[:2])
         for obstacle in self.obstacles:
             ocp.subject_to(obstacle.clearance(state[horizontal]) >= 0)
@@ -392,16 +399,33 @@ class PathFollowingProblem(DeclaredPreset):
     def polyline(self) -> tuple[np.ndarray, np.ndarray]:
         """Samples ``(times (m,), positions (m, d))`` of the path for the closest-point projection.
 
-        Over ``[t_start, min(t_end, t_start + PROJECTION_SPAN)]``, at most ``PROJECTION_SAMPLES``
+        Over ``[t_start, t_end]`` (``t_start + PROJECTION_SPAN`` for an unbounded window), at most
+        ``PROJECTION_SAMPLES``
         samples and at least ``PROJECTION_STEP`` s apart: the chord of an arc of radius r is
         within ``(U step)² / (8 r)`` of it (µm for the presets).
         """
         start = self.path.t_start
-        end = min(self.path.t_end, start + PROJECTION_SPAN)
+        end = self.path.t_end if math.isfinite(self.path.t_end) else start + PROJECTION_SPAN
         count = int(min(PROJECTION_SAMPLES, math.ceil((end - start) / PROJECTION_STEP))) + 1
         times = np.linspace(start, end, count)
         columns = [0, 1, 2] if self.path.spatial else [0, 1]
         return times, self.path.evaluate(times)[:, columns]
+
+    @functools.cached_property
+    def path_end(self) -> float:
+        """Last path parameter (s) the path parameter may reach: ``inf`` for an unbounded window.
+
+        For a finite window, the last sample of :attr:`polyline` whose path speed is at least
+        :data:`END_SPEED_FRACTION` of the peak (a waypoint reference's braking to rest, its
+        hold excluded), or ``t_end``.
+        """
+        if not math.isfinite(self.path.t_end):
+            return math.inf
+        times, _ = self.polyline
+        tangents = np.array(self.geometry.map(times.size)(times[None, :])[1]).T
+        speed = np.linalg.norm(tangents, axis=1)
+        moving = np.flatnonzero(speed >= END_SPEED_FRACTION * speed.max())
+        return float(times[moving[-1]])
 
     def closest_parameter(self, position: object) -> float:
         """Return the path parameter ``s`` (s) of the path point closest to ``position`` (m).

@@ -377,15 +377,17 @@ class PathFollowingProblem(DeclaredPreset):
         return self.ocp.pack(x0, self.ocp.check_previous(u_prev), values)
 
     def initial_guess(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Cold start: ``x_0`` held, ``s`` moving at the commanded speed, the last control held."""
+        """Cold start: the last control held, ``v_s`` at the commanded speed, and their rollout.
+
+        A consistent guess (the states the controls give): a held state on a moving path
+        started IPOPT far from any plan the vehicle can fly (hundreds of iterations).
+        """
         spec = self.spec()
-        x0 = np.asarray(p[spec.layout.x0], dtype=float)
-        states = np.tile(x0, (self.horizon + 1, 1))
-        _, tangent = self.geometry(x0[-1])
-        step = self.speed * self.dt / max(float(np.linalg.norm(np.array(tangent))), SPEED_FLOOR)
-        states[:, -1] += step * np.arange(self.horizon + 1)
         controls = np.tile(self.previous_scaled(p), (self.horizon, 1))
         controls[:, -1] = spec.scaled(np.r_[np.zeros(spec.control_size - 1), self.speed])[-1]
+        states = self.rollout_scaled(controls.ravel(), p)
+        if not np.all(np.isfinite(states)):  # a rollout that blew up guides nothing
+            states = np.tile(np.asarray(p[spec.layout.x0], dtype=float), (self.horizon + 1, 1))
         return states, controls
 
     def initial_state(self, vehicle_state: object) -> np.ndarray:

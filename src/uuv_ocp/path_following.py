@@ -15,14 +15,14 @@ any vehicle of the :class:`~uuv_ocp.model.base.VehicleModel` protocol.  Its
   path in m/s whatever the reference's timing (the effect of an arc-length parameterisation,
   without inverting an arc-length integral: a reference timed twice as fast gives the same
   optimal vehicle path);
-* the least-squares cost ``Σ_k ‖Δu_k / u_max‖²_rate + ‖τ_k / τ_max‖²_effort +
-  w_v (v_s,k − U)² + Σ_{k=1}^{N} ℓ(x_k, s_k)`` with ``ℓ = w_a e_a² + w_c e_c² + w_z e_z² +
-  w_att ‖(φ, θ)‖²``, where the errors of the vehicle's position from ``p(s)`` are expressed in
-  the path's tangent frame: along-track ``e_a`` (along the unit tangent ``t``), cross-track
-  ``e_c`` (along the horizontal normal ``n = (−t_y, t_x, 0)/|…|``, positive to starboard of
-  the path in NED) and, in 3-D, vertical ``e_z`` (along ``t × n``: depth error, positive
-  down, on a level path).  The heading is not referenced: an underactuated vehicle cannot
-  hold an arbitrary heading; the cross-track error steers it.  ``terminal="cost"`` weighs
+* the least-squares cost ``Σ_k ‖Δu_k / u_max‖²_rate + ‖τ_k / τ_max‖²_effort + w_v (v_s,k − U)² +
+  w_u (u_k − v_s,k)² + Σ_{k=1}^{N} ℓ(x_k, s_k)`` (``u`` the surge) with ``ℓ = w_a e_a² + w_c
+  e_c² + w_z e_z² + w_att ‖(φ, θ)‖²``, where the errors of the vehicle's position from ``p(s)``
+  are expressed in the path's tangent frame: along-track ``e_a`` (along the unit tangent ``t``),
+  cross-track ``e_c`` (along the horizontal normal ``n = (−t_y, t_x, 0)/|…|``, positive to
+  starboard of the path in NED) and, in 3-D, vertical ``e_z`` (along ``t × n``: depth error,
+  positive down, on a level path).  The heading is not referenced: an underactuated vehicle
+  cannot hold an arbitrary heading; the cross-track error steers it.  ``terminal="cost"`` weighs
   ``ℓ`` at node N by ``weights.terminal``; ``"none"`` takes ``ℓ`` as it is;
 * the current as a stagewise parameter, as in :class:`~uuv_ocp.tracking.TrackingProblem`.
 
@@ -88,6 +88,10 @@ class PathWeights:
         Weight on the squared vertical error of a spatial path (1/m²); unused in the plane.
     speed : float
         Weight on the squared deviation of the along-path speed from the commanded one (s²/m²).
+    surge : float
+        Weight on the squared deviation of the vehicle's surge (its first body velocity) from
+        the along-path speed (s²/m²): the vehicle moves with ``p(s)``, nose first, instead of
+        reversing its propeller or stalling to wait for it.
     attitude : float
         Weight on the squared roll and pitch (1/rad²), the angles other than the heading
         (regulated to zero); a planar vehicle has none.
@@ -108,6 +112,7 @@ class PathWeights:
     along_track: float = 1.0
     vertical: float = 10.0
     speed: float = 10.0
+    surge: float = 10.0
     attitude: float = 10.0
     effort: float = 0.0
     rate: float = 1.0
@@ -309,8 +314,9 @@ class PathFollowingProblem(DeclaredPreset):
                 (v_s - ocp.previous(v_s)) / top,
                 tau / ca.DM(max_control),
                 v_s - self.speed,
+                state[layout.velocities[0]] - v_s,
             ),
-            weight=(*(weights.rate,) * (nu + 1), *(weights.effort,) * nu, weights.speed),
+            weight=(*(weights.rate,) * (nu + 1), *(weights.effort,) * nu, weights.speed, weights.surge),
         )
         errors = tangent_frame_errors(state[list(layout.positions)] - position, tangent)
         attitude = [state[i] for i in layout.angles if i != layout.heading]

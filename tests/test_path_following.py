@@ -19,7 +19,7 @@ from uuv_ocp.path_following import PathFollowingProblem, PathWeights, path_error
 
 def _remus_line() -> uo.Reference:
     """Return a straight line due north at 10 m depth, timed at 1.5 m/s."""
-    return uo.Reference.from_xyz(lambda t: 1.5 * t, lambda t: 0 * t, lambda t: 10.0 + 0 * t, "north")
+    return uo.Reference.from_xyz(lambda t: 1.5 * t, lambda t: 0 * t, lambda t: 10 + 0 * t, "line")
 
 
 def _planar_line(speed: float = 0.5, t_end: float = math.inf) -> uo.Reference:
@@ -42,21 +42,22 @@ def test_remus_converges_to_a_straight_line_from_a_10_m_offset_with_sqp_rti() ->
     start[[1, 2, 6]] = (10.0, 10.0, 1.5)  # 10 m east of the line, at its depth, at cruise speed
     x0 = problem.initial_state(start)
     assert x0[-1] == pytest.approx(0.0, abs=1e-6)
-    run = uo.simulate(uo.NMPC(problem, solver="sqp-rti"), x0=x0, duration=45.0)
+    run = uo.simulate(uo.NMPC(problem, solver="sqp-rti"), x0=x0, duration=70.0)
     assert run.fault is None
     cross = _signed_distance_to_line(run.states[:, :2], np.zeros(2), np.array([1.0, 0.0]))
     depth = run.states[:, 2] - 10.0
-    settled = run.t >= run.t[-1] - 10.0
-    assert np.max(np.abs(cross[settled])) < 0.05
-    assert np.max(np.abs(depth[settled])) < 0.05
+    settled = run.t >= run.t[-1] - 15.0  # measured: |e_c| < 0.01 m from t = 50 s
+    assert np.max(np.abs(cross[settled])) < 0.01
+    assert np.max(np.abs(depth[settled])) < 0.01
     assert abs(cross[0]) == pytest.approx(10.0)
     # the module's projection agrees with the independent distance, sample by sample
     errors = path_errors(problem, run)
     np.testing.assert_allclose(errors["cross_track"], cross, atol=1e-6)
     np.testing.assert_allclose(errors["vertical"], depth, atol=1e-6)
-    # the vehicle moves on at the commanded speed once on the path
+    # the vehicle moves on at (and, catching up with p(s), approaches) the commanded speed
     speed = np.diff(run.states[:, 0])[settled[1:]] / problem.dt
-    assert np.all(np.abs(speed - 1.5) < 0.05)
+    assert np.all(np.abs(speed - 1.5) < 0.1)
+    assert abs(speed[-1] - 1.5) < 0.02
 
 
 @pytest.mark.parametrize("solver", ["sqp-rti", "fatrop"])

@@ -109,7 +109,7 @@ class PathWeights:
     """
 
     cross_track: float = 10.0
-    along_track: float = 1.0
+    along_track: float = 0.1
     vertical: float = 10.0
     speed: float = 10.0
     surge: float = 10.0
@@ -227,7 +227,7 @@ class PathFollowingProblem(DeclaredPreset):
     degree: int | None = None
     rate_limits: bool = True
     max_path_speed: float | None = None
-    path_acceleration: float = 0.5
+    path_acceleration: float = 1.0
     obstacles: tuple[Obstacle, ...] = ()
 
     def __post_init__(self) -> None:

@@ -245,3 +245,26 @@ def test_the_vehicle_stops_at_the_end_of_the_path() -> None:
     assert run.states[-1, -1] == pytest.approx(problem.path_end, abs=0.02)  # 3 mm of path at 10 % speed
     assert np.linalg.norm(run.states[-1, :2] - end) < 0.05
     assert np.linalg.norm(run.states[-1, 3:5]) < 0.02  # at rest
+
+
+def test_a_known_cross_current_leaves_no_steady_cross_track_error() -> None:
+    """The RexROV on the 30° line under a 0.2 m/s current across it: it crabs, on the line.
+
+    Without the current in the model (``current_known=False``) the same loop keeps an offset:
+    the current reaches the controller through the instance's current parameter.
+    """
+    line = _planar_line()
+    problem = PathFollowingProblem(uo.Vehicle.rexrov(), line, speed=0.5, horizon=20, dt=0.5)
+    direction = np.array([math.cos(math.pi / 6), math.sin(math.pi / 6)])
+    x0 = problem.initial_state([0.0, 0.0, math.pi / 6, 0.5, 0.0, 0.0])
+    current = uo.Current(speed=0.2, direction=math.pi / 6 + math.pi / 2)  # to starboard of the line
+    errors = {}
+    for known in (True, False):
+        run = uo.simulate(
+            uo.NMPC(problem, solver="sqp-rti"), x0=x0, duration=30.0, current=current, current_known=known
+        )
+        assert run.fault is None
+        cross = _signed_distance_to_line(run.states[:, :2], np.zeros(2), direction)
+        errors[known] = np.max(np.abs(cross[run.t >= 20.0]))
+    assert errors[True] < 0.01
+    assert errors[False] > 10 * errors[True]

@@ -32,6 +32,7 @@ from uuv_ocp.model.thrusters import ThrusterConfiguration
 from uuv_ocp.native.runtime import GeneratedCode
 from uuv_ocp.obstacles import Obstacle
 from uuv_ocp.ocp import Ocp
+from uuv_ocp.path_following import PathFollowingProblem, PathWeights, path_errors
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
 from uuv_ocp.solvers import (
     Iterate,
@@ -69,6 +70,8 @@ __all__ = [
     "NMPC",
     "Obstacle",
     "Ocp",
+    "PathFollowingProblem",
+    "PathWeights",
     "Reference",
     "Remus100",
     "Sensor",
@@ -92,6 +95,7 @@ __all__ = [
     "generate_c",
     "get_solver",
     "new_solver",
+    "path_errors",
     "minimize",
     "register_estimator",
     "register_solver",

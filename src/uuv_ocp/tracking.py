@@ -33,7 +33,7 @@ import math
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Self
 
 import casadi as ca
 import numpy as np
@@ -242,8 +242,73 @@ def warn_if_reference_too_fast(
     return when
 
 
+class DeclaredPreset(Transcribed):
+    """A preset problem: a frozen dataclass that declares its :class:`~uuv_ocp.ocp.Ocp` in ``_declare``.
+
+    Shared by :class:`TrackingProblem` and :class:`~uuv_ocp.path_following.PathFollowingProblem`:
+    the Ocp is declared once, on first use, under the build lock, and kept beside the frozen
+    fields (not a field: ``replace()`` and ``==`` see only the description).  A preset
+    declares a stagewise parameter ``"current"`` (m/s).
+    """
+
+    def _declare(self) -> Ocp:
+        raise NotImplementedError
+
+    @property
+    def ocp(self) -> Ocp:
+        """The :class:`~uuv_ocp.ocp.Ocp` this preset declares (built once, immutable)."""
+        ocp: Ocp | None = self.__dict__.get("_declared_ocp")
+        if ocp is None:
+            with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
+                ocp = self.__dict__.get("_declared_ocp")
+                if ocp is None:
+                    ocp = self._declare()
+                    object.__setattr__(self, "_declared_ocp", ocp)
+        return ocp
+
+    def spec(self) -> OcpSpec:
+        """Return the frozen description of :attr:`ocp`."""
+        return self.ocp.spec()
+
+    @property
+    def still_water_slice(self) -> slice | None:
+        """The current over the horizon in ``p``: exact backends specialise the NLP when it is zero."""
+        return self.current_slice
+
+    @property
+    def current_slice(self) -> slice:
+        """Where the current over the horizon, ``(N+1, nc)`` row by row (m/s), sits in ``p``."""
+        part: slice = self.spec().layout.entries["current"][0]
+        return part
+
+    def replace(self, **changes: Any) -> Self:
+        """Return a copy with some fields changed (a new, unbuilt problem)."""
+        return dataclasses.replace(self, **changes)  # type: ignore[type-var]  # subclasses are dataclasses
+
+
+def current_rows(current: object, horizon: int, nc: int) -> np.ndarray | None:
+    """Check an instance's current: ``(nc,)`` held on every node, or ``(N, nc)`` / ``(N+1, nc)`` (m/s).
+
+    Returns ``None`` for ``None``, the ``(nc,)`` vector as given, or ``(N+1, nc)`` rows (an
+    ``(N, nc)`` current holds its last row on node N).
+    """
+    if current is None:
+        return None
+    try:
+        rows = np.array(current, dtype=float)
+    except (TypeError, ValueError) as error:
+        raise ValueError(
+            f"current must be numbers of shape ({nc},) or ({horizon}, {nc}), got {current!r}"
+        ) from error
+    if rows.shape == (nc,):  # held on every node: checked once, broadcast into p
+        return check.plausible_array("current", rows, (nc,))
+    if rows.shape == (horizon, nc):
+        rows = np.vstack([rows, rows[-1:]])
+    return check.plausible_array("current", rows, (horizon + 1, nc))
+
+
 @dataclass(frozen=True)
-class TrackingProblem(Transcribed):
+class TrackingProblem(DeclaredPreset):
     """NMPC trajectory-tracking problem of an underwater vehicle (paper §3.2, DESIGN §4).
 
     Parameters
@@ -348,24 +413,6 @@ class TrackingProblem(Transcribed):
             )
 
     # ------------------------------------------------------------- the Ocp
-    @property
-    def ocp(self) -> Ocp:
-        """The :class:`~uuv_ocp.ocp.Ocp` this preset declares (built once, immutable)."""
-        ocp: Ocp | None = self.__dict__.get("_declared_ocp")
-        if ocp is None:
-            with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
-                ocp = self.__dict__.get("_declared_ocp")
-                if ocp is None:
-                    ocp = self._declare()
-                    # a value derived from the frozen fields, kept beside them (not a field:
-                    # replace() and == see only the description)
-                    object.__setattr__(self, "_declared_ocp", ocp)
-        return ocp
-
-    def spec(self) -> OcpSpec:
-        """Return the frozen description of :attr:`ocp`."""
-        return self.ocp.spec()
-
     def _declare(self) -> Ocp:
         vehicle, weights = self.vehicle, self.weights
         assert weights is not None
@@ -429,11 +476,6 @@ class TrackingProblem(Transcribed):
         """Column of the heading in the vehicle's (reference) state."""
         return int(self.vehicle.layout.heading)
 
-    @property
-    def still_water_slice(self) -> slice | None:
-        """The current over the horizon in ``p``: exact backends specialise the NLP when it is zero."""
-        return self.current_slice
-
     @functools.cached_property  # read on every instance of a closed loop: gathered once
     def model_parameters(self) -> tuple[ModelParameter, ...]:
         """The vehicle's model parameters (``vehicle.model_parameters``; ``()`` if it declares none).
@@ -448,19 +490,9 @@ class TrackingProblem(Transcribed):
         entries = self.spec().layout.entries
         return {item.name: np.array(p[entries[item.name][0]]) for item in self.model_parameters}
 
-    @property
-    def current_slice(self) -> slice:
-        """Where the current over the horizon, ``(N+1, nc)`` row by row (m/s), sits in ``p``."""
-        part: slice = self.spec().layout.entries["current"][0]
-        return part
-
     def latest_start(self) -> float:
         """Latest start time t0 (s) whose horizon stays inside the reference window."""
         return self.reference.t_end - self.horizon * self.dt
-
-    def replace(self, **changes: Any) -> TrackingProblem:
-        """Return a copy with some fields changed (a new, unbuilt problem)."""
-        return dataclasses.replace(self, **changes)
 
     # ------------------------------------------------------------- parameters
     def check_state(self, x0: object, name: str = "x0") -> np.ndarray:
@@ -617,19 +649,7 @@ class TrackingProblem(Transcribed):
         t0 = self.check_time(t0)
         layout, nc, heading_index = self._parameter_layout
         n = self.horizon
-        if current is not None:
-            try:
-                current = np.array(current, dtype=float)
-            except (TypeError, ValueError) as error:
-                raise ValueError(
-                    f"current must be numbers of shape ({nc},) or ({n}, {nc}), got {current!r}"
-                ) from error
-            if current.shape == (nc,):  # held on every node: checked once, broadcast into p
-                current = check.plausible_array("current", current, (nc,))
-            else:
-                if current.shape == (n, nc):
-                    current = np.vstack([current, current[-1:]])
-                current = check.plausible_array("current", current, (n + 1, nc))
+        current = current_rows(current, n, nc)
         window = self.reference_window(t0, heading=x0[heading_index])
         u_prev = self.ocp.check_previous(u_prev)
         # every part is checked above (the window is finite by construction): written straight

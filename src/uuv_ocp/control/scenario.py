@@ -188,15 +188,20 @@ def _ocp(
 
 def vehicle_plant(problem: TrackingProblem, plant: Any, dt: float, substeps: int) -> tuple[ca.Function, int]:
     """RK4 plant path ``(x, u, current) -> (nx, substeps)`` of a vehicle with the problem's state."""
-    vehicle = problem.vehicle if plant is None else plant
+    dynamics = plant_dynamics(problem.vehicle, plant)
+    return rk4_path(dynamics, dt, substeps, name="plant_step"), vehicle_dimensions(problem.vehicle)[2]
+
+
+def plant_dynamics(model: Any, plant: Any) -> ca.Function:
+    """Dynamics Function of the plant vehicle (``None``: the controller's ``model``), checked against it."""
+    vehicle = model if plant is None else plant
     check_vehicle("plant", vehicle)
-    if vehicle_dimensions(vehicle) != vehicle_dimensions(problem.vehicle):
+    if vehicle_dimensions(vehicle) != vehicle_dimensions(model):
         raise ValueError(
-            f"plant must have the controller model's dimensions {vehicle_dimensions(problem.vehicle)} "
+            f"plant must have the controller model's dimensions {vehicle_dimensions(model)} "
             f"(states, controls, current), got {vehicle_dimensions(vehicle)}"
         )
-    dynamics = model_function("plant", vehicle)
-    return rk4_path(dynamics, dt, substeps, name="plant_step"), vehicle_dimensions(vehicle)[2]
+    return model_function("plant", vehicle)
 
 
 @serialised

@@ -1,0 +1,560 @@
+"""Path following: converge to a geometric path, then move along it at a commanded speed.
+
+:class:`PathFollowingProblem` is the preset for vehicles that cannot hold an arbitrary pose in
+time (torpedo AUVs such as :class:`~uuv_ocp.model.remus100.Remus100`: no sway thrust), and for
+any vehicle of the :class:`~uuv_ocp.model.base.VehicleModel` protocol.  Its
+:attr:`~uuv_ocp.tracking.DeclaredPreset.ocp` declares:
+
+* the state ``[x, s]``: the vehicle's state ``x`` and the **path parameter** ``s``, which is the
+  :class:`~uuv_ocp.reference.path.Reference`'s own time τ (s) — so the path point ``p(s)`` and
+  its tangent ``p'(s) = dp/dτ`` are the reference's exact AD expressions, for every kind of
+  reference (``from_xy``, ``from_xyz``, ``waypoints`` with turn radii, ``lawnmower``);
+* the control ``[τ, v_s]``: the vehicle's controls and the **along-path speed** ``v_s`` (m/s),
+  with bounds ``[0, max_path_speed]`` and the rate bound ``path_acceleration`` (m/s²); the
+  path parameter moves as ``ṡ = v_s / |p'(s)|``, so ``v_s`` is the speed of ``p(s)`` along the
+  path in m/s whatever the reference's timing (the effect of an arc-length parameterisation,
+  without inverting an arc-length integral: a reference timed twice as fast gives the same
+  optimal vehicle path);
+* the least-squares cost ``Σ_k ‖Δu_k / u_max‖²_rate + ‖τ_k / τ_max‖²_effort + w_v (v_s,k − U)² +
+  w_u (u_k − v_s,k)² + Σ_{k=1}^{N} ℓ(x_k, s_k)`` (``u`` the surge) with ``ℓ = w_a e_a² + w_c
+  e_c² + w_z e_z² + w_att ‖(φ, θ)‖²``, where the errors of the vehicle's position from ``p(s)``
+  are expressed in the path's tangent frame: along-track ``e_a`` (along the unit tangent ``t``),
+  cross-track ``e_c`` (along the horizontal normal ``n = (−t_y, t_x, 0)/|…|``, positive to
+  starboard of the path in NED) and, in 3-D, vertical ``e_z`` (along ``t × n``: depth error,
+  positive down, on a level path).  The heading is not referenced: an underactuated vehicle
+  cannot hold an arbitrary heading; the cross-track error steers it.  ``terminal="cost"`` weighs
+  ``ℓ`` at node N by ``weights.terminal``; ``"none"`` takes ``ℓ`` as it is;
+* the current as a stagewise parameter, as in :class:`~uuv_ocp.tracking.TrackingProblem`.
+
+The problem is time-invariant (``t0 = 0``): a closed loop's state is ``[x, s]`` (the path
+parameter is the controller's own state, known exactly, and the plant of :func:`simulate
+<uuv_ocp.control.simulation.simulate>` integrates it beside the vehicle);
+:meth:`PathFollowingProblem.initial_state` appends to a vehicle state the parameter of its
+closest path point.  :func:`path_errors` measures a run's cross-track, vertical and
+along-track errors by projection on the path.
+
+The path must move where it is followed (``|p'(s)| > 0``).  Where a path of a finite window
+comes to rest (a waypoint reference's final braking and hold), the path parameter stops at
+:attr:`PathFollowingProblem.path_end`, the last time its speed is at least
+:data:`END_SPEED_FRACTION` of its peak: an exact L1 penalty (``weights.terminal_penalty``)
+on ``s > path_end`` at nodes 1..N, so the vehicle comes to the end of the path and stays.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK
+from uuv_ocp.control.scenario import Scenario, plant_dynamics, scenario
+from uuv_ocp.integrators import rk4_path
+from uuv_ocp.model.base import VehicleLayout, check_vehicle
+from uuv_ocp.obstacles import Obstacle, check_obstacles
+from uuv_ocp.ocp import Ocp, check_transcription
+from uuv_ocp.reference.path import Reference
+from uuv_ocp.tracking import DeclaredPreset, control_limits, current_rows, vehicle_rhs
+
+PATH_TERMINAL_MODES = ("cost", "none")
+#: Floor (m/s) under the path speed ``|p'(s)|`` in ``ṡ = v_s / |p'(s)|``: finite where a path rests.
+SPEED_FLOOR = 1e-6
+#: Stretch (s of reference time) of an unbounded path sampled for the closest-point projection.
+PROJECTION_SPAN = 3600.0
+#: Most samples of the projection polyline (its step is at least ``PROJECTION_STEP``).
+PROJECTION_SAMPLES = 40_000
+PROJECTION_STEP = 0.02
+#: The path ends where its speed falls below this fraction of its peak for good (``path_end``).
+END_SPEED_FRACTION = 0.1
+
+
+@dataclass(frozen=True)
+class PathWeights:
+    """Cost weights of :class:`PathFollowingProblem` (every one finite and >= 0).
+
+    Parameters
+    ----------
+    cross_track : float
+        Weight on the squared cross-track error (1/m²).
+    along_track : float
+        Weight on the squared along-track error from ``p(s)`` (1/m²).
+    vertical : float
+        Weight on the squared vertical error of a spatial path (1/m²); unused in the plane.
+    speed : float
+        Weight on the squared deviation of the along-path speed from the commanded one (s²/m²).
+    surge : float
+        Weight on the squared deviation of the vehicle's surge (its first body velocity) from
+        the along-path speed (s²/m²): the vehicle moves with ``p(s)``, nose first, instead of
+        reversing its propeller or stalling to wait for it.
+    attitude : float
+        Weight on the squared roll and pitch (1/rad²), the angles other than the heading
+        (regulated to zero); a planar vehicle has none.
+    effort : float
+        Weight on the squared scaled vehicle controls ``τ / τ_max`` (dimensionless).
+    rate : float
+        Weight on the squared scaled control increments ``Δu / u_max``, the along-path speed's
+        included (dimensionless).
+    terminal : float
+        Factor on the state terms at node N with ``terminal="cost"`` (dimensionless).
+    terminal_penalty : float
+        Exact L1 penalty weight of the derivative-free solvers' hard-constraint violations.
+    rate_penalty : float
+        Penalty weight on the scaled rate-bound excess (derivative-free solvers only).
+    """
+
+    cross_track: float = 10.0
+    along_track: float = 0.1
+    vertical: float = 10.0
+    speed: float = 10.0
+    surge: float = 10.0
+    attitude: float = 10.0
+    effort: float = 0.0
+    rate: float = 1.0
+    terminal: float = 10.0
+    terminal_penalty: float = 1e4
+    rate_penalty: float = 1e4
+
+    def __post_init__(self) -> None:
+        """Check every weight (``ValueError`` names it) and store it as a float."""
+        for name in (
+            "cross_track",
+            "along_track",
+            "vertical",
+            "speed",
+            "attitude",
+            "effort",
+            "rate",
+            "terminal",
+        ):
+            object.__setattr__(self, name, check.nonnegative_float(f"weights.{name}", getattr(self, name)))
+        for name in ("terminal_penalty", "rate_penalty"):
+            object.__setattr__(self, name, check.positive_float(f"weights.{name}", getattr(self, name)))
+        if self.cross_track == 0.0:
+            raise ValueError("weights.cross_track must be > 0: no cost would bring the vehicle to the path")
+
+
+def path_geometry(reference: Reference) -> ca.Function:
+    """``s -> (p(s), p'(s))``: the path point (m) and its derivative in the reference's time (m/s).
+
+    From :attr:`Reference.function <uuv_ocp.reference.path.Reference.function>`: the body
+    velocity ``(u_R, v_R)`` turned by ``ψ_R`` to the inertial frame, and ``w_R = ż_R`` of a
+    spatial reference (its pitch is zero).
+    """
+    s = ca.SX.sym("s")
+    state = reference.function(s)
+    if reference.spatial:
+        position, heading, surge, sway, heave = state[0:3], state[5], state[6], state[7], state[8]
+    else:
+        position, heading, surge, sway, heave = state[0:2], state[2], state[3], state[4], None
+    cos_psi, sin_psi = ca.cos(heading), ca.sin(heading)
+    horizontal = [surge * cos_psi - sway * sin_psi, surge * sin_psi + sway * cos_psi]
+    velocity = ca.vertcat(*horizontal, *([heave] if heave is not None else []))
+    return ca.Function("path_geometry", [s], [position, velocity], ["s"], ["position", "tangent"])
+
+
+def tangent_frame_errors(offset: Any, tangent: Any) -> list[Any]:
+    """``[e_a, e_c]`` (planar) or ``[e_a, e_c, e_z]`` (spatial) of ``offset = position − p(s)`` (m).
+
+    ``tangent`` is ``p'(s)``; works on CasADi symbols and on numpy vectors alike.
+    """
+    size = offset.shape[0]  # CasADi and numpy alike
+    speed = (sum(tangent[i] ** 2 for i in range(size)) + SPEED_FLOOR**2) ** 0.5
+    t = [tangent[i] / speed for i in range(size)]
+    level = (t[0] ** 2 + t[1] ** 2 + SPEED_FLOOR**2) ** 0.5
+    n = [-t[1] / level, t[0] / level]
+    along = sum(t[i] * offset[i] for i in range(len(t)))
+    cross = n[0] * offset[0] + n[1] * offset[1]
+    if len(t) == 2:
+        return [along, cross]
+    # b = t × n with n = (n0, n1, 0): (−t2 n1, t2 n0, t0 n1 − t1 n0)
+    vertical = -t[2] * n[1] * offset[0] + t[2] * n[0] * offset[1] + (t[0] * n[1] - t[1] * n[0]) * offset[2]
+    return [along, cross, vertical]
+
+
+@dataclass(frozen=True)
+class PathFollowingProblem(DeclaredPreset):
+    """NMPC path following of a vehicle: converge to ``path`` and move along it at ``speed``.
+
+    Parameters
+    ----------
+    vehicle : VehicleModel
+        The controller's model (any :class:`~uuv_ocp.model.base.VehicleModel`).
+    path : Reference
+        The geometric path, of the kind ``vehicle.layout.reference`` names (planar or
+        spatial); its timing only parameterises it (module doc).
+    speed : float
+        Commanded along-path speed U (m/s), > 0, at most ``max_path_speed``.
+    horizon : int
+        Number of shooting intervals N, 1 <= N <= 10 000.
+    dt : float
+        Sampling time (s), > 0.
+    weights : PathWeights, optional
+        Cost weights (default ``PathWeights()``).
+    terminal : {"cost", "none"}
+        The state terms at node N weighted by ``weights.terminal``, or as at other nodes.
+    substeps : int
+        RK4 steps per interval of the prediction model, >= 1.
+    transcription : {"multiple_shooting", "collocation"}
+        As :class:`~uuv_ocp.tracking.TrackingProblem`.
+    degree : int, optional
+        Collocation points per interval, with ``transcription="collocation"``.
+    rate_limits : bool
+        Enforce the vehicle's control rate bounds and ``path_acceleration``.
+    max_path_speed : float, optional
+        Upper bound of the along-path speed ``v_s`` (m/s); default ``2 speed``.
+    path_acceleration : float
+        Rate bound of ``v_s`` (m/s²), > 0.
+    obstacles : tuple of Obstacle
+        Static keep-out zones: hard constraints on the horizontal position of nodes 1..N (an
+        exact penalty for the swarms).  Moving obstacles need a time the problem has not.
+    """
+
+    vehicle: Any
+    path: Reference
+    speed: float
+    horizon: int = 20
+    dt: float = 0.5
+    weights: PathWeights | None = None
+    terminal: str = "cost"
+    substeps: int = 1
+    transcription: str = "multiple_shooting"
+    degree: int | None = None
+    rate_limits: bool = True
+    max_path_speed: float | None = None
+    path_acceleration: float = 1.0
+    obstacles: tuple[Obstacle, ...] = ()
+
+    def __post_init__(self) -> None:
+        """Check the fields against each other and the vehicle (``ValueError`` names the field)."""
+        set_field = object.__setattr__
+        layout = check_vehicle("vehicle", self.vehicle).layout
+        if not isinstance(self.path, Reference):
+            raise ValueError(f"path must be a uuv_ocp.Reference, got {type(self.path).__name__}")
+        if self.path.spatial != (layout.reference == "spatial"):
+            kind = "spatial (Reference.from_xyz, 3-D waypoints, a lawnmower with depth)"
+            if layout.reference == "planar":
+                kind = "planar (Reference.from_xy, 2-D waypoints, a lawnmower without depth)"
+            got = "spatial" if self.path.spatial else "planar"
+            raise ValueError(f"path must be {kind} for this vehicle, got a {got} reference")
+        set_field(self, "speed", check.positive_float("speed", self.speed))
+        set_field(self, "horizon", check.positive_int("horizon", self.horizon))
+        if self.horizon > 10_000:
+            raise ValueError(f"horizon must be an integer <= 10000, got {self.horizon!r}")
+        set_field(self, "dt", check.positive_float("dt", self.dt))
+        if self.weights is None:
+            set_field(self, "weights", PathWeights())
+        if not isinstance(self.weights, PathWeights):
+            raise ValueError(f"weights must be a uuv_ocp.PathWeights, got {check.shown(self.weights)}")
+        check.choice("terminal", self.terminal, PATH_TERMINAL_MODES)
+        set_field(self, "substeps", check.positive_int("substeps", self.substeps))
+        check_transcription(self.transcription, self.degree, self.substeps)
+        check.boolean("rate_limits", self.rate_limits)
+        top = 2.0 * self.speed if self.max_path_speed is None else self.max_path_speed
+        top = check.positive_float("max_path_speed", top)
+        if top < self.speed:
+            raise ValueError(f"max_path_speed must be >= speed = {self.speed} m/s, got {top} m/s")
+        set_field(self, "max_path_speed", top)
+        set_field(
+            self, "path_acceleration", check.positive_float("path_acceleration", self.path_acceleration)
+        )
+        obstacles = check_obstacles(self.obstacles)
+        moving = [obstacle.name for obstacle in obstacles if obstacle.is_moving]
+        if moving:
+            raise ValueError(
+                f"obstacles must be static for path following (the problem has no time), got moving {moving}"
+            )
+        set_field(self, "obstacles", obstacles)
+
+    # ------------------------------------------------------------- the Ocp
+    @functools.cached_property
+    def geometry(self) -> ca.Function:
+        """``s -> (p(s), p'(s))`` of the path (:func:`path_geometry`)."""
+        with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
+            return path_geometry(self.path)
+
+    def _declare(self) -> Ocp:
+        vehicle, weights = self.vehicle, self.weights
+        assert weights is not None and self.max_path_speed is not None
+        layout: VehicleLayout = vehicle.layout
+        nx, nu, nc = layout.state_dim, layout.control_dim, layout.current_dim
+        ocp = Ocp(
+            self.horizon,
+            self.dt,
+            substeps=self.substeps,
+            transcription=self.transcription,
+            degree=self.degree,
+            terminal_penalty=weights.terminal_penalty,
+            constraint_penalty=weights.terminal_penalty,
+            rate_penalty=weights.rate_penalty,
+            name=f"path_following_{self.path.name}",
+        )
+        state = ocp.state("x", nx)
+        s = ocp.state("s")
+        max_control, max_rate = control_limits(vehicle)
+        tau = ocp.control(
+            "tau", nu, lower=-max_control, upper=max_control, max_rate=max_rate if self.rate_limits else None
+        )
+        top = self.max_path_speed
+        v_s = ocp.control(
+            "v_s", lower=0.0, upper=top, max_rate=self.path_acceleration if self.rate_limits else None
+        )
+        current = ocp.parameter("current", nc, stagewise=True)
+        ocp.set_der(state, vehicle_rhs(vehicle, state, tau, current))
+        position, tangent = self.geometry(s)
+        ocp.set_der(s, path_rate(v_s, tangent))
+        ocp.add_stage_cost(
+            residual=ca.vertcat(
+                (tau - ocp.previous(tau)) / ca.DM(max_control),
+                (v_s - ocp.previous(v_s)) / top,
+                tau / ca.DM(max_control),
+                v_s - self.speed,
+                state[layout.velocities[0]] - v_s,
+            ),
+            weight=(*(weights.rate,) * (nu + 1), *(weights.effort,) * nu, weights.speed, weights.surge),
+        )
+        errors = tangent_frame_errors(state[list(layout.positions)] - position, tangent)
+        attitude = [state[i] for i in layout.angles if i != layout.heading]
+        residual = ca.vertcat(*errors, *attitude)
+        stage = (weights.along_track, weights.cross_track, *([weights.vertical] if len(errors) == 3 else []))
+        stage += (weights.attitude,) * len(attitude)
+        if self.horizon > 1:  # nodes 1..N-1 (x_0 is given)
+            ocp.add_stage_cost(residual=residual, weight=stage, start=1)
+        factor = weights.terminal if self.terminal == "cost" else 1.0
+        ocp.add_terminal_cost(residual=residual, weight=[factor * w for w in stage])
+        if math.isfinite(self.path_end):  # soft: the plant may overshoot it by an ulp
+            ocp.bounded(-math.inf, s, self.path_end, soft=weights.terminal_penalty)
+        horizontal = list(layout.positions[:2])
+        for obstacle in self.obstacles:
+            ocp.subject_to(obstacle.clearance(state[horizontal]) >= 0)
+        return ocp
+
+    # ------------------------------------------------------------- instances
+    def instance_parameters(
+        self,
+        x0: object,
+        t0: float = 0.0,
+        *,
+        u_prev: object | None = None,
+        current: object | None = None,
+        parameters: Mapping[str, object] | None = None,
+    ) -> np.ndarray:
+        """Parameter vector of one instance, in the signature every problem shares.
+
+        Path following is time-invariant: ``t0`` must be 0 (the path parameter in ``x0`` says
+        where on the path the vehicle is); ``parameters`` is refused (an Ocp's argument).
+        """
+        if parameters is not None:
+            raise ValueError("parameters= is for an Ocp; a PathFollowingProblem takes x0, u_prev and current")
+        if check.finite_float("t0", t0) != 0.0:
+            raise ValueError(
+                f"t0 must be 0 for a PathFollowingProblem (time-invariant: the path parameter, the last "
+                f"entry of x0, places the vehicle on the path), got {t0}"
+            )
+        return self.parameters(x0, u_prev, current)
+
+    def parameters(
+        self, x0: object, u_prev: object | None = None, current: object | None = None
+    ) -> np.ndarray:
+        """Parameter vector ``p = [x0, u_prev, current]`` of one instance.
+
+        Parameters
+        ----------
+        x0 : array_like, shape (nx + 1,)
+            Vehicle state and path parameter ``s`` (s of the reference's time).
+        u_prev : array_like, shape (nu + 1,), optional
+            Last applied control and along-path speed (m/s); zero by default.
+        current : array_like, shape (nc,), (N, nc) or (N+1, nc), optional
+            Inertial current velocity (m/s) the model assumes on each interval.
+        """
+        x0 = check.plausible_array("x0", x0, (self.state_dim,))
+        nc = self.vehicle.layout.current_dim
+        rows = current_rows(current, self.horizon, nc)
+        values = {
+            "current": np.zeros((self.horizon + 1, nc))
+            if rows is None
+            else np.broadcast_to(rows, (self.horizon + 1, nc))
+        }
+        return self.ocp.pack(x0, self.ocp.check_previous(u_prev), values)
+
+    def initial_guess(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Cold start: the last control held, ``v_s`` at the commanded speed, and their rollout.
+
+        A consistent guess (the states the controls give): a held state on a moving path
+        started IPOPT far from any plan the vehicle can fly (hundreds of iterations).
+        """
+        spec = self.spec()
+        controls = np.tile(self.previous_scaled(p), (self.horizon, 1))
+        controls[:, -1] = spec.scaled(np.r_[np.zeros(spec.control_size - 1), self.speed])[-1]
+        states = self.rollout_scaled(controls.ravel(), p)
+        if not np.all(np.isfinite(states)):  # a rollout that blew up guides nothing
+            states = np.tile(np.asarray(p[spec.layout.x0], dtype=float), (self.horizon + 1, 1))
+        return states, controls
+
+    def initial_state(self, vehicle_state: object) -> np.ndarray:
+        """Return ``[vehicle_state, s]`` with ``s`` the parameter of the path point closest to it."""
+        layout = self.vehicle.layout
+        state = check.plausible_array("vehicle_state", vehicle_state, (layout.state_dim,))
+        return np.r_[state, self.closest_parameter(state[list(layout.positions)])]
+
+    # ------------------------------------------------------------- projection
+    @functools.cached_property
+    def polyline(self) -> tuple[np.ndarray, np.ndarray]:
+        """Samples ``(times (m,), positions (m, d))`` of the path for the closest-point projection.
+
+        Over ``[t_start, t_end]`` (``t_start + PROJECTION_SPAN`` for an unbounded window), at most
+        ``PROJECTION_SAMPLES``
+        samples and at least ``PROJECTION_STEP`` s apart: the chord of an arc of radius r is
+        within ``(U step)² / (8 r)`` of it (µm for the presets).
+        """
+        start = self.path.t_start
+        end = self.path.t_end if math.isfinite(self.path.t_end) else start + PROJECTION_SPAN
+        count = int(min(PROJECTION_SAMPLES, math.ceil((end - start) / PROJECTION_STEP))) + 1
+        times = np.linspace(start, end, count)
+        columns = [0, 1, 2] if self.path.spatial else [0, 1]
+        return times, self.path.evaluate(times)[:, columns]
+
+    @functools.cached_property
+    def path_end(self) -> float:
+        """Last path parameter (s) the path parameter may reach: ``inf`` for an unbounded window.
+
+        For a finite window, the last sample of :attr:`polyline` whose path speed is at least
+        :data:`END_SPEED_FRACTION` of the peak (a waypoint reference's braking to rest, its
+        hold excluded), or ``t_end``.
+        """
+        if not math.isfinite(self.path.t_end):
+            return math.inf
+        times, _ = self.polyline
+        tangents = np.array(self.geometry.map(times.size)(times[None, :])[1]).T
+        speed = np.linalg.norm(tangents, axis=1)
+        moving = np.flatnonzero(speed >= END_SPEED_FRACTION * speed.max())
+        return float(times[moving[-1]])
+
+    def closest_parameter(self, position: object) -> float:
+        """Return the path parameter ``s`` (s) of the path point closest to ``position`` (m).
+
+        The closest point of the sampled polyline (:attr:`polyline`; every segment's, then the
+        closest of those, the first on a tie), refined on the exact path by a bounded scalar
+        minimisation (to 1e-10 s) over the neighbouring samples' interval.
+        """
+        times, points = self.polyline
+        position = check.finite_array("position", position, (points.shape[1],))
+        start, chord = points[:-1], np.diff(points, axis=0)
+        length = np.einsum("ij,ij->i", chord, chord)
+        fraction = np.einsum("ij,ij->i", position - start, chord) / np.where(length > 0.0, length, 1.0)
+        fraction = np.clip(fraction, 0.0, 1.0)
+        distance = np.sum((start + fraction[:, None] * chord - position) ** 2, axis=1)
+        best = int(np.argmin(distance))
+        # the chord's point is within the sampling's sagitta of the path: the exact distance is
+        # minimised next to it, on the two neighbouring samples' interval (bounded Brent)
+        low, high = times[max(best - 1, 0)], times[min(best + 2, times.size - 1)]
+
+        def squared_distance(s: float) -> float:
+            point = np.array(self.geometry(s)[0]).ravel()
+            return float(np.sum((point - position) ** 2))
+
+        found = minimize_scalar(
+            squared_distance, bounds=(low, high), method="bounded", options={"xatol": 1e-10}
+        )
+        return float(found.x)
+
+
+def path_rate(v_s: Any, tangent: Any) -> Any:
+    """``ṡ = v_s / |p'(s)|``: the reference-time rate that moves ``p(s)`` at ``v_s`` m/s along the path."""
+    return v_s / ca.sqrt(ca.sumsqr(tangent) + SPEED_FLOOR**2)
+
+
+def path_errors(problem: PathFollowingProblem, states: Any) -> dict[str, np.ndarray]:
+    """Cross-track, vertical and along-track errors of a run, by projection on the path.
+
+    Parameters
+    ----------
+    problem : PathFollowingProblem
+        The problem whose path the run followed.
+    states : ClosedLoopResult or array_like, shape (n, nx) or (n, nx + 1)
+        The run (its ``states``), or states of the vehicle, with or without the path parameter.
+
+    Returns
+    -------
+    dict of numpy.ndarray, shape (n,)
+        ``"cross_track"`` (m, signed: positive to starboard of the path, NED) and, for a spatial
+        path, ``"vertical"`` (m, positive below it) of each position from its closest path point
+        (:meth:`PathFollowingProblem.closest_parameter`); ``"closest"``, that point's parameter
+        (s); with the path parameter in the states, ``"along_track"`` (m): the position's offset
+        from ``p(s)`` along the path's tangent at ``s``.
+    """
+    layout = problem.vehicle.layout
+    rows = np.atleast_2d(np.asarray(getattr(states, "states", states), dtype=float))
+    if rows.shape[1] not in (layout.state_dim, layout.state_dim + 1):
+        raise ValueError(
+            f"states must have {layout.state_dim} or {layout.state_dim + 1} columns (the vehicle's "
+            f"state, with or without the path parameter), got {rows.shape[1]}"
+        )
+    positions = rows[:, list(layout.positions)]
+    closest = np.array([problem.closest_parameter(position) for position in positions])
+    names = ["along", "cross_track", "vertical"][: positions.shape[1]]
+    result: dict[str, list[float]] = {name: [] for name in names}
+    along: list[float] = []
+    for k, position in enumerate(positions):
+        point, tangent = (np.array(value).ravel() for value in problem.geometry(closest[k]))
+        for name, value in zip(names, tangent_frame_errors(position - point, tangent), strict=True):
+            result[name].append(float(value))
+        if rows.shape[1] == layout.state_dim + 1:
+            point, tangent = (np.array(value).ravel() for value in problem.geometry(rows[k, -1]))
+            along.append(float(tangent_frame_errors(position - point, tangent)[0]))
+    errors = {name: np.array(values) for name, values in result.items() if name != "along"}
+    errors["closest"] = closest
+    if along:
+        errors["along_track"] = np.array(along)
+    return errors
+
+
+@scenario.register
+def _path_following(
+    problem: PathFollowingProblem,
+    *,
+    t0: float | None,
+    duration: float,
+    plant: Any,
+    parameters: Mapping[str, Any] | None,
+    current: Any,
+    substeps: int,
+) -> Scenario:
+    if parameters is not None:
+        raise ValueError(
+            f"parameters is for an Ocp; a PathFollowingProblem takes current=, got {check.shown(parameters)}"
+        )
+    if t0 is not None and check.finite_float("t0", t0) != 0.0:
+        raise ValueError(f"t0 must be 0 or None for a PathFollowingProblem (time-invariant), got {t0}")
+    layout = problem.vehicle.layout
+    nx = problem.state_dim
+    return Scenario(
+        t0=0.0,
+        steps=max(1, int(np.floor(duration / problem.dt + 1e-9))),
+        plant_step=path_plant(problem, plant, substeps),
+        current_dim=layout.current_dim,
+        time_varying=False,
+        name=problem.path.name,
+        state_names=(*layout.state_names, "s"),
+        state_units=(*layout.state_units, "s"),
+        state_roles=(*layout.state_roles, ""),
+        reference=lambda times: np.full((len(times), nx), np.nan),
+    )
+
+
+def path_plant(problem: PathFollowingProblem, plant: Any, substeps: int) -> ca.Function:
+    """RK4 plant path ``([x, s], [τ, v_s], current) -> (nx + 1, substeps)``: the vehicle and ``s``."""
+    dynamics = plant_dynamics(problem.vehicle, plant)
+    layout = problem.vehicle.layout
+    x = ca.MX.sym("x", layout.state_dim + 1)
+    u = ca.MX.sym("u", layout.control_dim + 1)
+    c = ca.MX.sym("current", layout.current_dim)
+    _, tangent = problem.geometry(x[-1])
+    rate = ca.vertcat(dynamics(x[:-1], u[:-1], c), path_rate(u[-1], tangent))
+    augmented = ca.Function("path_plant", [x, u, c], [rate], ["x", "u", "current"], ["xdot"])
+    return rk4_path(augmented, problem.dt, substeps, name="plant_step")

@@ -283,17 +283,7 @@ class PathFollowingProblem(DeclaredPreset):
         assert weights is not None and self.max_path_speed is not None
         layout: VehicleLayout = vehicle.layout
         nx, nu, nc = layout.state_dim, layout.control_dim, layout.current_dim
-        ocp = Ocp(
-            self.horizon,
-            self.dt,
-            substeps=self.substeps,
-            transcription=self.transcription,
-            degree=self.degree,
-            terminal_penalty=weights.terminal_penalty,
-            constraint_penalty=weights.terminal_penalty,
-            rate_penalty=weights.rate_penalty,
-            name=f"path_following_{self.path.name}",
-        )
+        ocp = self._empty_ocp(f"path_following_{self.path.name}")
         state = ocp.state("x", nx)
         s = ocp.state("s")
         max_control, max_rate = control_limits(vehicle)

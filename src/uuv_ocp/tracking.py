@@ -251,8 +251,31 @@ class DeclaredPreset(Transcribed):
     declares a stagewise parameter ``"current"`` (m/s).
     """
 
+    # the fields every preset declares (annotations only: each subclass is the dataclass)
+    horizon: int
+    dt: float
+    substeps: int
+    transcription: str
+    degree: int | None
+    weights: Any
+
     def _declare(self) -> Ocp:
         raise NotImplementedError
+
+    def _empty_ocp(self, name: str) -> Ocp:
+        """Return a new :class:`~uuv_ocp.ocp.Ocp` of this preset's horizon, transcription and penalties."""
+        weights = self.weights
+        return Ocp(
+            self.horizon,
+            self.dt,
+            substeps=self.substeps,
+            transcription=self.transcription,
+            degree=self.degree,
+            terminal_penalty=weights.terminal_penalty,
+            constraint_penalty=weights.terminal_penalty,
+            rate_penalty=weights.rate_penalty,
+            name=name,
+        )
 
     @property
     def ocp(self) -> Ocp:
@@ -418,17 +441,7 @@ class TrackingProblem(DeclaredPreset):
         assert weights is not None
         layout: VehicleLayout = vehicle.layout
         nx, nu, nc = layout.state_dim, layout.control_dim, layout.current_dim
-        ocp = Ocp(
-            self.horizon,
-            self.dt,
-            substeps=self.substeps,
-            transcription=self.transcription,
-            degree=self.degree,
-            terminal_penalty=weights.terminal_penalty,
-            constraint_penalty=weights.terminal_penalty,
-            rate_penalty=weights.rate_penalty,
-            name=f"tracking_{self.reference.name}",
-        )
+        ocp = self._empty_ocp(f"tracking_{self.reference.name}")
         state = ocp.state("x", nx)
         max_thrust, max_rate = control_limits(vehicle)
         rate = max_rate if self.rate_limits else None

@@ -26,18 +26,26 @@ isolated to that thruster.  The statistic overstates confidence (the bias estima
 autocorrelated series, so the residuals are not independent): ``significance`` is set high and
 the false-alarm rate is *measured* (tests, ``benchmarks/bench_faults.py``) rather than derived.
 Once isolated, the thruster's health follows its estimate ``1 − ℓ_i`` (clipped to [0, 1]) on
-every step where it is still commanded, and holds otherwise (an unused thruster's loss is not
-observable).  Stuck thrusters (an offset ``s``) are not modelled by the regression.
+the steps where it is still commanded, downwards always and upwards only when the loss is
+significant, and holds otherwise (an unused thruster's loss is not observable, and the ridge
+would pull it back to healthy).  Stuck thrusters (an offset ``s``) are not modelled by the
+regression.  The defaults were tuned on 40 seeded closed loops of the BlueROV2 Heavy survey
+(EKF ``bias_std = 5``, sqp-rti N = 10, 0.3 m/s current, fault at 5..7 s): every failure and
+50 % loss isolated, median delay 1.5 s, one false alarm in 40 runs (20 of them fault-free).
 """
 
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from uuv_ocp import _validation as check
+
+ISOLATIONS = ("single", "joint")
 
 
 @dataclass(frozen=True)
@@ -49,25 +57,48 @@ class FaultDetectorOptions:
     window : int
         Steps of the regression window (>= 2).  Default 20 (2 s at dt = 0.1 s).
     threshold : float
-        Loss estimate ``ℓ_i = 1 − h_i`` a detection needs, in (0, 1].  Default 0.4.
+        Loss estimate ``ℓ_i = 1 − h_i`` a detection needs, in (0, 1].  Default 0.3.
     significance : float
-        Residual-normalised statistic ``ℓ_i / se_i`` a detection needs, > 0.  Default 10.
+        Residual-normalised statistic ``ℓ_i / se_i`` a detection needs, > 0.  Default 6.
     hold : int
-        Consecutive steps the same thruster must pass both tests (>= 1).  Default 5.
+        Consecutive steps the same thruster must pass both tests (>= 1).  Default 10.
     arm_time : float
         Time after the detector's first update before it may declare a detection (s), >= 0:
         the estimator's current and bias settle meanwhile.  Default 5.
     min_force : float
         Window RMS command (N) a thruster needs for its loss to be tested or followed, > 0.
         Default 3.
+    ridge : float
+        Ridge on the losses (N), >= 0 (:func:`loss_regression`): windows that excite a thruster
+        little (near-constant commands) leave its loss near 0 instead of an ill-conditioned
+        value.  Default 10.
+    intercept : bool
+        Fit a constant generalised force per window beside the losses (:func:`loss_regression`):
+        a slowly varying disturbance the bias also holds is not blamed on a thruster; a loss is
+        then seen through the *variation* of its command.  Default True.
+    isolation : {"single", "joint"}
+        ``"joint"`` (default): all losses in one regression, the largest the candidate;
+        ``"single"``: one hypothesis per thruster (its loss alone, beside those already
+        isolated), the candidate the one whose fit leaves the least residual — the classic
+        single-fault isolation, well conditioned where thrusters share a direction (the four
+        vertical ones) but more false alarms on the survey (its statistic is more overconfident).
+    normalise : bool
+        Scale each generalised axis of ``T`` and ``T b̂`` by the inverse norm of its row of
+        ``T`` (unit thruster authority per axis) before the regression.  Default True: roll and
+        pitch (≈ 0.2 N·m per N on the BlueROV2) then weigh as much as heave, and they are what
+        tell the four vertical thrusters apart (20/20 isolated against 17/20 on the tuning runs).
     """
 
     window: int = 20
-    threshold: float = 0.4
-    significance: float = 10.0
-    hold: int = 5
+    threshold: float = 0.3
+    significance: float = 6.0
+    hold: int = 10
     arm_time: float = 5.0
     min_force: float = 3.0
+    ridge: float = 10.0
+    intercept: bool = True
+    isolation: str = "joint"
+    normalise: bool = True
 
     def __post_init__(self) -> None:
         """Check every field (``ValueError`` names it)."""
@@ -81,6 +112,10 @@ class FaultDetectorOptions:
         set_field(self, "hold", check.positive_int("hold", self.hold))
         set_field(self, "arm_time", check.nonnegative_float("arm_time", self.arm_time))
         set_field(self, "min_force", check.positive_float("min_force", self.min_force))
+        set_field(self, "ridge", check.nonnegative_float("ridge", self.ridge))
+        check.boolean("intercept", self.intercept)
+        check.choice("isolation", self.isolation, ISOLATIONS)
+        check.boolean("normalise", self.normalise)
 
 
 @dataclass(frozen=True)
@@ -124,8 +159,20 @@ def loss_regressors(allocation: np.ndarray, forces: np.ndarray) -> np.ndarray:
     return -(forces[:, None, :] * allocation[None, :, :]).reshape(-1, allocation.shape[1])
 
 
-def loss_regression(allocation: np.ndarray, forces: np.ndarray, bias: np.ndarray) -> LossFit:
+def loss_regression(
+    allocation: np.ndarray,
+    forces: np.ndarray,
+    bias: np.ndarray,
+    *,
+    ridge: float = 0.0,
+    intercept: bool = False,
+    columns: Sequence[int] | None = None,
+) -> LossFit:
     """Least-squares thruster losses of one window (module doc).
+
+    Solves ``min ‖y − X ℓ − 1 ⊗ c‖² + ridge² ‖ℓ‖²`` by ``numpy.linalg.lstsq`` on the stacked
+    system (the ridge rows ``ridge · I`` pull an unexcited loss to 0, i.e. healthy; ``c`` is the
+    window's constant generalised force, only with ``intercept``).
 
     Parameters
     ----------
@@ -135,20 +182,38 @@ def loss_regression(allocation: np.ndarray, forces: np.ndarray, bias: np.ndarray
         Commanded thruster forces (N), row ``k`` the command the bias of row ``k`` followed.
     bias : numpy.ndarray, shape (W, 6)
         Estimated generalised-force bias ``T b̂`` (N, N·m).
+    ridge : float
+        Ridge on the losses (N: a column of that norm counts as much as the prior ℓ = 0), >= 0.
+    intercept : bool
+        Also fit a constant generalised force over the window (a disturbance the commands do not
+        scale: a current the estimator has not yet settled, a heave offset).
+    columns : sequence of int, optional
+        Fit only these thrusters' losses (a fault hypothesis); the others are held at 0 (their
+        loss 0, standard error ``inf`` in the result).  Default: all.
     """
-    X = loss_regressors(allocation, forces)
+    full = loss_regressors(allocation, forces)
+    count = full.shape[1]
+    keep = list(range(count)) if columns is None else sorted({int(i) for i in columns})
+    X = full[:, keep]
+    n = X.shape[1]
     y = np.asarray(bias, dtype=float).ravel()
-    loss, _, rank, _ = np.linalg.lstsq(X, y, rcond=None)
-    residual = y - X @ loss
+    design = np.hstack([X, np.tile(np.eye(6), (X.shape[0] // 6, 1))]) if intercept else X
+    extra = design.shape[1] - n
+    stacked = np.vstack([design, np.hstack([ridge * np.eye(n), np.zeros((n, extra))])]) if ridge else design
+    target = np.concatenate([y, np.zeros(n)]) if ridge else y
+    solution, _, rank, _ = np.linalg.lstsq(stacked, target, rcond=None)
+    loss = solution[:n]
+    residual = y - design @ solution
     dof = max(1, y.size - int(rank))
     residual_std = float(np.sqrt(residual @ residual / dof))
-    gram = np.linalg.pinv(X.T @ X)
-    variance = np.diag(gram)
+    variance = np.diag(np.linalg.pinv(stacked.T @ stacked))[:n]
     # a thruster the window never commands has a zero column: no information, not certainty
     excited = np.linalg.norm(X, axis=0) > 0.0
     standard_error = np.where(excited, residual_std * np.sqrt(np.maximum(variance, 0.0)), np.inf)
     standard_error = np.where(standard_error > 0.0, standard_error, np.finfo(float).tiny)
-    return LossFit(loss, standard_error, residual_std, int(rank))
+    losses, errors = np.zeros(count), np.full(count, np.inf)
+    losses[keep], errors[keep] = loss, standard_error
+    return LossFit(losses, errors, residual_std, int(rank))
 
 
 @dataclass(frozen=True)
@@ -196,6 +261,11 @@ class ThrusterFaultDetector:
                 f"options must be a uuv_ocp.FaultDetectorOptions or None, got {type(options).__name__}"
             )
         self.allocation, self.options = matrix, options
+        # each generalised axis scaled to unit thruster authority: roll and pitch (≈ 0.2 N·m per
+        # N) otherwise weigh little beside heave, and they are what tell vertical thrusters apart
+        norms = np.linalg.norm(matrix, axis=1)
+        unit = 1.0 / np.where(norms > 0.0, norms, 1.0)
+        self._weights = unit if options.normalise else np.ones(6)
         self.reset()
 
     @property
@@ -219,6 +289,28 @@ class ThrusterFaultDetector:
         """Thrusters declared faulty so far, in order."""
         return tuple(item.thruster for item in self.detections)
 
+    def _fits(self, F: np.ndarray, G: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Loss (unclipped), statistic and hypothesis residual of every thruster on this window."""
+        options = self.options
+        fit = partial(
+            loss_regression,
+            self.allocation * self._weights[:, None],
+            F,
+            G * self._weights,
+            ridge=options.ridge,
+            intercept=options.intercept,
+        )
+        if options.isolation == "joint":
+            joint = fit()
+            return joint.loss, joint.statistic, np.full(self.count, joint.residual_std)
+        loss, statistic, residual = np.zeros(self.count), np.zeros(self.count), np.zeros(self.count)
+        isolated = list(self.isolated)
+        for i in range(self.count):  # hypothesis i: thruster i faulty beside those isolated
+            hypothesis = fit(columns=isolated if i in isolated else [*isolated, i])
+            loss[i], statistic[i] = hypothesis.loss[i], hypothesis.statistic[i]
+            residual[i] = hypothesis.residual_std
+        return loss, statistic, residual
+
     def update(self, step: int, time: float, forces: object, bias: object) -> Detection | None:
         """Take one step: the commands ``forces`` (N, shape (n,)) and the thruster-space bias.
 
@@ -234,13 +326,16 @@ class ThrusterFaultDetector:
         options = self.options
         if len(self._forces) < options.window:
             return None
-        F = np.array(self._forces)
-        fit = loss_regression(self.allocation, F, np.array(self._bias))
-        loss = np.clip(fit.loss, 0.0, 1.0)
-        self.estimate = 1.0 - loss
+        F, G = np.array(self._forces), np.array(self._bias)
         commanded = np.sqrt(np.mean(F**2, axis=0)) >= options.min_force
-        for i in self.isolated:  # the told health follows the estimate while it is observable
-            if commanded[i]:
+        raw, statistic, residual = self._fits(F, G)
+        loss = np.clip(raw, 0.0, 1.0)
+        self.estimate = 1.0 - loss
+        significant = statistic >= options.significance
+        for i in self.isolated:  # the told health follows the estimate while it is observable:
+            # lower on any commanded window, higher only on a significant loss (a thruster the
+            # controller stops using gives windows the ridge pulls to "healthy")
+            if commanded[i] and (significant[i] or self.estimate[i] < self.health[i]):
                 self.health[i] = self.estimate[i]
         if time - self._start < options.arm_time - 1e-9:
             return None
@@ -249,8 +344,12 @@ class ThrusterFaultDetector:
         if not open_.any():
             self._streak = 0
             return None
-        candidate = int(np.argmax(np.where(open_, loss, -np.inf)))
-        passed = loss[candidate] >= options.threshold and fit.statistic[candidate] >= options.significance
+        if options.isolation == "single":
+            candidate = int(np.argmin(np.where(open_, residual, np.inf)))
+        else:
+            # ranked unclipped: two losses clipped at 1 would tie and the candidate flip
+            candidate = int(np.argmax(np.where(open_, raw, -np.inf)))
+        passed = loss[candidate] >= options.threshold and statistic[candidate] >= options.significance
         if not passed:
             self._streak = 0
             return None

@@ -174,7 +174,7 @@ def test_no_false_alarm_on_fault_free_seeded_runs(survey, controller, estimator)
     assert alarms == []
 
 
-def test_the_fault_tolerant_nmpc_is_told_the_estimated_health(survey, boat):
+def test_the_fault_tolerant_nmpc_is_told_the_estimated_health(survey, boat, tmp_path):
     """Closed loop: thruster 2 fails at 6 s; detected and the controller's health follows it."""
 
     class Spy(uo.NMPC):
@@ -213,6 +213,10 @@ def test_the_fault_tolerant_nmpc_is_told_the_estimated_health(survey, boat):
         lowered = set(np.flatnonzero(told["health"] < 1.0))
         assert lowered <= {int(row[1]) for row in run.detections if row[0] <= run.t[k] + 1e-9} <= detected
     assert run.estimated_health.shape == (run.controls.shape[0], 8)
+    run.save(tmp_path / "run.npz")  # the detections survive a save
+    loaded = uo.ClosedLoopResult.load(tmp_path / "run.npz")
+    np.testing.assert_array_equal(loaded.detections, run.detections)
+    np.testing.assert_array_equal(loaded.estimated_health, run.estimated_health)
 
 
 @pytest.mark.parametrize(

@@ -108,7 +108,7 @@ class Bench:
 def scored(run: uo.ClosedLoopResult, draw: dict[str, float], faulty: bool) -> dict[str, float]:
     """Return one run's figures (module doc)."""
     error = np.linalg.norm(run.states[:, :3] - run.reference[:, :3], axis=1)
-    t = run.t - run.t[0]
+    t = run.t  # the faults' and the detections' clock
     start = draw["time"] if faulty else 5.0
     after, recovered = t >= start, t >= start + RECOVERY
     outside = np.flatnonzero(after & (error > TUBE))
@@ -118,9 +118,9 @@ def scored(run: uo.ClosedLoopResult, draw: dict[str, float], faulty: bool) -> di
         "success": float(run.fault is None and recovered.any() and np.max(error[recovered]) <= TUBE),
         "rms": float(np.sqrt(np.mean(error[after] ** 2))),
         "recover": float(t[outside[-1]] - start) if outside.size else 0.0,
-        "detected": float(first is not None and (not faulty or first[0] - run.t[0] >= draw["time"] - 1e-9)),
+        "detected": float(first is not None and (not faulty or first[0] >= draw["time"] - 1e-9)),
         "right": float(first is not None and faulty and int(first[1]) == draw["thruster"]),
-        "delay": float(first[0] - run.t[0] - draw["time"]) if first is not None and faulty else np.nan,
+        "delay": float(first[0] - draw["time"]) if first is not None and faulty else np.nan,
         "alarm": float(detections.size > 0 and not faulty),
     }
 

@@ -16,6 +16,7 @@ then holds the run up to the last finite state and says why in ``fault``.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol, runtime_checkable
@@ -28,6 +29,7 @@ from uuv_ocp.control.faults import FaultSchedule, ThrusterFault, fault_schedule
 from uuv_ocp.control.metrics import position_errors, tracking_metrics
 from uuv_ocp.control.scenario import scenario
 from uuv_ocp.estimation.base import Estimate, Estimator
+from uuv_ocp.estimation.faults import FaultDetectorOptions, ThrusterFaultDetector
 from uuv_ocp.estimation.sensors import Measurement, Sensors
 from uuv_ocp.interrupts import check_interrupt, interrupt_handled, remember_interrupts
 from uuv_ocp.model.thrusters import ThrusterConfiguration
@@ -37,6 +39,8 @@ from uuv_ocp.solvers.base import reraise_interrupt
 #: A plant state entry larger than this in magnitude (SI units) counts as a blow-up fault; below the
 #: plausibility bound (``_validation.PLAUSIBLE_MAGNITUDE``) past which the controller refuses a state.
 BLOW_UP = 1e8
+#: the fields of a run with faults, an allocation or a fault detector (saved only when filled)
+FAULT_FIELDS = ("thruster_health", "thruster_forces", "detections", "estimated_health")
 
 
 @runtime_checkable
@@ -201,6 +205,12 @@ class ClosedLoopResult:
         the plant's true effectiveness of each thruster on each interval; empty otherwise.
     thruster_forces : numpy.ndarray, shape (n, thrusters), optional
         Such a run's force each thruster delivered on each interval (N, ``h ∘ f + s``).
+    detections : numpy.ndarray, shape (m, 3), optional
+        A run with ``fault_detector``: one row per detection, ``(time s, thruster, estimated
+        health)`` (:mod:`uuv_ocp.estimation.faults`); empty otherwise.
+    estimated_health : numpy.ndarray, shape (n, thrusters), optional
+        Such a run's regression health ``1 − clip(ℓ)`` of every thruster per step (NaN until
+        a full window); empty otherwise.
     """
 
     t: np.ndarray
@@ -234,6 +244,8 @@ class ClosedLoopResult:
     sensor_sizes: tuple[int, ...] = ()
     thruster_health: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     thruster_forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    detections: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    estimated_health: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     #: the fields of a run with an estimator (saved only when there was one)
     ESTIMATION_FIELDS: ClassVar[tuple[str, ...]] = (
@@ -321,10 +333,10 @@ class ClosedLoopResult:
             for key in ("state_names", "state_units", "state_roles")
             if getattr(self, key)
         }
-        faults = {key: getattr(self, key) for key in ("thruster_health", "thruster_forces")}
+        faults = {key: getattr(self, key) for key in FAULT_FIELDS if getattr(self, key).size}
         return dict(
             **(recorded if self.substep_t.size else {}),
-            **(faults if self.thruster_health.size else {}),
+            **faults,
             **named,
             **estimation,
             t=self.t,
@@ -388,7 +400,7 @@ class ClosedLoopResult:
         }
         # a run with an estimator (files of runs without one have none of these)
         fields.update({key: data[key] for key in cls.ESTIMATION_FIELDS if key in data})
-        fields.update({key: data[key] for key in ("thruster_health", "thruster_forces") if key in data})
+        fields.update({key: data[key] for key in FAULT_FIELDS if key in data})
         if "sensor_names" in data:
             fields["sensor_names"] = tuple(str(name) for name in data["sensor_names"])
             fields["sensor_sizes"] = tuple(int(size) for size in data["sensor_sizes"])
@@ -416,6 +428,7 @@ def simulate(
     faults: tuple[ThrusterFault, ...] = (),
     health_known: bool = False,
     allocation: ThrusterConfiguration | None = None,
+    fault_detector: FaultDetectorOptions | None = None,
 ) -> ClosedLoopResult:
     """Run ``controller`` in closed loop for ``duration`` seconds.
 
@@ -485,6 +498,13 @@ def simulate(
         The pseudo-inverse baseline: the controller plans the generalised force (a force
         vehicle) and the plant maps it to these thrusters by the pseudo-inverse of their
         healthy allocation matrix, clipped to their bounds (:mod:`uuv_ocp.control.faults`).
+    fault_detector : FaultDetectorOptions, optional
+        The fault-tolerant NMPC: detect and isolate thruster faults from the estimator's bias
+        (:mod:`uuv_ocp.estimation.faults`; needs ``estimator`` with ``EstimatorOptions(bias=True)``
+        and a vehicle with thrusters) and, from a detection on, tell the controller the
+        *estimated* health.  ``run.detections`` (rows ``time s, thruster, estimated health``) and
+        ``run.estimated_health`` (the regression's health per step, NaN before a full window)
+        record it.
 
     Returns
     -------
@@ -522,6 +542,7 @@ def simulate(
     schedule = fault_schedule(
         faults, problem, steps=steps, t0=run.t0, health_known=health_known, allocation=allocation
     )
+    detector = _fault_detector(fault_detector, problem, estimator, health_known, allocation)
     loop = _Loop(
         controller=controller,
         run=run,
@@ -539,8 +560,12 @@ def simulate(
         sensors=sensors,
         estimated=_current_estimated(estimator, current_known, nc),
         schedule=schedule,
+        detector=detector,
     )
     log = _Log(x0, steps, spec.control_size, plant_substeps if record_substeps else 0, dt)
+    if detector is not None:
+        detector.reset()
+        log.estimated_health = np.full((steps, detector.count), np.nan)
     if estimator is not None and sensors is not None:
         log.track_estimates(estimator, sensors)
         estimator.reset(x0)
@@ -557,9 +582,49 @@ def simulate(
             interrupted = True
             interrupt_handled()
     closed_loop = schedule.recorded(log.result(times, currents, run, controller.solver_name, interrupted))
+    if detector is not None:
+        closed_loop = _detected(closed_loop, detector, log.estimated_health)
     if interrupted:
         raise SimulationInterrupted(closed_loop)
     return closed_loop
+
+
+def _fault_detector(
+    options: object, problem: Any, estimator: Estimator | None, health_known: bool, allocation: object
+) -> ThrusterFaultDetector | None:
+    """Return the run's fault detector (``None`` without options); ``ValueError`` names what is missing."""
+    if options is None:
+        return None
+    if not isinstance(options, FaultDetectorOptions):
+        raise ValueError(
+            f"fault_detector must be a uuv_ocp.FaultDetectorOptions or None, got {type(options).__name__}"
+        )
+    if health_known or allocation is not None:
+        raise ValueError(
+            "fault_detector tells the controller the estimated health: not with health_known=True "
+            "(the oracle) nor allocation= (the pseudo-inverse baseline)"
+        )
+    thrusters = getattr(getattr(problem, "vehicle", None), "thrusters", None)
+    if thrusters is None:
+        raise ValueError(
+            "fault_detector needs a TrackingProblem whose vehicle has thrusters (thrusters=True)"
+        )
+    if estimator is None or estimator.model.nb != thrusters.allocation.shape[1]:
+        raise ValueError(
+            "fault_detector needs estimator= with EstimatorOptions(bias=True): the detector regresses "
+            "its thruster-force bias"
+        )
+    return ThrusterFaultDetector(np.array(thrusters.allocation), options)
+
+
+def _detected(
+    result: ClosedLoopResult, detector: ThrusterFaultDetector, health: np.ndarray
+) -> ClosedLoopResult:
+    """Return ``result`` with the detector's detections and per-step estimated health."""
+    n = result.controls.shape[0]
+    rows = [(item.time, item.thruster, item.health) for item in detector.detections if item.step < n]
+    detections = np.array(rows, dtype=float).reshape(-1, 3)
+    return dataclasses.replace(result, detections=detections, estimated_health=health[:n].copy())
 
 
 def _check_noise(noise: MeasurementNoise | None, state_dim: int) -> None:
@@ -619,6 +684,7 @@ class _Loop:
     sensors: Sensors | None
     estimated: bool
     schedule: FaultSchedule
+    detector: ThrusterFaultDetector | None = None
 
     def warm_up(self, x0: np.ndarray, u_prev: np.ndarray) -> None:
         """Build what the controller's steps build (once per controller), or reset it if built."""
@@ -647,9 +713,11 @@ class _Loop:
             log.fault = f"non-finite measurement at t = {self.times[k]:.6g} s (step {k})"
             return False
         start = time.perf_counter()
-        output = self.controller.step(
-            measured, self.clock[k], u_prev, told_k, **self.schedule.told(k, self.known)
-        )
+        told = self.schedule.told(k, self.known)
+        if self.detector is not None and self.detector.detections:  # the estimated health
+            zero = np.zeros(self.detector.count)
+            told = {"parameters": {"health": self.detector.health.copy(), "thrust_offset": zero}}
+        output = self.controller.step(measured, self.clock[k], u_prev, told_k, **told)
         log.controller_step(k, output, time.perf_counter() - start)
         plant_step = self.schedule.plant_step(self.run.plant_step, k)
         return log.plant_step(k, plant_step, self.currents[k], self.times)
@@ -665,6 +733,9 @@ class _Loop:
         estimator = self.estimator
         estimate = estimator.correct(measurement) if k == 0 else estimator.step(u_prev, measurement)
         log.estimate(k, measurement, estimate, time.perf_counter() - start)
+        if self.detector is not None and k > 0:  # the bias after the interval u_prev moved it
+            self.detector.update(k, self.times[k], u_prev, estimate.bias)
+            log.estimated_health[k] = self.detector.estimate
         return estimate.state, (estimate.current if self.estimated else told_k)
 
 
@@ -742,6 +813,7 @@ class _Log:
         self.completed = 0
         self.fault: str | None = None
         self.estimation: dict[str, Any] = {}
+        self.estimated_health = np.zeros((steps, 0))
 
     def track_estimates(self, estimator: Estimator, sensors: Sensors) -> None:
         """Make room for the estimates and measurements of every step."""

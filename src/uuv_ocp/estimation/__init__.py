@@ -13,11 +13,21 @@ from uuv_ocp.estimation.base import (
     register_estimator,
 )
 from uuv_ocp.estimation.ekf import ExtendedKalmanFilter
+from uuv_ocp.estimation.faults import (
+    Detection,
+    FaultDetectorOptions,
+    ThrusterFaultDetector,
+    loss_regression,
+)
 from uuv_ocp.estimation.mhe import MovingHorizonEstimator
 from uuv_ocp.estimation.sensors import Measurement, Sensor, Sensors
 from uuv_ocp.estimation.ukf import UnscentedKalmanFilter
 
 __all__ = [
+    "Detection",
+    "FaultDetectorOptions",
+    "ThrusterFaultDetector",
+    "loss_regression",
     "Estimate",
     "Estimator",
     "EstimatorOptions",

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import os
 import signal
@@ -990,26 +989,3 @@ def test_a_nan_qp_step_in_the_loop_recovers_at_once(problem, monkeypatch):
         assert controller.iterate is not None and controller.iterate.is_finite()
         control = record.control
         state = np.array(plant(state, control, np.zeros(2))).ravel()
-
-
-def test_the_nmpc_keeps_no_non_finite_warm_start(problem, monkeypatch):
-    """Finite controls over a NaN multiplier: applied, but the next step starts cold."""
-    controller = uo.NMPC(problem, "ipopt")
-    backend = controller.backend
-    original = backend.solve
-    warm_starts = []
-
-    def solve(p, warm_start=None, rng=None, **kwargs):
-        warm_starts.append(warm_start)
-        result = original(p, warm_start, rng, **kwargs)
-        lam_g = result.iterate.lam_g.copy()
-        lam_g[-1] = np.nan
-        return dataclasses.replace(result, iterate=dataclasses.replace(result.iterate, lam_g=lam_g))
-
-    monkeypatch.setattr(backend, "solve", solve)
-    state = problem.reference.initial_state(0.0)
-    first = controller.step(state, 0.0, np.zeros(3))
-    assert not first.fallback and np.all(np.isfinite(first.control))
-    assert controller.iterate is None
-    controller.step(state, problem.dt, first.control)
-    assert warm_starts == [None, None]

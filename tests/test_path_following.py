@@ -38,20 +38,22 @@ def _signed_distance_to_line(points: np.ndarray, origin: np.ndarray, direction: 
 def test_remus_converges_to_a_straight_line_from_a_10_m_offset() -> None:
     """REMUS 100 at 1.5 m/s from 10 m to starboard: no steady cross-track or depth error.
 
-    With IPOPT in the loop: sqp-rti converges from the same start with the native HPIPM C step
-    (|e_c| < 0.01 m from t = 50 s) but, with the wheel's HPIPM the suite links, its RTI step
-    turns NaN in the transient and never recovers (reported to the lead, issue 28).
+    With sqp-rti (CasADi's HPIPM in the suite).  Its transient has failed steps: RK4 in one
+    step of 0.5 s amplifies the REMUS roll mode (λ = −1.94 ± 6.03i /s) by |R(λh)| = 1.80 per
+    interval, so plans far from the optimum diverge along the horizon; the fallback chain takes
+    those steps, and a plan or QP gone non-finite is never kept as a warm start.
     """
     problem = PathFollowingProblem(uo.Remus100(), _remus_line(), speed=1.5, horizon=20, dt=0.5)
     start = np.zeros(12)
     start[[1, 2, 6]] = (10.0, 10.0, 1.5)  # 10 m east of the line, at its depth, at cruise speed
     x0 = problem.initial_state(start)
     assert x0[-1] == pytest.approx(0.0, abs=1e-6)
-    run = uo.simulate(uo.NMPC(problem, solver="ipopt"), x0=x0, duration=40.0)
+    run = uo.simulate(uo.NMPC(problem, solver="sqp-rti"), x0=x0, duration=40.0)
     assert run.fault is None
+    assert not any(run.fallback_steps[-40:])  # the last 20 s are fresh RTI plans
     cross = _signed_distance_to_line(run.states[:, :2], np.zeros(2), np.array([1.0, 0.0]))
     depth = run.states[:, 2] - 10.0
-    settled = run.t >= run.t[-1] - 10.0  # measured: |e_c| < 0.005 m from t = 30 s
+    settled = run.t >= run.t[-1] - 10.0  # measured: |e_c| < 0.004 m, |e_z| < 4e-4 m from t = 30 s
     assert np.max(np.abs(cross[settled])) < 0.01
     assert np.max(np.abs(depth[settled])) < 0.01
     assert abs(cross[0]) == pytest.approx(10.0)

@@ -1,5 +1,7 @@
 """NMPC's fallback chain, refused plans, broken plug-ins and the warm-up before a closed loop."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -361,3 +363,29 @@ def test_the_c_fast_paths_apply_only_plans_that_hold_the_obstacles():
     assert worst <= FEASIBILITY_TOLERANCE
     assert fast > 30  # the fast path ran (and was judged)
     assert x[0] > 5.5  # past the rock
+
+
+def test_the_nmpc_keeps_no_non_finite_warm_start(s2_problem, monkeypatch):
+    """Finite controls over a NaN multiplier: applied, but the next step starts cold.
+
+    Reference: the warm starts the backend is handed (None: cold, as after ``reset``).
+    """
+    controller = uo.NMPC(s2_problem, "ipopt")
+    backend = controller.backend
+    original = backend.solve
+    warm_starts = []
+
+    def solve(p, warm_start=None, rng=None, **kwargs):
+        warm_starts.append(warm_start)
+        result = original(p, warm_start, rng, **kwargs)
+        lam_g = result.iterate.lam_g.copy()
+        lam_g[-1] = np.nan
+        return dataclasses.replace(result, iterate=dataclasses.replace(result.iterate, lam_g=lam_g))
+
+    monkeypatch.setattr(backend, "solve", solve)
+    state = s2_problem.reference.initial_state(0.0)
+    first = controller.step(state, 0.0, np.zeros(3))
+    assert not first.fallback and np.all(np.isfinite(first.control))
+    assert controller.iterate is None
+    controller.step(state, s2_problem.dt, first.control)
+    assert warm_starts == [None, None]

@@ -232,3 +232,33 @@ def test_the_cli_tracks_with_the_preset_name(tmp_path, capsys):
     assert run.states.shape == (6, 12) and run.controls.shape == (5, 3)
     assert np.all(np.abs(run.controls) <= np.asarray(uo.Remus100().control_bound) + 1e-6)
     assert "remus100" in cli._VEHICLE_HELP
+
+
+def test_the_roll_mode_bounds_the_rk4_step_as_documented():
+    """Roll, λ = −1.94 ± 6.03i 1/s: RK4 is stable on it up to h = 0.446 s, not at 0.5 s (docstring).
+
+    Eigenvalues by numpy of the preset's central-difference Jacobian; RK4's stability function
+    written out here.
+    """
+    f = uo.Remus100().model_function()
+    for surge in (0.0, 1.5):  # at rest and at cruise
+        state = np.zeros(12)
+        state[6] = surge
+        jacobian = np.zeros((12, 12))
+        for column in range(12):
+            step = np.zeros(12)
+            step[column] = 1e-6
+            plus = np.asarray(f(state + step, np.zeros(3), np.zeros(3))).ravel()
+            minus = np.asarray(f(state - step, np.zeros(3), np.zeros(3))).ravel()
+            jacobian[:, column] = (plus - minus) / 2e-6
+        eigenvalues = np.linalg.eigvals(jacobian)
+        fastest = eigenvalues[np.argmax(np.abs(eigenvalues))]
+        assert abs(fastest.real - -1.94) < 0.005 and abs(abs(fastest.imag) - 6.03) < 0.005
+
+        def amplification(h: float, lam: complex = fastest) -> float:
+            z = lam * h
+            return abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)  # RK4's stability function
+
+        assert amplification(0.5) == pytest.approx(1.80, abs=0.005)
+        assert amplification(0.25) < 0.65
+        assert amplification(0.446) <= 1.0 < amplification(0.447)

@@ -890,3 +890,102 @@ def test_step_takes_the_resident_c_step_with_the_general_path_s_numbers(problem,
     b = general_step(full, state, 12 * problem.dt, control, np.zeros(2))
     assert c.fallback and b.fallback and c.fast_path == ""
     assert np.array_equal(c.control, b.control) and c.message == b.message
+
+
+def test_a_nan_in_the_qp_fails_the_success_test(problem, instance):
+    """A QP whose step comes back NaN is a failed step, not one with violation 0.
+
+    C's ``fmax`` (CasADi's ``fmax`` and ``mmax``) skips NaN, so a maximum alone passed a NaN
+    step as feasible.  Reference: numpy's ``isfinite`` on the step HPIPM returned.
+    """
+    x0, reference = instance
+    backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm"})
+    data = problem.build().hard
+    p = problem.parameters(x0, 3.0)
+    h, grad, a, g = (
+        np.array(v, dtype=float).ravel() for v in backend.linearisation("hard")(reference.iterate.primal, p)
+    )
+    step = backend.qp_step("hard")
+    args = (reference.iterate.primal, data.lbx, data.ubx, data.lbg, data.ubg)
+    d, _, _, violation = (np.array(v, dtype=float).ravel() for v in step(h, grad, a, g, *args))
+    assert np.all(np.isfinite(d)) and violation[0] <= 1e-6  # the healthy QP passes
+    # a NaN in the constraint Jacobian, as the linearisation at a diverged iterate gave (a NaN
+    # bound of the QP is refused by CasADi before HPIPM runs)
+    a[0] = np.nan
+    d, _, _, violation = (np.array(v, dtype=float).ravel() for v in step(h, grad, a, g, *args))
+    assert not np.all(np.isfinite(d))  # HPIPM did return a NaN step ...
+    assert violation[0] == math.inf  # ... and the test refuses it
+
+
+def test_a_non_finite_warm_start_restarts_cold(problem, instance):
+    """A warm start with a NaN is dropped: ``solve`` from it is ``solve`` without one."""
+    x0, reference = instance
+    backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm"})
+    p = problem.parameters(x0, 3.0)
+    primal = reference.iterate.primal.copy()
+    primal[-1] = np.nan
+    data = problem.build().hard
+    poisoned = Iterate(
+        scaled_controls=primal[data.control_index], states=primal[data.state_index], primal=primal
+    )
+    assert not poisoned.is_finite() and reference.iterate.is_finite()
+    cold, from_nan = backend.solve(p, None), backend.solve(p, poisoned)
+    assert cold.success and from_nan.success
+    assert from_nan.status == cold.status and from_nan.iterations == cold.iterations
+    np.testing.assert_array_equal(from_nan.iterate.primal, cold.iterate.primal)
+    assert backend.prepare(p, poisoned) is None  # nothing is linearised at it either
+
+
+def test_a_nan_qp_step_in_the_loop_recovers_at_once(problem, monkeypatch):
+    """One linearisation turned NaN mid-loop: that step restarts cold, the next are RTI again.
+
+    What happened on the REMUS 100 with CasADi's HPIPM (a step from a diverged iterate): the
+    NaN step passed as a success, the NMPC refused its controls and shifted its old warm start
+    on, so every later step linearised at the same point, NaN again.  Reference for the
+    recovered step: IPOPT's optimum of the same instance.
+    """
+    controller = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm"})
+    backend = controller.backend
+    original = backend.linearisation
+    poisoned_calls = []
+
+    class NanOnce:
+        """The linearisation with a NaN in ``∂g/∂w`` on the call chosen below."""
+
+        def __init__(self, function):
+            self.function = function
+
+        def __call__(self, *args):
+            h, grad, a, g = (np.array(v, dtype=float) for v in self.function(*args))
+            if poisoned_calls == [False]:
+                a.ravel()[0] = np.nan
+                poisoned_calls[0] = True
+            return h, grad, a, g
+
+    monkeypatch.setattr(backend, "linearisation", lambda *a: NanOnce(original(*a)))
+    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    reference = problem.reference
+    state, control = reference.initial_state(0.0), np.zeros(3)
+    for k in range(8):
+        if k == 4:
+            poisoned_calls.append(False)  # the RTI step of step 4 linearises to NaN
+        record = controller.step(state, k * problem.dt, control)
+        assert not record.fallback, (k, record.message)
+        assert np.all(np.isfinite(record.control))
+        attempts = [a.label for a in record.result.details["attempts"]]
+        if k == 4:
+            assert poisoned_calls == [True]
+            # the NaN QP failed the RTI attempt (violation inf); the chain's IPOPT took the step
+            first = record.result.details["attempts"][0]
+            assert first.status == "QP solution infeasible (linearised violation inf > 1e-06)"
+            assert len(attempts) > 1
+            expected = uo.solve(problem, "ipopt", x0=state, t0=k * problem.dt, u_prev=control)
+            assert record.result.details["attempts"][-1].status == "Solve_Succeeded"
+            # the judge's cost of the soft NLP's plan (the sticky strategy's) against IPOPT's
+            # on the hard NLP: measured 0.2 % above it
+            assert expected.cost <= record.result.cost <= 1.01 * expected.cost
+        elif k > 0:
+            assert len(attempts) == 1, (k, attempts)  # one RTI step, no fallback chain
+        assert controller.iterate is not None and controller.iterate.is_finite()
+        control = record.control
+        state = np.array(plant(state, control, np.zeros(2))).ravel()

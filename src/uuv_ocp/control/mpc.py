@@ -63,6 +63,11 @@ the control at once, its warm start, :attr:`NMPC.plan` and :attr:`StepRecord.res
 built only when read.  ``step_control`` and ``feedback_control`` are deprecated aliases of
 ``step(...).control`` and ``feedback(x).control``.
 
+Non-finite numbers: a plan with a non-finite control is refused (the fallback above), and a
+warm start with any non-finite number (plan, NLP primal or multipliers) is never kept, so a
+step after a diverged solve starts cold, as after :meth:`NMPC.reset` (``sqp-rti`` drops such a
+warm start itself too: its step then starts with its ``cold_start``).
+
 Every applied control, fresh or fallback, is projected on the control box and on the rate
 bound around the last applied control: the plant never sees a bound violated, whatever the
 backend's tolerance.
@@ -320,7 +325,7 @@ class NMPC:
         if self._deferred is not None:
             iterate = self._deferred.iterate()
             self._plan = self.problem.controls_from_scaled(iterate.scaled_controls)
-            self._iterate = iterate.shift()
+            self._iterate = iterate.shift() if iterate.is_finite() else None  # as _accept
             self._deferred = None
 
     @_one_thread
@@ -449,7 +454,7 @@ class NMPC:
             return StepRecord(control, result, False, deadline_hit=late)
         fallback, source = self._fallback_control(p)
         control = self._admissible(fallback, u_prev)
-        if late and result is not None and np.all(np.isfinite(result.iterate.scaled_controls)):
+        if late and result is not None and result.iterate.is_finite():
             # the stopped solve's progress warm-starts the next one (iterations carry on across
             # steps, as in real-time iteration schemes); its plan is not applied
             self._iterate = result.iterate.shift()
@@ -561,9 +566,13 @@ class NMPC:
         return record.control
 
     def _accept(self, plan: np.ndarray, iterate: Iterate, u_prev: object | None) -> np.ndarray:
-        """Keep a fresh ``plan`` (physical controls) and its shifted warm start; the control to apply."""
+        """Keep a fresh ``plan`` (physical controls) and its shifted warm start; the control to apply.
+
+        A warm start with a non-finite number (e.g. a multiplier of an overflowed QP under
+        finite controls) is not kept: the next step starts cold, as after :meth:`reset`.
+        """
         self._plan = plan
-        self._iterate = iterate.shift()
+        self._iterate = iterate.shift() if iterate.is_finite() else None
         return self._admissible(plan[0], u_prev)
 
     def _admissible(self, control: np.ndarray, u_prev: object | None) -> np.ndarray:

@@ -64,6 +64,15 @@ class Iterate:
             constraint_shift=self.constraint_shift,
         )
 
+    def is_finite(self) -> bool:
+        """Whether every number of the plan, the primal and the multipliers is finite.
+
+        A warm start that is not (a diverged iteration, a QP that overflowed) would make the
+        next solve start from NaN: :class:`~uuv_ocp.NMPC` never keeps one.
+        """
+        arrays = (self.scaled_controls, self.states, self.primal, self.lam_g, self.lam_x)
+        return all(array is None or bool(np.isfinite(array).all()) for array in arrays)
+
 
 def _take(values: np.ndarray | None, index: np.ndarray | None) -> np.ndarray | None:
     if values is None or index is None:

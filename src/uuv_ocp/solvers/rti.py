@@ -355,7 +355,9 @@ def qp_step_function(
     """``step(h_nz, grad, a_nz, g, w, lbx, ubx, lbg, ubg) -> (d, lam_x, lam_g, violation)``.
 
     Solves the QP of the module doc with ``qpsol`` and measures how far its solution ``d``
-    violates the linearised constraints and bounds (``inf`` when not finite): the success test.
+    violates the linearised constraints and bounds: the success test.  ``inf`` when ``d``, the
+    multipliers or the linearised constraints at ``w + d`` are not all finite (a NaN or an
+    overflow from a linearisation at a diverged iterate).
     """
     solver = ca.conic(
         f"{name}_qp", qpsol, {"h": hessian, "a": jacobian}, {"error_on_fail": False, **qpsol_options}
@@ -376,8 +378,11 @@ def qp_step_function(
         ca.fmax(linear - ubg, 0), ca.fmax(lbg - linear, 0), ca.fmax(w + d - ubx, 0), ca.fmax(lbx - w - d, 0)
     )
     violation = ca.mmax(excess) if excess.numel() else ca.MX(0)
-    # NaN compares false: a non-finite solution must not pass the test
-    finite = ca.logic_and(ca.le(ca.mmax(ca.fabs(d)), 1e300), ca.le(violation, 1e300))
+    # NaN compares false, but fmax and mmax skip NaN (C's fmax): a sum keeps it, so a NaN
+    # anywhere in the step, its multipliers or the linearised rows fails the test (the step
+    # would otherwise pass with violation 0 and, taken, poison every later warm start)
+    size = ca.sum1(ca.fabs(ca.vertcat(d, solution["lam_x"], solution["lam_a"], linear)))
+    finite = ca.logic_and(ca.le(size, 1e300), ca.le(violation, 1e300))
     violation = ca.if_else(finite, violation, ca.inf)
     return ca.Function(
         name,
@@ -723,10 +728,10 @@ class RtiSolver(NlpSolver):
     def prepare(self, p: np.ndarray, warm_start: Iterate | None) -> Preparation | None:
         """Linearise at ``warm_start`` for instance ``p`` (its state part a guess); keep it.
 
-        Returns ``None`` (nothing prepared) without a warm start: the cold initial guess
-        depends on the measured state.
+        Returns ``None`` (nothing prepared) without a warm start, or with one that is not
+        finite (:func:`finite_warm_start`): the cold initial guess depends on the measured state.
         """
-        if warm_start is None:
+        if warm_start is None or not finite_warm_start(warm_start):
             self._prepared = None
             return None
         start = time.perf_counter()
@@ -772,7 +777,13 @@ class RtiSolver(NlpSolver):
 
         A :class:`CStepPlan` holds the numbers :meth:`solve` gives (its ``result()`` builds the
         same :class:`SolveResult`, judge included; tests/solvers/test_rti.py checks them bit for bit).
+
+        A warm start that is not finite (:func:`finite_warm_start`) is dropped: the step is
+        :meth:`solve` without one, the cold start of a reset.
         """
+        if warm_start is not None and not finite_warm_start(warm_start):
+            self._prepared = None
+            return self.solve(p, None)
         if self._prepared is not None:
             iterate = _shifted(warm_start)
             fast = self._feedback_in_c(p, iterate)
@@ -852,8 +863,13 @@ class RtiSolver(NlpSolver):
 
         With ``qpsol="hpipm-ocp"`` the result's ``details["c_time"]`` is the time (s) the C
         step measured itself: the preparation used and this call's linearisations and QPs.
+        A warm start that is not finite (:func:`finite_warm_start`) is dropped: the call starts
+        cold (``cold_start``), as after :meth:`NMPC.reset`.
         """
         self._c_time = 0.0
+        if warm_start is not None and not finite_warm_start(warm_start):
+            # linearised there, every step would be NaN again and never reach the cold retry
+            warm_start = None
         try:
             result = super().solve(p, warm_start, rng, time_limit=time_limit)
         finally:
@@ -997,6 +1013,20 @@ class RtiSolver(NlpSolver):
             qp_iterations=int(info[4]),
         )
         return record
+
+
+def finite_warm_start(warm_start: Iterate | DeferredPlan) -> bool:
+    """Whether every number of a warm start (plan, primal, multipliers) is finite.
+
+    A plan that diverged (a Gauss–Newton step far from the optimum, a QP that overflowed) is
+    no warm start: linearised there, the next QP is non-finite again, step after step.
+    """
+    if isinstance(warm_start, CStepPlan):
+        arrays = (warm_start.primal, warm_start.lam_x, warm_start.lam_g)
+        return all(bool(np.isfinite(array).all()) for array in arrays)
+    if isinstance(warm_start, Iterate):
+        return warm_start.is_finite()
+    return warm_start.iterate().is_finite()  # another backend's deferred plan
 
 
 def _shifted(warm_start: Iterate | DeferredPlan | None) -> Iterate | None:

@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from tests.control.test_faults import Spy
 from uuv_ocp.estimation.faults import (
     FaultDetectorOptions,
     ThrusterFaultDetector,
@@ -176,16 +177,6 @@ def test_no_false_alarm_on_fault_free_seeded_runs(survey, controller, estimator)
 
 def test_the_fault_tolerant_nmpc_is_told_the_estimated_health(survey, boat, tmp_path):
     """Closed loop: thruster 2 fails at 6 s; detected and the controller's health follows it."""
-
-    class Spy(uo.NMPC):
-        def __init__(self, *args, **kwargs):
-            super().__init__(*args, **kwargs)
-            self.told = []
-
-        def step(self, x, t=0.0, u_prev=None, current=None, parameters=None):
-            self.told.append(parameters)
-            return super().step(x, t, u_prev, current, parameters)
-
     controller = Spy(survey, "sqp-rti")
     options = uo.EstimatorOptions(bias=True, bias_std=5.0, compiled=False)
     estimator = uo.Estimator(survey, "ekf", sensors=uo.Sensors.auv(boat), options=options)

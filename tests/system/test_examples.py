@@ -276,3 +276,20 @@ def test_obstacles_example_never_collides_at_any_plant_step(tmp_path, capsys):
     rexrov = results["RexROV"]["sqp"].run
     near = np.abs(rexrov.states[:, 0] - 5.0) < 0.5
     assert np.all(np.abs(rexrov.states[near, 1]) > 1.0)
+
+
+def test_remus_survey_example_first_lane(tmp_path, capsys):
+    module = load("remus_survey")
+    out = module.main(duration=20.0, out=tmp_path)
+    printed = capsys.readouterr().out
+    assert "ILOS" in printed and "NMPC ipopt" in printed
+    for name, run in out.runs.items():
+        # the first lane, independently of the Reference: due north from the origin at 10 m depth,
+        # so the signed cross-track error (positive to starboard, i.e. east) is y itself
+        assert np.all(run.states[:, 0] < module.WIDTH - module.SPACING / 2), name  # before the turn
+        np.testing.assert_allclose(out.errors[name], run.states[:, 1], atol=1e-6, err_msg=name)
+        assert np.max(np.abs(run.states[:, 1])) < 2.0, name  # the 0.3 m/s current is held off
+        assert np.max(np.abs(run.states[:, 2] - module.DEPTH)) < 1.0, name
+        assert run.fallback_steps.sum() == 0, name
+    for figure in out.figures:
+        assert figure.parent == tmp_path and figure.stat().st_size > 1000

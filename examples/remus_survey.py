@@ -138,8 +138,9 @@ def figures(runs: dict[str, uo.ClosedLoopResult], reference: uo.Reference, out: 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="30 s of the first lane")
+    parser.add_argument("--duration", type=float, default=None, help="s (default: the whole survey)")
     parser.add_argument("--lanes", type=int, default=2)
     parser.add_argument("--solver", default="ipopt")
     parser.add_argument("--out", default="docs/images")
     arguments = parser.parse_args()
-    main(30.0 if arguments.quick else None, arguments.lanes, arguments.solver, arguments.out)
+    main(30.0 if arguments.quick else arguments.duration, arguments.lanes, arguments.solver, arguments.out)

@@ -8,16 +8,21 @@ drawn from the seed, Gauss–Markov speed and direction noise 0.01 /√s, decay 
 every row (the guidance takes none; the NMPC rows will say whether theirs is known or estimated).
 Every run lasts the survey's length at 1.5 m/s plus 60 s; seeds 0..9 by default.
 
-=========  ================================================================================
-row        controller
-=========  ================================================================================
-``ilos``   ``uo.LosGuidance`` at its default options (integral LOS, Δ = 10 m, κ = 0.3)
-``los``    the same with κ = 0 (plain LOS: a steady offset against a cross current)
-=========  ================================================================================
+==================  ====================================================================
+row                 controller
+==================  ====================================================================
+``ilos``            ``uo.LosGuidance`` at its default options (integral LOS, Δ = 10 m, κ = 0.3)
+``los``             the same with κ = 0 (plain LOS: a steady offset against a cross current)
+``sqp-rti-known``   NMPC path following (``uo.PathFollowingProblem``, N = 20, dt = 0.5 s),
+                    ``sqp-rti``, the current known
+``ipopt-known``     the same, IPOPT converged at each step
+``fatrop-c-known``  the same, compiled fatrop
+==================  ====================================================================
 
-The NMPC path-following rows (``sqp-rti``, ``fatrop``) are to be added when
-``PathFollowingProblem`` lands: a row is a function ``(seed) -> ClosedLoopResult`` in
-:data:`ROWS`.
+The NMPC rows are told the current (``simulate``'s default without an estimator):
+``uo.Estimator(problem, "ekf", sensors=uo.Sensors.auv(vehicle))`` refuses a
+``PathFollowingProblem`` (its sensors must measure all 13 states, the path parameter too).
+``--rti`` adds the ``sqp-rti`` step of three vehicles, N = 20 (:func:`rti_step_times`).
 
 Metrics, per run, then the median over seeds (and the largest cross-track error over seeds):
 
@@ -37,7 +42,7 @@ Every run is a checked record (``uuv_ocp.studies.records``: checksummed, written
 in ``--out`` (default ``out/bench_path``): an interrupted benchmark resumes where it stopped,
 and a damaged record is recomputed.
 
-Run: ``python -m benchmarks.bench_path [--seeds 10] [--rows ilos,los] [--out DIR]``.
+Run: ``python -m benchmarks.bench_path [--seeds 10] [--rows ilos,los] [--out DIR] [--rti]``.
 """
 
 from __future__ import annotations

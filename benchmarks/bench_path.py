@@ -8,16 +8,21 @@ drawn from the seed, Gauss–Markov speed and direction noise 0.01 /√s, decay 
 every row (the guidance takes none; the NMPC rows will say whether theirs is known or estimated).
 Every run lasts the survey's length at 1.5 m/s plus 60 s; seeds 0..9 by default.
 
-=========  ================================================================================
-row        controller
-=========  ================================================================================
-``ilos``   ``uo.LosGuidance`` at its default options (integral LOS, Δ = 10 m, κ = 0.3)
-``los``    the same with κ = 0 (plain LOS: a steady offset against a cross current)
-=========  ================================================================================
+==================  ====================================================================
+row                 controller
+==================  ====================================================================
+``ilos``            ``uo.LosGuidance`` at its default options (integral LOS, Δ = 10 m, κ = 0.3)
+``los``             the same with κ = 0 (plain LOS: a steady offset against a cross current)
+``sqp-rti-known``   NMPC path following (``uo.PathFollowingProblem``, N = 20, dt = 0.5 s),
+                    ``sqp-rti``, the current known
+``ipopt-known``     the same, IPOPT converged at each step
+``fatrop-c-known``  the same, compiled fatrop
+==================  ====================================================================
 
-The NMPC path-following rows (``sqp-rti``, ``fatrop``) are to be added when
-``PathFollowingProblem`` lands: a row is a function ``(seed) -> ClosedLoopResult`` in
-:data:`ROWS`.
+The NMPC rows are told the current (``simulate``'s default without an estimator):
+``uo.Estimator(problem, "ekf", sensors=uo.Sensors.auv(vehicle))`` refuses a
+``PathFollowingProblem`` (its sensors must measure all 13 states, the path parameter too).
+``--rti`` adds the ``sqp-rti`` step of three vehicles, N = 20 (:func:`rti_step_times`).
 
 Metrics, per run, then the median over seeds (and the largest cross-track error over seeds):
 
@@ -37,7 +42,7 @@ Every run is a checked record (``uuv_ocp.studies.records``: checksummed, written
 in ``--out`` (default ``out/bench_path``): an interrupted benchmark resumes where it stopped,
 and a damaged record is recomputed.
 
-Run: ``python -m benchmarks.bench_path [--seeds 10] [--rows ilos,los] [--out DIR]``.
+Run: ``python -m benchmarks.bench_path [--seeds 10] [--rows ilos,los] [--out DIR] [--rti]``.
 """
 
 from __future__ import annotations
@@ -58,7 +63,8 @@ DEPTH = 10.0  # m
 SPEED = 1.5  # m/s
 CURRENT = 0.3  # m/s
 LANES, WIDTH, SPACING = 4, 150.0, 60.0  # m
-DT = 0.1  # s
+DT = 0.1  # s, the guidance rows' step
+NMPC_DT, NMPC_HORIZON = 0.5, 20  # s, intervals: the NMPC rows' step and horizon
 EXTRA = 60.0  # s after the survey's length at SPEED (a head current slows it)
 PATH_SAMPLE = 0.02  # m between the samples of the path the cross-track error is measured to
 
@@ -105,8 +111,14 @@ def shaft_power(vehicle: uo.Remus100, rpm: np.ndarray, speed: np.ndarray) -> np.
 
 
 def metrics(run: uo.ClosedLoopResult, problem: uo.TrackingProblem, samples: np.ndarray) -> dict[str, float]:
-    """Return the run's cross-track, depth, fin and energy figures (module doc)."""
-    distance, nearest = cKDTree(samples).query(run.states[:, :2])
+    """Return the run's cross-track, depth, fin and energy figures (module doc).
+
+    The NMPC rows' states carry the path parameter as a 13th column (ignored) and their
+    sampling time is their own (0.5 s): the energy sums each interval's power times its length.
+    """
+    states = run.states[:, :12]
+    interval = np.diff(run.t)
+    distance, nearest = cKDTree(samples).query(states[:, :2])
     # until the vehicle passes the last waypoint (then the nearest sample is the path's end)
     on_path = np.ones(len(distance), dtype=bool)
     past = np.flatnonzero(nearest == len(samples) - 1)
@@ -114,31 +126,50 @@ def metrics(run: uo.ClosedLoopResult, problem: uo.TrackingProblem, samples: np.n
         on_path[past[0] :] = False
     cross = distance[on_path]
     fins = np.abs(np.diff(run.controls[:, :2], axis=0)).sum()
-    speed = np.linalg.norm(run.states[:-1, 6:9], axis=1)
+    speed = np.linalg.norm(states[:-1, 6:9], axis=1)
     power = shaft_power(problem.vehicle, run.controls[:, 2], speed)
     return {
         "cross_rms": float(np.sqrt(np.mean(cross**2))),
         "cross_max": float(np.max(cross)),
-        "depth_rms": float(np.sqrt(np.mean((run.states[:, 2] - DEPTH) ** 2))),
+        "depth_rms": float(np.sqrt(np.mean((states[:, 2] - DEPTH) ** 2))),
         "fin_deg": float(np.degrees(fins)),
-        "energy_kj": float(np.sum(power) * DT / 1e3),
+        "energy_kj": float(np.sum(power * interval[: len(power)]) / 1e3),
         "step_us": float(1e6 * np.median(run.solve_times)),
         "completed": float(not on_path[-1]),
     }
 
 
-def _guidance(kappa: float | None) -> Callable[[uo.TrackingProblem], uo.LosGuidance]:
-    def make(problem: uo.TrackingProblem) -> uo.LosGuidance:
+Start = tuple[uo.Controller, np.ndarray]
+
+
+def _guidance(kappa: float | None) -> Callable[[uo.TrackingProblem, np.ndarray], Start]:
+    def make(problem: uo.TrackingProblem, start: np.ndarray) -> Start:
         options = uo.LosOptions(speed=SPEED) if kappa is None else uo.LosOptions(speed=SPEED, kappa=kappa)
-        return uo.LosGuidance(problem, options)
+        return uo.LosGuidance(problem, options), start
 
     return make
 
 
-#: Row name -> controller maker on the survey problem (NMPC rows join here).
-ROWS: dict[str, Callable[[uo.TrackingProblem], uo.Controller]] = {
+def path_problem(reference: uo.Reference, horizon: int = NMPC_HORIZON) -> uo.PathFollowingProblem:
+    """Return the NMPC rows' problem: REMUS 100 following the survey, N = 20, dt = 0.5 s."""
+    return uo.PathFollowingProblem(uo.Remus100(), reference, speed=SPEED, horizon=horizon, dt=NMPC_DT)
+
+
+def _nmpc(solver: str, options: dict | None = None) -> Callable[[uo.TrackingProblem, np.ndarray], Start]:
+    def make(problem: uo.TrackingProblem, start: np.ndarray) -> Start:
+        following = path_problem(problem.reference)
+        return uo.NMPC(following, solver=solver, options=options), following.initial_state(start)
+
+    return make
+
+
+#: Row name -> ``(survey problem, start state) -> (controller, its start state)``.
+ROWS: dict[str, Callable[[uo.TrackingProblem, np.ndarray], Start]] = {
     "ilos": _guidance(None),
     "los": _guidance(0.0),
+    "sqp-rti-known": _nmpc("sqp-rti"),
+    "ipopt-known": _nmpc("ipopt"),
+    "fatrop-c-known": _nmpc("fatrop", {"compiled": True}),
 }
 
 
@@ -147,7 +178,7 @@ def run_row(row: str, seeds: int, out: Path) -> list[dict[str, float]]:
     problem, start = survey()
     samples = path_samples(problem)
     duration = path_length(problem) / SPEED + EXTRA
-    controller = ROWS[row](problem)
+    controller, x0 = ROWS[row](problem, start)
     found = []
     for seed in range(seeds):
         config = {"bench": "path", "row": row, "seed": seed, "duration": duration, "dt": DT}
@@ -156,7 +187,7 @@ def run_row(row: str, seeds: int, out: Path) -> list[dict[str, float]]:
         if saved is None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # the window's end: hold=120 s covers it
-                run = uo.simulate(controller, start, duration, current=seeded_current(seed), seed=seed)
+                run = uo.simulate(controller, x0, duration, current=seeded_current(seed), seed=seed)
             write_record(path, run, config)
         else:
             run = saved[0]
@@ -192,12 +223,46 @@ def table(results: dict[str, list[dict[str, float]]]) -> str:
     return "\n".join(lines)
 
 
+def rti_step_times(duration: float = 30.0) -> list[tuple[str, int, float, int]]:
+    """Median ``sqp-rti`` step (ms), N = 20, of three vehicles' closed loops in this process.
+
+    Rows ``(vehicle, states, median ms, fallback steps)``: the RexROV (6 states) on s2, dt =
+    0.1 s, from the reference's start; the BlueROV2 Heavy (12) on the survey of
+    ``examples/bluerov2_depth.py`` (dt = 0.1 s, from rest 0.5 m above it); the REMUS 100 (12,
+    and the path parameter) following this benchmark's survey (dt = 0.5 s, seed 0's current,
+    known).  The first steps, which build the step, are excluded (the median of the rest).
+    """
+    from uuv_ocp.model import Vehicle6DOF
+
+    rows = []
+    rexrov = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=NMPC_HORIZON, dt=0.1)
+    survey_6dof = uo.Reference.lawnmower((0.0, 0.0), width=6.0, spacing=2.0, lanes=3, speed=0.3, depth=2.0)
+    bluerov = uo.TrackingProblem(Vehicle6DOF.bluerov2_heavy(), survey_6dof, horizon=NMPC_HORIZON, dt=0.1)
+    dive = survey_6dof.initial_state(survey_6dof.t_start)
+    dive[2] -= 0.5
+    problem, start = survey()
+    remus = path_problem(problem.reference)
+    cases = (
+        ("RexROV (s2)", 6, rexrov, rexrov.reference.initial_state(0.0), {}),
+        ("BlueROV2 Heavy (survey)", 12, bluerov, dive, {}),
+        ("REMUS 100 (path following)", 12, remus, remus.initial_state(start), {"current": seeded_current(0)}),
+    )
+    for name, size, case, x0, extra in cases:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            run = uo.simulate(uo.NMPC(case, solver="sqp-rti"), x0, duration, seed=0, **extra)
+        settled = run.solve_times[5:]  # the first steps build and compile the step
+        rows.append((name, size, float(1e3 * np.median(settled)), int(run.fallback_steps.sum())))
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the benchmark (resuming from ``--out``) and print its table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=10)
     parser.add_argument("--rows", default=",".join(ROWS))
     parser.add_argument("--out", type=Path, default=Path("out/bench_path"))
+    parser.add_argument("--rti", action="store_true", help="also the sqp-rti step of three vehicles")
     arguments = parser.parse_args(argv)
     rows = tuple(arguments.rows.split(","))
     unknown = sorted(set(rows) - set(ROWS))
@@ -208,6 +273,10 @@ def main(argv: list[str] | None = None) -> int:
     arguments.out.mkdir(parents=True, exist_ok=True)
     results = {row: run_row(row, arguments.seeds, arguments.out) for row in rows}
     print(table(results))
+    if arguments.rti:
+        print("\n| vehicle | states | sqp-rti step ms (median, N = 20) | fallback steps |\n|---|---|---|---|")
+        for name, size, step, fallbacks in rti_step_times():
+            print(f"| {name} | {size} | {step:.2f} | {fallbacks} |")
     return 0
 
 

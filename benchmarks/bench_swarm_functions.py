@@ -16,6 +16,7 @@ from the origin (and off the diagonal) to expose any origin bias.
 Run from the repository root::
 
     python -m benchmarks.bench_swarm_functions
+    python -m benchmarks.bench_swarm_functions --griewank   # GWO's solved share on Griewank
 
 mealpy is a benchmark-only dependency (``pip install -e ".[bench]"``).
 """
@@ -34,7 +35,7 @@ from uuv_ocp.optimize import (
     convergence_factor,
     minimize,
 )
-from uuv_ocp.optimize.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
+from uuv_ocp.optimize.benchmark_functions import ackley, griewank, rastrigin, rosenbrock, shifted, sphere
 
 FLOOR = 1e-8
 OUT = Path("out")
@@ -68,11 +69,13 @@ MEALPY_REFERENCE = {
 }
 
 
-#: table row -> (method, options); "igwo-alpha" is igwo with the alpha-anchored inertia
+#: table row -> (method, options); "igwo-alpha" is igwo with the alpha-anchored inertia,
+#: "gwo-greedy" is gwo with mealpy's greedy selection (what mealpy calls OriginalGWO)
 VARIANTS: dict[str, dict | None] = {
     "igwo": None,
     "igwo-alpha": {"frame": "alpha"},
     "gwo": None,
+    "gwo-greedy": {"selection": "greedy"},
     "ssa": None,
     "pso": None,
 }
@@ -210,5 +213,82 @@ def main(seeds: int = 20, dims: tuple[int, ...] = (10, 30)) -> list[dict]:
     return rows
 
 
+def wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
+    """Wilson score interval of a binomial proportion (95 % for ``z = 1.96``)."""
+    p = successes / trials
+    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
+    half = z * np.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z / trials)
+    return float(centre - half), float(centre + half)
+
+
+def griewank_solved(
+    seeds: int = 60,
+    dim: int = 30,
+    settings: tuple[tuple[float, int, int], ...] = ((600.0, 30, 200), (100.0, 30, 200), (600.0, 30, 500)),
+    solved_below: float = 1e-6,
+) -> list[dict]:
+    """Share of seeds that reach Griewank's global basin: gwo, gwo-greedy, mealpy OriginalGWO.
+
+    GWO on Griewank ends either at the optimum (< 1e-8) or in a local minimum (about 7e-3
+    and up), so a median over a handful of seeds flips between the two; the solved share with
+    its Wilson interval is the comparison that means something.  ``settings`` holds
+    (half-width of the box, population, iterations).
+    """
+    rows = []
+    print(f"\nGriewank, dim {dim}, {seeds} seeds: share with f < {solved_below:g} [95 % Wilson]")
+    for bound, population, iterations in settings:
+        lower, upper = -bound * np.ones(dim), bound * np.ones(dim)
+        budget = population * (iterations + 1)
+        finals = {
+            "gwo": [
+                minimize(
+                    griewank, lower, upper, "gwo", population=population, iterations=iterations, seed=s
+                ).fun
+                for s in range(seeds)
+            ],
+            "gwo-greedy": [
+                minimize(
+                    griewank,
+                    lower,
+                    upper,
+                    "gwo",
+                    population=population,
+                    iterations=iterations,
+                    seed=s,
+                    options={"selection": "greedy"},
+                ).fun
+                for s in range(seeds)
+            ],
+            "mealpy": [
+                run_mealpy("gwo", griewank, lower, upper, population, budget, s)[0] for s in range(seeds)
+            ],
+        }
+        cells = []
+        for name, values in finals.items():
+            solved = int(np.sum(np.asarray(values) < solved_below))
+            low, high = wilson(solved, seeds)
+            rows.append(
+                {
+                    "bound": bound,
+                    "population": population,
+                    "iterations": iterations,
+                    "method": name,
+                    "solved": solved,
+                    "seeds": seeds,
+                    "median": float(np.median(values)),
+                }
+            )
+            cells.append(
+                f"{name} {solved / seeds:.2f} [{low:.2f}, {high:.2f}] median {np.median(values):.2g}"
+            )
+        print(f"  box ±{bound:g}, {population}x{iterations}: " + "; ".join(cells), flush=True)
+    return rows
+
+
 if __name__ == "__main__":
-    main()
+    import sys
+
+    if "--griewank" in sys.argv:
+        griewank_solved()
+    else:
+        main()

@@ -14,7 +14,14 @@ from uuv_ocp.optimize import (
     igwo_update,
     minimize,
 )
-from uuv_ocp.optimize.benchmark_functions import ackley, rastrigin, rosenbrock, shifted, sphere
+from uuv_ocp.optimize.benchmark_functions import (
+    ackley,
+    griewank,
+    rastrigin,
+    rosenbrock,
+    shifted,
+    sphere,
+)
 
 METHODS = ["gwo", "igwo", "pso", "ssa"]
 DIM = 10
@@ -294,6 +301,66 @@ def test_first_iteration_reproduced_from_documented_draw_layout(method, planes):
     else:
         expected = igwo_update(X0, X0, alpha, beta, delta, alpha, 2.0, 0.9, draws)
     assert np.array_equal(result.population, np.clip(expected, lower, upper))
+
+
+def test_griewank_matches_its_scalar_formula():
+    import math
+
+    X = np.random.default_rng(4).uniform(-600.0, 600.0, (5, 7))
+    expected = [
+        1.0
+        + sum(x * x for x in row) / 4000.0
+        - math.prod(math.cos(x / math.sqrt(i + 1)) for i, x in enumerate(row))
+        for row in X
+    ]
+    assert np.allclose(griewank(X), expected, rtol=1e-13, atol=0.0)
+    assert griewank(np.zeros((1, 30)))[0] == 0.0
+
+
+def test_greedy_gwo_two_iterations_reproduced_wolf_by_wolf():
+    # mealpy's OriginalGWO selection written as its per-wolf loop (get_better_agent: ties keep
+    # the old wolf), fed the documented draw layout; leaders are the best three points seen.
+    n, d = 6, 3
+    lower, upper = -np.ones(d), 2.0 * np.ones(d)
+    result = minimize(
+        rastrigin, lower, upper, "gwo", population=n, iterations=2, seed=5, options={"selection": "greedy"}
+    )
+
+    rng = np.random.default_rng(5)
+    wolves = lower + rng.random((n, d)) * (upper - lower)
+    costs = rastrigin(wolves)
+    seen_x, seen_f = wolves.copy(), costs.copy()
+    for a in (2.0, 1.0):  # linear a(t) = 2 (1 - t/T) at t = 0, 1 of T = 2
+        draws = rng.random((6, n, d))
+        order = np.argsort(seen_f, kind="stable")[:3]
+        alpha, beta, delta = seen_x[order]
+        moved = np.clip(gwo_update(wolves, alpha, beta, delta, a, draws), lower, upper)
+        moved_costs = rastrigin(moved)
+        seen_x, seen_f = np.vstack([seen_x, moved]), np.concatenate([seen_f, moved_costs])
+        for i in range(n):
+            if moved_costs[i] < costs[i]:
+                wolves[i], costs[i] = moved[i], moved_costs[i]
+    assert np.array_equal(result.population, wolves)
+    assert result.fun == seen_f.min()
+
+
+def test_greedy_gwo_never_moves_a_wolf_to_a_worse_point():
+    # Runs of 1..T iterations share their draws (the documented layout) and, with a constant
+    # a, their schedule, so consecutive runs' final populations are one pack a step apart.
+    lower, upper = -5.12 * np.ones(5), 5.12 * np.ones(5)
+
+    def packs(**selection):
+        options = {"a_initial": 1.0, "a_final": 1.0, **selection}
+        start = lower + np.random.default_rng(3).random((8, 5)) * (upper - lower)
+        runs = [
+            minimize(rastrigin, lower, upper, "gwo", population=8, iterations=t, seed=3, options=options)
+            for t in range(1, 9)
+        ]
+        return [rastrigin(start)] + [rastrigin(run.population) for run in runs]
+
+    greedy, plain = packs(selection="greedy"), packs()
+    assert all(np.all(after <= before) for before, after in zip(greedy[:-1], greedy[1:], strict=True))
+    assert any(np.any(after > before) for before, after in zip(plain[:-1], plain[1:], strict=True))
 
 
 def test_update_functions_elementwise_formula():

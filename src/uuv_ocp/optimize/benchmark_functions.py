@@ -48,3 +48,9 @@ def shifted(function: Vectorised, centre: np.ndarray | Callable[[int], np.ndarra
 
     moved.__name__ = f"shifted_{function.__name__}"
     return moved
+
+
+def griewank(X: np.ndarray) -> np.ndarray:
+    """``1 + Σ x²/4000 − Π cos(x_i/√i)``, minimum 0 at the origin."""
+    i = np.arange(1, X.shape[1] + 1)
+    return 1.0 + np.sum(X * X, axis=1) / 4000.0 - np.prod(np.cos(X / np.sqrt(i)), axis=1)

@@ -17,6 +17,7 @@ Run from the repository root::
 
     python -m benchmarks.bench_swarm_functions
     python -m benchmarks.bench_swarm_functions --griewank   # GWO's solved share on Griewank
+    python -m benchmarks.bench_swarm_functions --libraries  # uo.minimize vs mealpy, scipy, pymoo
 
 mealpy is a benchmark-only dependency (``pip install -e ".[bench]"``).
 """
@@ -285,10 +286,126 @@ def griewank_solved(
     return rows
 
 
+def _scipy_de(
+    fun: Callable, lower: np.ndarray, upper: np.ndarray, population: int, iterations: int, seed: int
+):
+    """Run scipy's differential_evolution, vectorised, no polishing, about ``population`` members."""
+    from scipy.optimize import differential_evolution
+
+    dim = lower.size
+    multiplier = max(1, round(population / dim)) if dim >= 5 else max(5, population // dim)
+    result = differential_evolution(
+        lambda X: fun(np.asarray(X).T),
+        list(zip(lower, upper, strict=True)),
+        popsize=multiplier,
+        maxiter=iterations,
+        tol=0.0,
+        polish=False,
+        vectorized=True,
+        updating="deferred",
+        seed=seed,
+    )
+    return float(result.fun), int(result.nfev)
+
+
+def _pymoo(
+    kind: str,
+    fun: Callable,
+    lower: np.ndarray,
+    upper: np.ndarray,
+    population: int,
+    iterations: int,
+    seed: int,
+):
+    """Run pymoo's DE or PSO on the vectorised objective (one call per generation)."""
+    from pymoo.core.problem import Problem
+    from pymoo.optimize import minimize as pymoo_minimize
+
+    if kind == "de":
+        from pymoo.algorithms.soo.nonconvex.de import DE as Algorithm
+    else:
+        from pymoo.algorithms.soo.nonconvex.pso import PSO as Algorithm
+
+    class Vectorised(Problem):
+        def _evaluate(self, x, out, *args, **kwargs):
+            out["F"] = fun(np.asarray(x, dtype=float))
+
+    problem = Vectorised(n_var=lower.size, n_obj=1, xl=lower, xu=upper)
+    result = pymoo_minimize(
+        problem, Algorithm(pop_size=population), ("n_gen", iterations + 1), seed=seed, verbose=False
+    )
+    return float(np.min(result.F)), int(result.algorithm.evaluator.n_eval)
+
+
+def libraries(
+    seeds: int = 20, dims: tuple[int, ...] = (10, 30), population: int = 30, iterations: int = 200
+) -> list[dict]:
+    """``uo.minimize`` beside mealpy, scipy and pymoo on a user's vectorised objective.
+
+    Every method gets about ``population × (iterations + 1)`` evaluations (the column ``nfe``
+    gives the largest count measured); the table is the median final error over ``seeds`` and
+    the mean wall time per run (ms).  The package's loop is numpy over the population, as is
+    pymoo's and scipy's (``vectorized=True``); mealpy calls the objective once per individual.
+    """
+    griewank_box = {"griewank": (griewank, 600.0)}
+    cases = {**FUNCTIONS, **griewank_box}
+    methods: dict[str, Callable] = {
+        "igwo": lambda f, lo, up, s: (
+            minimize(f, lo, up, "igwo", population=population, iterations=iterations, seed=s).fun,
+            population * (iterations + 1),
+        ),
+        "gwo": lambda f, lo, up, s: (
+            minimize(f, lo, up, "gwo", population=population, iterations=iterations, seed=s).fun,
+            population * (iterations + 1),
+        ),
+        "pso": lambda f, lo, up, s: (
+            minimize(f, lo, up, "pso", population=population, iterations=iterations, seed=s).fun,
+            population * (iterations + 1),
+        ),
+        "mealpy gwo": lambda f, lo, up, s: run_mealpy(
+            "gwo", f, lo, up, population, population * (iterations + 1), s
+        ),
+        "scipy de": lambda f, lo, up, s: _scipy_de(f, lo, up, population, iterations, s),
+        "pymoo de": lambda f, lo, up, s: _pymoo("de", f, lo, up, population, iterations, s),
+        "pymoo pso": lambda f, lo, up, s: _pymoo("pso", f, lo, up, population, iterations, s),
+    }
+    rows = []
+    print(
+        f"\nmedian final error over {seeds} seeds / mean ms per run, "
+        f"~{population}x{iterations + 1} evaluations"
+    )
+    print(f"{'function':<18}{'dim':>4} " + "".join(f"{name:>21}" for name in methods))
+    for name, (fun, bound) in cases.items():
+        for dim in dims:
+            lower, upper = -bound * np.ones(dim), bound * np.ones(dim)
+            cells = []
+            for method, run in methods.items():
+                finals, counts, started = [], [], time.perf_counter()
+                for seed in range(seeds):
+                    value, count = run(fun, lower, upper, seed)
+                    finals.append(value)
+                    counts.append(count)
+                ms = 1e3 * (time.perf_counter() - started) / seeds
+                row = {
+                    "function": name,
+                    "dim": dim,
+                    "method": method,
+                    "median": float(np.median(finals)),
+                    "ms": ms,
+                    "nfe": int(max(counts)),
+                }
+                rows.append(row)
+                cells.append(f"{row['median']:>10.2g} /{ms:>7.1f}ms")
+            print(f"{name:<18}{dim:>4} " + " ".join(f"{cell:>20}" for cell in cells), flush=True)
+    return rows
+
+
 if __name__ == "__main__":
     import sys
 
     if "--griewank" in sys.argv:
         griewank_solved()
+    elif "--libraries" in sys.argv:
+        libraries()
     else:
         main()

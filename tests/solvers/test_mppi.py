@@ -81,7 +81,8 @@ def test_iterated_updates_tend_to_the_lqr_control():
     """
     lqr = riccati_controls(X0)
     ocp = double_integrator()
-    fine = {"samples": 4096, "iterations": 20, "temperature": 1e-4, "noise": 0.02, "keep_best": False}
+    fine = {"samples": 4096, "iterations": 20, "temperature": 1e-4, "noise": 0.02, "smoothing": 0.0}
+    fine["keep_best"] = False
     result = uo.solve(ocp, "mppi", x0=X0, options=fine)
     error = np.max(np.abs(result.controls - lqr)) / np.max(np.abs(lqr))
     assert result.success and result.details["returned"] == "mean"
@@ -91,21 +92,27 @@ def test_iterated_updates_tend_to_the_lqr_control():
     assert np.max(np.abs(rough.controls - lqr)) / np.max(np.abs(lqr)) > 2 * error
 
 
-def test_one_update_is_the_mean_of_the_gaussian_posterior():
-    """On a quadratic J, E[w(ε) (W̄ + ε)] = (H/λ + Σ⁻¹)⁻¹ (H W*/λ + Σ⁻¹ W̄): Gaussian algebra.
+@pytest.mark.parametrize("smoothing", [0.0, 0.6])
+def test_one_update_is_the_mean_of_the_gaussian_posterior(smoothing):
+    """On a quadratic J, E[w(ε) (W̄ + ε)] = (H/λ + C⁻¹)⁻¹ (H W*/λ + C⁻¹ W̄): Gaussian algebra.
 
-    W are the scaled controls u / BOUND (no rate bound), so H_W = BOUND² H_u.  λ is chosen so
-    that the posterior is about as wide as the prior (many effective samples); the tolerance
-    is a few Monte-Carlo standard errors of the weighted mean (σ_post / sqrt(ESS) ≈ 3e-4).
+    W are the scaled controls u / BOUND (no rate bound), so H_W = BOUND² H_u.  C is the
+    prior covariance of ε over the horizon: σ² β^|i−j| for the stationary AR(1) noise of
+    ``smoothing`` β (σ² I for β = 0).  λ is chosen so that the posterior is about as wide as
+    the prior (many effective samples); the tolerance is a few Monte-Carlo standard errors of
+    the weighted mean (σ_post / sqrt(ESS) ≈ 3e-4).
     """
     hessian, optimum = condensed_quadratic(X0)
     h_w, w_star = BOUND**2 * hessian, optimum / BOUND
     sigma, temperature = 0.05, 0.05
     nominal = np.zeros(HORIZON)  # the cold start holds u_prev = 0
-    precision = h_w / temperature + np.eye(HORIZON) / sigma**2
-    expected = np.linalg.solve(precision, h_w @ w_star / temperature + nominal / sigma**2)
+    lags = np.abs(np.subtract.outer(np.arange(HORIZON), np.arange(HORIZON)))
+    prior = np.linalg.inv(sigma**2 * smoothing**lags)
+    precision = h_w / temperature + prior
+    expected = np.linalg.solve(precision, h_w @ w_star / temperature + prior @ nominal)
     ocp = double_integrator()
     options = {"samples": 65536, "iterations": 1, "temperature": temperature, "noise": sigma}
+    options["smoothing"] = smoothing
     result = uo.solve(ocp, "mppi", x0=X0, options={**options, "keep_best": False})
     got = result.controls.ravel() / BOUND
     assert np.max(np.abs(got - nominal)) > 0.03  # the update moved (not a trivial match)

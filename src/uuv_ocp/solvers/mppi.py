@@ -129,7 +129,13 @@ class MppiOptions:
     samples: int = option(
         256, "int >= 2", "control sequences sampled per iteration (the first is the nominal)", check=_samples
     )
-    iterations: int = option(3, "int >= 1", "sample-and-average updates per solve", check=positive_int)
+    iterations: int = option(
+        1,
+        "int >= 1",
+        "sample-and-average updates per solve",
+        meaning="one update per control step, warm-started (real-time MPPI); raise it for a cold solve",
+        check=positive_int,
+    )
     temperature: float = option(
         10.0,
         "float > 0",
@@ -145,7 +151,7 @@ class MppiOptions:
         check=_noise,
     )
     smoothing: float = option(
-        0.0,
+        0.5,
         "float in [0, 1)",
         "correlation of the perturbation between consecutive stages (AR(1) over the horizon)",
         check=_smoothing,

@@ -452,6 +452,14 @@ class SwarmSolver:
         self._schedules: tuple[np.ndarray, np.ndarray] | None = None  # IGWO's a(t), w(t) for the C step
         self._full_search_seconds: float | None = None  # last search that used the whole budget
         self.fitness = self._fitness_function()
+        # what evaluates the population (details["evaluation"] says per solve what really ran)
+        self.evaluation = (
+            "compiled C step"
+            if self.native is not None
+            else "compiled"
+            if self._rollout
+            else "virtual machine"
+        )
         self._evaluate = BufferedFitness(
             self.fitness, self.population, problem.control_dim, problem.parameter_dim
         )
@@ -520,8 +528,10 @@ class SwarmSolver:
             return values
 
         # the candidates option needs every population: the Python loop on the same fitness
+        evaluation = "compiled" if self._rollout is not None else "virtual machine"
         if self.native is not None and archive is None and self._native_fits(limit, start):
             outcome = self._native_minimize(p, offset, lower, upper, seeds, rng)
+            evaluation = "compiled C step"
         else:  # with a deadline the Python loop, which can stop between iterations
             remaining = None if limit is None else max(limit - (time.perf_counter() - start), 1e-12)
             outcome = minimize(
@@ -578,6 +588,7 @@ class SwarmSolver:
                     "fitness": outcome.fun,
                     "violations": kinds,
                     "deadline_hit": outcome.deadline_hit or late,
+                    "evaluation": evaluation,
                     **self._candidate_details(archive, outcome, offset, p),
                 }
             ),

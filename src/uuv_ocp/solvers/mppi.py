@@ -293,17 +293,24 @@ class MppiSolver:
         return np.diag(array) if array.ndim == 1 else np.linalg.cholesky(array)
 
     def _perturbations(self, generator: np.random.Generator) -> np.ndarray:
-        """Noise (S, N, nu): Gaussian with covariance Σ per stage, AR(1)-correlated over stages."""
-        white = generator.standard_normal((self.samples, self._horizon, self._nu))
+        """Noise (S, N nu): Gaussian with covariance Σ per stage, AR(1)-correlated over stages."""
+        # stage-major (N, S, nu): each stage a contiguous block for the in-place AR(1) filter
+        white = generator.standard_normal((self._horizon, self.samples, self._nu))
         if self.smoothing > 0.0:
             # stationary AR(1): every stage keeps the covariance Σ, neighbours correlate by β
             beta, gain = self.smoothing, math.sqrt(1.0 - self.smoothing**2)
+            carried = np.empty_like(white[0])
             for k in range(1, self._horizon):
-                white[:, k] = beta * white[:, k - 1] + gain * white[:, k]
-        # a diagonal Σ scales each control (cheaper than the product with L)
-        noise = white * self._std if self._std is not None else white @ self._chol.T
+                np.multiply(white[k - 1], beta, out=carried)
+                white[k] *= gain
+                white[k] += carried
+        if self._std is not None:  # a diagonal Σ scales each control (cheaper than the product with L)
+            white *= self._std
+        else:
+            white = white @ self._chol.T
+        noise = white.transpose(1, 0, 2).reshape(self.samples, -1)  # a copy, sample-major
         noise[0] = 0.0  # sample 0 is the nominal itself
-        return noise.reshape(self.samples, -1)
+        return noise
 
     def weights(self, values: np.ndarray) -> np.ndarray:
         """Return the importance weights of fitness ``values`` (S,): softmax of −values/λ, non-finite -> 0."""
@@ -351,7 +358,9 @@ class MppiSolver:
         history: list[float] = []
         done, deadline_hit = 0, False
         for _ in range(self.iterations):
-            coordinates = np.clip(nominal + self._perturbations(generator), -1.0, 1.0)
+            coordinates = self._perturbations(generator)
+            coordinates += nominal
+            np.clip(coordinates, -1.0, 1.0, out=coordinates)
             values = self._evaluate(coordinates, p)
             if archive is not None:
                 archive.add(coordinates, values)

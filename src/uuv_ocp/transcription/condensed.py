@@ -71,16 +71,20 @@ def encode(spec: OcpSpec, scaled: np.ndarray, previous: np.ndarray) -> np.ndarra
     plan = np.asarray(scaled, dtype=float).reshape(spec.horizon, spec.control_size)
     if not (spec.lifted and np.any(np.isfinite(rate_bound))):
         return plan.ravel().copy()
-    coordinates = np.empty_like(plan)
-    for k, z in enumerate(plan):
-        low = np.maximum(spec.scaled_lower, previous - rate_bound)
-        high = np.minimum(spec.scaled_upper, previous + rate_bound)
-        z = np.clip(z, low, high)
-        width = high - low
-        with np.errstate(divide="ignore", invalid="ignore"):
-            coordinates[k] = np.where(width > 0, 2.0 * (z - low) / width - 1.0, 0.0)
-        previous = z
-    return np.clip(coordinates, -1.0, 1.0).ravel()
+    # Python floats: a warm start is encoded at every closed-loop step, and numpy's per-call
+    # overhead on vectors of nu entries cost ~10x this loop (the same IEEE operations)
+    lower, upper, rate = spec.scaled_lower.tolist(), spec.scaled_upper.tolist(), rate_bound.tolist()
+    prior = np.asarray(previous, dtype=float).ravel().tolist()
+    coordinates = []
+    for row in plan.tolist():
+        for i, value in enumerate(row):
+            low, high = max(lower[i], prior[i] - rate[i]), min(upper[i], prior[i] + rate[i])
+            z = min(max(value, low), high) if value == value else value  # NaN stays NaN
+            width = high - low
+            w = 2.0 * (z - low) / width - 1.0 if width > 0 else 0.0
+            coordinates.append(min(max(w, -1.0), 1.0) if w == w else w)
+            prior[i] = z
+    return np.array(coordinates)
 
 
 def condense(spec: OcpSpec, step: ca.Function) -> tuple[ca.Function, ca.Function, ca.Function]:

@@ -215,3 +215,37 @@ def test_mppi_warm_starts_an_exact_solver_and_runs_a_closed_loop():
     assert run.failures == 0
     assert np.max(np.abs(np.diff(np.r_[0.0, run.controls[:, 0]]))) <= 4.0 * DT * (1 + 1e-12)
     assert abs(run.states[-1, 0]) < abs(X0[0])  # it regulates toward the origin
+
+
+def test_candidates_are_distinct_samples_and_feed_a_hybrid():
+    """``candidates=k``: the returned plan first, then samples farther than the distance in W.
+
+    W of each plan is recomputed here from the plan by inverting the decode (u_prev = 0, no
+    rate bound: W are the scaled controls), independently of the package's encode.
+    """
+    ocp = double_integrator()
+    options = {"samples": 64, "iterations": 3, "candidates": 4, "candidate_metric": "controls"}
+    options["candidate_distance"] = 0.05
+    result = uo.solve(ocp, "mppi", x0=X0, options=options)
+    plans = result.details["candidates"]
+    assert len(plans) == 4
+    np.testing.assert_allclose(plans[0], result.iterate.scaled_controls)
+    for i in range(4):
+        for j in range(i):
+            assert np.sqrt(np.mean((plans[i] - plans[j]) ** 2)) > 0.05
+    hybrid = uo.solve(ocp, "mppi+fatrop", x0=X0, options={"candidates": 3, "swarm": {"samples": 64}})
+    rows = hybrid.details["candidates"]
+    assert [row["start"] for row in rows] == ["swarm 0", "warm start", "swarm 1"]
+    assert hybrid.cost == pytest.approx(min(row["cost"] for row in rows if row["success"]), rel=1e-12)
+
+
+def test_a_deadline_stops_between_iterations_with_a_plan_holding_the_bounds():
+    ocp = double_integrator(max_rate=1.5)
+    solver = new_solver(ocp, "mppi", {"samples": 64, "iterations": 1000})
+    result = solver.solve(ocp.parameters(X0), time_limit=1e-3)
+    assert result.details["deadline_hit"] and result.status.startswith("deadline: 0.001 s reached after")
+    assert 1 <= result.iterations < 1000 and result.evaluations == result.iterations * 64 + 1
+    steps = np.diff(np.r_[0.0, result.controls.ravel()])
+    assert np.max(np.abs(steps)) <= 1.5 * DT * (1 + 1e-12)
+    full = solver.solve(ocp.parameters(X0), time_limit=None)
+    assert not full.details["deadline_hit"] and full.iterations == 1000

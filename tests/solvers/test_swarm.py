@@ -1,9 +1,11 @@
 """Swarm backends on the tracking problem: batched cost, quality, hybrids, options."""
 
+import casadi as ca
 import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from tests.conftest import needs_compiler
 from uuv_ocp.judge import score_parameters
 from uuv_ocp.solvers.swarm import batched_fitness
 from uuv_ocp.transcription.condensed import encode
@@ -199,3 +201,49 @@ def test_buffered_fitness_is_bit_identical_to_an_ordinary_call(instance):
     np.testing.assert_array_equal(buffered(candidates, p), np.array(function(candidates.T, p)).ravel())
     second = buffered(-candidates, p)  # the buffer is reused, results are copies
     np.testing.assert_array_equal(second, np.array(function(-candidates.T, p)).ravel())
+
+
+def default_path_ocp() -> uo.Ocp:
+    """Return a small boxed OCP of its own (no other test builds it: no pooled backend reused)."""
+    ocp = uo.Ocp(horizon=7, dt=0.15)
+    pos, vel = ocp.state("pos"), ocp.state("vel")
+    acc = ocp.control("acc", lower=-1.5, upper=1.5, max_rate=3.0)
+    ocp.set_der(pos, vel)
+    ocp.set_der(vel, acc)
+    ocp.add_stage_cost(residual=ca.vertcat(pos - 0.7, 0.2 * acc))
+    ocp.add_terminal_cost(residual=2.0 * (pos - 0.7))
+    return ocp
+
+
+@needs_compiler
+def test_a_fresh_solve_uses_the_compiled_evaluation_by_default(monkeypatch):
+    """No option, no environment: swarms, MPPI, hybrids and NMPC run on compiled C (observable).
+
+    IGWO runs its all-C step; the other swarms and MPPI the compiled batched fitness; with
+    ``UUV_OCP_COMPILED=0`` (the suite's setting) the same calls run on CasADi's VM.
+    """
+    monkeypatch.delenv("UUV_OCP_COMPILED", raising=False)
+    ocp, x0 = default_path_ocp(), [0.0, 0.0]
+    assert uo.solve(ocp, "igwo", x0=x0).details["evaluation"] == "compiled C step"
+    assert uo.solve(ocp, "pso", x0=x0).details["evaluation"] == "compiled"
+    assert uo.solve(ocp, "mppi", x0=x0).details["evaluation"] == "compiled"
+    assert uo.solve(ocp, "igwo+fatrop", x0=x0).details["swarm_evaluation"] == "compiled C step"
+    assert uo.solve(ocp, "mppi+sqp-rti", x0=x0).details["swarm_evaluation"] == "compiled"
+    controller = uo.NMPC(ocp, "igwo", seed=1)
+    assert controller.step(np.zeros(2), 0.0, np.zeros(1)).result.details["evaluation"] == "compiled C step"
+    # with a deadline IGWO runs the Python loop on the same compiled fitness, and says so
+    timed = uo.solve(ocp, "igwo", x0=x0, options={"deadline": 10.0})
+    assert timed.details["evaluation"] == "compiled"
+    monkeypatch.setenv("UUV_OCP_COMPILED", "0")
+    assert uo.solve(ocp, "igwo", x0=x0, options={"seed": 5}).details["evaluation"] == "virtual machine"
+    assert uo.solve(ocp, "mppi", x0=x0, options={"seed": 5}).details["evaluation"] == "virtual machine"
+
+
+def test_without_a_compiler_the_default_falls_back_with_one_warning(monkeypatch):
+    monkeypatch.delenv("UUV_OCP_COMPILED", raising=False)
+    monkeypatch.setenv("CC", "/nonexistent/compiler")
+    ocp = default_path_ocp()
+    for name in ("igwo", "mppi"):
+        with pytest.warns(RuntimeWarning, match="no C compiler.*virtual machine"):
+            backend = uo.solvers.new_solver(ocp, name, {"seed": 9})
+        assert backend.evaluation == "virtual machine" and backend.compiled is False

@@ -23,12 +23,14 @@ THREADS = 4
 STEPS = 4
 HORIZON = 6
 SWARM = {"population": 8, "iterations": 6}
+#: small budgets of the swarm-kind backends whose options are not a swarm's
+SMALL = {"mppi": {"samples": 16, "iterations": 2}}
 #: name -> (solver, options): every registered backend (a new one is tested here by
 #: registering it), one hybrid and one multistart; sqp-rti runs its C step (hpipm-ocp) where a
 #: compiler exists; "igwo-compiled" the all-C IGWO step with its random-number worker thread.
 SOLVERS = {
     **{
-        name: (name, SWARM if REGISTRY.kind(name) == "swarm" else None)
+        name: (name, SMALL.get(name, SWARM) if REGISTRY.kind(name) == "swarm" else None)
         for name in REGISTRY.names()
         if REGISTRY.kind(name) in ("exact", "swarm")
     },

@@ -34,6 +34,7 @@ from uuv_ocp.solvers.base import check_backend
 from uuv_ocp.solvers.fatrop import FatropSolver
 from uuv_ocp.solvers.hybrid import hybrid_factory
 from uuv_ocp.solvers.ipopt import IpoptSolver
+from uuv_ocp.solvers.mppi import MppiSolver
 from uuv_ocp.solvers.multistart import multistart_factory
 from uuv_ocp.solvers.nlp import NlpSolver
 from uuv_ocp.solvers.result import Iterate, SolveResult
@@ -52,6 +53,7 @@ _BUILTIN: dict[str, tuple[SolverFactory, str]] = {
     "sqp-rti": (RtiSolver, "exact"),
     "slsqp": (SlsqpSolver, "exact"),
     **{method: (swarm_factory(method), "swarm") for method in ALGORITHMS},
+    "mppi": (MppiSolver, "swarm"),  # a sampling method: a warm start for the hybrids like a swarm
 }
 
 
@@ -314,6 +316,7 @@ def solve(
 __all__ = [
     "FatropSolver",
     "IpoptSolver",
+    "MppiSolver",
     "Iterate",
     "NlpSolver",
     "REGISTRY",

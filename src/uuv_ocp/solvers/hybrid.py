@@ -228,7 +228,13 @@ class HybridSolver:
             details["chosen"] = chosen
             iterations = sum(r.iterations for r in results)
             evaluations = sum(r.evaluations for r in results)
-        details.update({"swarm_fitness": swarm.details.get("fitness"), "swarm_cost": swarm.cost})
+        details.update(
+            {
+                "swarm_fitness": swarm.details.get("fitness"),
+                "swarm_cost": swarm.cost,
+                "swarm_evaluation": swarm.details.get("evaluation"),
+            }
+        )
         if deadline is not None:
             late = any(r.details.get("deadline_hit", False) for r in results)
             details["deadline_hit"] = bool(late or watchdog.now() - start > deadline)

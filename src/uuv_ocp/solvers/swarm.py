@@ -322,6 +322,61 @@ class CandidateArchive:
         self.points, self.values, self.keys = pool[chosen], pool_values[chosen], pool_keys[chosen]
 
 
+def candidate_archive(
+    problem: Transcribed,
+    decode: BufferedFunction,
+    rollout: BufferedFunction | None,
+    size: int,
+    metric: str,
+    distance: float,
+    p: np.ndarray,
+) -> CandidateArchive:
+    """Return the archive of a ``candidates`` option over search coordinates ``W``, by ``metric``.
+
+    ``"controls"``: the coordinates themselves; ``"states"``: the predicted states on nodes
+    1..N, each component over its spread in the first population offered (unit-free).
+    Shared by the swarms and MPPI (both evaluate populations of ``W``).
+    """
+    if metric == "controls":
+        return CandidateArchive(size, distance)
+    scale: list[np.ndarray] = []
+
+    def features(points: np.ndarray) -> np.ndarray:
+        """Predicted states on nodes 1..N, each component over its initial spread."""
+        states = np.array(
+            [problem.rollout_scaled(decode(w, p)[0], p, rollout)[1:] for w in points]
+        )  # (n, N, nx)
+        if not scale:  # the first call sees the initial population
+            spread = states.std(axis=(0, 1))
+            scale.append(np.where(spread > 1e-12, spread, 1.0))
+        return (states / scale[0]).reshape(points.shape[0], -1)
+
+    return CandidateArchive(size, distance, features)
+
+
+def candidate_details(
+    problem: Transcribed,
+    decode: BufferedFunction,
+    archive: CandidateArchive,
+    best: np.ndarray,
+    best_fitness: float,
+    size: int,
+    p: np.ndarray,
+) -> dict[str, Any]:
+    """Return ``candidates`` (scaled plans (N, nu), best first) and ``candidate_fitness`` of a run."""
+    chosen, fitness = [best], [best_fitness]
+    # the archive's first point is the best evaluated one (the same as best up to ties)
+    start = 1 if archive.values.size and archive.values[0] <= best_fitness else 0
+    for point, value in zip(archive.points[start:], archive.values[start:], strict=True):
+        if len(chosen) == size:
+            break
+        chosen.append(point)
+        fitness.append(float(value))
+    shape = (problem.spec().horizon, problem.spec().control_size)
+    plans = [decode(w, p)[0].reshape(shape) for w in chosen]
+    return {"candidates": plans, "candidate_fitness": fitness}
+
+
 class SwarmSolver:
     """A population optimiser from :mod:`uuv_ocp.optimize` as a backend for any bounded problem.
 
@@ -397,6 +452,14 @@ class SwarmSolver:
         self._schedules: tuple[np.ndarray, np.ndarray] | None = None  # IGWO's a(t), w(t) for the C step
         self._full_search_seconds: float | None = None  # last search that used the whole budget
         self.fitness = self._fitness_function()
+        # what evaluates the population (details["evaluation"] says per solve what really ran)
+        self.evaluation = (
+            "compiled C step"
+            if self.native is not None
+            else "compiled"
+            if self._rollout
+            else "virtual machine"
+        )
         self._evaluate = BufferedFitness(
             self.fitness, self.population, problem.control_dim, problem.parameter_dim
         )
@@ -465,8 +528,10 @@ class SwarmSolver:
             return values
 
         # the candidates option needs every population: the Python loop on the same fitness
+        evaluation = "compiled" if self._rollout is not None else "virtual machine"
         if self.native is not None and archive is None and self._native_fits(limit, start):
             outcome = self._native_minimize(p, offset, lower, upper, seeds, rng)
+            evaluation = "compiled C step"
         else:  # with a deadline the Python loop, which can stop between iterations
             remaining = None if limit is None else max(limit - (time.perf_counter() - start), 1e-12)
             outcome = minimize(
@@ -523,6 +588,7 @@ class SwarmSolver:
                     "fitness": outcome.fun,
                     "violations": kinds,
                     "deadline_hit": outcome.deadline_hit or late,
+                    "evaluation": evaluation,
                     **self._candidate_details(archive, outcome, offset, p),
                 }
             ),
@@ -530,22 +596,15 @@ class SwarmSolver:
 
     def _candidate_archive(self, p: np.ndarray) -> CandidateArchive:
         """Make the archive of the ``candidates`` option, with the features of ``candidate_metric``."""
-        if self.candidate_metric == "controls":
-            return CandidateArchive(self.candidates, self.candidate_distance)
-        problem, decode, rollout = self.problem, self._decode, self._rollout
-        scale: list[np.ndarray] = []
-
-        def features(points: np.ndarray) -> np.ndarray:
-            """Predicted states on nodes 1..N, each component over its initial spread."""
-            states = np.array(
-                [problem.rollout_scaled(decode(w, p)[0], p, rollout)[1:] for w in points]
-            )  # (n, N, nx)
-            if not scale:  # the first call sees the initial population
-                spread = states.std(axis=(0, 1))
-                scale.append(np.where(spread > 1e-12, spread, 1.0))
-            return (states / scale[0]).reshape(points.shape[0], -1)
-
-        return CandidateArchive(self.candidates, self.candidate_distance, features)
+        return candidate_archive(
+            self.problem,
+            self._decode,
+            self._rollout,
+            self.candidates,
+            self.candidate_metric,
+            self.candidate_distance,
+            p,
+        )
 
     def _candidate_details(
         self, archive: CandidateArchive | None, outcome: MinimizeResult, offset: np.ndarray, p: np.ndarray
@@ -554,17 +613,9 @@ class SwarmSolver:
         if archive is None:
             return {}
         best = np.clip(outcome.x + offset, self._lower, self._upper)
-        chosen, fitness = [best], [float(outcome.fun)]
-        # the archive's first point is the best evaluated one (the same as best up to ties)
-        start = 1 if archive.values.size and archive.values[0] <= outcome.fun else 0
-        for point, value in zip(archive.points[start:], archive.values[start:], strict=True):
-            if len(chosen) == self.candidates:
-                break
-            chosen.append(point)
-            fitness.append(float(value))
-        shape = (self.problem.spec().horizon, self.problem.spec().control_size)
-        plans = [self._decode(w, p)[0].reshape(shape) for w in chosen]
-        return {"candidates": plans, "candidate_fitness": fitness}
+        return candidate_details(
+            self.problem, self._decode, archive, best, float(outcome.fun), self.candidates, p
+        )
 
     def _native_fits(self, limit: float | None, start: float) -> bool:
         """Whether the all-C step (one uninterruptible call) may run under the deadline ``limit``.

@@ -260,6 +260,59 @@ def test_verification_detects_wrong_code(compiler, tmp_path, monkeypatch):
     assert result.max_error == {}
 
 
+# -- verification of approximate functions (the SIMD kernel's few-ulp sin/cos) ----------------
+
+# sin(K x) moves by about K * ulp(x) ~ 1e-2 when x moves by one ulp: analytically ill-conditioned
+K = 1e14
+
+
+def _mixed(count_ill: int = 1) -> ca.Function:
+    """``count_ill`` outputs sin(K x_i) (ill-conditioned), then x1 x2, x1 + x2 and x2 (well-conditioned)."""
+    x = ca.SX.sym("x", 3)
+    ill = [ca.sin(K * x[i]) for i in range(count_ill)]
+    return ca.Function("f", [x], [ca.vertcat(*ill, x[1] * x[2], x[1] + x[2], x[2])])
+
+
+def _twin(count_ill: int = 1, relative: float = 4 * 2.0**-52, wrong: float = 0.0) -> ca.Function:
+    """Return a "compiled" ``_mixed``: sin's argument off by ``relative`` (a few ulp), x1 x2 by ``wrong``."""
+    x = ca.SX.sym("x", 3)
+    ill = [ca.sin(K * x[i] * (1 + relative)) for i in range(count_ill)]
+    return ca.Function("f", [x], [ca.vertcat(*ill, x[1] * x[2] * (1 + wrong), x[1] + x[2], x[2])])
+
+
+def test_an_approximate_function_is_judged_where_its_twin_is_well_conditioned():
+    # a few ulp inside sin(K x) changes the value by ~1e-2: a plain check refuses the twin ...
+    with pytest.raises(VerificationError, match="'f' disagrees"):
+        cg._verify([_mixed()], {"f": _twin()}, np.random.default_rng(0), 1e-10)
+    # ... the conditioning-aware one judges only x1 x2, x1 + x2 and x2, which agree exactly
+    errors = cg._verify([_mixed()], {"f": _twin()}, np.random.default_rng(0), 1e-10, approximate={"f"})
+    assert errors == {"f": 0.0}
+
+
+def test_an_approximate_function_still_fails_on_its_well_conditioned_elements():
+    twin = _twin(relative=0.0, wrong=1e-9)  # sin exact; x1 x2 wrong by 1e-9 (relative)
+    with pytest.raises(VerificationError, match=r"'f' disagrees.*error [0-9.e-]+ > tolerance 1.0e-10"):
+        cg._verify([_mixed()], {"f": twin}, np.random.default_rng(0), 1e-10, approximate={"f"})
+
+
+def test_an_approximate_function_mostly_ill_conditioned_is_refused():
+    # 3 of 6 elements judged passes (half), 4 of 7 ill-conditioned does not
+    assert cg._verify([_mixed(3)], {"f": _mixed(3)}, np.random.default_rng(0), 1e-10, approximate={"f"})
+    four = _mixed(3)
+    x = ca.SX.sym("x", 3)
+    four = ca.Function("f", [x], [ca.vertcat(four(x), ca.sin(K * x[0] + 1))])
+    with pytest.raises(VerificationError, match="cannot be verified.*at 4 of its 7 output elements"):
+        cg._verify([four], {"f": four}, np.random.default_rng(0), 1e-10, approximate={"f"})
+
+
+def test_approximate_must_name_compiled_functions(tmp_path):
+    x = ca.SX.sym("x")
+    f = ca.Function("f", [x], [x])
+    for bad in ("f", ["g"]):
+        with pytest.raises(ValueError, match=r"approximate must be a collection of names from \['f'\]"):
+            compile_functions([f], tmp_path, compile=False, approximate=bad)
+
+
 # -- fallback ----------------------------------------------------------------------------------
 
 

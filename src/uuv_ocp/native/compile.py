@@ -62,7 +62,7 @@ import sys
 import tempfile
 import threading
 import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -111,6 +111,17 @@ FILE_MODE = 0o600
 
 FOLDER_MODE = 0o700
 """Mode of every folder this module creates."""
+
+CONDITIONING_MARGIN = 1000.0
+"""An ``approximate`` function is judged where its symbolic twin moves by at most its tolerance / this.
+
+Measured on the BlueROV2 obstacle course's SIMD ``cost_batch`` (20 000 random candidates): the
+kernel's difference from the virtual machine was at most 51 times the twin's own one-ulp
+movement, so a margin of 1000 keeps every judged element far inside the tolerance.
+"""
+
+CONDITIONING_DRAWS = 2
+"""Evaluations of the symbolic twin at one-ulp-moved inputs that measure its conditioning."""
 
 _PARALLELIZATIONS = ("serial", "unroll", "thread", "openmp")
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_]*")
@@ -754,18 +765,50 @@ def _load(names: Sequence[str], library: Path) -> dict[str, ca.Function]:
         raise CompilationError(f"could not load {library} with casadi.external: {error}") from error
 
 
-def _relative_error(compiled: np.ndarray, symbolic: np.ndarray) -> float:
-    """Largest ``|compiled - symbolic| / max(1, |symbolic|)``; NaN/inf must match exactly."""
-    if compiled.size == 0:
-        return 0.0
+def _relative_errors(compiled: np.ndarray, symbolic: np.ndarray) -> np.ndarray:
+    """Element-wise ``|compiled - symbolic| / max(1, |symbolic|)``; NaN/inf must match exactly."""
     same_nonfinite = ~np.isfinite(symbolic) & (
         (np.isnan(symbolic) & np.isnan(compiled)) | (symbolic == compiled)
     )
     with np.errstate(invalid="ignore", over="ignore"):
         error = np.abs(compiled - symbolic) / np.maximum(1.0, np.abs(symbolic))
     error = np.where(same_nonfinite, 0.0, error)
-    error = np.where(np.isnan(error), np.inf, error)
-    return float(np.max(error))
+    return np.where(np.isnan(error), np.inf, error)
+
+
+def _relative_error(compiled: np.ndarray, symbolic: np.ndarray) -> float:
+    """Largest ``|compiled - symbolic| / max(1, |symbolic|)``; NaN/inf must match exactly."""
+    if compiled.size == 0:
+        return 0.0
+    return float(np.max(_relative_errors(compiled, symbolic)))
+
+
+def _one_ulp_away(value: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """``value`` with every entry moved one ulp up or down (random direction)."""
+    up = rng.random(value.shape) < 0.5
+    return np.where(up, np.nextafter(value, np.inf), np.nextafter(value, -np.inf))
+
+
+def _well_conditioned(
+    function: ca.Function,
+    arguments: list[ca.DM],
+    expected: list[ca.DM],
+    rng: np.random.Generator,
+    limit: float,
+) -> list[np.ndarray]:
+    """Per output, the elements that ``function`` itself reproduces to ``limit / CONDITIONING_MARGIN``.
+
+    ``function`` (the symbolic twin) is evaluated again with every input moved by one ulp
+    (:data:`CONDITIONING_DRAWS` random directions); an element that moves by more than
+    ``limit / CONDITIONING_MARGIN`` (relative) is ill-conditioned there.
+    """
+    floor = [np.zeros(np.shape(want)) for want in expected]
+    for _ in range(CONDITIONING_DRAWS):
+        moved = [ca.DM(_one_ulp_away(np.asarray(a.full()), rng)) for a in arguments]
+        for index, (got, want) in enumerate(zip(function.call(moved), expected, strict=True)):
+            moved_by = _relative_errors(np.asarray(got.full()), np.asarray(want.full()))
+            floor[index] = np.maximum(floor[index], moved_by)
+    return [f <= limit / CONDITIONING_MARGIN for f in floor]
 
 
 def _verify(
@@ -774,10 +817,13 @@ def _verify(
     rng: np.random.Generator,
     tolerance: float,
     tolerances: Mapping[str, float] | None = None,
+    approximate: Collection[str] = (),
 ) -> dict[str, float]:
     """Evaluate each compiled function and its symbolic twin on the same random dense inputs.
 
-    ``tolerances`` overrides ``tolerance`` for the functions it names.
+    ``tolerances`` overrides ``tolerance`` for the functions it names.  The functions named in
+    ``approximate`` are compared only on the output elements where the twin is well conditioned
+    (:func:`_well_conditioned`), at least half of them (see :func:`compile_functions`).
     """
     errors: dict[str, float] = {}
     for function in symbolic:
@@ -785,15 +831,24 @@ def _verify(
         arguments = [ca.DM(rng.uniform(-1.0, 1.0, size=function.size_in(i))) for i in range(function.n_in())]
         expected = function.call(arguments)
         obtained = compiled[name].call(arguments)
-        error = max(
-            (
-                _relative_error(np.asarray(got.full()), np.asarray(want.full()))
-                for got, want in zip(obtained, expected, strict=True)
-            ),
-            default=0.0,
-        )
-        errors[name] = error
         limit = (tolerances or {}).get(name, tolerance)
+        element_errors = [
+            _relative_errors(np.asarray(got.full()), np.asarray(want.full()))
+            for got, want in zip(obtained, expected, strict=True)
+        ]
+        if name in approximate:
+            judged = _well_conditioned(function, arguments, expected, rng, limit)
+            count = sum(int(mask.sum()) for mask in judged)
+            total = sum(mask.size for mask in judged)
+            if 2 * count < total:
+                raise VerificationError(
+                    f"compiled function {name!r} cannot be verified on these inputs: its symbolic "
+                    f"twin itself moves by more than {limit / CONDITIONING_MARGIN:.1e} (relative) under "
+                    f"one-ulp changes of its inputs at {total - count} of its {total} output elements"
+                )
+            element_errors = [error[mask] for error, mask in zip(element_errors, judged, strict=True)]
+        error = max((float(np.max(e)) for e in element_errors if e.size), default=0.0)
+        errors[name] = error
         if not error <= limit:
             raise VerificationError(
                 f"compiled function {name!r} disagrees with its symbolic twin: max relative "
@@ -855,6 +910,7 @@ def compile_functions(
     flags: Sequence[str] = DEFAULT_FLAGS,
     tolerance: float = 1e-12,
     tolerances: Mapping[str, float] | None = None,
+    approximate: Collection[str] = (),
     extra_source: str = "",
     external: Sequence[ca.Function] = (),
     extra_header: str = "",
@@ -880,7 +936,8 @@ def compile_functions(
         ``functions`` and ``max_error`` are empty and ``compiler`` is ``""``.
     verify : bool, default True
         Evaluate every compiled function and its symbolic twin on the same random dense inputs
-        (uniform in [-1, 1], shapes ``f.size_in(i)``) and compare.
+        (uniform in [-1, 1], shapes ``f.size_in(i)``) and compare (``approximate`` ones only
+        where the twin is well conditioned).
     rng : numpy.random.Generator, optional
         Source of the verification inputs; default ``numpy.random.default_rng(0)``.
     cc : str, optional
@@ -893,6 +950,16 @@ def compile_functions(
     tolerances : Mapping[str, float], optional
         Per-function tolerances replacing ``tolerance`` for the functions named (e.g. a SIMD
         kernel whose own ``sin``/``cos`` differ from libm by a few ulp).
+    approximate : Collection[str], default ()
+        Names of functions (of ``functions`` or ``external``) that compute some operations only
+        approximately (the SIMD kernel's ``sin``/``cos``, a few ulp from libm).  Where the
+        symbolic twin is ill-conditioned, a few-ulp difference is amplified past any
+        tolerance and says nothing about the compiled code (a 6-DOF rollout through ±90°
+        pitch divides by cos θ ≈ 0: the twin itself moves by 1e-2 when its inputs move by one
+        ulp).  So these are compared only on the output elements that the twin reproduces to
+        their tolerance / :data:`CONDITIONING_MARGIN` when every input moves by one ulp
+        (:data:`CONDITIONING_DRAWS` draws), at that same tolerance; fewer than half of the
+        elements judged is a :class:`VerificationError`.
     extra_source : str, default ""
         Hand-written C appended to the generated source (it may call the generated functions,
         e.g. the all-C IGWO step); part of the digest.
@@ -944,6 +1011,11 @@ def compile_functions(
     if prefix and not _IDENTIFIER.fullmatch(prefix):
         raise ValueError(f"prefix must be empty or a C identifier, got {prefix!r}")
     _check_functions([*functions, *external], name)
+    compiled_names = sorted(function.name() for function in (*functions, *external))
+    if isinstance(approximate, str) or not set(approximate) <= set(compiled_names):
+        raise ValueError(
+            f"approximate must be a collection of names from {compiled_names}, got {approximate!r}"
+        )
     generated = [_copy(function, prefix + function.name()) for function in functions] if prefix else functions
     for label, value in [
         ("tolerance", tolerance),
@@ -1027,7 +1099,7 @@ def compile_functions(
     errors: dict[str, float] = {}
     if verify:
         generator_rng = np.random.default_rng(0) if rng is None else rng
-        errors = _verify([*functions, *external], loaded, generator_rng, tolerance, tolerances)
+        errors = _verify([*functions, *external], loaded, generator_rng, tolerance, tolerances, approximate)
     return CompiledLibrary(
         path=library,
         source=source,

@@ -72,7 +72,9 @@ from uuv_ocp.transcription.condensed import batched_fitness, candidate_fitness
 #: Verification tolerance of the SIMD ``cost_batch`` (relative): its own ``sin``/``cos`` differ
 #: from libm by a few ulp (native/simd_math.h), and the cost of an N-step rollout amplifies that
 #: past 1e-12 on long 6-DOF horizons (docs/benchmarks.md, "SIMD tolerance").  Everything else
-#: (CasADi's generated code, the exact batch) keeps ``tolerance``.
+#: (CasADi's generated code, the exact batch) keeps ``tolerance``.  The kernel is judged only on
+#: the candidates where the VM itself is well conditioned (``approximate`` of compile_functions):
+#: random candidates that roll a 6-DOF vehicle through ±90° pitch amplify one ulp to 1e-2.
 SIMD_TOLERANCE = 1e-10
 #: ``-march=native`` gives the SIMD kernel this processor's vector width (docs/benchmarks.md)
 #: and makes the processor part of the cache key; ``-D_GNU_SOURCE`` lets the IGWO
@@ -373,6 +375,9 @@ def generate_c(
             flags=build_flags,
             tolerance=tolerance,
             tolerances={"cost_batch": max(tolerance, SIMD_TOLERANCE)} if simd else None,
+            # random candidates can roll a 6-DOF vehicle through ±90° pitch, where the fitness
+            # itself is ill-conditioned: the kernel is judged where the VM reproduces itself
+            approximate=("cost_batch",) if simd else (),
             extra_source=extra,
             external=external,
             extra_header=header,

@@ -316,7 +316,9 @@ def generate_c(
     compile : bool
         Compile and load (otherwise only write the sources).
     verify : bool
-        Compare every compiled function with its symbolic twin on random inputs.
+        Compare every compiled function with its symbolic twin on random inputs (the SIMD
+        ``cost_batch`` only on the candidates where the twin is well conditioned: see
+        ``approximate`` of :func:`uuv_ocp.native.compile.compile_functions`).
     flags : tuple of str
         Compiler flags (``-ffp-contract=off`` keeps arithmetic identical to the virtual machine,
         ``-march=native`` sets the SIMD width).

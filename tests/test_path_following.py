@@ -14,7 +14,9 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from tests.conftest import needs_compiler
 from uuv_ocp.path_following import PathFollowingProblem, PathWeights, path_errors
+from uuv_ocp.solvers import get_solver
 
 
 def _remus_line() -> uo.Reference:
@@ -270,3 +272,37 @@ def test_a_known_cross_current_leaves_no_steady_cross_track_error() -> None:
         errors[known] = np.max(np.abs(cross[run.t >= 20.0]))
     assert errors[True] < 0.01
     assert errors[False] > 10 * errors[True]
+
+
+@needs_compiler
+def test_the_lawnmower_builds_the_c_step_and_its_step_is_casadis() -> None:
+    """The REMUS survey's RTI step in C (HPIPM's OCP-QP) equals CasADi's hpipm path to 1e-8.
+
+    The C step refused this problem while the waypoint look-ups were interpolant calls (their
+    SX Jacobian read ``s_(k+1)`` in stage k's gap); it must build here, without a warning.
+    """
+    problem = PathFollowingProblem(uo.Remus100(), _survey(), speed=1.5, horizon=10, dt=0.5)
+    start = np.zeros(12)
+    start[[1, 2, 5, 6]] = (-3.0, 10.5, 0.2, 1.2)  # 3 m to port, 0.5 m deep, yawed, at speed
+    x0 = problem.initial_state(start)
+    p = problem.parameters(x0, np.r_[0.0, 0.0, 1200.0, 1.5], current=[0.2, -0.1, 0.0])
+    tight = {
+        "hpipm": {"hpipm": {f"res_{k}_max": 1e-12 for k in "gbdm"}},
+        "hpipm-ocp": {
+            "mode": "robust",
+            "cond_horizon": 0,
+            **{f"tol_{k}": 1e-11 for k in ("stat", "eq", "ineq", "comp")},
+        },
+    }
+    results = {}
+    for qpsol, settings in tight.items():
+        backend = get_solver(
+            problem, "sqp-rti", {"cold_start": "rti", "qpsol": qpsol, "qpsol_options": settings}
+        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", RuntimeWarning)  # no fall back to CasADi's path
+            results[qpsol] = backend.solve(p, None)
+        assert backend.qpsol == qpsol
+        assert results[qpsol].success and results[qpsol].iterations == 1
+    a, b = results["hpipm"], results["hpipm-ocp"]
+    np.testing.assert_allclose(b.iterate.primal, a.iterate.primal, rtol=0, atol=1e-8)

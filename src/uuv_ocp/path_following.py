@@ -28,7 +28,9 @@ any vehicle of the :class:`~uuv_ocp.model.base.VehicleModel` protocol.  Its
 
 The problem is time-invariant (``t0 = 0``): a closed loop's state is ``[x, s]`` (the path
 parameter is the controller's own state, known exactly, and the plant of :func:`simulate
-<uuv_ocp.control.simulation.simulate>` integrates it beside the vehicle);
+<uuv_ocp.control.simulation.simulate>` integrates it beside the vehicle; an
+:class:`~uuv_ocp.Estimator` on the problem estimates the vehicle's states and the current, not
+``s``: :attr:`PathFollowingProblem.controller_states`);
 :meth:`PathFollowingProblem.initial_state` appends to a vehicle state the parameter of its
 closest path point.  :func:`path_errors` measures a run's cross-track, vertical and
 along-track errors by projection on the path.
@@ -46,7 +48,7 @@ import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
@@ -229,6 +231,9 @@ class PathFollowingProblem(DeclaredPreset):
     max_path_speed: float | None = None
     path_acceleration: float = 1.0
     obstacles: tuple[Obstacle, ...] = ()
+    #: trailing states the controller owns (the path parameter): an
+    #: :class:`~uuv_ocp.Estimator` estimates the vehicle's states only
+    controller_states: ClassVar[int] = 1
 
     def __post_init__(self) -> None:
         """Check the fields against each other and the vehicle (``ValueError`` names the field)."""

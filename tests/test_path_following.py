@@ -337,3 +337,40 @@ def test_an_estimated_current_path_following_loop_converges_to_the_true_current(
         run.states[:, :2], np.zeros(2), np.array([math.cos(math.pi / 6), math.sin(math.pi / 6)])
     )
     assert np.max(np.abs(cross[run.t >= 40.0])) < 0.25  # a 0.5 m position fix (measured: 0.11)
+
+
+def test_path_metrics_against_numpy() -> None:
+    """A made-up run beside a 90 m line at 10 m depth, going on past its end to 120 m.
+
+    Reference (numpy, here): the cross-track error is ``|y|`` while ``x < 90`` m (then the
+    vehicle has passed the end), the depth error ``z − 10``, the fin activity ``Σ|Δδ|`` and the
+    energy ``Σ 2π n_s Q Δt`` with the REMUS propeller torque written out from Fossen's model.
+    """
+    line = uo.Reference.from_xyz(lambda t: 1.5 * t, lambda t: 0 * t, lambda t: 10 + 0 * t, "line", t_end=60.0)
+    vehicle = uo.Remus100()
+    problem = PathFollowingProblem(vehicle, line, speed=1.5)
+    rng = np.random.default_rng(4)
+    t = np.linspace(0.0, 80.0, 157)  # positions between the path samples (3 cm apart)
+    states = np.zeros((157, 13))
+    states[:, 0] = 1.5 * t
+    states[:, 1] = 2.0 * np.sin(0.1 * t) + 0.1 * rng.normal(size=157)
+    states[:, 2] = 10.0 + 0.3 * rng.normal(size=157)
+    states[:, 6:9] = rng.normal([1.5, 0.0, 0.0], 0.1, size=(157, 3))
+    controls = np.column_stack(
+        [rng.uniform(-0.2, 0.2, (156, 2)), rng.uniform(800.0, 1500.0, 156), np.full(156, 1.5)]
+    )
+    run = type("Run", (), {"t": t, "states": states, "controls": controls})()
+    found = uo.path_metrics(run, problem)
+    before = states[:, 0] < 90.0  # at 90 m the closest point is the end
+    np.testing.assert_allclose(found["cross_track_rms"], np.sqrt(np.mean(states[before, 1] ** 2)), rtol=1e-9)
+    assert found["cross_track_max"] == pytest.approx(np.max(np.abs(states[before, 1])), rel=1e-9)
+    assert found["depth_rms"] == pytest.approx(np.sqrt(np.mean((states[:, 2] - 10.0) ** 2)), rel=1e-9)
+    assert found["fin_activity"] == pytest.approx(np.sum(np.abs(np.diff(controls[:, :2], axis=0))), rel=1e-12)
+    rho, d_p = 1026.0, 0.14  # Fossen's remus100.py: rho, D_prop, KQ_0, KQ_max, Ja_max, w
+    n = controls[:, 2] / 60.0
+    va = 0.944 * np.sqrt(np.sum(states[:-1, 6:9] ** 2, axis=1))
+    q = rho * d_p**5 * (0.0700 * np.abs(n) * n + (0.0312 - 0.0700) / 0.6632 * va / d_p * np.maximum(n, 0))
+    assert found["energy"] == pytest.approx(np.sum(2 * np.pi * n * q * np.diff(t)), rel=1e-9)
+    assert found["completed"] == 1.0
+    tracking = uo.path_metrics(run, uo.TrackingProblem(vehicle, line, horizon=1, dt=0.5))
+    assert tracking == pytest.approx(found, rel=1e-12)  # the same path through a tracking problem

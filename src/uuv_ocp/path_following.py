@@ -62,7 +62,14 @@ from uuv_ocp.model.base import VehicleLayout, check_vehicle
 from uuv_ocp.obstacles import Obstacle, check_obstacles
 from uuv_ocp.ocp import Ocp, check_transcription
 from uuv_ocp.reference.path import Reference
-from uuv_ocp.tracking import DeclaredPreset, control_limits, current_rows, vehicle_rhs
+from uuv_ocp.tracking import (
+    DeclaredPreset,
+    control_limits,
+    current_rows,
+    stable_substeps,
+    vehicle_rhs,
+    warn_if_rk4_unstable,
+)
 
 PATH_TERMINAL_MODES = ("cost", "none")
 #: Floor (m/s) under the path speed ``|p'(s)|`` in ``ṡ = v_s / |p'(s)|``: finite where a path rests.
@@ -200,8 +207,11 @@ class PathFollowingProblem(DeclaredPreset):
         Cost weights (default ``PathWeights()``).
     terminal : {"cost", "none"}
         The state terms at node N weighted by ``weights.terminal``, or as at other nodes.
-    substeps : int
-        RK4 steps per interval of the prediction model, >= 1.
+    substeps : int, optional
+        RK4 steps per interval of the prediction model, >= 1.  Default: the fewest that keep
+        RK4 stable on the vehicle's decaying modes at rest
+        (:func:`~uuv_ocp.tracking.stable_substeps`; the REMUS 100 at ``dt = 0.5`` s: 2); a
+        value that does not warns (:class:`~uuv_ocp.tracking.Rk4StabilityWarning`).
     transcription : {"multiple_shooting", "collocation"}
         As :class:`~uuv_ocp.tracking.TrackingProblem`.
     degree : int, optional
@@ -224,7 +234,7 @@ class PathFollowingProblem(DeclaredPreset):
     dt: float = 0.5
     weights: PathWeights | None = None
     terminal: str = "cost"
-    substeps: int = 1
+    substeps: int | None = None  # type: ignore[assignment]  # an int after __post_init__
     transcription: str = "multiple_shooting"
     degree: int | None = None
     rate_limits: bool = True
@@ -257,8 +267,14 @@ class PathFollowingProblem(DeclaredPreset):
         if not isinstance(self.weights, PathWeights):
             raise ValueError(f"weights must be a uuv_ocp.PathWeights, got {check.shown(self.weights)}")
         check.choice("terminal", self.terminal, PATH_TERMINAL_MODES)
-        set_field(self, "substeps", check.positive_int("substeps", self.substeps))
-        check_transcription(self.transcription, self.degree, self.substeps)
+        if self.substeps is None:  # RK4 stable on the vehicle's modes at rest (the REMUS: 2 at 0.5 s)
+            auto = self.transcription == "multiple_shooting"
+            set_field(self, "substeps", stable_substeps(self.vehicle, self.dt) if auto else 1)
+        substeps = check.positive_int("substeps", self.substeps)
+        set_field(self, "substeps", substeps)
+        check_transcription(self.transcription, self.degree, substeps)
+        if self.transcription == "multiple_shooting":
+            warn_if_rk4_unstable(self.vehicle, self.dt, substeps)
         check.boolean("rate_limits", self.rate_limits)
         top = 2.0 * self.speed if self.max_path_speed is None else self.max_path_speed
         top = check.positive_float("max_path_speed", top)

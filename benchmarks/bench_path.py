@@ -22,6 +22,7 @@ row                 controller
                     EKF (``uo.Estimator(problem, "ekf", sensors=uo.Sensors.auv(vehicle))``; the
                     path parameter is the controller's own)
 ``fatrop-est``      the same with fatrop (``fatrop-c-est``: compiled)
+``sqp-rti-hpipm-est`` ``sqp-rti-est`` on CasADi's ``hpipm`` QP path (no C step to compile)
 ==================  ====================================================================
 
 ``--rti`` adds the ``sqp-rti`` step of three vehicles, N = 20 (:func:`rti_step_times`).
@@ -138,6 +139,7 @@ ROWS: dict[str, Callable[[uo.TrackingProblem, np.ndarray], Start]] = {
     "ipopt-known": _nmpc("ipopt"),
     "fatrop-c-known": _nmpc("fatrop", {"compiled": True}),
     "sqp-rti-est": _nmpc("sqp-rti"),
+    "sqp-rti-hpipm-est": _nmpc("sqp-rti", {"qpsol": "hpipm"}),
     "fatrop-est": _nmpc("fatrop"),
     "fatrop-c-est": _nmpc("fatrop", {"compiled": True}),
 }

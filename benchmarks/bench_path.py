@@ -22,7 +22,8 @@ row                 controller
                     EKF (``uo.Estimator(problem, "ekf", sensors=uo.Sensors.auv(vehicle))``; the
                     path parameter is the controller's own)
 ``fatrop-est``      the same with fatrop (``fatrop-c-est``: compiled)
-``sqp-rti-hpipm-est`` ``sqp-rti-est`` on CasADi's ``hpipm`` QP path (no C step to compile)
+``sqp-rti-hpipm-est`` ``sqp-rti-est`` on CasADi's ``hpipm`` QP path (no C step to compile);
+                    ``-rate100``: ``PathWeights(rate=100)``, the increments weighed 100×
 ==================  ====================================================================
 
 ``--rti`` adds the ``sqp-rti`` step of three vehicles, N = 20 (:func:`rti_step_times`).
@@ -118,14 +119,20 @@ def _guidance(kappa: float | None) -> Callable[[uo.TrackingProblem, np.ndarray],
     return make
 
 
-def path_problem(reference: uo.Reference, horizon: int = NMPC_HORIZON) -> uo.PathFollowingProblem:
+def path_problem(
+    reference: uo.Reference, horizon: int = NMPC_HORIZON, weights: uo.PathWeights | None = None
+) -> uo.PathFollowingProblem:
     """Return the NMPC rows' problem: REMUS 100 following the survey, N = 20, dt = 0.5 s."""
-    return uo.PathFollowingProblem(uo.Remus100(), reference, speed=SPEED, horizon=horizon, dt=NMPC_DT)
+    return uo.PathFollowingProblem(
+        uo.Remus100(), reference, speed=SPEED, horizon=horizon, dt=NMPC_DT, weights=weights
+    )
 
 
-def _nmpc(solver: str, options: dict | None = None) -> Callable[[uo.TrackingProblem, np.ndarray], Start]:
+def _nmpc(
+    solver: str, options: dict | None = None, weights: uo.PathWeights | None = None
+) -> Callable[[uo.TrackingProblem, np.ndarray], Start]:
     def make(problem: uo.TrackingProblem, start: np.ndarray) -> Start:
-        following = path_problem(problem.reference)
+        following = path_problem(problem.reference, weights=weights)
         return uo.NMPC(following, solver=solver, options=options), following.initial_state(start)
 
     return make
@@ -140,6 +147,7 @@ ROWS: dict[str, Callable[[uo.TrackingProblem, np.ndarray], Start]] = {
     "fatrop-c-known": _nmpc("fatrop", {"compiled": True}),
     "sqp-rti-est": _nmpc("sqp-rti"),
     "sqp-rti-hpipm-est": _nmpc("sqp-rti", {"qpsol": "hpipm"}),
+    "sqp-rti-hpipm-est-rate100": _nmpc("sqp-rti", {"qpsol": "hpipm"}, uo.PathWeights(rate=100.0)),
     "fatrop-est": _nmpc("fatrop"),
     "fatrop-c-est": _nmpc("fatrop", {"compiled": True}),
 }

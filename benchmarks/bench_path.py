@@ -14,7 +14,7 @@ row                 controller
 ``ilos``            ``uo.LosGuidance`` at its default options (integral LOS, Δ = 10 m, κ = 0.3)
 ``los``             the same with κ = 0 (plain LOS: a steady offset against a cross current)
 ``sqp-rti-known``   NMPC path following (``uo.PathFollowingProblem``, N = 20, dt = 0.5 s, RK4 in
-                    2 substeps: the default, stable on the REMUS roll mode), ``sqp-rti``, the
+                    2 substeps: ``substeps=None``, stable on the REMUS roll mode), ``sqp-rti``, the
                     current known
 ``ipopt-known``     the same, IPOPT converged at each step
 ``fatrop-c-known``  the same, compiled fatrop
@@ -124,7 +124,7 @@ def path_problem(
 ) -> uo.PathFollowingProblem:
     """Return the NMPC rows' problem: REMUS 100 following the survey, N = 20, dt = 0.5 s."""
     return uo.PathFollowingProblem(
-        uo.Remus100(), reference, speed=SPEED, horizon=horizon, dt=NMPC_DT, weights=weights
+        uo.Remus100(), reference, speed=SPEED, horizon=horizon, dt=NMPC_DT, weights=weights, substeps=None
     )
 
 

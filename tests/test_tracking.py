@@ -258,4 +258,4 @@ def test_rk4_stability_of_the_remus_roll_mode_at_rest() -> None:
     with warnings.catch_warnings():
         warnings.simplefilter("error", Rk4StabilityWarning)
         uo.TrackingProblem(vehicle, reference, horizon=5, dt=0.5, substeps=2)
-        assert uo.PathFollowingProblem(vehicle, reference, speed=1.5, dt=0.5).substeps == 2
+        assert uo.PathFollowingProblem(vehicle, reference, speed=1.5, dt=0.5, substeps=None).substeps == 2

@@ -207,11 +207,14 @@ class PathFollowingProblem(DeclaredPreset):
         Cost weights (default ``PathWeights()``).
     terminal : {"cost", "none"}
         The state terms at node N weighted by ``weights.terminal``, or as at other nodes.
-    substeps : int, optional
-        RK4 steps per interval of the prediction model, >= 1.  Default: the fewest that keep
-        RK4 stable on the vehicle's decaying modes at rest
-        (:func:`~uuv_ocp.tracking.stable_substeps`; the REMUS 100 at ``dt = 0.5`` s: 2); a
-        value that does not warns (:class:`~uuv_ocp.tracking.Rk4StabilityWarning`).
+    substeps : int or None
+        RK4 steps per interval of the prediction model, >= 1 (default 1).  ``None``: the fewest
+        that keep RK4 stable on the vehicle's decaying modes at rest
+        (:func:`~uuv_ocp.tracking.stable_substeps`; the REMUS 100 at ``dt = 0.5`` s: 2).  A
+        value that does not warns (:class:`~uuv_ocp.tracking.Rk4StabilityWarning`).  Measured
+        with ``sqp-rti`` on the REMUS: 2 substeps calm the fins on the survey (1427° -> 116° in
+        its first 200 s) but stall the vehicle on a straight line from a 10 m offset (it stops
+        near the line), which 1 substep does not: not the default until that is understood.
     transcription : {"multiple_shooting", "collocation"}
         As :class:`~uuv_ocp.tracking.TrackingProblem`.
     degree : int, optional
@@ -234,7 +237,7 @@ class PathFollowingProblem(DeclaredPreset):
     dt: float = 0.5
     weights: PathWeights | None = None
     terminal: str = "cost"
-    substeps: int | None = None  # type: ignore[assignment]  # an int after __post_init__
+    substeps: int | None = 1  # type: ignore[assignment]  # an int after __post_init__
     transcription: str = "multiple_shooting"
     degree: int | None = None
     rate_limits: bool = True

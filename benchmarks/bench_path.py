@@ -13,30 +13,25 @@ row                 controller
 ==================  ====================================================================
 ``ilos``            ``uo.LosGuidance`` at its default options (integral LOS, Δ = 10 m, κ = 0.3)
 ``los``             the same with κ = 0 (plain LOS: a steady offset against a cross current)
-``sqp-rti-known``   NMPC path following (``uo.PathFollowingProblem``, N = 20, dt = 0.5 s),
-                    ``sqp-rti``, the current known
+``sqp-rti-known``   NMPC path following (``uo.PathFollowingProblem``, N = 20, dt = 0.5 s, RK4 in
+                    2 substeps: ``substeps=None``, stable on the REMUS roll mode), ``sqp-rti``, the
+                    current known
 ``ipopt-known``     the same, IPOPT converged at each step
 ``fatrop-c-known``  the same, compiled fatrop
+``sqp-rti-est``     ``sqp-rti``, the current unknown: estimated with the vehicle's states by an
+                    EKF (``uo.Estimator(problem, "ekf", sensors=uo.Sensors.auv(vehicle))``; the
+                    path parameter is the controller's own)
+``fatrop-est``      the same with fatrop (``fatrop-c-est``: compiled)
+``sqp-rti-hpipm-est`` ``sqp-rti-est`` on CasADi's ``hpipm`` QP path (no C step to compile);
+                    ``-rate100``: ``PathWeights(rate=100)``, the increments weighed 100×
 ==================  ====================================================================
 
-The NMPC rows are told the current (``simulate``'s default without an estimator):
-``uo.Estimator(problem, "ekf", sensors=uo.Sensors.auv(vehicle))`` refuses a
-``PathFollowingProblem`` (its sensors must measure all 13 states, the path parameter too).
 ``--rti`` adds the ``sqp-rti`` step of three vehicles, N = 20 (:func:`rti_step_times`).
 
-Metrics, per run, then the median over seeds (and the largest cross-track error over seeds):
-
-* cross-track RMS and max (m): the horizontal distance from the vehicle to the survey path (the
-  reference's curve sampled every 2 cm, the nearest sample; not the guidance's own polyline),
-  over the run until the vehicle passes the last waypoint;
-* depth RMS (m): ``z − 10`` over the whole run;
-* fin activity (deg): ``Σ |Δδ_r| + Σ |Δδ_s|`` over the run's applied commands;
-* energy (kJ): ``∫ P dt`` of the propeller's shaft power ``P = 2π n_s Q`` (torque × shaft
-  speed), ``Q = ρ D_p⁵ (K_Q0 |n_s| n_s + (K_Qmax − K_Q0)/J_max (V_a/D_p) max(n_s, 0))``, the
-  REMUS model's propeller torque (:mod:`uuv_ocp.model.remus100`; the model applies a tenth of
-  it as its roll moment), with ``V_a = (1 − w) U`` at the speed over ground ``U``; the command
-  held over each interval at the interval's first state;
-* the controller's median step time (µs).
+Metrics, per run (:func:`uuv_ocp.path_metrics`), then the median over seeds (and the largest
+cross-track error over seeds): cross-track RMS and max (m, to the survey path's segments, until
+the vehicle passes its end), depth RMS (m), fin activity (deg, ``Σ |Δδ_r| + Σ |Δδ_s|``), energy
+(kJ, ``∫ P dt`` of ``uo.Remus100.propeller_power``) and the controller's median step time (µs).
 
 Every run is a checked record (``uuv_ocp.studies.records``: checksummed, written atomically)
 in ``--out`` (default ``out/bench_path``): an interrupted benchmark resumes where it stopped,
@@ -54,7 +49,6 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 import uuv_ocp as uo
 from uuv_ocp.studies.records import read_record, write_record
@@ -100,42 +94,17 @@ def seeded_current(seed: int) -> uo.Current:
     return uo.Current(CURRENT, direction, speed_noise=0.01, direction_noise=0.01, decay=0.01)
 
 
-def shaft_power(vehicle: uo.Remus100, rpm: np.ndarray, speed: np.ndarray) -> np.ndarray:
-    """Propeller shaft power ``2π n_s Q`` (W) at ``rpm`` and speed over ground ``speed`` (m/s)."""
-    n_s = np.asarray(rpm, dtype=float) / 60.0
-    d_p, j_max = vehicle.propeller_diameter, vehicle.max_advance_ratio
-    kq0, kq_max = vehicle.torque_coefficients
-    advance = (1.0 - vehicle.wake_fraction) * np.asarray(speed) / d_p * np.maximum(n_s, 0.0)
-    torque = vehicle.water_density * d_p**5 * (kq0 * np.abs(n_s) * n_s + (kq_max - kq0) / j_max * advance)
-    return 2.0 * math.pi * n_s * torque
-
-
-def metrics(run: uo.ClosedLoopResult, problem: uo.TrackingProblem, samples: np.ndarray) -> dict[str, float]:
-    """Return the run's cross-track, depth, fin and energy figures (module doc).
-
-    The NMPC rows' states carry the path parameter as a 13th column (ignored) and their
-    sampling time is their own (0.5 s): the energy sums each interval's power times its length.
-    """
-    states = run.states[:, :12]
-    interval = np.diff(run.t)
-    distance, nearest = cKDTree(samples).query(states[:, :2])
-    # until the vehicle passes the last waypoint (then the nearest sample is the path's end)
-    on_path = np.ones(len(distance), dtype=bool)
-    past = np.flatnonzero(nearest == len(samples) - 1)
-    if past.size:
-        on_path[past[0] :] = False
-    cross = distance[on_path]
-    fins = np.abs(np.diff(run.controls[:, :2], axis=0)).sum()
-    speed = np.linalg.norm(states[:-1, 6:9], axis=1)
-    power = shaft_power(problem.vehicle, run.controls[:, 2], speed)
+def metrics(run: uo.ClosedLoopResult, problem: uo.TrackingProblem | uo.PathFollowingProblem) -> dict:
+    """Return the run's cross-track, depth, fin and energy figures (:func:`uuv_ocp.path_metrics`)."""
+    found = uo.path_metrics(run, problem)
     return {
-        "cross_rms": float(np.sqrt(np.mean(cross**2))),
-        "cross_max": float(np.max(cross)),
-        "depth_rms": float(np.sqrt(np.mean((states[:, 2] - DEPTH) ** 2))),
-        "fin_deg": float(np.degrees(fins)),
-        "energy_kj": float(np.sum(power * interval[: len(power)]) / 1e3),
+        "cross_rms": found["cross_track_rms"],
+        "cross_max": found["cross_track_max"],
+        "depth_rms": found["depth_rms"],
+        "fin_deg": math.degrees(found["fin_activity"]),
+        "energy_kj": found["energy"] / 1e3,
         "step_us": float(1e6 * np.median(run.solve_times)),
-        "completed": float(not on_path[-1]),
+        "completed": found["completed"],
     }
 
 
@@ -150,14 +119,20 @@ def _guidance(kappa: float | None) -> Callable[[uo.TrackingProblem, np.ndarray],
     return make
 
 
-def path_problem(reference: uo.Reference, horizon: int = NMPC_HORIZON) -> uo.PathFollowingProblem:
+def path_problem(
+    reference: uo.Reference, horizon: int = NMPC_HORIZON, weights: uo.PathWeights | None = None
+) -> uo.PathFollowingProblem:
     """Return the NMPC rows' problem: REMUS 100 following the survey, N = 20, dt = 0.5 s."""
-    return uo.PathFollowingProblem(uo.Remus100(), reference, speed=SPEED, horizon=horizon, dt=NMPC_DT)
+    return uo.PathFollowingProblem(
+        uo.Remus100(), reference, speed=SPEED, horizon=horizon, dt=NMPC_DT, weights=weights, substeps=None
+    )
 
 
-def _nmpc(solver: str, options: dict | None = None) -> Callable[[uo.TrackingProblem, np.ndarray], Start]:
+def _nmpc(
+    solver: str, options: dict | None = None, weights: uo.PathWeights | None = None
+) -> Callable[[uo.TrackingProblem, np.ndarray], Start]:
     def make(problem: uo.TrackingProblem, start: np.ndarray) -> Start:
-        following = path_problem(problem.reference)
+        following = path_problem(problem.reference, weights=weights)
         return uo.NMPC(following, solver=solver, options=options), following.initial_state(start)
 
     return make
@@ -170,15 +145,31 @@ ROWS: dict[str, Callable[[uo.TrackingProblem, np.ndarray], Start]] = {
     "sqp-rti-known": _nmpc("sqp-rti"),
     "ipopt-known": _nmpc("ipopt"),
     "fatrop-c-known": _nmpc("fatrop", {"compiled": True}),
+    "sqp-rti-est": _nmpc("sqp-rti"),
+    "sqp-rti-hpipm-est": _nmpc("sqp-rti", {"qpsol": "hpipm"}),
+    "sqp-rti-hpipm-est-rate100": _nmpc("sqp-rti", {"qpsol": "hpipm"}, uo.PathWeights(rate=100.0)),
+    "fatrop-est": _nmpc("fatrop"),
+    "fatrop-c-est": _nmpc("fatrop", {"compiled": True}),
 }
+#: rows whose current is unknown to the NMPC and estimated (an EKF on ``uo.Sensors.auv``)
+ESTIMATED = ("-est",)
+
+
+def estimator_of(row: str, controller: uo.Controller) -> uo.Estimator | None:
+    """Return the EKF of an ``-est`` row on the controller's problem (vehicle states, current)."""
+    if not row.endswith(ESTIMATED):
+        return None
+    problem = controller.problem
+    return uo.Estimator(problem, "ekf", sensors=uo.Sensors.auv(problem.vehicle))
 
 
 def run_row(row: str, seeds: int, out: Path) -> list[dict[str, float]]:
     """Run (or read back) ``row`` for seeds ``0..seeds-1``; the metrics of each seed."""
     problem, start = survey()
-    samples = path_samples(problem)
     duration = path_length(problem) / SPEED + EXTRA
     controller, x0 = ROWS[row](problem, start)
+    estimator = estimator_of(row, controller)
+    measured = controller.problem if isinstance(controller.problem, uo.PathFollowingProblem) else problem
     found = []
     for seed in range(seeds):
         config = {"bench": "path", "row": row, "seed": seed, "duration": duration, "dt": DT}
@@ -187,11 +178,13 @@ def run_row(row: str, seeds: int, out: Path) -> list[dict[str, float]]:
         if saved is None:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", RuntimeWarning)  # the window's end: hold=120 s covers it
-                run = uo.simulate(controller, x0, duration, current=seeded_current(seed), seed=seed)
+                run = uo.simulate(
+                    controller, x0, duration, current=seeded_current(seed), seed=seed, estimator=estimator
+                )
             write_record(path, run, config)
         else:
             run = saved[0]
-        found.append(metrics(run, problem, samples))
+        found.append(metrics(run, measured))
     return found
 
 

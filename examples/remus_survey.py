@@ -5,11 +5,12 @@ The survey of ``benchmarks/bench_path.py`` (lanes 150 m long, 60 m apart, 10 m d
 cannot move sideways) flies it twice under the same 0.3 m/s current, once steered by
 integral line-of-sight guidance (``uo.LosGuidance``, the marine baseline; told nothing of the
 current) and once by NMPC path following (``uo.PathFollowingProblem``, N = 20, dt = 0.5 s;
-its prediction model is told the current: the EKF does not take the path parameter's state
-yet).  Both start on the first waypoint at the survey speed, headed along the first lane.
+its prediction model is told the current, or with ``--estimate`` an EKF estimates it from the
+AUV's sensors).  Both start on the first waypoint at the survey speed, headed along the first lane.
 
 Printed: per controller, the cross-track RMS and max (m), depth RMS (m), fin activity
-``Σ|Δδ|`` (deg) and the median controller step (ms).  Figures (``--out``, default
+``Σ|Δδ|`` (deg), propeller energy (kJ) and the median controller step (ms), by
+``uo.path_metrics``.  Figures (``--out``, default
 ``docs/images``): the horizontal path, the depth, the fin angles and the propeller speed.
 
 Run: ``python examples/remus_survey.py`` (``--quick``: 30 s of the first lane, for the tests).
@@ -48,6 +49,7 @@ def main(
     lanes: int = 2,
     solver: str = "ipopt",
     out: Path | str = "docs/images",
+    estimate: bool = False,
 ) -> Outcome:
     """Fly the survey with ILOS and with NMPC for ``duration`` s (default: the whole survey)."""
     reference = uo.Reference.lawnmower(
@@ -66,17 +68,24 @@ def main(
             uo.LosGuidance(survey, uo.LosOptions(speed=SPEED)), start, duration, current=CURRENT
         )
         nmpc = uo.NMPC(following, solver=solver)
-        runs[f"NMPC {solver}"] = uo.simulate(nmpc, following.initial_state(start), duration, current=CURRENT)
+        # the current unknown to the NMPC too: an EKF estimates it with the vehicle's states
+        # (the path parameter is the controller's own)
+        ekf = uo.Estimator(following, "ekf", sensors=uo.Sensors.auv(following.vehicle)) if estimate else None
+        name = f"NMPC {solver}" + (" + EKF" if estimate else "")
+        runs[name] = uo.simulate(
+            nmpc, following.initial_state(start), duration, current=CURRENT, estimator=ekf, seed=0
+        )
     errors = {
         name: uo.path_errors(following, run.states[:, :12])["cross_track"] for name, run in runs.items()
     }
     for name, run in runs.items():
-        fins = np.degrees(np.abs(np.diff(run.controls[:, :2], axis=0)).sum())
-        depth = np.sqrt(np.mean((run.states[:, 2] - DEPTH) ** 2))
+        found = uo.path_metrics(run, following)  # to the path until its end, over the whole run
+        cross, worst, fins = found["cross_track_rms"], found["cross_track_max"], found["fin_activity"]
         print(
-            f"{name:12s} cross-track RMS {np.sqrt(np.mean(errors[name] ** 2)):.3f} m, max "
-            f"{np.max(np.abs(errors[name])):.3f} m, depth RMS {depth:.3f} m, fin activity {fins:.1f} deg, "
-            f"step {1e3 * np.median(run.solve_times):.2f} ms, fallbacks {run.fallback_steps.sum()}"
+            f"{name:12s} cross-track RMS {cross:.3f} m, max {worst:.3f} m, depth RMS "
+            f"{found['depth_rms']:.3f} m, fin activity {math.degrees(fins):.1f} deg, "
+            f"energy {found['energy'] / 1e3:.2f} kJ, step {1e3 * np.median(run.solve_times):.2f} ms, "
+            f"fallbacks {run.fallback_steps.sum()}"
         )
     return Outcome(survey, following, runs, errors, figures(runs, reference, Path(out)))
 
@@ -142,5 +151,7 @@ if __name__ == "__main__":
     parser.add_argument("--lanes", type=int, default=2)
     parser.add_argument("--solver", default="ipopt")
     parser.add_argument("--out", default="docs/images")
+    parser.add_argument("--estimate", action="store_true", help="the NMPC estimates the current (EKF)")
     arguments = parser.parse_args()
-    main(30.0 if arguments.quick else arguments.duration, arguments.lanes, arguments.solver, arguments.out)
+    duration = 30.0 if arguments.quick else arguments.duration
+    main(duration, arguments.lanes, arguments.solver, arguments.out, arguments.estimate)

@@ -335,3 +335,31 @@ def test_track_with_an_estimator_runs_the_realistic_loop_and_says_so(tmp_path, c
     assert cli.main([*flags, "--estimator", "ekff", "--out", out]) == 2
     line = _one_error_line(capsys)
     assert line.startswith("error: --estimator must be one of") and "did you mean 'ekf'?" in line
+
+
+def test_follow_a_survey_with_ilos_prints_its_metrics(capsys):
+    """``follow --solver ilos``: the REMUS survey, one table row; the path done (its end passed)."""
+    assert cli.main(["follow", "--solver", "ilos", "--quiet"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any("path following, remus100, survey, 1.5 m/s, controller ilos" in line for line in lines)
+    row = lines[-1].strip("| ").split(" | ")
+    cross_rms, cross_max, depth_rms = (float(v) for v in row[:3])
+    assert 0.0 < cross_rms < cross_max < 10.0 and depth_rms < 0.5
+    assert row[-1] == "yes"
+
+
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        (["--speed", "-1"], "--speed"),
+        (["--solver", "newton"], "--solver"),
+        (["--path", "nowhere.toml"], "--path"),
+        (["--estimator", "kalman"], "--estimator"),
+        (["--solver", "ilos", "--estimator", "ekf"], "--estimator"),
+        (["--path", "s2"], "--duration"),  # the paper's references have no end
+        (["--vehicle", "submarine"], "--vehicle"),
+    ],
+)
+def test_follow_bad_input_is_one_line_and_exit_2(capsys, argv, named):
+    assert cli.main(["follow", *argv]) == 2
+    assert named in _one_error_line(capsys)

@@ -216,3 +216,46 @@ def test_clearance_of_a_moving_obstacle_needs_its_centre():
     centre = ca.SX.sym("centre", 2)
     value = ca.Function("c", [position, centre], [moving.clearance(position, centre)])
     assert float(value([3.0, 0.0], [1.0, 0.0])) == pytest.approx(2.0**2 - 0.5**2)
+
+
+def test_rk4_stability_of_the_remus_roll_mode_at_rest() -> None:
+    """RK4 on the REMUS 100 at rest: stable for h <= 0.446 s (its roll mode −1.94 ± 6.03i /s).
+
+    Reference: the one-step matrix of RK4 on the finite-difference linearisation, ``Σ (hA)^k/k!``
+    (k <= 4), its spectral radius over the decaying modes (numpy), and the model's documented
+    bound.
+    """
+    import warnings
+
+    from uuv_ocp.tracking import Rk4StabilityWarning, rest_eigenvalues, rk4_amplification, stable_substeps
+
+    vehicle = uo.Remus100()
+    f = vehicle.dynamics
+    step = 1e-6
+    columns = [
+        (
+            np.array(f(step * e, np.zeros(3), np.zeros(3))) - np.array(f(-step * e, np.zeros(3), np.zeros(3)))
+        ).ravel()
+        / (2 * step)
+        for e in np.eye(12)
+    ]
+    a = np.array(columns).T
+    values, vectors = np.linalg.eig(a)
+    decaying = values.real < -1e-9
+    for h, stable in ((0.44, True), (0.45, False), (0.25, True)):
+        ha = h * a
+        one_step = np.eye(12) + ha + ha @ ha / 2 + ha @ ha @ ha / 6 + ha @ ha @ ha @ ha / 24
+        growth = np.max(np.abs(np.linalg.eigvals(np.linalg.solve(vectors, one_step @ vectors))[decaying]))
+        assert rk4_amplification(
+            rest_eigenvalues(vehicle)[rest_eigenvalues(vehicle).real < -1e-9], h
+        ) == pytest.approx(growth, rel=1e-6)
+        assert (growth <= 1.0) == stable
+    assert stable_substeps(vehicle, 0.5) == 2 and stable_substeps(vehicle, 0.4) == 1
+    assert stable_substeps(vehicle, 1.0) == 3  # h = 0.333 s
+    reference = uo.Reference.from_xyz(lambda t: 1.5 * t, lambda t: 0 * t, lambda t: 10 + 0 * t, "line")
+    with pytest.warns(Rk4StabilityWarning, match="substeps = 2 is stable"):
+        uo.TrackingProblem(vehicle, reference, horizon=5, dt=0.5)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", Rk4StabilityWarning)
+        uo.TrackingProblem(vehicle, reference, horizon=5, dt=0.5, substeps=2)
+        assert uo.PathFollowingProblem(vehicle, reference, speed=1.5, dt=0.5, substeps=None).substeps == 2

@@ -33,7 +33,7 @@ from uuv_ocp.model.thrusters import ThrusterConfiguration
 from uuv_ocp.native.runtime import GeneratedCode
 from uuv_ocp.obstacles import Obstacle
 from uuv_ocp.ocp import Ocp
-from uuv_ocp.path_following import PathFollowingProblem, PathWeights, path_errors
+from uuv_ocp.path_following import PathFollowingProblem, PathWeights, path_errors, path_metrics
 from uuv_ocp.reference.path import PAPER_REFERENCES, Reference
 from uuv_ocp.solvers import (
     Iterate,
@@ -98,6 +98,7 @@ __all__ = [
     "get_solver",
     "new_solver",
     "path_errors",
+    "path_metrics",
     "minimize",
     "register_estimator",
     "register_solver",

@@ -124,6 +124,43 @@ def _parser() -> argparse.ArgumentParser:
     )
     track.add_argument("--quiet", "-q", action="store_true", help="no progress on standard error")
 
+    follow = commands.add_parser("follow", help="closed-loop path following (NMPC or ILOS guidance)")
+    follow.add_argument("--vehicle", "-v", default="remus100", help=_VEHICLE_HELP)
+    follow.add_argument(
+        "--path",
+        "-p",
+        nargs="+",
+        default=["survey"],
+        help="survey (the REMUS tutorial's lawnmower: 4 lanes of 150 m, 60 m apart, 10 m deep; "
+        "planar vehicles: in the plane) | " + _REFERENCE_HELP,
+    )
+    follow.add_argument(
+        "--solver",
+        "-s",
+        default="sqp-rti",
+        help="a name from `uuv-ocp solvers`, or ilos (guidance)",
+    )
+    follow.add_argument("--speed", type=float, default=1.5, help="commanded along-path speed (m/s)")
+    follow.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="simulated time (s; default: the path's window)",
+    )
+    follow.add_argument("--horizon", type=int, default=20, help="shooting intervals N")
+    follow.add_argument("--dt", type=float, default=0.5, help="sampling time of the NMPC (s; ILOS: 0.1 s)")
+    follow.add_argument(
+        "--current", metavar="SPEED,DIRECTION", default=None, help="constant current (m/s, rad), as for track"
+    )
+    follow.add_argument(
+        "--estimator",
+        "-e",
+        default=None,
+        help="the current unknown, estimated (ekf | ukf | mhe)",
+    )
+    follow.add_argument("--seed", type=int, default=0, help="the sensors' noise")
+    follow.add_argument("--quiet", "-q", action="store_true", help="no progress on standard error")
+
     solvers = commands.add_parser("solvers", help="list the registered solver names, or one's options")
     solvers.add_argument("name", nargs="?", help="print this solver's options (a Markdown table)")
 
@@ -542,6 +579,8 @@ def _dispatch(args: argparse.Namespace) -> int:
         return _run_reproduce_guarded(args)
     if command in ("compare", "codegen"):
         return _run_compare_or_codegen(args)
+    if command == "follow":
+        return _run_follow(args)
     return _run_tracking(args)
 
 
@@ -718,6 +757,112 @@ def _sensor_list(vehicle: Any) -> str:
     from uuv_ocp.estimation import Sensors
 
     return ", ".join(f"{sensor.name} {sensor.rate:g} Hz" for sensor in Sensors.auv(vehicle))
+
+
+#: ``follow --path survey``: the REMUS 100 tutorial's lawnmower (docs/tutorials/remus_survey.md)
+SURVEY_WIDTH, SURVEY_SPACING, SURVEY_LANES, SURVEY_DEPTH = 150.0, 60.0, 4, 10.0  # m, m, -, m
+#: the guidance's sampling time (s) and the survey's hold after its length at --speed (s)
+ILOS_DT, FOLLOW_EXTRA = 0.1, 60.0
+
+
+def _follow_path(args: argparse.Namespace, vehicle: Any) -> Any:
+    """Return the ``--path`` reference: the survey (at ``--speed``) or a reference spec."""
+    from uuv_ocp.reference.path import Reference
+
+    if args.path == ["survey"]:
+        depth = SURVEY_DEPTH if vehicle.layout.reference == "spatial" else None
+        return Reference.lawnmower(
+            (0.0, 0.0),
+            width=SURVEY_WIDTH,
+            spacing=SURVEY_SPACING,
+            lanes=SURVEY_LANES,
+            speed=args.speed,
+            depth=depth,
+            hold=FOLLOW_EXTRA,
+            name="survey",
+        )
+    from uuv_ocp.specs import reference_from_spec
+
+    try:
+        return reference_from_spec(args.path, spatial=vehicle.layout.reference == "spatial")
+    except ValueError as error:
+        raise _flag_error("--path", "reference", error) from None
+
+
+def _check_follow(args: argparse.Namespace) -> tuple[Any, Any]:
+    """Validate the ``follow`` flags before anything is built; return the vehicle and the path."""
+    ilos = args.solver.lower() == "ilos"
+    args.solver = "ilos" if ilos else _solver("--solver", args.solver)
+    args.current = _current(args.current)
+    args.estimator = _estimator(args.estimator)
+    _finite("--speed", args.speed)
+    _finite("--dt", args.dt)
+    _horizon(args.horizon)
+    if args.duration is not None:
+        _finite("--duration", args.duration)
+    if ilos and args.estimator is not None:
+        raise _UsageError("--estimator is for the NMPC: ILOS guidance takes no current")
+    vehicle = _vehicle(args.vehicle)
+    path = _follow_path(args, vehicle)
+    if args.duration is None:
+        if not math.isfinite(path.t_end):
+            raise _UsageError(f"--duration is needed: the path {path.name} has no end")
+        args.duration = path.t_end - path.t_start  # the survey: its length at --speed + 60 s
+    return vehicle, path
+
+
+def _run_follow(args: argparse.Namespace) -> int:
+    """``uuv-ocp follow``: one closed loop along a path, then its metrics (:func:`uuv_ocp.path_metrics`)."""
+    vehicle, path = _check_follow(args)
+    import numpy as np
+
+    import uuv_ocp as uo
+
+    try:
+        measured: Any
+        if args.solver == "ilos":
+            measured = uo.TrackingProblem(vehicle, path, horizon=1, dt=ILOS_DT)
+            controller: Any = uo.LosGuidance(measured, uo.LosOptions(speed=args.speed))
+            x0 = path.initial_state(path.t_start)
+        else:
+            measured = uo.PathFollowingProblem(
+                vehicle, path, speed=args.speed, horizon=args.horizon, dt=args.dt
+            )
+            controller = uo.NMPC(measured, solver=args.solver)
+            x0 = measured.initial_state(path.initial_state(path.t_start))
+        estimator = None
+        if args.estimator is not None:
+            estimator = uo.Estimator(measured, args.estimator, sensors=uo.Sensors.auv(vehicle))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a finite path's end: its hold covers it
+            run = uo.simulate(
+                controller,
+                x0,
+                args.duration,
+                current=args.current,
+                estimator=estimator,
+                seed=args.seed,
+                progress=not args.quiet,
+            )
+    except ValueError as error:
+        return _fail(str(error))
+    except KeyboardInterrupt as interrupt:
+        print(f"\ninterrupted: {interrupt}", file=sys.stderr)
+        return 130
+    found = uo.path_metrics(run, measured)
+    step = 1e3 * float(np.median(run.solve_times)) if len(run.solve_times) else math.nan
+    print(f"\npath following, {vehicle.name}, {path.name}, {args.speed:g} m/s, controller {args.solver}")
+    if args.current is not None:
+        told = f"estimated by an {args.estimator.upper()}" if args.estimator else "known to the controller"
+        print(f"constant current {args.current.speed:g} m/s towards {args.current.direction:g} rad ({told})")
+    head = "| cross-track RMS m | max m | depth RMS m | fin activity deg | energy kJ | step ms | path done |"
+    print(head + "\n" + "|---" * 7 + "|")
+    print(
+        f"| {found['cross_track_rms']:.3f} | {found['cross_track_max']:.2f} | {found['depth_rms']:.3f} | "
+        f"{math.degrees(found['fin_activity']):.1f} | {found['energy'] / 1e3:.2f} | {step:.2f} | "
+        f"{'yes' if found['completed'] else 'no'} |"
+    )
+    return 0 if run.fault is None else _fail(f"the run stopped: {run.fault}")
 
 
 if __name__ == "__main__":

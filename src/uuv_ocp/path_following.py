@@ -28,7 +28,9 @@ any vehicle of the :class:`~uuv_ocp.model.base.VehicleModel` protocol.  Its
 
 The problem is time-invariant (``t0 = 0``): a closed loop's state is ``[x, s]`` (the path
 parameter is the controller's own state, known exactly, and the plant of :func:`simulate
-<uuv_ocp.control.simulation.simulate>` integrates it beside the vehicle);
+<uuv_ocp.control.simulation.simulate>` integrates it beside the vehicle; an
+:class:`~uuv_ocp.Estimator` on the problem estimates the vehicle's states and the current, not
+``s``: :attr:`PathFollowingProblem.controller_states`);
 :meth:`PathFollowingProblem.initial_state` appends to a vehicle state the parameter of its
 closest path point.  :func:`path_errors` measures a run's cross-track, vertical and
 along-track errors by projection on the path.
@@ -46,7 +48,7 @@ import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
@@ -60,7 +62,14 @@ from uuv_ocp.model.base import VehicleLayout, check_vehicle
 from uuv_ocp.obstacles import Obstacle, check_obstacles
 from uuv_ocp.ocp import Ocp, check_transcription
 from uuv_ocp.reference.path import Reference
-from uuv_ocp.tracking import DeclaredPreset, control_limits, current_rows, vehicle_rhs
+from uuv_ocp.tracking import (
+    DeclaredPreset,
+    control_limits,
+    current_rows,
+    stable_substeps,
+    vehicle_rhs,
+    warn_if_rk4_unstable,
+)
 
 PATH_TERMINAL_MODES = ("cost", "none")
 #: Floor (m/s) under the path speed ``|p'(s)|`` in ``ṡ = v_s / |p'(s)|``: finite where a path rests.
@@ -198,8 +207,14 @@ class PathFollowingProblem(DeclaredPreset):
         Cost weights (default ``PathWeights()``).
     terminal : {"cost", "none"}
         The state terms at node N weighted by ``weights.terminal``, or as at other nodes.
-    substeps : int
-        RK4 steps per interval of the prediction model, >= 1.
+    substeps : int or None
+        RK4 steps per interval of the prediction model, >= 1 (default 1).  ``None``: the fewest
+        that keep RK4 stable on the vehicle's decaying modes at rest
+        (:func:`~uuv_ocp.tracking.stable_substeps`; the REMUS 100 at ``dt = 0.5`` s: 2).  A
+        value that does not warns (:class:`~uuv_ocp.tracking.Rk4StabilityWarning`).  Measured
+        with ``sqp-rti`` on the REMUS: 2 substeps calm the fins on the survey (1427° -> 116° in
+        its first 200 s) but stall the vehicle on a straight line from a 10 m offset (it stops
+        near the line), which 1 substep does not: not the default until that is understood.
     transcription : {"multiple_shooting", "collocation"}
         As :class:`~uuv_ocp.tracking.TrackingProblem`.
     degree : int, optional
@@ -222,13 +237,16 @@ class PathFollowingProblem(DeclaredPreset):
     dt: float = 0.5
     weights: PathWeights | None = None
     terminal: str = "cost"
-    substeps: int = 1
+    substeps: int | None = 1  # type: ignore[assignment]  # an int after __post_init__
     transcription: str = "multiple_shooting"
     degree: int | None = None
     rate_limits: bool = True
     max_path_speed: float | None = None
     path_acceleration: float = 1.0
     obstacles: tuple[Obstacle, ...] = ()
+    #: trailing states the controller owns (the path parameter): an
+    #: :class:`~uuv_ocp.Estimator` estimates the vehicle's states only
+    controller_states: ClassVar[int] = 1
 
     def __post_init__(self) -> None:
         """Check the fields against each other and the vehicle (``ValueError`` names the field)."""
@@ -252,8 +270,14 @@ class PathFollowingProblem(DeclaredPreset):
         if not isinstance(self.weights, PathWeights):
             raise ValueError(f"weights must be a uuv_ocp.PathWeights, got {check.shown(self.weights)}")
         check.choice("terminal", self.terminal, PATH_TERMINAL_MODES)
-        set_field(self, "substeps", check.positive_int("substeps", self.substeps))
-        check_transcription(self.transcription, self.degree, self.substeps)
+        if self.substeps is None:  # RK4 stable on the vehicle's modes at rest (the REMUS: 2 at 0.5 s)
+            auto = self.transcription == "multiple_shooting"
+            set_field(self, "substeps", stable_substeps(self.vehicle, self.dt) if auto else 1)
+        substeps = check.positive_int("substeps", self.substeps)
+        set_field(self, "substeps", substeps)
+        check_transcription(self.transcription, self.degree, substeps)
+        if self.transcription == "multiple_shooting":
+            warn_if_rk4_unstable(self.vehicle, self.dt, substeps)
         check.boolean("rate_limits", self.rate_limits)
         top = 2.0 * self.speed if self.max_path_speed is None else self.max_path_speed
         top = check.positive_float("max_path_speed", top)
@@ -548,3 +572,100 @@ def path_plant(problem: PathFollowingProblem, plant: Any, substeps: int) -> ca.F
     rate = ca.vertcat(dynamics(x[:-1], u[:-1], c), path_rate(u[-1], tangent))
     augmented = ca.Function("path_plant", [x, u, c], [rate], ["x", "u", "current"], ["xdot"])
     return rk4_path(augmented, problem.dt, substeps, name="plant_step")
+
+
+def path_metrics(run: Any, problem: Any) -> dict[str, float]:
+    """Cross-track, depth, fin and energy figures of a closed-loop run along a path.
+
+    Parameters
+    ----------
+    run : ClosedLoopResult
+        The run (its ``t``, ``states`` and ``controls``); the states may carry the path
+        parameter and the controls the along-path speed (extra columns are ignored).
+    problem : PathFollowingProblem or TrackingProblem
+        Gives the vehicle and the path (its ``path`` or its ``reference``), whichever
+        controller flew it (NMPC path following, line-of-sight guidance, tracking).
+
+    Returns
+    -------
+    dict of float
+        ``"cross_track_rms"``, ``"cross_track_max"`` (m): the horizontal distance from each
+        position to the path (the reference's curve sampled as :attr:`PathFollowingProblem.polyline`,
+        the closest point of its segments), over the run until the closest point is the path's
+        end (the vehicle has passed it); ``"depth_rms"`` (m): the vertical offset from that
+        closest point's depth over the whole run (NaN for a planar path); ``"fin_activity"``
+        (rad): ``Σ_k Σ_j |u_j,k+1 − u_j,k|`` over the controls in rad (rudder and planes);
+        ``"energy"`` (J): ``Σ_k P_k Δt_k`` with ``P_k = vehicle.propeller_power(u_k, x_k)`` (W,
+        the command held over its interval at the interval's first state), NaN for a vehicle
+        without that method; ``"completed"``: 1.0 if the vehicle passed the path's end, else 0.0.
+    """
+    vehicle = problem.vehicle
+    path = getattr(problem, "path", None) or problem.reference
+    layout = vehicle.layout
+    times = np.asarray(run.t, dtype=float)
+    states = np.atleast_2d(np.asarray(run.states, dtype=float))[:, : layout.state_dim]
+    controls = np.atleast_2d(np.asarray(run.controls, dtype=float))[:, : layout.control_dim]
+    points = _path_polyline(path)
+    horizontal, depth_of_path = points[:, :2], points[:, 2] if path.spatial else None
+    distance, segment, fraction = _closest_on_polyline(horizontal, states[:, list(layout.positions[:2])])
+    at_end = (segment == len(points) - 2) & (fraction >= 1.0)
+    passed = np.flatnonzero(at_end)
+    on_path = np.ones(len(distance), dtype=bool)
+    if passed.size:
+        on_path[passed[0] :] = False
+    cross = distance[on_path] if on_path.any() else distance[:1]
+    if depth_of_path is not None:
+        depth = depth_of_path[segment] + fraction * (depth_of_path[segment + 1] - depth_of_path[segment])
+        depth_rms = float(np.sqrt(np.mean((states[:, layout.positions[2]] - depth) ** 2)))
+    else:
+        depth_rms = math.nan
+    fins = [j for j, unit in enumerate(layout.control_units) if unit == "rad"]
+    activity = float(np.abs(np.diff(controls[:, fins], axis=0)).sum()) if fins else 0.0
+    power = getattr(vehicle, "propeller_power", None)
+    if power is None or len(controls) == 0:
+        energy = math.nan
+    else:
+        count = len(controls)
+        energy = float(np.sum(power(controls, states[:count]) * np.diff(times)[:count]))
+    return {
+        "cross_track_rms": float(np.sqrt(np.mean(cross**2))),
+        "cross_track_max": float(np.max(cross)),
+        "depth_rms": depth_rms,
+        "fin_activity": activity,
+        "energy": energy,
+        "completed": float(passed.size > 0),
+    }
+
+
+def _path_polyline(path: Reference) -> np.ndarray:
+    """Return the path's positions sampled as :attr:`PathFollowingProblem.polyline`, repeats dropped (m)."""
+    start = path.t_start
+    end = path.t_end if math.isfinite(path.t_end) else start + PROJECTION_SPAN
+    count = int(min(PROJECTION_SAMPLES, math.ceil((end - start) / PROJECTION_STEP))) + 1
+    points = path.evaluate(np.linspace(start, end, count))[:, [0, 1, 2] if path.spatial else [0, 1]]
+    moved = np.ones(len(points), dtype=bool)
+    moved[1:] = np.linalg.norm(np.diff(points[:, :2], axis=0), axis=1) > 1e-9  # a hold repeats its point
+    return points[moved]
+
+
+def _closest_on_polyline(vertices: np.ndarray, positions: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Distance (m) to the closest point of the segments, its segment and fraction along it.
+
+    The nearest vertex (a k-d tree) then its two segments: the closest point of a polyline
+    whose vertices are much closer together than the distance to its other parts.
+    """
+    from scipy.spatial import cKDTree
+
+    last = len(vertices) - 2
+    _, nearest = cKDTree(vertices).query(positions)
+    best = np.full(len(positions), np.inf)
+    segment = np.zeros(len(positions), dtype=int)
+    fraction = np.zeros(len(positions))
+    for candidate in (np.clip(nearest - 1, 0, last), np.clip(nearest, 0, last)):
+        start, chord = vertices[candidate], vertices[candidate + 1] - vertices[candidate]
+        length = np.einsum("ij,ij->i", chord, chord)
+        along = np.clip(np.einsum("ij,ij->i", positions - start, chord) / length, 0.0, 1.0)
+        gap = np.linalg.norm(start + along[:, None] * chord - positions, axis=1)
+        better = gap < best
+        best[better], segment[better], fraction[better] = gap[better], candidate[better], along[better]
+    return best, segment, fraction

@@ -74,6 +74,87 @@ def vehicle_rhs(vehicle: Any, state: ca.SX, control: ca.SX, current: ca.SX, *val
     return model_function("vehicle", vehicle)(state, control, current)
 
 
+#: Most RK4 substeps ``substeps=None`` of :class:`~uuv_ocp.PathFollowingProblem` chooses.
+MAX_AUTO_SUBSTEPS = 16
+
+
+class Rk4StabilityWarning(RuntimeWarning):
+    """RK4's step ``dt / substeps`` amplifies a mode of the vehicle's linearisation at rest."""
+
+
+def rest_eigenvalues(vehicle: Any) -> np.ndarray:
+    """Eigenvalues (1/s) of ``∂f/∂x`` of the vehicle's dynamics at rest (zero state, control, current).
+
+    Cached per vehicle (by value) when it is hashable: tens of ms to build the Jacobian.
+    """
+    try:
+        return np.array(_cached_rest_eigenvalues(vehicle))
+    except TypeError:  # an unhashable user vehicle
+        return np.array(_rest_eigenvalues(vehicle))
+
+
+@functools.lru_cache(maxsize=32)
+def _cached_rest_eigenvalues(vehicle: Any) -> tuple[complex, ...]:
+    return _rest_eigenvalues(vehicle)
+
+
+def _rest_eigenvalues(vehicle: Any) -> tuple[complex, ...]:
+    nx, nu, nc = vehicle_dimensions(vehicle)
+    with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
+        x = ca.SX.sym("x", nx)
+        rhs = vehicle_rhs(vehicle, x, ca.SX(nu, 1), ca.SX(nc, 1))
+        jacobian = ca.Function("rest", [x], [ca.jacobian(rhs, x)])
+    matrix = np.array(jacobian(np.zeros(nx)), dtype=float)
+    return tuple(complex(v) for v in np.linalg.eigvals(matrix)) if np.all(np.isfinite(matrix)) else ()
+
+
+def rk4_amplification(eigenvalues: np.ndarray, step: float) -> float:
+    """Largest ``|R(λ h)|`` of explicit RK4 over ``λ`` (1/s), ``h = step`` (s).
+
+    ``R(z) = 1 + z + z²/2 + z³/6 + z⁴/24``; 0 without eigenvalues.
+    """
+    return float(np.max(np.abs(_rk4(np.asarray(eigenvalues, dtype=complex) * step)), initial=0.0))
+
+
+def stable_substeps(vehicle: Any, dt: float) -> int:
+    """Fewest RK4 substeps of ``dt`` (s), up to :data:`MAX_AUTO_SUBSTEPS`, stable at rest.
+
+    Stable: ``|R(λ dt / substeps)| <= 1`` for every eigenvalue of the vehicle's linearisation at
+    rest with a negative real part (the REMUS 100's roll mode ``−1.94 ± 6.03i`` /s needs
+    ``h <= 0.446`` s); modes that do not decay at rest (integrators of the pose) are left out.
+    """
+    eigenvalues = rest_eigenvalues(vehicle)
+    decaying = eigenvalues[eigenvalues.real < -1e-9]
+    for substeps in range(1, MAX_AUTO_SUBSTEPS + 1):
+        if rk4_amplification(decaying, dt / substeps) <= 1.0:
+            return substeps
+    return MAX_AUTO_SUBSTEPS
+
+
+def warn_if_rk4_unstable(vehicle: Any, dt: float, substeps: int) -> None:
+    """Warn (:class:`Rk4StabilityWarning`) if RK4 steps of ``dt / substeps`` amplify a mode at rest.
+
+    Only the modes that decay at rest count (as :func:`stable_substeps`).
+    """
+    eigenvalues = rest_eigenvalues(vehicle)
+    decaying = eigenvalues[eigenvalues.real < -1e-9]
+    growth = rk4_amplification(decaying, dt / substeps)
+    if growth > 1.0:
+        worst = decaying[np.argmax(np.abs(_rk4(decaying * dt / substeps)))]
+        warnings.warn(
+            f"RK4 with dt = {dt} s and substeps = {substeps} is unstable for the vehicle's mode "
+            f"λ = {worst.real:.3g}{worst.imag:+.3g}i 1/s at rest (|R(λh)| = {growth:.3g} per step): a "
+            f"plan far from the optimum diverges along the horizon; substeps = "
+            f"{stable_substeps(vehicle, dt)} is stable",
+            Rk4StabilityWarning,
+            stacklevel=3,
+        )
+
+
+def _rk4(z: np.ndarray) -> np.ndarray:
+    return 1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24
+
+
 def control_limits(vehicle: Any) -> tuple[np.ndarray, np.ndarray]:
     """Symmetric control bound and rate bound (per second) of a vehicle model."""
     return np.asarray(vehicle.control_bound, dtype=float), np.asarray(vehicle.control_rate_bound, dtype=float)
@@ -424,6 +505,8 @@ class TrackingProblem(DeclaredPreset):
             )
         object.__setattr__(self, "substeps", check.positive_int("substeps", self.substeps))
         check_transcription(self.transcription, self.degree, self.substeps)
+        if self.transcription == "multiple_shooting":
+            warn_if_rk4_unstable(self.vehicle, self.dt, self.substeps)
         check.boolean("rate_limits", self.rate_limits)
         if self.position_tube is not None:
             tube = check.positive_float("position_tube", self.position_tube)

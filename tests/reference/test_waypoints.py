@@ -230,10 +230,27 @@ def test_heading_unwraps_over_repeated_loops():
 def test_many_waypoints_cost_no_more_than_few():
     few = Reference.waypoints(random_walk(1, 4), 1.0, 1.0, hold=0.0)
     many = Reference.waypoints(random_walk(2, 40), 1.0, 1.0, hold=0.0)
-    # piece look-ups are binary searches: the instruction count does not grow with the pieces
+    # up to CHAIN_ROWS pieces a chain of if_else, beyond it binary searches: the instruction
+    # count is bounded whatever the number of pieces
     assert many.function.n_instructions() <= few.function.n_instructions() + 5
     assert many.function.n_instructions() < 200
     many.evaluate_grid(10.0 + 0.1 * np.arange(21))  # windows as TrackingProblem evaluates them
+
+
+def test_a_lawnmowers_jacobian_is_exact_across_two_evaluations():
+    """``b + p(a)``: its Jacobian in ``b`` is the constant identity, as for a gap ``X_(k+1) − F``.
+
+    Analytic: ``p(a)`` does not read ``b``.  The C step's stage map needs the constant block
+    (the gap of the REMUS survey was refused while the piece look-ups were interpolant calls:
+    their forward derivatives with a zero seed stayed in the Jacobian, reading ``a``).
+    """
+    survey = Reference.lawnmower(width=40.0, spacing=10.0, lanes=3, speed=1.5, depth=10.0)
+    a, b = ca.SX.sym("a"), ca.SX.sym("b")
+    size = survey.function.size1_out(0)
+    values = ca.vertcat(b + survey.function(a), survey.function(b))
+    block = ca.jacobian(values, b)[:size, 0]
+    assert block.is_constant()
+    np.testing.assert_array_equal(np.array(ca.DM(block)).ravel(), np.ones(size))
 
 
 def test_waypoints_work_in_a_tracking_problem():

@@ -568,7 +568,7 @@ def simulate(
         log.estimated_health = np.full((steps, detector.count), np.nan)
     if estimator is not None and sensors is not None:
         log.track_estimates(estimator, sensors)
-        estimator.reset(x0)
+        estimator.reset(x0[: estimator.model.nx])
     u_prev = np.clip(np.zeros(spec.control_size), spec.lower, spec.upper)
     interrupted = False
     with (
@@ -728,15 +728,17 @@ class _Loop:
         if self.estimator is None or self.sensors is None:
             noise = self.noise.sample(self.rng) if self.noise is not None else 0.0
             return log.states[k] + noise, told_k
-        measurement = self.sensors.measure(k, self.dt, log.states[k], self.rng)
-        start = time.perf_counter()
         estimator = self.estimator
+        nx = estimator.model.nx  # the controller's own states after these (a path parameter)
+        measurement = self.sensors.measure(k, self.dt, log.states[k, :nx], self.rng)
+        start = time.perf_counter()
         estimate = estimator.correct(measurement) if k == 0 else estimator.step(u_prev, measurement)
         log.estimate(k, measurement, estimate, time.perf_counter() - start)
         if self.detector is not None and k > 0:  # the bias after the interval u_prev moved it
             self.detector.update(k, self.times[k], u_prev, estimate.bias)
             log.estimated_health[k] = self.detector.estimate
-        return estimate.state, (estimate.current if self.estimated else told_k)
+        state = estimate.state if estimator.model.own == 0 else np.r_[estimate.state, log.states[k, nx:]]
+        return state, (estimate.current if self.estimated else told_k)
 
 
 def _check_arguments(

@@ -15,7 +15,9 @@ with ``w ~ N(0, Q)``, ``Q = diag(σ_x², q_c² dt | q_c² τ/2 (1 − a²), q_b�
 noise intensity ``q_c`` (m/s/√s) gives the same discrete variance as the continuous process over
 one step, and the Gauss–Markov model tends to the random walk as τ → ∞.  The other stagewise
 parameters (a reference, moving obstacles) do not enter a vehicle's dynamics and are held at
-zero; an :class:`~uuv_ocp.Ocp`'s own parameters are taken from ``parameters=``.
+zero; an :class:`~uuv_ocp.Ocp`'s own parameters are taken from ``parameters=``.  A problem's
+``controller_states`` last states (the path parameter of a
+:class:`~uuv_ocp.PathFollowingProblem`) are the controller's own: ``x`` excludes them.
 """
 
 from __future__ import annotations
@@ -219,10 +221,16 @@ class AugmentedModel:
     ) -> None:
         spec = problem.spec()
         self.spec = spec
-        nx, nu = spec.state_dim, spec.control_size
+        # the controller's own trailing states (a path parameter) are known to it exactly: the
+        # estimator estimates the others, and the step reads zeros in their place (a vehicle's
+        # rows do not depend on them)
+        own = int(getattr(problem, "controller_states", 0))
+        nx, nu = spec.state_dim - own, spec.control_size
+        self.own = own
         if sensors.state_dim != nx:
+            mine = f" (not the {own} last, the controller's own: a path parameter)" if own else ""
             raise ValueError(
-                f"sensors must measure the problem's {nx} states, got sensors on {sensors.state_dim}"
+                f"sensors must measure the problem's {nx} states{mine}, got sensors on {sensors.state_dim}"
             )
         stagewise_names = [name for name, (_, _, stagewise) in spec.layout.entries.items() if stagewise]
         wanted = options.current_parameter
@@ -303,7 +311,9 @@ class AugmentedModel:
             parts = (self.ps[:offset], c, self.ps[offset + nc :])
             stage = ca.vertcat(*[part for part in parts if part.numel()]) if nc else self.ps
             step = problem.build().step
-            pieces = [step(x, self.u + b if nb else self.u, stage, self.pg)]
+            full = ca.vertcat(x, ca.SX.zeros(own)) if own else x
+            moved = step(full, self.u + b if nb else self.u, stage, self.pg)
+            pieces = [moved[:nx] if own else moved]
             if nc:
                 pieces.append(self.mean + self.decay * (c - self.mean) if self.decay != 1.0 else c)
             if nb:
@@ -329,7 +339,9 @@ class Estimator:
     method : str
         Registered estimator name.
     sensors : Sensors
-        What is measured (their ``h`` are on the problem's state).
+        What is measured (their ``h`` are on the problem's state; on a
+        :class:`~uuv_ocp.PathFollowingProblem`, on the vehicle's state: the path parameter is
+        the controller's own, neither measured nor estimated).
     options : EstimatorOptions, optional
         Noise model and tuning.
     parameters : dict, optional

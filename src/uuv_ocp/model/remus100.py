@@ -536,6 +536,33 @@ class Remus100:
         )
         return ca.vertcat(eta_dot, nu_dot)
 
+    def propeller_power(self, controls: object, states: object) -> np.ndarray:
+        """Propeller shaft power ``P = 2π n_s Q`` (W) of commands and states, row by row.
+
+        ``Q = ρ D_p⁵ (K_Q0 |n_s| n_s + (K_Qmax − K_Q0)/J_max (1 − w) U/D_p max(n_s, 0))``, the
+        model's propeller torque (:meth:`dynamics_expression`) with ``n_s`` = rpm / 60 and ``U``
+        the speed over ground ``‖(u, v, w)‖``.
+
+        Parameters
+        ----------
+        controls : array_like, shape (n, 3)
+            ``[δ_r, δ_s, n]`` (rad, rad, rpm).
+        states : array_like, shape (n, 12)
+            The states the commands act at.
+        """
+        u = np.atleast_2d(np.asarray(controls, dtype=float))
+        x = np.atleast_2d(np.asarray(states, dtype=float))
+        if u.shape[1:] != (3,) or x.shape != (u.shape[0], 12):
+            raise ValueError(
+                f"controls and states must have shapes (n, 3) and (n, 12), got {u.shape} and {x.shape}"
+            )
+        n_s = u[:, 2] / 60.0
+        d_p, j_max = self.propeller_diameter, self.max_advance_ratio
+        kq0, kq_max = self.torque_coefficients
+        advance = (1.0 - self.wake_fraction) * np.linalg.norm(x[:, 6:9], axis=1) / d_p * np.maximum(n_s, 0.0)
+        torque = self.water_density * d_p**5 * (kq0 * np.abs(n_s) * n_s + (kq_max - kq0) / j_max * advance)
+        return 2.0 * math.pi * n_s * torque
+
     @cached_property
     @serialised
     def dynamics(self) -> ca.Function:

@@ -269,14 +269,28 @@ class PiecewiseExpression:
             )
 
 
+#: Most rows :func:`_look_up` selects by an ``if_else`` chain; longer tables use interpolants.
+CHAIN_ROWS = 64
+
+
 def _look_up(s: ca.SX, rows: Sequence[Sequence[float]], name: str) -> ca.SX:
     """Look up the row whose start (column 0) is the last one <= ``s`` (the first row before it).
 
-    Two table look-ups (CasADi interpolants, binary search): ``s`` -> piece index, then index ->
-    row.  Starts must be strictly increasing.
+    Up to :data:`CHAIN_ROWS` rows: a chain of ``casadi.if_else`` on ``s >= start`` (pure SX, one
+    comparison per row).  CasADi's SX Jacobian through a Function call (an interpolant) has
+    structural entries on every variable seeded in the same direction, e.g. a gap
+    ``X_(k+1) − F(X_k, u_k)`` reading ``s_(k+1)``, which HPIPM's OCP-QP map refuses; a
+    chain has none.  Longer tables (a chain's cost grows with them): two table look-ups (CasADi
+    interpolants, binary search), ``s`` -> piece index, then index -> row; the C step then
+    falls back to CasADi's QP path.  Starts must be strictly increasing.
     """
     count = len(rows)
     starts = [row[0] for row in rows]
+    if count <= CHAIN_ROWS:
+        value = ca.SX(ca.DM(rows[0]))
+        for start, row in zip(starts[1:], rows[1:], strict=True):
+            value = ca.if_else(s >= start, ca.DM(row), value)
+        return value
     end = starts[-1] + max(1.0, starts[-1] - starts[0])
     index = ca.interpolant(f"{name}_index", "linear", [[*starts, end]], [float(k) for k in range(count + 1)])
     table = ca.interpolant(

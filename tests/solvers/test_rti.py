@@ -989,3 +989,50 @@ def test_a_nan_qp_step_in_the_loop_recovers_at_once(problem, monkeypatch):
         assert controller.iterate is not None and controller.iterate.is_finite()
         control = record.control
         state = np.array(plant(state, control, np.zeros(2))).ravel()
+
+
+def _path_constrained_ocp() -> uo.Ocp:
+    """A double integrator with a stagewise reference, a non-convex path constraint, a soft bound."""
+    ocp = uo.Ocp(horizon=12, dt=0.2)
+    pos, vel = ocp.state("pos", 2), ocp.state("vel", 2)
+    acc = ocp.control("acc", 2, lower=-1.0, upper=1.0, max_rate=2.0)
+    ref = ocp.parameter("ref", 2, stagewise=True)
+    ocp.set_der(pos, vel)
+    ocp.set_der(vel, acc)
+    ocp.add_stage_cost(ca.sumsqr(pos - ref) + 0.1 * ca.sumsqr(acc))
+    ocp.subject_to(ca.sumsqr(pos - ca.DM([2.0, 0.1])) >= 0.36)
+    ocp.subject_to(vel <= 1.5, soft=1e3)
+    return ocp
+
+
+@pytest.mark.parametrize("case", ["s2", "bluerov2", "path"])
+def test_stage_data_called_per_stage_equal_the_horizon_function(case):
+    """The stage data through one mapped function per distinct stage equal the unrolled horizon's.
+
+    Reference: the horizon-wide SX function (``per_stage=False``, the former path) at random
+    points, every variant, with and without the still-water substitution; bit for bit (the
+    same operations), and the middle stages generated once (one ``map`` of N − 2 or N − 3).
+    """
+    from uuv_ocp.solvers.rti_ocp import ocp_qp_layout, stage_data_function
+
+    if case == "s2":
+        problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1)
+    elif case == "bluerov2":
+        survey = uo.Reference.lawnmower((0.0, 0.0), width=6.0, spacing=2.0, lanes=2, speed=0.3, depth=2.0)
+        problem = uo.TrackingProblem(uo.Vehicle6DOF.bluerov2_heavy(), survey, horizon=8, dt=0.1)
+    else:
+        problem = _path_constrained_ocp()
+    backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp"})
+    rng = np.random.default_rng(29)
+    still_water = backend._still_water_slice  # noqa: SLF001 (the slice the backend substitutes)
+    for name, data in backend.variants.items():
+        layout = ocp_qp_layout(data, problem.spec().state_dim)
+        for still in (None, still_water) if still_water is not None else (None,):
+            horizon, offsets = stage_data_function(data, layout, 1.7, still, "h", per_stage=False)
+            staged, staged_offsets = stage_data_function(data, layout, 1.7, still, "s")
+            assert np.array_equal(offsets, staged_offsets)
+            for _ in range(2):
+                w, p = rng.uniform(-1, 1, horizon.size1_in(0)), rng.uniform(-1, 1, horizon.size1_in(1))
+                assert np.array_equal(np.array(horizon(w, p)), np.array(staged(w, p))), (name, still)
+            maps = [f.name() for f in staged.find_functions() if f.name().startswith("map")]
+            assert len(maps) == 1 and int(maps[0][3:].split("_")[0]) >= layout.horizon - 3, maps

@@ -992,7 +992,7 @@ def test_a_nan_qp_step_in_the_loop_recovers_at_once(problem, monkeypatch):
 
 
 def _path_constrained_ocp() -> uo.Ocp:
-    """A double integrator with a stagewise reference, a non-convex path constraint, a soft bound."""
+    """Return a double integrator with a stagewise reference, a non-convex path constraint, a soft bound."""
     ocp = uo.Ocp(horizon=12, dt=0.2)
     pos, vel = ocp.state("pos", 2), ocp.state("vel", 2)
     acc = ocp.control("acc", 2, lower=-1.0, upper=1.0, max_rate=2.0)

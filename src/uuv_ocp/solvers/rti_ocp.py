@@ -452,8 +452,10 @@ def stage_data_function(
     return _mapped_stages(name, w, p, stage_pieces, layout), offsets
 
 
-def _mapped_stages(name: str, w: ca.SX, p: ca.SX, stage_pieces: list[ca.SX], layout: OcpQpLayout) -> ca.Function:
-    """``name(w, p)``: the stacked stage data, each distinct stage function generated once.
+def _mapped_stages(
+    name: str, w: ca.SX, p: ca.SX, stage_pieces: list[ca.SX], layout: OcpQpLayout
+) -> ca.Function:
+    """Return ``name(w, p)``: the stacked stage data, each distinct stage function generated once.
 
     Stage ``k``'s data read only ``X_k``, ``u_k``, ``X_{k+1}`` and some parameters.  Written
     over canonical symbols, the stages that are the same expression (serialised the same: the

@@ -82,14 +82,15 @@ def closed_loop(controller: object, problem: object, start: np.ndarray, steps: i
     still = np.zeros(plant.size1_in(2))
     controller.reset()
     state, control = start.copy(), np.zeros(problem.spec().control_size)
-    wall, lin, qp, eq = [], [], [], []
+    wall, cpu, lin, qp, eq = [], [], [], [], []
     for k in range(steps):
-        begin = time.perf_counter()
+        begin, begin_cpu = time.perf_counter(), time.thread_time()
         output = controller.step(state, k * problem.dt, control)
-        elapsed = time.perf_counter() - begin
+        elapsed, elapsed_cpu = time.perf_counter() - begin, time.thread_time() - begin_cpu
         control = output.control
         if k:
             wall.append(elapsed)
+            cpu.append(elapsed_cpu)
             info = getattr(getattr(controller, "_deferred", None), "info", None)
             if getattr(output, "fast_path", False) and info is not None:
                 lin.append(info[6])
@@ -102,6 +103,7 @@ def closed_loop(controller: object, problem: object, start: np.ndarray, steps: i
 
     return {
         "wall": median(wall),
+        "cpu": median(cpu),
         "lin": median(lin),
         "qp": median(qp),
         "equality_first": float(np.mean(eq)) if eq else math.nan,
@@ -158,7 +160,7 @@ def interleaved(configs: dict[str, dict], rounds: int) -> dict[str, dict]:
     rows = {}
     for label, values in samples.items():
         rows[label] = {key: float(np.median([v[key] for v in values])) for key in values[0]}
-        rows[label]["range"] = (min(v["wall"] for v in values), max(v["wall"] for v in values))
+        rows[label]["range"] = (min(v["cpu"] for v in values), max(v["cpu"] for v in values))
     return rows
 
 
@@ -211,7 +213,7 @@ def against(src: str, rounds: int, steps: int) -> str:
                 }
     rows = interleaved(configs, rounds)
     lines = [
-        "| vehicle | mode | baseline ms | this ms | × baseline | this: linearise / QP ms in C |",
+        "| vehicle | mode | baseline ms (CPU) | this ms (CPU) | × baseline (CPU) | this: linearise / QP ms in C |",
         "|---|---|---|---|---|---|",
     ]
     for vehicle in ("bluerov2", "rexrov"):
@@ -220,9 +222,31 @@ def against(src: str, rounds: int, steps: int) -> str:
             if base is None or this is None:
                 continue
             lines.append(
-                f"| {vehicle} | {label} | {base['wall']:.3f} | {this['wall']:.3f} | "
-                f"{this['wall'] / base['wall']:.2f} | {this['lin']:.3f} / {this['qp']:.3f} |"
+                f"| {vehicle} | {label} | {base['wall']:.3f} ({base['cpu']:.3f}) | {this['wall']:.3f} "
+                f"({this['cpu']:.3f}) | {this['wall'] / base['wall']:.2f} ({this['cpu'] / base['cpu']:.2f}) | "
+                f"{this['lin']:.3f} / {this['qp']:.3f} |"
             )
+    return "\n".join(lines)
+
+
+def compare_options(vehicle: str, horizon: int, variants: dict[str, dict], rounds: int, steps: int) -> str:
+    """Closed loops of ``sqp-rti`` under each of ``variants`` (label: options), interleaved."""
+    configs = {
+        label: {"vehicle": vehicle, "horizon": horizon, "solver": "sqp-rti", "options": options, "steps": steps}
+        for label, options in variants.items()
+    }
+    rows = interleaved(configs, rounds)
+    first = next(iter(rows.values()))
+    lines = [
+        f"| {vehicle}, N = {horizon} | wall ms | thread CPU ms (range) | × first | in C: linearise / QP ms "
+        "| QPs by equality first |",
+        "|---|---|---|---|---|---|",
+    ]
+    for label, row in rows.items():
+        lines.append(
+            f"| {label} | {row['wall']:.3f} | {row['cpu']:.3f} ({row['range'][0]:.3f}–{row['range'][1]:.3f}) | "
+            f"{row['cpu'] / first['cpu']:.2f} | {row['lin']:.3f} / {row['qp']:.3f} | {row['equality_first']:.2f} |"
+        )
     return "\n".join(lines)
 
 
@@ -232,13 +256,21 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--against", metavar="SRC", help="the src folder of the baseline checkout")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--steps", type=int, default=200)
+    parser.add_argument(
+        "--options", metavar="JSON", help='{"label": options, ...}: sqp-rti closed loops under each, interleaved'
+    )
+    parser.add_argument("--vehicle", default="bluerov2", choices=VEHICLES)
+    parser.add_argument("--horizon", type=int, default=20)
     parser.add_argument("--quick", action="store_true", help="N = 10, 20, 40 and one round")
     arguments = parser.parse_args(argv)
     if arguments.worker:
         worker(json.loads(arguments.worker))
         return
     print(f"load: {os.getloadavg()}")
-    if arguments.against:
+    if arguments.options:
+        variants = json.loads(arguments.options)
+        print(compare_options(arguments.vehicle, arguments.horizon, variants, arguments.rounds, arguments.steps))
+    elif arguments.against:
         print(against(arguments.against, arguments.rounds, arguments.steps))
     else:
         horizons = HORIZONS[:3] if arguments.quick else HORIZONS

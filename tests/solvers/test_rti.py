@@ -1036,3 +1036,46 @@ def test_stage_data_called_per_stage_equal_the_horizon_function(case):
                 assert np.array_equal(np.array(horizon(w, p)), np.array(staged(w, p))), (name, still)
             maps = [f.name() for f in staged.find_functions() if f.name().startswith("map")]
             assert len(maps) == 1 and int(maps[0][3:].split("_")[0]) >= layout.horizon - 3, maps
+
+
+def test_equality_first_auto_follows_the_cost_model(monkeypatch):
+    """``equality_first="auto"``: on for s2, off for the BlueROV2 survey with the native HPIPM.
+
+    The flop estimate is checked against the closed form for constant stage sizes (N stages of
+    nx lifted states, nu inputs; ne terminal equality rows), written out here; the decision
+    needs no build (the linked HPIPM is patched).
+    """
+    import uuv_ocp.solvers.rti_ocp as rti_ocp
+
+    def closed_form(n, nx, nu, ne):
+        factor = nx**3 + nx * nx * nu + nu * nx * nx + nu * nu * nx / 2 + nx**3 / 2
+        factor += nu**3 / 6 + nu * nu * nx / 2 + nx * nx * nu / 2
+        solve = 2 * (nx * nu + nx * nx + nx * nu) + nu * nu
+        return n * factor + (ne + 2) * n * solve
+
+    survey = uo.Reference.lawnmower((0.0, 0.0), width=6.0, spacing=2.0, lanes=2, speed=0.3, depth=2.0)
+    rexrov = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1)
+    bluerov2 = uo.TrackingProblem(uo.Vehicle6DOF.bluerov2_heavy(), survey, horizon=20, dt=0.1)
+    cases = {"s2": (rexrov, 9, 3, 6), "bluerov2": (bluerov2, 18, 6, 12)}
+    decided = {}
+    for name, (problem, nx, nu, ne) in cases.items():
+        backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp"})
+        for variant, data in backend.variants.items():
+            layout = rti_ocp.ocp_qp_layout(data, problem.spec().state_dim)
+            if variant == "hard":  # constant stage sizes (the soft NLP's slacks sit at stage N - 1)
+                expected = closed_form(20, nx, nu, ne)
+                assert rti_ocp.equality_first_flops(layout, data) == pytest.approx(expected)
+            for linked in ("native", "wheel"):
+                native = linked == "native"
+                monkeypatch.setattr(rti_ocp, "selected_hpipm", lambda native=native: native or None)
+                options = rti_ocp.ocp_qp_options({}, False, 20)
+                resolved = rti_ocp.resolve_equality_first(options, layout, data)
+                decided[name, variant, linked] = resolved["equality_first"]
+                forced = rti_ocp.resolve_equality_first({**options, "equality_first": False}, layout, data)
+                assert forced["equality_first"] is False
+    assert decided == {
+        (name, variant, linked): not (name == "bluerov2" and linked == "native")
+        for name in cases
+        for variant in ("hard", "soft")
+        for linked in ("native", "wheel")
+    }

@@ -49,6 +49,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp.native.compile import compile_functions, verify_library
+from uuv_ocp.native.hpipm import selected as selected_hpipm
 from uuv_ocp.native.runtime import hpipm_link_flags
 from uuv_ocp.transcription.multiple_shooting import NlpData
 
@@ -67,9 +68,17 @@ OCP_QP_DEFAULTS: dict[str, Any] = {
     "warm_start": False,
     "cond_horizon": "auto",
     "loose_first_qp": True,
-    #: try the QP with its equalities alone first (one Riccati recursion; see the module doc)
-    "equality_first": True,
+    #: try the QP with its equalities alone first (one Riccati recursion; see the module doc);
+    #: ``"auto"``: where its estimated cost is below :data:`EQUALITY_FIRST_MAX_FLOPS`
+    "equality_first": "auto",
 }
+#: ``equality_first="auto"``: the Riccati solve is tried first where :func:`equality_first_flops`
+#: (one factorisation and ne + 2 passes of the hand-written scalar C) stays below this, by the
+#: HPIPM linked.  Measured (docs/benchmarks.md, issue 29): with the native HPIPM, s2 (8.0e4
+#: flops) gains from it and the BlueROV2 survey (6.0e5) lost 1.5x to HPIPM alone (BLASFEO's
+#: AVX2 kernels outrun the scalar loops at 18 lifted states); with the wheel's TARGET_GENERIC
+#: BLASFEO the Riccati solve won on both.
+EQUALITY_FIRST_MAX_FLOPS = {"native": 2.5e5, "wheel": math.inf}
 #: ``cond_horizon="auto"``: partial condensing to ``horizon // 4`` stages from this horizon on,
 #: faster than none at the same settled error on s2 (docs/solvers.md, the condensing table)
 AUTO_CONDENSING_FROM = 8
@@ -128,8 +137,10 @@ def ocp_qp_options(options: dict[str, Any], converged: bool, horizon: int = 0) -
             raise ValueError(
                 f"{name} must be 'auto' or an int >= 0 (0: no partial condensing), got {value!r}"
             )
-        if key in ("warm_start", "loose_first_qp", "equality_first") and not isinstance(value, bool):
+        if key in ("warm_start", "loose_first_qp") and not isinstance(value, bool):
             raise ValueError(f"{name} must be True or False, got {value!r}")
+        if key == "equality_first" and not (isinstance(value, bool) or value == "auto"):
+            raise ValueError(f"{name} must be True, False or 'auto', got {value!r}")
         real = isinstance(value, numbers.Real) and not isinstance(value, bool)
         if key.startswith("tol_") and not (real and 0.0 < float(value) < math.inf):
             raise ValueError(f"{name} must be a finite float > 0, got {value!r}")
@@ -141,6 +152,37 @@ def ocp_qp_options(options: dict[str, Any], converged: bool, horizon: int = 0) -
     rti_settings = {**OCP_QP_DEFAULTS, **options}
     merged["loose_settings"] = {key: rti_settings[key] for key in LOOSE_SETTINGS}
     return merged
+
+
+def equality_first_flops(layout: OcpQpLayout, data: NlpData) -> float:
+    """Estimated flops of one equality-first solve (``rti_eq_solve``) of ``layout``'s QP.
+
+    The Riccati factorisation (``P A``, ``P B``, ``R + B'P B``, ``S + B'P A``, ``A'P A``, the
+    Cholesky factor and ``Y``) plus ``ne + 2`` solve passes, ``ne`` the most equality rows of
+    one stage (each slack pair of the exact-penalty NLP counts as one equality).
+    """
+    n = layout.horizon
+    factor = passes = 0.0
+    for k in range(n):
+        nx, nu, nx1 = len(layout.xvar[k]), len(layout.uvar[k]), len(layout.xvar[k + 1])
+        factor += nx1 * nx1 * (nx + nu) + nu * nx * nx1 + (nu * nu * nx1 + nx * nx * nx1) / 2
+        factor += nu**3 / 6 + (nu * nu * nx + nx * nx * nu) / 2
+        passes += 2 * (nx1 * nu + nx * nx1 + nx * nu) + nu * nu
+    slack = np.array([key[0].endswith("slack") for key in data.variable_keys])
+    enforced = [
+        int(np.sum(data.lbg[rows] == data.ubg[rows])) + int(np.sum(slack[layout.uvar[k]]))
+        for k, rows in enumerate(layout.genrow)
+    ]
+    return factor + (max(enforced, default=0) + 2) * passes
+
+
+def resolve_equality_first(options: dict[str, Any], layout: OcpQpLayout, data: NlpData) -> dict[str, Any]:
+    """``options`` with ``equality_first="auto"`` decided for this QP and the HPIPM linked."""
+    if options.get("equality_first") != "auto":
+        return options
+    linked = "native" if selected_hpipm() is not None else "wheel"
+    pays = equality_first_flops(layout, data) <= EQUALITY_FIRST_MAX_FLOPS[linked]
+    return {**options, "equality_first": bool(pays)}
 
 
 @dataclass(frozen=True)
@@ -480,7 +522,7 @@ def _mapped_stages(
     for k, (_, key, _, _) in enumerate(stages):
         distinct.setdefault(key, []).append(k)
     wm, pm = ca.MX.sym("w", w.numel()), ca.MX.sym("p", p.numel())
-    outputs: list[ca.MX | None] = [None] * (n + 1)
+    outputs: list[ca.MX] = [ca.MX(0, 1)] * (n + 1)
     for number, members in enumerate(distinct.values()):
         v, q, expression = stages[members[0]][0]
         function = ca.Function(f"{name}_s{number}", [v, q], [expression])
@@ -490,7 +532,8 @@ def _mapped_stages(
         result = mapped(local_in, read_in)
         for column, k in enumerate(members):
             outputs[k] = result[:, column]
-    return ca.Function(name, [wm, pm], [ca.vertcat(*outputs)], ["w", "p"], ["data"])
+    stacked: ca.MX = ca.vertcat(*outputs)
+    return ca.Function(name, [wm, pm], [stacked], ["w", "p"], ["data"])
 
 
 def _c_array(ctype: str, name: str, values: Any) -> str:
@@ -777,6 +820,7 @@ def build_step(
         flags=("-O1", "-fPIC", "-shared"),
     )
     assert library.path is not None
+    options = resolve_equality_first(options, layout, data)
     return OcpQpStep(library.path, (data.lbx.size, data.lbg.size, int(data.nlp["p"].numel())), options)
 
 
@@ -851,6 +895,7 @@ def nmpc_step_source(
         Declarations of the exported functions.
     """
     layout = ocp_qp_layout(data, state_dim)
+    options = resolve_equality_first(options, layout, data)
     function, offsets = stage_data_function(data, layout, objective_scale, None, "nmpc_step_data")
     nw, np_ = data.lbx.size, int(data.nlp["p"].numel())
     nu = len(u_prev_param)

@@ -213,7 +213,8 @@ def against(src: str, rounds: int, steps: int) -> str:
                 }
     rows = interleaved(configs, rounds)
     lines = [
-        "| vehicle | mode | baseline ms (CPU) | this ms (CPU) | × baseline (CPU) | this: linearise / QP ms in C |",
+        "| vehicle | mode | baseline ms (CPU) | this ms (CPU) | × baseline (CPU) "
+        "| this: linearise / QP ms in C |",
         "|---|---|---|---|---|---|",
     ]
     for vehicle in ("bluerov2", "rexrov"):
@@ -223,18 +224,21 @@ def against(src: str, rounds: int, steps: int) -> str:
                 continue
             lines.append(
                 f"| {vehicle} | {label} | {base['wall']:.3f} ({base['cpu']:.3f}) | {this['wall']:.3f} "
-                f"({this['cpu']:.3f}) | {this['wall'] / base['wall']:.2f} ({this['cpu'] / base['cpu']:.2f}) | "
+                f"({this['cpu']:.3f}) | {this['wall'] / base['wall']:.2f} "
+                f"({this['cpu'] / base['cpu']:.2f}) | "
                 f"{this['lin']:.3f} / {this['qp']:.3f} |"
             )
     return "\n".join(lines)
 
 
 def compare_options(vehicle: str, horizon: int, variants: dict[str, dict], rounds: int, steps: int) -> str:
-    """Closed loops of ``sqp-rti`` under each of ``variants`` (label: options), interleaved."""
+    """Run closed loops of ``sqp-rti`` under each of ``variants`` (label: options), interleaved."""
     configs = {
-        label: {"vehicle": vehicle, "horizon": horizon, "solver": "sqp-rti", "options": options, "steps": steps}
+        label: {"vehicle": vehicle, "horizon": horizon, "solver": "sqp-rti", "options": options}
         for label, options in variants.items()
     }
+    for config in configs.values():
+        config["steps"] = steps
     rows = interleaved(configs, rounds)
     first = next(iter(rows.values()))
     lines = [
@@ -244,8 +248,9 @@ def compare_options(vehicle: str, horizon: int, variants: dict[str, dict], round
     ]
     for label, row in rows.items():
         lines.append(
-            f"| {label} | {row['wall']:.3f} | {row['cpu']:.3f} ({row['range'][0]:.3f}–{row['range'][1]:.3f}) | "
-            f"{row['cpu'] / first['cpu']:.2f} | {row['lin']:.3f} / {row['qp']:.3f} | {row['equality_first']:.2f} |"
+            f"| {label} | {row['wall']:.3f} | {row['cpu']:.3f} "
+            f"({row['range'][0]:.3f}–{row['range'][1]:.3f}) | {row['cpu'] / first['cpu']:.2f} | "
+            f"{row['lin']:.3f} / {row['qp']:.3f} | {row['equality_first']:.2f} |"
         )
     return "\n".join(lines)
 
@@ -257,7 +262,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--steps", type=int, default=200)
     parser.add_argument(
-        "--options", metavar="JSON", help='{"label": options, ...}: sqp-rti closed loops under each, interleaved'
+        "--options", metavar="JSON", help='{"label": options, ...}: sqp-rti closed loops under each'
     )
     parser.add_argument("--vehicle", default="bluerov2", choices=VEHICLES)
     parser.add_argument("--horizon", type=int, default=20)
@@ -269,7 +274,8 @@ def main(argv: list[str] | None = None) -> None:
     print(f"load: {os.getloadavg()}")
     if arguments.options:
         variants = json.loads(arguments.options)
-        print(compare_options(arguments.vehicle, arguments.horizon, variants, arguments.rounds, arguments.steps))
+        rounds, steps = arguments.rounds, arguments.steps
+        print(compare_options(arguments.vehicle, arguments.horizon, variants, rounds, steps))
     elif arguments.against:
         print(against(arguments.against, arguments.rounds, arguments.steps))
     else:

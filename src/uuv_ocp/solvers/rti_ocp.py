@@ -516,7 +516,7 @@ def _mapped_stages(
         read = [i for i, used in enumerate(ca.which_depends(expression, p, 1, False)) if used]
         v, q = ca.SX.sym("v", len(local)), ca.SX.sym("q", len(read))
         stage = ca.Function("stage", [w[local], p[read] if read else ca.SX(0, 1)], [expression])
-        canonical = (v, q, stage(v, q))
+        canonical = (v, q, ca.densify(stage(v, q)))  # dense: the C reads the data by offset
         stages.append((canonical, ca.Function("stage", [v, q], [canonical[2]]).serialize(), local, read))
     distinct: dict[str, list[int]] = {}
     for k, (_, key, _, _) in enumerate(stages):
@@ -532,7 +532,7 @@ def _mapped_stages(
         result = mapped(local_in, read_in)
         for column, k in enumerate(members):
             outputs[k] = result[:, column]
-    stacked: ca.MX = ca.vertcat(*outputs)
+    stacked: ca.MX = ca.densify(ca.vertcat(*outputs))
     return ca.Function(name, [wm, pm], [stacked], ["w", "p"], ["data"])
 
 

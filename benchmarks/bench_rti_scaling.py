@@ -197,10 +197,10 @@ def scaling(rounds: int, steps: int, horizons: tuple[int, ...], vehicles: tuple[
     return "\n".join(lines)
 
 
-def against(src: str, rounds: int, steps: int) -> str:
+def against(src: str, rounds: int, steps: int, vehicles: tuple[str, ...] = ("bluerov2", "rexrov")) -> str:
     """Compare this checkout's ``sqp-rti`` with the package in ``src`` (BlueROV2 survey and s2, N = 20)."""
     configs = {}
-    for vehicle in ("bluerov2", "rexrov"):
+    for vehicle in vehicles:
         for label, solver, options in SOLVERS:
             for who, folder in (("this", None), ("baseline", src)):
                 configs[f"{vehicle} | {label} | {who}"] = {
@@ -217,7 +217,7 @@ def against(src: str, rounds: int, steps: int) -> str:
         "| this: linearise / QP ms in C |",
         "|---|---|---|---|---|---|",
     ]
-    for vehicle in ("bluerov2", "rexrov"):
+    for vehicle in vehicles:
         for label, _, _ in SOLVERS:
             base, this = rows.get(f"{vehicle} | {label} | baseline"), rows.get(f"{vehicle} | {label} | this")
             if base is None or this is None:
@@ -265,6 +265,7 @@ def main(argv: list[str] | None = None) -> None:
         "--options", metavar="JSON", help='{"label": options, ...}: sqp-rti closed loops under each'
     )
     parser.add_argument("--vehicle", default="bluerov2", choices=VEHICLES)
+    parser.add_argument("--only-vehicle", action="store_true", help="--against: only --vehicle")
     parser.add_argument("--horizon", type=int, default=20)
     parser.add_argument("--quick", action="store_true", help="N = 10, 20, 40 and one round")
     arguments = parser.parse_args(argv)
@@ -277,7 +278,8 @@ def main(argv: list[str] | None = None) -> None:
         rounds, steps = arguments.rounds, arguments.steps
         print(compare_options(arguments.vehicle, arguments.horizon, variants, rounds, steps))
     elif arguments.against:
-        print(against(arguments.against, arguments.rounds, arguments.steps))
+        chosen = (arguments.vehicle,) if arguments.only_vehicle else ("bluerov2", "rexrov")
+        print(against(arguments.against, arguments.rounds, arguments.steps, chosen))
     else:
         horizons = HORIZONS[:3] if arguments.quick else HORIZONS
         rounds = 1 if arguments.quick else arguments.rounds

@@ -355,7 +355,7 @@ def test_a_first_need_builds_the_native_hpipm_once_with_a_message_and_a_bar(tmp_
     assert "[####] 4/4 installed" in err and len(lines) == 2  # the message, then one bar line
 
 
-@pytest.mark.parametrize("case", ["never", "generic cpu", "wheel", "failed build"])
+@pytest.mark.parametrize("case", ["never", "generic cpu", "wheel", "failed build", "refused build"])
 def test_a_first_need_keeps_the_wheel_and_says_why(tmp_path, monkeypatch, capsys, case):
     """No build where it is switched off, pointless or failed before: one warning names why.
 
@@ -369,7 +369,13 @@ def test_a_first_need_keeps_the_wheel_and_says_why(tmp_path, monkeypatch, capsys
     monkeypatch.setattr(hpipm, "cpu_target", lambda flags=None: cpu)
     calls: list = []
     builder = _stand_in_builder(calls, fail=case == "failed build")
+    if case == "refused build":  # a native.json naming no intact build: refused, never rebuilt unasked
+        (tmp_path / "hpipm").mkdir(mode=0o700)
+        pointer = {"key": "0" * 16, "manifest_sha256": "0" * 64}
+        (tmp_path / "hpipm" / "native.json").write_text(json.dumps(pointer))
+        (tmp_path / "hpipm" / "native.json").chmod(0o600)
     expected = {
+        "refused build": "the native build recorded in the cache is refused",
         "never": "UUV_OCP_HPIPM_BUILD=never",
         "generic cpu": "no BLASFEO kernels better than the wheel's",
         "failed build": "the native build failed .NativeHpipmError: pip download",
@@ -378,6 +384,8 @@ def test_a_first_need_keeps_the_wheel_and_says_why(tmp_path, monkeypatch, capsys
         warnings.simplefilter("always")
         assert hpipm.for_c_step(builder=builder) is None
     messages = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    if case == "refused build":  # installed()'s own warning first, naming the refused file
+        messages = [m for m in messages if "links the CasADi wheel's HPIPM" in m]
     if case == "wheel":
         assert messages == [] and calls == []
         return

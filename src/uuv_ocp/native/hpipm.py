@@ -443,11 +443,14 @@ def first_need_decision(cache: str | os.PathLike[str] | None = None) -> str | No
     """Why the C step keeps the wheel's HPIPM instead of building one now (``None``: build it).
 
     Asked only where ``UUV_OCP_HPIPM=auto`` found no build.  Not built: under
-    ``UUV_OCP_HPIPM_BUILD=never``, on a CPU without a better BLASFEO target than ``GENERIC``
-    (the wheel's own), or after a failed first-need build (its marker file in the cache).
+    ``UUV_OCP_HPIPM_BUILD=never``, where a build is recorded but refused by :func:`installed`
+    (never replaced unasked), on a CPU without a better BLASFEO target than ``GENERIC`` (the
+    wheel's own), or after a failed first-need build (its marker file in the cache).
     """
     if build_policy() == "never":
         return f"{HPIPM_BUILD_ENV}=never"
+    if (_root(cache) / "native.json").exists():  # a build is recorded but refused: never replaced unasked
+        return "the native build recorded in the cache is refused (see the warning above)"
     if cpu_target() == "GENERIC":
         return "this CPU has no BLASFEO kernels better than the wheel's GENERIC ones"
     marker = _root(cache) / FAILED_MARKER

@@ -173,11 +173,14 @@ def growth_exponent(horizons: list[int], times: list[float]) -> float:
     return float(np.polyfit(x, y, 1)[0])
 
 
-def scaling(rounds: int, steps: int, horizons: tuple[int, ...], vehicles: tuple[str, ...]) -> str:
+def scaling(
+    rounds: int, steps: int, horizons: tuple[int, ...], vehicles: tuple[str, ...], fatrop: bool = True
+) -> str:
     """Return the scaling table (markdown): step ms per vehicle, solver and N, with the exponent."""
     configs = {}
+    solvers = (*SOLVERS, FATROP) if fatrop else SOLVERS
     for vehicle in vehicles:
-        for label, solver, options in (*SOLVERS, FATROP):
+        for label, solver, options in solvers:
             for horizon in horizons:
                 configs[(vehicle, label, horizon)] = {
                     "vehicle": vehicle,
@@ -190,7 +193,7 @@ def scaling(rounds: int, steps: int, horizons: tuple[int, ...], vehicles: tuple[
     header = "| vehicle | solver | " + " | ".join(f"N = {n}" for n in horizons) + " | exponent (N = 20..80) |"
     lines = [header, "|" + "---|" * (len(horizons) + 3)]
     for vehicle in vehicles:
-        for label, _, _ in (*SOLVERS, FATROP):
+        for label, _, _ in solvers:
             times = [rows.get(json.dumps([vehicle, label, n]), {}).get("wall", math.nan) for n in horizons]
             cells = " | ".join("–" if not np.isfinite(t) else f"{t:.3f}" for t in times)
             lines.append(f"| {vehicle} | {label} | {cells} | {growth_exponent(list(horizons), times):.2f} |")
@@ -267,6 +270,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--vehicle", default="bluerov2", choices=VEHICLES)
     parser.add_argument("--only-vehicle", action="store_true", help="--against: only --vehicle")
     parser.add_argument("--horizon", type=int, default=20)
+    parser.add_argument("--no-fatrop", action="store_true", help="scaling table without compiled fatrop")
     parser.add_argument("--quick", action="store_true", help="N = 10, 20, 40 and one round")
     arguments = parser.parse_args(argv)
     if arguments.worker:
@@ -283,7 +287,7 @@ def main(argv: list[str] | None = None) -> None:
     else:
         horizons = HORIZONS[:3] if arguments.quick else HORIZONS
         rounds = 1 if arguments.quick else arguments.rounds
-        print(scaling(rounds, arguments.steps, horizons, VEHICLES))
+        print(scaling(rounds, arguments.steps, horizons, VEHICLES, not arguments.no_fatrop))
     print(f"load: {os.getloadavg()}")
 
 

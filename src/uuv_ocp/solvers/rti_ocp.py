@@ -16,7 +16,8 @@ stage N−1, so the exact-penalty NLP is the same QP, L1 weight included).
 * every other constraint row (rate bounds, path, terminal) is a general constraint ``C, D`` of
   the one stage whose variables it reads.
 
-Equality first (``qpsol_options["equality_first"]``, default True): each QP is first solved
+Equality first (``qpsol_options["equality_first"]``, default ``"auto"``: on where
+:func:`equality_first_flops` says it pays, see :data:`EQUALITY_FIRST_MAX_FLOPS`): each QP is first solved
 with its equalities alone (dynamics, the fixed ``x_0``, the equality rows of one stage such as
 the terminal equality) by one Riccati recursion in the hand-written C; the exact-penalty
 slacks are held at their bound and each pair of slack rows that fixes a value becomes one
@@ -28,7 +29,8 @@ definite, equality rows at two stages), HPIPM solves the QP.  In a tracking loop
 is active in most steps once the transient is over (s2: about 5 in 6), and the recursion costs
 about one of HPIPM's interior-point iterations.
 
-The stage data are one CasADi Function ``data(w, p)`` generated as C, compiled with the
+The stage data are one CasADi Function ``data(w, p)`` (each distinct stage generated once and
+called through ``map``: :func:`stage_data_function`) generated as C, compiled with the
 hand-written step (``native/rti_hpipm.c``) into one library by
 :func:`uuv_ocp.native.compile.compile_functions` (content-addressed cache, checksums) and
 called through ``ctypes`` on preallocated numpy buffers.  A structure this mapping does not

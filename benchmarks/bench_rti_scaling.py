@@ -78,7 +78,10 @@ def closed_loop(controller: object, problem: object, start: np.ndarray, steps: i
     """One closed loop from ``start``: median step wall time and the C step's clocks (ms)."""
     import uuv_ocp as uo
 
-    plant = uo.rk4_step(problem.vehicle.dynamics_function(), problem.dt, 10)
+    vehicle = problem.vehicle
+    # the thruster vehicle's control is the thruster forces: its plant maps them through T
+    dynamics = vehicle.thruster_dynamics if getattr(vehicle, "thrusters", None) else vehicle.dynamics_function()
+    plant = uo.rk4_step(dynamics, problem.dt, 10)
     still = np.zeros(plant.size1_in(2))
     controller.reset()
     state, control = start.copy(), np.zeros(problem.spec().control_size)

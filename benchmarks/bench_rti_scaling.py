@@ -80,7 +80,8 @@ def closed_loop(controller: object, problem: object, start: np.ndarray, steps: i
 
     vehicle = problem.vehicle
     # the thruster vehicle's control is the thruster forces: its plant maps them through T
-    dynamics = vehicle.thruster_dynamics if getattr(vehicle, "thrusters", None) else vehicle.dynamics_function()
+    thrusters = getattr(vehicle, "thrusters", None) is not None
+    dynamics = vehicle.thruster_dynamics if thrusters else vehicle.dynamics_function()
     plant = uo.rk4_step(dynamics, problem.dt, 10)
     still = np.zeros(plant.size1_in(2))
     controller.reset()
@@ -271,7 +272,7 @@ def main(argv: list[str] | None = None) -> None:
         "--options", metavar="JSON", help='{"label": options, ...}: sqp-rti closed loops under each'
     )
     parser.add_argument("--vehicle", default="bluerov2", choices=VEHICLES)
-    parser.add_argument("--only-vehicle", action="store_true", help="--against: only --vehicle")
+    parser.add_argument("--only-vehicle", action="store_true", help="only --vehicle (--against, the table)")
     parser.add_argument("--horizon", type=int, default=20)
     parser.add_argument("--no-fatrop", action="store_true", help="scaling table without compiled fatrop")
     parser.add_argument("--quick", action="store_true", help="N = 10, 20, 40 and one round")
@@ -290,7 +291,8 @@ def main(argv: list[str] | None = None) -> None:
     else:
         horizons = HORIZONS[:3] if arguments.quick else HORIZONS
         rounds = 1 if arguments.quick else arguments.rounds
-        print(scaling(rounds, arguments.steps, horizons, VEHICLES, not arguments.no_fatrop))
+        vehicles = (arguments.vehicle,) if arguments.only_vehicle else VEHICLES
+        print(scaling(rounds, arguments.steps, horizons, vehicles, not arguments.no_fatrop))
     print(f"load: {os.getloadavg()}")
 
 

@@ -18,6 +18,7 @@ BENCHMARKS = (
     "benchmarks.bench_nonconvex",
     "benchmarks.bench_campaign",
     "benchmarks.bench_rti",
+    "benchmarks.bench_rti_scaling",
     "benchmarks.bench_deadline",
 )
 

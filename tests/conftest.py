@@ -25,6 +25,9 @@ os.environ["UUV_OCP_CACHE"] = os.environ.get("UUV_OCP_TEST_CACHE", "").strip() o
     Path(__file__).resolve().parent.parent / "build" / "test-cache"
 )
 os.environ.setdefault("UUV_OCP_HPIPM", "wheel")
+# Nor does the suite build the native HPIPM on a C step's first need (minutes; CI has 30): the
+# tests of that path (tests/native/test_hpipm.py) set the policy themselves with a stand-in build.
+os.environ.setdefault("UUV_OCP_HPIPM_BUILD", "never")
 
 
 @pytest.fixture(scope="session")

@@ -2,6 +2,7 @@
 
 import json
 import os
+import re
 import shutil
 import stat
 import warnings
@@ -318,3 +319,86 @@ def test_native_setting_with_a_build_is_accepted_up_front(tmp_path, monkeypatch)
     with pytest.raises(hpipm.HpipmChoiceError, match="does not match its SHA-256"):
         hpipm.check_choice()
     hpipm.check_choice(native_needed=False)  # the conic path does not link it: only the value counts
+
+
+def _stand_in_builder(calls: list, fail: bool = False):
+    """Return a :func:`hpipm.build` stand-in that logs the real stages, then returns a build or fails."""
+
+    def builder(cache=None, log=print):
+        calls.append(cache)
+        log("fetching rockit-meco==0.2.8 (source distribution, BLASFEO and HPIPM inside) with pip")
+        if fail:
+            raise hpipm.NativeHpipmError("pip download rockit-meco==0.2.8 failed: no network")
+        log("building BLASFEO (TARGET=X64_INTEL_HASWELL) with cc")
+        log("building HPIPM (TARGET=AVX)")
+        log("installed in /somewhere")
+        return hpipm.NativeHpipm(hpipm.Path("/somewhere"), "X64_INTEL_HASWELL", "0" * 64)
+
+    return builder
+
+
+def test_a_first_need_builds_the_native_hpipm_once_with_a_message_and_a_bar(tmp_path, monkeypatch, capsys):
+    """``auto`` with no build: one line says what is built, a bar follows the stages; no warning."""
+    monkeypatch.setenv("UUV_OCP_CACHE", str(tmp_path))
+    monkeypatch.setenv(hpipm.HPIPM_ENV, "auto")
+    monkeypatch.delenv(hpipm.HPIPM_BUILD_ENV, raising=False)
+    monkeypatch.setattr(hpipm, "cpu_target", lambda flags=None: "X64_INTEL_HASWELL")
+    calls: list = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        native = hpipm.for_c_step(builder=_stand_in_builder(calls))
+    assert native is not None and native.target == "X64_INTEL_HASWELL" and len(calls) == 1
+    err = capsys.readouterr().err
+    lines = [line for line in err.split("\n") if line.strip()]
+    assert lines[0].startswith("uuv_ocp: building HPIPM and BLASFEO for this CPU (X64_INTEL_HASWELL), once")
+    assert "UUV_OCP_HPIPM_BUILD=never skips this" in lines[0]
+    assert "[####] 4/4 installed" in err and len(lines) == 2  # the message, then one bar line
+
+
+@pytest.mark.parametrize("case", ["never", "generic cpu", "wheel", "failed build", "refused build"])
+def test_a_first_need_keeps_the_wheel_and_says_why(tmp_path, monkeypatch, capsys, case):
+    """No build where it is switched off, pointless or failed before: one warning names why.
+
+    ``UUV_OCP_HPIPM=wheel`` asks for the wheel: no build and no warning.  A failed build is
+    recorded in the cache and not retried by the next first need (the warning says how to).
+    """
+    monkeypatch.setenv("UUV_OCP_CACHE", str(tmp_path))
+    monkeypatch.setenv(hpipm.HPIPM_ENV, "wheel" if case == "wheel" else "auto")
+    monkeypatch.setenv(hpipm.HPIPM_BUILD_ENV, "never" if case == "never" else "auto")
+    cpu = "GENERIC" if case == "generic cpu" else "X64_INTEL_HASWELL"
+    monkeypatch.setattr(hpipm, "cpu_target", lambda flags=None: cpu)
+    calls: list = []
+    builder = _stand_in_builder(calls, fail=case == "failed build")
+    if case == "refused build":  # a native.json naming no intact build: refused, never rebuilt unasked
+        (tmp_path / "hpipm").mkdir(mode=0o700)
+        pointer = {"key": "0" * 16, "manifest_sha256": "0" * 64}
+        (tmp_path / "hpipm" / "native.json").write_text(json.dumps(pointer))
+        (tmp_path / "hpipm" / "native.json").chmod(0o600)
+    expected = {
+        "refused build": "the native build recorded in the cache is refused",
+        "never": "UUV_OCP_HPIPM_BUILD=never",
+        "generic cpu": "no BLASFEO kernels better than the wheel's",
+        "failed build": "the native build failed .NativeHpipmError: pip download",
+    }
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        assert hpipm.for_c_step(builder=builder) is None
+    messages = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+    if case == "refused build":  # installed()'s own warning first, naming the refused file
+        messages = [m for m in messages if "links the CasADi wheel's HPIPM" in m]
+    if case == "wheel":
+        assert messages == [] and calls == []
+        return
+    assert len(messages) == 1 and "links the CasADi wheel's HPIPM" in messages[0]
+    assert re.search(expected[case], messages[0]), messages[0]
+    assert len(calls) == (case == "failed build")
+    if case == "failed build":
+        with warnings.catch_warnings(record=True) as again:
+            warnings.simplefilter("always")
+            assert hpipm.for_c_step(builder=builder) is None
+        assert len(calls) == 1  # not retried
+        message = str(again[0].message)
+        assert "its build failed before" in message and hpipm.FAILED_MARKER in message
+    monkeypatch.setenv(hpipm.HPIPM_BUILD_ENV, "sometimes")
+    with pytest.raises(ValueError, match="UUV_OCP_HPIPM_BUILD must be one of auto, never"):
+        hpipm.build_policy()

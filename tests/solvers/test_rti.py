@@ -989,3 +989,96 @@ def test_a_nan_qp_step_in_the_loop_recovers_at_once(problem, monkeypatch):
         assert controller.iterate is not None and controller.iterate.is_finite()
         control = record.control
         state = np.array(plant(state, control, np.zeros(2))).ravel()
+
+
+def _path_constrained_ocp() -> uo.Ocp:
+    """Return a double integrator with a stagewise reference, a non-convex path constraint, a soft bound."""
+    ocp = uo.Ocp(horizon=12, dt=0.2)
+    pos, vel = ocp.state("pos", 2), ocp.state("vel", 2)
+    acc = ocp.control("acc", 2, lower=-1.0, upper=1.0, max_rate=2.0)
+    ref = ocp.parameter("ref", 2, stagewise=True)
+    ocp.set_der(pos, vel)
+    ocp.set_der(vel, acc)
+    ocp.add_stage_cost(ca.sumsqr(pos - ref) + 0.1 * ca.sumsqr(acc))
+    ocp.subject_to(ca.sumsqr(pos - ca.DM([2.0, 0.1])) >= 0.36)
+    ocp.subject_to(vel <= 1.5, soft=1e3)
+    return ocp
+
+
+@pytest.mark.parametrize("case", ["s2", "bluerov2", "path"])
+def test_stage_data_called_per_stage_equal_the_horizon_function(case):
+    """The stage data through one mapped function per distinct stage equal the unrolled horizon's.
+
+    Reference: the horizon-wide SX function (``per_stage=False``, the former path) at random
+    points, every variant, with and without the still-water substitution; bit for bit (the
+    same operations), and the middle stages generated once (one ``map`` of N − 2 or N − 3).
+    """
+    from uuv_ocp.solvers.rti_ocp import ocp_qp_layout, stage_data_function
+
+    if case == "s2":
+        problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1)
+    elif case == "bluerov2":
+        survey = uo.Reference.lawnmower((0.0, 0.0), width=6.0, spacing=2.0, lanes=2, speed=0.3, depth=2.0)
+        problem = uo.TrackingProblem(uo.Vehicle6DOF.bluerov2_heavy(), survey, horizon=8, dt=0.1)
+    else:
+        problem = _path_constrained_ocp()
+    rng = np.random.default_rng(29)
+    # the soft terminal strategy's exact-penalty variant has structurally zero blocks (slacks)
+    backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp", "terminal_strategy": "soft"})
+    still_water = backend._still_water_slice  # noqa: SLF001 (the slice the backend substitutes)
+    for name, data in backend.variants.items():
+        layout = ocp_qp_layout(data, problem.spec().state_dim)
+        for still in (None, still_water) if still_water is not None else (None,):
+            horizon, offsets = stage_data_function(data, layout, 1.7, still, "h", per_stage=False)
+            staged, staged_offsets = stage_data_function(data, layout, 1.7, still, "s")
+            assert np.array_equal(offsets, staged_offsets)
+            # dense, as the C step reads the blocks by offset (a structural zero would shift them)
+            assert staged.nnz_out(0) == staged.numel_out(0) == horizon.nnz_out(0)
+            for _ in range(2):
+                w, p = rng.uniform(-1, 1, horizon.size1_in(0)), rng.uniform(-1, 1, horizon.size1_in(1))
+                assert np.array_equal(np.array(horizon(w, p)), np.array(staged(w, p))), (name, still)
+            maps = [f.name() for f in staged.find_functions() if f.name().startswith("map")]
+            assert len(maps) == 1 and int(maps[0][3:].split("_")[0]) >= layout.horizon - 3, maps
+
+
+def test_equality_first_auto_follows_the_cost_model(monkeypatch):
+    """``equality_first="auto"``: on for s2, off for the BlueROV2 survey with the native HPIPM.
+
+    The flop estimate is checked against the closed form for constant stage sizes (N stages of
+    nx lifted states, nu inputs; ne terminal equality rows), written out here; the decision
+    needs no build (the linked HPIPM is patched).
+    """
+    import uuv_ocp.solvers.rti_ocp as rti_ocp
+
+    def closed_form(n, nx, nu, ne):
+        factor = nx**3 + nx * nx * nu + nu * nx * nx + nu * nu * nx / 2 + nx**3 / 2
+        factor += nu**3 / 6 + nu * nu * nx / 2 + nx * nx * nu / 2
+        solve = 2 * (nx * nu + nx * nx + nx * nu) + nu * nu
+        return n * factor + (ne + 2) * n * solve
+
+    survey = uo.Reference.lawnmower((0.0, 0.0), width=6.0, spacing=2.0, lanes=2, speed=0.3, depth=2.0)
+    rexrov = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1)
+    bluerov2 = uo.TrackingProblem(uo.Vehicle6DOF.bluerov2_heavy(), survey, horizon=20, dt=0.1)
+    cases = {"s2": (rexrov, 9, 3, 6), "bluerov2": (bluerov2, 18, 6, 12)}
+    decided = {}
+    for name, (problem, nx, nu, ne) in cases.items():
+        backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp"})
+        for variant, data in backend.variants.items():
+            layout = rti_ocp.ocp_qp_layout(data, problem.spec().state_dim)
+            if variant == "hard":  # constant stage sizes (the soft NLP's slacks sit at stage N - 1)
+                expected = closed_form(20, nx, nu, ne)
+                assert rti_ocp.equality_first_flops(layout, data) == pytest.approx(expected)
+            for linked in ("native", "wheel"):
+                native = linked == "native"
+                monkeypatch.setattr(rti_ocp, "selected_hpipm", lambda native=native: native or None)
+                options = rti_ocp.ocp_qp_options({}, False, 20)
+                resolved = rti_ocp.resolve_equality_first(options, layout, data)
+                decided[name, variant, linked] = resolved["equality_first"]
+                forced = rti_ocp.resolve_equality_first({**options, "equality_first": False}, layout, data)
+                assert forced["equality_first"] is False
+    assert decided == {
+        (name, variant, linked): not (name == "bluerov2" and linked == "native")
+        for name in cases
+        for variant in ("hard", "soft")
+        for linked in ("native", "wheel")
+    }

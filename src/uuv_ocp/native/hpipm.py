@@ -36,6 +36,7 @@ import subprocess
 import sys
 import tarfile
 import tempfile
+import time
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -71,6 +72,13 @@ HPIPM_TARGET = {"X64_INTEL_HASWELL": "AVX", "X64_INTEL_SANDY_BRIDGE": "AVX"}
 #: ``wheel`` or ``native`` (an error if there is none)
 HPIPM_ENV = "UUV_OCP_HPIPM"
 HPIPM_CHOICES = ("auto", "wheel", "native")
+#: ``UUV_OCP_HPIPM_BUILD``: ``auto`` (unset: build the native HPIPM the first time a C step needs
+#: it, see :func:`for_c_step`) or ``never`` (keep the wheel's until ``uuv-ocp hpipm build``)
+HPIPM_BUILD_ENV = "UUV_OCP_HPIPM_BUILD"
+HPIPM_BUILD_CHOICES = ("auto", "never")
+#: ``<cache>/hpipm/`` file recording a failed first-need build (not retried until it is removed
+#: or ``uuv-ocp hpipm build`` succeeds)
+FAILED_MARKER = "first-need-failed.json"
 _KEY = re.compile(r"[0-9a-f]{16}")
 _SHA256 = re.compile(r"[0-9a-f]{64}")
 
@@ -256,6 +264,7 @@ def build(
     digest = _file_digest(final / "manifest.json")
     pointer = {"key": key, "manifest_sha256": digest}
     _write_atomic(root / "native.json", json.dumps(pointer))
+    (root / FAILED_MARKER).unlink(missing_ok=True)  # a first-need build may try again
     log(f"installed in {final}")
     return NativeHpipm(final, chosen, digest)
 
@@ -413,6 +422,108 @@ def selected(cache: str | os.PathLike[str] | None = None) -> NativeHpipm | None:
             f"hpipm build`, or set {HPIPM_ENV} to 'auto' or 'wheel'"
         )
     return build_in_use
+
+
+def build_policy() -> str:
+    """Return the checked ``UUV_OCP_HPIPM_BUILD`` (unset or empty: ``"auto"``; case-insensitive).
+
+    Raises
+    ------
+    ValueError
+        It is not one of :data:`HPIPM_BUILD_CHOICES`.
+    """
+    raw = os.environ.get(HPIPM_BUILD_ENV, "")
+    policy = raw.strip().lower() or "auto"
+    if policy not in HPIPM_BUILD_CHOICES:
+        raise ValueError(f"{HPIPM_BUILD_ENV} must be one of {', '.join(HPIPM_BUILD_CHOICES)}, got {raw!r}")
+    return policy
+
+
+def first_need_decision(cache: str | os.PathLike[str] | None = None) -> str | None:
+    """Why the C step keeps the wheel's HPIPM instead of building one now (``None``: build it).
+
+    Asked only where ``UUV_OCP_HPIPM=auto`` found no build.  Not built: under
+    ``UUV_OCP_HPIPM_BUILD=never``, where a build is recorded but refused by :func:`installed`
+    (never replaced unasked), on a CPU without a better BLASFEO target than ``GENERIC`` (the
+    wheel's own), or after a failed first-need build (its marker file in the cache).
+    """
+    if build_policy() == "never":
+        return f"{HPIPM_BUILD_ENV}=never"
+    if (_root(cache) / "native.json").exists():  # a build is recorded but refused: never replaced unasked
+        return "the native build recorded in the cache is refused (see the warning above)"
+    if cpu_target() == "GENERIC":
+        return "this CPU has no BLASFEO kernels better than the wheel's GENERIC ones"
+    marker = _root(cache) / FAILED_MARKER
+    if marker.is_file():
+        try:
+            reason = str(json.loads(marker.read_text()).get("error", "unknown error"))
+        except (OSError, ValueError):
+            reason = "unreadable record"
+        return f"its build failed before ({reason[:160]}; remove {marker} to retry)"
+    return None
+
+
+def for_c_step(
+    cache: str | os.PathLike[str] | None = None, builder: Callable[..., NativeHpipm] | None = None
+) -> NativeHpipm | None:
+    """Return the native build a C step links, building it on this first need where allowed.
+
+    ``UUV_OCP_HPIPM=auto`` with no build installed: unless :func:`first_need_decision` gives a
+    reason, one line on stderr says that HPIPM/BLASFEO are being built for this CPU (a few
+    minutes, once; cached and checksummed like ``uuv-ocp hpipm build``) and a progress bar
+    follows the build's stages.  Where it is not built, or the build fails, one
+    ``RuntimeWarning`` says so and why, and the wheel's HPIPM is linked: never silently slower.
+    ``wheel`` and ``native`` behave as :func:`selected`.  ``builder``: :func:`build` (tests
+    pass a stand-in).
+    """
+    native = selected(cache)
+    if native is not None or hpipm_choice() != "auto":
+        return native
+    slower = "the C step links the CasADi wheel's HPIPM (TARGET_GENERIC BLASFEO, about 2x slower QPs)"
+    reason = first_need_decision(cache)
+    if reason is not None:
+        warnings.warn(f"{slower}: {reason}; `uuv-ocp hpipm build` builds the native one", RuntimeWarning, 3)
+        return None
+    print(
+        f"uuv_ocp: building HPIPM and BLASFEO for this CPU ({cpu_target()}), once: a few minutes, then "
+        f"cached ({HPIPM_BUILD_ENV}=never skips this)",
+        file=sys.stderr,
+        flush=True,
+    )
+    bar = _StageBar(("fetching", "building BLASFEO", "building HPIPM", "installed"))
+    try:
+        return (builder or build)(cache=cache, log=bar.log)
+    except (RuntimeError, OSError, ValueError) as error:  # no compiler, no network, a failed make
+        bar.close()
+        failure = f"{type(error).__name__}: {error}"
+        try:
+            root = secure_directory(secure_directory(_root(cache).parent) / "hpipm")
+            _write_atomic(root / FAILED_MARKER, json.dumps({"error": failure}))
+        except OSError:
+            pass  # the warning below still says it; the next process tries again
+        warnings.warn(f"{slower}: the native build failed ({failure})", RuntimeWarning, 3)
+        return None
+
+
+class _StageBar:
+    """A one-line progress bar on stderr over the build's stages (its ``log`` lines)."""
+
+    def __init__(self, stages: tuple[str, ...]) -> None:
+        self.stages, self.done, self.start = stages, 0, time.monotonic()
+
+    def log(self, line: str) -> None:
+        for index, stage in enumerate(self.stages):
+            if line.startswith(stage):
+                self.done = max(self.done, index + 1)
+        width = len(self.stages)
+        bar = "#" * self.done + "-" * (width - self.done)
+        end = "\n" if self.done == width else ""
+        elapsed = time.monotonic() - self.start
+        text = f"\r  [{bar}] {self.done}/{width} {line[:60]:<60} {elapsed:5.0f} s"
+        print(text, end=end, file=sys.stderr, flush=True)
+
+    def close(self) -> None:
+        print(file=sys.stderr, flush=True)
 
 
 def hpipm_choice() -> str:

@@ -64,7 +64,7 @@ from uuv_ocp.native.compile import (
     jit_workspace,
     verify_library,
 )
-from uuv_ocp.native.hpipm import old_partial_condensing, selected
+from uuv_ocp.native.hpipm import for_c_step, old_partial_condensing
 from uuv_ocp.native.simd import UnsupportedOperation, batch_kernel_source
 from uuv_ocp.transcription.condensed import batched_fitness, candidate_fitness
 
@@ -462,7 +462,7 @@ def hpipm_link_flags() -> tuple[str, ...]:
     and their headers in ``casadi/include``, and the library records that folder as its
     run-time search path (an absolute path, so programs linked to it run from any directory).
     """
-    native = selected()
+    native = for_c_step()  # built here on a first need where allowed (one line says so or why not)
     if native is not None:
         flags = native.link_flags()
         include = native.directory / "include" / "hpipm"

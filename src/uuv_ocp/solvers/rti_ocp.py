@@ -16,7 +16,8 @@ stage N−1, so the exact-penalty NLP is the same QP, L1 weight included).
 * every other constraint row (rate bounds, path, terminal) is a general constraint ``C, D`` of
   the one stage whose variables it reads.
 
-Equality first (``qpsol_options["equality_first"]``, default True): each QP is first solved
+Equality first (``qpsol_options["equality_first"]``, default ``"auto"``: on where
+:func:`equality_first_flops` says it pays, see :data:`EQUALITY_FIRST_MAX_FLOPS`): each QP is first solved
 with its equalities alone (dynamics, the fixed ``x_0``, the equality rows of one stage such as
 the terminal equality) by one Riccati recursion in the hand-written C; the exact-penalty
 slacks are held at their bound and each pair of slack rows that fixes a value becomes one
@@ -28,7 +29,8 @@ definite, equality rows at two stages), HPIPM solves the QP.  In a tracking loop
 is active in most steps once the transient is over (s2: about 5 in 6), and the recursion costs
 about one of HPIPM's interior-point iterations.
 
-The stage data are one CasADi Function ``data(w, p)`` generated as C, compiled with the
+The stage data are one CasADi Function ``data(w, p)`` (each distinct stage generated once and
+called through ``map``: :func:`stage_data_function`) generated as C, compiled with the
 hand-written step (``native/rti_hpipm.c``) into one library by
 :func:`uuv_ocp.native.compile.compile_functions` (content-addressed cache, checksums) and
 called through ``ctypes`` on preallocated numpy buffers.  A structure this mapping does not
@@ -49,6 +51,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp.native.compile import compile_functions, verify_library
+from uuv_ocp.native.hpipm import selected as selected_hpipm
 from uuv_ocp.native.runtime import hpipm_link_flags
 from uuv_ocp.transcription.multiple_shooting import NlpData
 
@@ -67,9 +70,17 @@ OCP_QP_DEFAULTS: dict[str, Any] = {
     "warm_start": False,
     "cond_horizon": "auto",
     "loose_first_qp": True,
-    #: try the QP with its equalities alone first (one Riccati recursion; see the module doc)
-    "equality_first": True,
+    #: try the QP with its equalities alone first (one Riccati recursion; see the module doc);
+    #: ``"auto"``: where its estimated cost is below :data:`EQUALITY_FIRST_MAX_FLOPS`
+    "equality_first": "auto",
 }
+#: ``equality_first="auto"``: the Riccati solve is tried first where :func:`equality_first_flops`
+#: (one factorisation and ne + 2 passes of the hand-written scalar C) stays below this, by the
+#: HPIPM linked.  Measured (docs/benchmarks.md, issue 29): with the native HPIPM, s2 (8.0e4
+#: flops) gains from it and the BlueROV2 survey (6.0e5) lost 1.5x to HPIPM alone (BLASFEO's
+#: AVX2 kernels outrun the scalar loops at 18 lifted states); with the wheel's TARGET_GENERIC
+#: BLASFEO the Riccati solve won on both.
+EQUALITY_FIRST_MAX_FLOPS = {"native": 2.5e5, "wheel": math.inf}
 #: ``cond_horizon="auto"``: partial condensing to ``horizon // 4`` stages from this horizon on,
 #: faster than none at the same settled error on s2 (docs/solvers.md, the condensing table)
 AUTO_CONDENSING_FROM = 8
@@ -128,8 +139,10 @@ def ocp_qp_options(options: dict[str, Any], converged: bool, horizon: int = 0) -
             raise ValueError(
                 f"{name} must be 'auto' or an int >= 0 (0: no partial condensing), got {value!r}"
             )
-        if key in ("warm_start", "loose_first_qp", "equality_first") and not isinstance(value, bool):
+        if key in ("warm_start", "loose_first_qp") and not isinstance(value, bool):
             raise ValueError(f"{name} must be True or False, got {value!r}")
+        if key == "equality_first" and not (isinstance(value, bool) or value == "auto"):
+            raise ValueError(f"{name} must be True, False or 'auto', got {value!r}")
         real = isinstance(value, numbers.Real) and not isinstance(value, bool)
         if key.startswith("tol_") and not (real and 0.0 < float(value) < math.inf):
             raise ValueError(f"{name} must be a finite float > 0, got {value!r}")
@@ -141,6 +154,37 @@ def ocp_qp_options(options: dict[str, Any], converged: bool, horizon: int = 0) -
     rti_settings = {**OCP_QP_DEFAULTS, **options}
     merged["loose_settings"] = {key: rti_settings[key] for key in LOOSE_SETTINGS}
     return merged
+
+
+def equality_first_flops(layout: OcpQpLayout, data: NlpData) -> float:
+    """Estimated flops of one equality-first solve (``rti_eq_solve``) of ``layout``'s QP.
+
+    The Riccati factorisation (``P A``, ``P B``, ``R + B'P B``, ``S + B'P A``, ``A'P A``, the
+    Cholesky factor and ``Y``) plus ``ne + 2`` solve passes, ``ne`` the most equality rows of
+    one stage (each slack pair of the exact-penalty NLP counts as one equality).
+    """
+    n = layout.horizon
+    factor = passes = 0.0
+    for k in range(n):
+        nx, nu, nx1 = len(layout.xvar[k]), len(layout.uvar[k]), len(layout.xvar[k + 1])
+        factor += nx1 * nx1 * (nx + nu) + nu * nx * nx1 + (nu * nu * nx1 + nx * nx * nx1) / 2
+        factor += nu**3 / 6 + (nu * nu * nx + nx * nx * nu) / 2
+        passes += 2 * (nx1 * nu + nx * nx1 + nx * nu) + nu * nu
+    slack = np.array([key[0].endswith("slack") for key in data.variable_keys])
+    enforced = [
+        int(np.sum(data.lbg[rows] == data.ubg[rows])) + int(np.sum(slack[layout.uvar[k]]))
+        for k, rows in enumerate(layout.genrow)
+    ]
+    return factor + (max(enforced, default=0) + 2) * passes
+
+
+def resolve_equality_first(options: dict[str, Any], layout: OcpQpLayout, data: NlpData) -> dict[str, Any]:
+    """``options`` with ``equality_first="auto"`` decided for this QP and the HPIPM linked."""
+    if options.get("equality_first") != "auto":
+        return options
+    linked = "native" if selected_hpipm() is not None else "wheel"
+    pays = equality_first_flops(layout, data) <= EQUALITY_FIRST_MAX_FLOPS[linked]
+    return {**options, "equality_first": bool(pays)}
 
 
 @dataclass(frozen=True)
@@ -367,6 +411,7 @@ def stage_data_function(
     objective_scale: float,
     still_water_slice: slice | None,
     name: str,
+    per_stage: bool = True,
 ) -> tuple[ca.Function, np.ndarray]:
     """``name(w, p) -> data``: HPIPM's stage data at ``w`` stacked, and their offsets.
 
@@ -386,6 +431,7 @@ def stage_data_function(
     gradient = objective_scale * ca.gradient(data.nlp["f"], w)
     n = layout.horizon
     pieces: list[ca.SX] = []
+    piece_stage: list[int] = []
     offsets = np.zeros((n + 1, len(BLOCKS)), dtype=np.int64)
     position = 0
 
@@ -394,6 +440,7 @@ def stage_data_function(
         offsets[k, BLOCKS.index(block)] = position
         flat = ca.vec(ca.densify(value))
         pieces.append(flat)
+        piece_stage.append(k)
         position += flat.numel()
 
     def bounds(values: np.ndarray, shift: ca.SX) -> ca.SX:
@@ -434,11 +481,61 @@ def stage_data_function(
         if bu:
             add("lbu", k, bounds(data.lbx[bu], w[bu]))
             add("ubu", k, bounds(data.ubx[bu], w[bu]))
-    output = ca.vertcat(*pieces)
     if still_water_slice is not None:
         current = p[still_water_slice]
-        output = ca.substitute(output, current, ca.DM.zeros(current.numel()))
-    return ca.Function(name, [w, p], [output], ["w", "p"], ["data"]), offsets
+        pieces = ca.vertsplit(
+            ca.substitute(ca.vertcat(*pieces), current, ca.DM.zeros(current.numel())),
+            [0, *np.cumsum([piece.numel() for piece in pieces]).tolist()],
+        )
+    if not per_stage:
+        return ca.Function(name, [w, p], [ca.vertcat(*pieces)], ["w", "p"], ["data"]), offsets
+    stage_pieces = [
+        ca.vertcat(*[piece for piece, stage in zip(pieces, piece_stage, strict=True) if stage == k])
+        for k in range(n + 1)
+    ]
+    return _mapped_stages(name, w, p, stage_pieces, layout), offsets
+
+
+def _mapped_stages(
+    name: str, w: ca.SX, p: ca.SX, stage_pieces: list[ca.SX], layout: OcpQpLayout
+) -> ca.Function:
+    """Return ``name(w, p)``: the stacked stage data, each distinct stage function generated once.
+
+    Stage ``k``'s data read only ``X_k``, ``u_k``, ``X_{k+1}`` and some parameters.  Written
+    over canonical symbols, the stages that are the same expression (serialised the same: the
+    middle stages of a tracking problem) become one CasADi Function called through ``map``:
+    the generated C holds each distinct stage once instead of the horizon unrolled (a 12-state
+    vehicle at N = 20: 5.8 MB of C, minutes to compile, an instruction stream larger than the
+    caches), and the outputs are the horizon function's, operation for operation.
+    """
+    n = layout.horizon
+    stages = []
+    for k in range(n + 1):
+        local = [int(i) for i in layout.xvar[k]] + [int(i) for i in layout.uvar[k]]
+        if k < n:
+            local += [int(i) for i in layout.xvar[k + 1]]
+        expression = stage_pieces[k]
+        read = [i for i, used in enumerate(ca.which_depends(expression, p, 1, False)) if used]
+        v, q = ca.SX.sym("v", len(local)), ca.SX.sym("q", len(read))
+        stage = ca.Function("stage", [w[local], p[read] if read else ca.SX(0, 1)], [expression])
+        canonical = (v, q, ca.densify(stage(v, q)))  # dense: the C reads the data by offset
+        stages.append((canonical, ca.Function("stage", [v, q], [canonical[2]]).serialize(), local, read))
+    distinct: dict[str, list[int]] = {}
+    for k, (_, key, _, _) in enumerate(stages):
+        distinct.setdefault(key, []).append(k)
+    wm, pm = ca.MX.sym("w", w.numel()), ca.MX.sym("p", p.numel())
+    outputs: list[ca.MX] = [ca.MX(0, 1)] * (n + 1)
+    for number, members in enumerate(distinct.values()):
+        v, q, expression = stages[members[0]][0]
+        function = ca.Function(f"{name}_s{number}", [v, q], [expression])
+        local_in = ca.horzcat(*[wm[stages[k][2]] for k in members])
+        read_in = ca.horzcat(*[pm[stages[k][3]] if stages[k][3] else ca.MX(0, 1) for k in members])
+        mapped = function.map(len(members)) if len(members) > 1 else function
+        result = mapped(local_in, read_in)
+        for column, k in enumerate(members):
+            outputs[k] = result[:, column]
+    stacked: ca.MX = ca.densify(ca.vertcat(*outputs))
+    return ca.Function(name, [wm, pm], [stacked], ["w", "p"], ["data"])
 
 
 def _c_array(ctype: str, name: str, values: Any) -> str:
@@ -725,6 +822,7 @@ def build_step(
         flags=("-O1", "-fPIC", "-shared"),
     )
     assert library.path is not None
+    options = resolve_equality_first(options, layout, data)
     return OcpQpStep(library.path, (data.lbx.size, data.lbg.size, int(data.nlp["p"].numel())), options)
 
 
@@ -799,6 +897,7 @@ def nmpc_step_source(
         Declarations of the exported functions.
     """
     layout = ocp_qp_layout(data, state_dim)
+    options = resolve_equality_first(options, layout, data)
     function, offsets = stage_data_function(data, layout, objective_scale, None, "nmpc_step_data")
     nw, np_ = data.lbx.size, int(data.nlp["p"].numel())
     nu = len(u_prev_param)

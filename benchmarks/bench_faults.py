@@ -62,6 +62,7 @@ DEADLINE = 0.1  # s: the controller's step, dt
 ROWS = ("naive", "ft", "oracle", "pinv")
 FAULTS = uo.RandomFaults(count=1, window=(5.0, 10.0), kinds=("failed", "loss"), effectiveness=0.5)
 VERSION = 2
+DETECTOR_VERSION = 2  # 2: the told health of an isolated thruster only ever decreases
 
 
 def survey() -> uo.Reference:
@@ -203,6 +204,8 @@ def main(
                     "speed": SURVEY_SPEED,
                     "version": VERSION,
                 }
+                if row == "ft":  # the detector's revision: its records only are recomputed
+                    config["detector"] = DETECTOR_VERSION
                 path = out / f"{row}-{count}-{trial}.npz"
                 saved = read_record(path, config)
                 if saved is None:

@@ -109,7 +109,7 @@ def main(out: Path, images: Path, trial: int, count: int) -> None:
     figure, axes = plt.subplots(1, len(counts), figsize=(3.2 * len(counts), 3.4), sharey=True)
     for axis, faulted in zip(np.atleast_1d(axes), counts, strict=True):
         data = [rms.get((row, faulted), [np.nan]) for row in ROWS]
-        axis.boxplot(data, labels=list(ROWS))
+        axis.boxplot(data, tick_labels=list(ROWS))
         axis.set_title(f"{faulted} fault(s), {len(data[0])} trials")
         axis.set_yscale("log")
     np.atleast_1d(axes)[0].set_ylabel("tracking RMS after the fault (m)")

@@ -1,11 +1,15 @@
 """Thruster faults on a BlueROV2 Heavy survey under an unknown current: fault-tolerant NMPC vs baselines.
 
-Issue 27: a lawnmower survey at 2 m depth (3 lanes of 6 m, 2 m apart, 0.5 m/s) under a
-0.3 m/s current of a direction drawn per seed, *unknown*: every controller gets the state and
-the current from an EKF on its own model (``uo.Sensors.auv``: 1 Hz position fix, DVL, attitude,
-gyro, depth), ``sqp-rti``, N = 10, dt = 0.1 s.  Per seed a random thruster fails completely or
-loses 50 % (drawn) at a random time in 5..8 s; the same runs without a fault give the false
-alarms.  Four controllers fly each run:
+Issue 27: a lawnmower survey at 2 m depth (3 lanes of 10 m, 3 m apart, at ``SURVEY_SPEED``
+= 0.5 m/s; at 0.8 m/s the vehicle lags the reference by 1.2 m along the lanes into the current
+without any fault, so every row fails the tube: no setting to compare controllers)
+under a 0.3 m/s current of a direction drawn per trial, *unknown*: every controller gets the
+state and the current from an EKF on its own model (``uo.Sensors.auv``: 1 Hz position fix, DVL,
+attitude, gyro, depth), ``sqp-rti``, N = 10, dt = 0.1 s.  Trial ``i`` with ``c`` faults draws
+them with :class:`uuv_ocp.RandomFaults` (``c`` distinct thrusters, each a complete failure or a
+50 % loss, at a time uniform in 5..10 s) from ``numpy.random.default_rng([i, c, 27])``; its
+current direction from ``default_rng([i, 0])`` (the same for every count: the 0-fault trial is
+the fault-free twin).  Four controllers fly each trial:
 
 * ``naive``: the NMPC planning the eight thruster forces, its model kept healthy;
 * ``ft``: the same NMPC with the fault detector (``fault_detector=uo.FaultDetectorOptions()``,
@@ -17,22 +21,30 @@ alarms.  Four controllers fly each run:
 The thruster controllers' EKF estimates a thruster-force bias (``bias=True``, 5 N/√s: what the
 detector reads; the controller is not told it); the pinv EKF on the force model too.
 
-Printed per controller: successes (stays within 0.5 m, 3-D, of the reference from 10 s after the
-fault on), median RMS 3-D error after the fault, median time to recover (from the fault to the
-last exit from the 0.5 m tube; runs that never leave it count 0), and for ``ft``: isolated
-right / detected at all, median and worst time to detect, false alarms on the fault-free runs;
-median / p90 controller step time (ms).
+Printed per controller and fault count: mission successes (the 3-D position error stays within
+``TUBE`` = 0.5 m of the reference from ``RECOVERY`` = 10 s after the last fault to the end; for
+0 faults from 10 s), median tracking RMS after the first fault (0 faults: after 5 s), median
+time to recover (from the last fault to the last exit from the tube; 0 if it never leaves it),
+and for ``ft``: faults isolated to the right thruster / injected, median and worst time to
+detect (from each fault to the detection naming its thruster), false alarms (a detection on a
+0-fault trial, or naming a thruster that has not failed); median / p90 controller step (ms).
 
 Every run is a checked record (``uuv_ocp.studies.records``) in ``--out`` (default
 ``out/bench_faults``): an interrupted benchmark resumes, a damaged record is recomputed.
 
-Run: ``python -m benchmarks.bench_faults [--seeds 0 1 ... | --count 20] [--duration 25]
-[--rows naive,ft,oracle,pinv] [--out DIR]``.
+``--rti`` (before the trials) or ``--rti-only``: the per-step time of the sqp-rti NMPC (N = 20)
+planning the eight thruster forces against the one planning the six generalised forces,
+interleaved on the same states (a survey closed loop's), median ms, with the load average.
+
+Run: ``python -m benchmarks.bench_faults [--count 50] [--faults 0,1,2] [--duration 50]
+[--rows naive,ft,oracle,pinv] [--out DIR] [--rti | --rti-only]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
+import time
 from pathlib import Path
 
 import numpy as np
@@ -41,51 +53,56 @@ import uuv_ocp as uo
 from uuv_ocp.model import Vehicle6DOF
 from uuv_ocp.studies.records import read_record, write_record
 
-RECOVERY = 10.0  # s after the fault from which the 0.5 m tube must hold
+RECOVERY = 10.0  # s after the last fault from which the tube must hold
 TUBE = 0.5  # m
-SPEED = 0.3  # m/s
+CURRENT = 0.3  # m/s
+SURVEY_SPEED = 0.5  # m/s (0.8: the fault-free survey already lags 1.2 m along the lanes)
 BIAS_STD = 5.0  # N/√s
+DEADLINE = 0.1  # s: the controller's step, dt
 ROWS = ("naive", "ft", "oracle", "pinv")
+FAULTS = uo.RandomFaults(count=1, window=(5.0, 10.0), kinds=("failed", "loss"), effectiveness=0.5)
+VERSION = 2
+DETECTOR_VERSION = 2  # 2: the told health of an isolated thruster only ever decreases
 
 
 def survey() -> uo.Reference:
     """Return the lawnmower survey at 2 m depth."""
-    return uo.Reference.lawnmower((0.0, 0.0), width=6.0, spacing=2.0, lanes=3, speed=0.5, depth=2.0)
+    return uo.Reference.lawnmower((0.0, 0.0), width=10.0, spacing=3.0, lanes=3, speed=SURVEY_SPEED, depth=2.0)
 
 
-def drawn(seed: int) -> dict[str, float]:
-    """Return seed ``seed``'s fault (thruster, time s, remaining effectiveness) and current direction."""
-    rng = np.random.default_rng(10_000 + seed)
-    return {
-        "thruster": int(rng.integers(8)),
-        "time": int(rng.integers(50, 81)) / 10,
-        "health": float(rng.choice([0.0, 0.5])),
-        "direction": float(rng.uniform(0.0, 2.0 * np.pi)),
-    }
+def drawn(trial: int, count: int, bounds: np.ndarray) -> tuple[tuple[uo.ThrusterFault, ...], float]:
+    """Return trial ``trial``'s faults (``count`` of them) and current direction (rad)."""
+    faults = uo.RandomFaults(count, FAULTS.window, FAULTS.kinds, FAULTS.effectiveness)
+    direction = float(np.random.default_rng([trial, 0]).uniform(0.0, 2.0 * np.pi))
+    return faults.draw(np.random.default_rng([trial, count, 27]), bounds), direction
 
 
 class Bench:
     """The problems, controllers and estimators of the benchmark (built once)."""
 
-    def __init__(self) -> None:
+    def __init__(self, horizon: int = 10) -> None:
         reference = survey()
         self.boat = Vehicle6DOF.bluerov2_heavy(thrusters=True)
         forces = Vehicle6DOF.bluerov2_heavy()
-        self.in_thrusters = uo.TrackingProblem(self.boat, reference, horizon=10, dt=0.1, terminal="cost")
-        self.in_forces = uo.TrackingProblem(forces, reference, horizon=10, dt=0.1, terminal="cost")
+        self.in_thrusters = uo.TrackingProblem(self.boat, reference, horizon=horizon, dt=0.1, terminal="cost")
+        self.in_forces = uo.TrackingProblem(forces, reference, horizon=horizon, dt=0.1, terminal="cost")
         self.x0 = self.in_thrusters.initial_state()
+        self.bounds = np.array(self.boat.thrusters.max_thrust)
         options = uo.EstimatorOptions(bias=True, bias_std=BIAS_STD, compiled=False)
         sensors = uo.Sensors.auv(self.boat)
         self.thruster_ekf = uo.Estimator(self.in_thrusters, "ekf", sensors=sensors, options=options)
         self.force_ekf = uo.Estimator(self.in_forces, "ekf", sensors=sensors, options=options)
-        self.thruster_mpc = uo.NMPC(self.in_thrusters, "sqp-rti")
-        self.force_mpc = uo.NMPC(self.in_forces, "sqp-rti")
+        # a real-time step: the fallback chain (soft NLP, cold retry, IPOPT) stops at dt, as it
+        # would on the vehicle (without it a diverging naive loop spends seconds per step)
+        options = {"deadline": DEADLINE}
+        self.thruster_mpc = uo.NMPC(self.in_thrusters, "sqp-rti", options=options)
+        self.force_mpc = uo.NMPC(self.in_forces, "sqp-rti", options=options)
 
-    def run(self, row: str, seed: int, faulty: bool, duration: float) -> uo.ClosedLoopResult:
-        """Fly ``row`` on seed ``seed`` (with its fault if ``faulty``)."""
-        draw = drawn(seed)
-        fault = uo.ThrusterFault(int(draw["thruster"]), draw["time"], "loss", effectiveness=draw["health"])
-        options: dict = {"faults": (fault,) if faulty else ()}
+    def run(
+        self, row: str, faults: tuple[uo.ThrusterFault, ...], direction: float, seed: int, duration: float
+    ) -> uo.ClosedLoopResult:
+        """Fly ``row`` with ``faults`` under the current of ``direction``."""
+        options: dict = {"faults": faults}
         controller, estimator = self.thruster_mpc, self.thruster_ekf
         if row == "ft":
             options["fault_detector"] = uo.FaultDetectorOptions()
@@ -98,90 +115,151 @@ class Bench:
             controller,
             self.x0,
             duration,
-            current=uo.Current(speed=SPEED, direction=draw["direction"]),
+            current=uo.Current(speed=CURRENT, direction=direction),
             seed=seed,
             estimator=estimator,
             **options,
         )
 
 
-def scored(run: uo.ClosedLoopResult, draw: dict[str, float], faulty: bool) -> dict[str, float]:
+def scored(run: uo.ClosedLoopResult, faults: tuple[uo.ThrusterFault, ...]) -> dict[str, float]:
     """Return one run's figures (module doc)."""
     error = np.linalg.norm(run.states[:, :3] - run.reference[:, :3], axis=1)
     t = run.t  # the faults' and the detections' clock
-    start = draw["time"] if faulty else 5.0
-    after, recovered = t >= start, t >= start + RECOVERY
-    outside = np.flatnonzero(after & (error > TUBE))
+    first = faults[0].time if faults else 5.0
+    last = faults[-1].time if faults else 0.0
+    after, recovered = t >= first, t >= last + RECOVERY
+    outside = np.flatnonzero((t >= last) & (error > TUBE))
     detections = run.detections
-    first = detections[0] if detections.size else None
+    failed = {item.thruster: item.time for item in faults}
+    delays, alarms = [], 0
+    named: set[int] = set()
+    for when, thruster, _ in detections:
+        thruster = int(thruster)
+        if thruster in failed and when >= failed[thruster] - 1e-9 and thruster not in named:
+            delays.append(when - failed[thruster])
+            named.add(thruster)
+        else:
+            alarms += 1
     return {
         "success": float(run.fault is None and recovered.any() and np.max(error[recovered]) <= TUBE),
         "rms": float(np.sqrt(np.mean(error[after] ** 2))),
-        "recover": float(t[outside[-1]] - start) if outside.size else 0.0,
-        "detected": float(first is not None and (not faulty or first[0] >= draw["time"] - 1e-9)),
-        "right": float(first is not None and faulty and int(first[1]) == draw["thruster"]),
-        "delay": float(first[0] - draw["time"]) if first is not None and faulty else np.nan,
-        "alarm": float(detections.size > 0 and not faulty),
+        "recover": float(t[outside[-1]] - last) if outside.size else 0.0,
+        "isolated": float(len(named)),
+        "injected": float(len(faults)),
+        "delays": delays,  # type: ignore[dict-item]
+        "alarm": float(alarms > 0),
     }
 
 
-def main(seeds: tuple[int, ...], duration: float, rows: tuple[str, ...], out: Path) -> None:
+def rti_timing(steps: int = 200) -> None:
+    """Print the sqp-rti step (N = 20) in thruster forces vs generalised forces, interleaved."""
+    bench = Bench(horizon=20)
+    run = uo.simulate(bench.thruster_mpc, bench.x0, steps * 0.1, current=uo.Current(speed=CURRENT))
+    x0 = bench.x0
+    thrusters, forces = bench.thruster_mpc, bench.force_mpc
+    thrusters.warm_up(x0, 0.0, np.zeros(8))
+    forces.warm_up(x0, 0.0, np.zeros(6))
+    times: dict[str, list[float]] = {"8 thruster forces": [], "6 generalised forces": []}
+    u8, u6 = np.zeros(8), np.zeros(6)
+    for k in range(run.controls.shape[0]):
+        x, t = run.states[k], run.t[k]
+        for name, controller in (("8 thruster forces", thrusters), ("6 generalised forces", forces)):
+            start = time.perf_counter()
+            output = controller.step(x, t, u8 if controller is thrusters else u6)
+            times[name].append(time.perf_counter() - start)
+            control = np.asarray(getattr(output, "control", output), dtype=float).ravel()
+            if controller is thrusters:
+                u8 = control
+            else:
+                u6 = control
+    load = os.getloadavg()
+    count = len(times["8 thruster forces"])
+    print(f"\nsqp-rti step, N = 20, BlueROV2 Heavy survey states ({count} steps, interleaved)")
+    for name, values in times.items():
+        ms = 1e3 * np.array(values)
+        print(f"  {name:22s} median {np.median(ms):6.2f} ms  p90 {np.percentile(ms, 90):6.2f} ms")
+    print(f"  load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores")
+
+
+def main(
+    trials: tuple[int, ...], counts: tuple[int, ...], duration: float, rows: tuple[str, ...], out: Path
+) -> None:
     """Print the table of the module doc."""
     bench = Bench()
     out.mkdir(parents=True, exist_ok=True)
-    figures: dict[tuple[str, bool], list[dict[str, float]]] = {}
-    times: dict[str, list[np.ndarray]] = {row: [] for row in rows}
-    for faulty in (True, False):
-        for row in rows:
-            for seed in seeds:
-                config = {"row": row, "seed": seed, "faulty": faulty, "duration": duration, "version": 1}
-                path = out / f"{row}-{seed}-{int(faulty)}.npz"
+    figures: dict[tuple[str, int], list[dict]] = {}
+    times: dict[tuple[str, int], list[np.ndarray]] = {}
+    for trial in trials:  # trial-major: an interrupted run leaves every row at the same count
+        for count in counts:
+            faults, direction = drawn(trial, count, bench.bounds)
+            for row in rows:
+                config = {
+                    "row": row,
+                    "trial": trial,
+                    "count": count,
+                    "faults": [vars(item) for item in faults],
+                    "direction": direction,
+                    "duration": duration,
+                    "speed": SURVEY_SPEED,
+                    "version": VERSION,
+                }
+                if row == "ft":  # the detector's revision: its records only are recomputed
+                    config["detector"] = DETECTOR_VERSION
+                path = out / f"{row}-{count}-{trial}.npz"
                 saved = read_record(path, config)
                 if saved is None:
-                    run = bench.run(row, seed, faulty, duration)
+                    run = bench.run(row, faults, direction, trial, duration)
                     write_record(path, run, config)
                 else:
                     run = saved[0]
-                figures.setdefault((row, faulty), []).append(scored(run, drawn(seed), faulty))
-                times[row].append(run.solve_times)
+                figures.setdefault((row, count), []).append(scored(run, faults))
+                times.setdefault((row, count), []).append(run.solve_times)
     print(
-        f"\nBlueROV2 Heavy survey at 2 m, {SPEED} m/s current (unknown, EKF), one thruster failed or "
-        f"at 50 % from 5..8 s, {duration:g} s, sqp-rti N = 10, seeds {seeds[0]}..{seeds[-1]} ({len(seeds)})"
+        f"\nBlueROV2 Heavy lawnmower at 2 m, {SURVEY_SPEED} m/s, {CURRENT} m/s current (unknown, EKF), "
+        f"faults: failed or 50 % at 5..10 s, {duration:g} s, sqp-rti N = 10, trials {len(trials)} per count"
     )
     print(
-        f"{'row':7s} {'success':>8s} {'med RMS m':>9s} {'med recover s':>13s} {'isolated':>9s} "
-        f"{'med/max detect s':>16s} {'false alarms':>12s} {'fault-free ok':>13s} "
-        f"{'med ms':>7s} {'p90 ms':>7s}"
+        f"{'row':7s} {'faults':>6s} {'success':>9s} {'med RMS m':>9s} {'med recover s':>13s} "
+        f"{'isolated':>9s} {'med/max detect s':>16s} {'false alarms':>12s} {'med ms':>7s} {'p90 ms':>7s}"
     )
-    for row in rows:
-        faulty, free = figures[(row, True)], figures[(row, False)]
-        n = len(faulty)
-        step = 1e3 * np.concatenate(times[row])
-        delays = [item["delay"] for item in faulty if item["right"]]
-        detect = f"{np.median(delays):.1f}/{max(delays):.1f}" if delays else "-"
-        isolated = f"{int(sum(i['right'] for i in faulty))}/{int(sum(i['detected'] for i in faulty))}"
-        alarms = f"{int(sum(i['alarm'] for i in free))}/{len(free)}"
-        print(
-            f"{row:7s} {int(sum(i['success'] for i in faulty)):>4d}/{n:<3d} "
-            f"{np.median([i['rms'] for i in faulty]):9.3f} {np.median([i['recover'] for i in faulty]):13.1f} "
-            f"{isolated if row == 'ft' else '-':>9s} {detect if row == 'ft' else '-':>16s} "
-            f"{alarms if row == 'ft' else '-':>12s} "
-            f"{int(sum(i['success'] for i in free)):>9d}/{len(free):<3d} "
-            f"{np.median(step):7.2f} {np.percentile(step, 90):7.2f}"
-        )
+    for count in counts:
+        for row in rows:
+            items = figures[(row, count)]
+            n = len(items)
+            step = 1e3 * np.concatenate(times[(row, count)])
+            delays = [d for item in items for d in item["delays"]]
+            detect = f"{np.median(delays):.1f}/{max(delays):.1f}" if delays else "-"
+            isolated = f"{int(sum(i['isolated'] for i in items))}/{int(sum(i['injected'] for i in items))}"
+            alarms = f"{int(sum(i['alarm'] for i in items))}/{n}"
+            ft = row == "ft"
+            print(
+                f"{row:7s} {count:6d} {int(sum(i['success'] for i in items)):>5d}/{n:<3d} "
+                f"{np.median([i['rms'] for i in items]):9.3f} "
+                f"{np.median([i['recover'] for i in items]):13.1f} "
+                f"{isolated if ft and count else '-':>9s} {detect if ft and count else '-':>16s} "
+                f"{alarms if ft else '-':>12s} {np.median(step):7.2f} {np.percentile(step, 90):7.2f}"
+            )
 
 
 if __name__ == "__main__":
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, nargs="*", default=None)
-    parser.add_argument("--count", type=int, default=10, help="seeds 0..count-1 (without --seeds)")
-    parser.add_argument("--duration", type=float, default=25.0)
+    parser.add_argument("--count", type=int, default=10, help="trials 0..count-1 per fault count")
+    parser.add_argument("--first", type=int, default=0, help="first trial index")
+    parser.add_argument("--faults", default="0,1,2", help="fault counts")
+    parser.add_argument("--duration", type=float, default=50.0)
     parser.add_argument("--rows", default=",".join(ROWS))
     parser.add_argument("--out", type=Path, default=Path("out/bench_faults"))
+    parser.add_argument("--rti", action="store_true", help="the RTI step timing first")
+    parser.add_argument("--rti-only", action="store_true", help="only the RTI step timing")
     arguments = parser.parse_args()
-    chosen = tuple(arguments.seeds) if arguments.seeds else tuple(range(arguments.count))
-    picked = tuple(row for row in arguments.rows.split(",") if row)
-    unknown = sorted(set(picked) - set(ROWS))
-    if unknown:
-        parser.error(f"--rows: unknown {unknown}; choose from {list(ROWS)}")
-    main(chosen, arguments.duration, picked, arguments.out)
+    if arguments.rti or arguments.rti_only:
+        rti_timing()
+    if not arguments.rti_only:
+        picked = tuple(row for row in arguments.rows.split(",") if row)
+        unknown = sorted(set(picked) - set(ROWS))
+        if unknown:
+            parser.error(f"--rows: unknown {unknown}; choose from {list(ROWS)}")
+        counts = tuple(int(item) for item in arguments.faults.split(","))
+        chosen = tuple(range(arguments.first, arguments.first + arguments.count))
+        main(chosen, counts, arguments.duration, picked, arguments.out)

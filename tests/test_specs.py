@@ -24,7 +24,18 @@ def test_presets_by_name_are_the_classmethods():
     assert isinstance(vehicle_from_spec("bluerov2-heavy"), Vehicle6DOF)
     assert vehicle_from_spec("rexrov2").name == Vehicle6DOF.rexrov2().name
     assert vehicle_from_spec("remus100") == Remus100()
-    assert set(VEHICLE_PRESETS) == {"rexrov", "rexrov-controller", "bluerov2-heavy", "rexrov2", "remus100"}
+    thrusters = vehicle_from_spec("bluerov2-heavy-thrusters")
+    assert thrusters.thrusters == Vehicle6DOF.bluerov2_heavy(thrusters=True).thrusters is not None
+    assert vehicle_from_spec("rexrov2-thrusters").thrusters == Vehicle6DOF.rexrov2(thrusters=True).thrusters
+    assert set(VEHICLE_PRESETS) == {
+        "rexrov",
+        "rexrov-controller",
+        "bluerov2-heavy",
+        "bluerov2-heavy-thrusters",
+        "rexrov2",
+        "rexrov2-thrusters",
+        "remus100",
+    }
 
 
 def test_vehicle_file_overrides_a_preset_and_its_dynamics_follow(tmp_path):

@@ -8,7 +8,7 @@ Importing the package has no side effects: nothing is built, compiled or plotted
 
 from uuv_ocp._version import __version__ as __version__
 from uuv_ocp.control.disturbances import Current, GaussMarkov, MeasurementNoise
-from uuv_ocp.control.faults import ThrusterFault
+from uuv_ocp.control.faults import RandomFaults, ThrusterFault
 from uuv_ocp.control.guidance import GuidanceStep, LosGuidance, LosOptions
 from uuv_ocp.control.mpc import NMPC, StepOutput, StepRecord
 from uuv_ocp.control.simulation import ClosedLoopResult, Controller, SimulationInterrupted, simulate
@@ -84,6 +84,7 @@ __all__ = [
     "StepRecord",
     "ThrusterConfiguration",
     "ThrusterFault",
+    "RandomFaults",
     "TrackingProblem",
     "Vehicle",
     "Vehicle6DOF",

@@ -187,6 +187,27 @@ def _parser() -> argparse.ArgumentParser:
     campaign.add_argument("--max-current", type=float, default=0.5, help="m/s")
     campaign.add_argument("--seed", type=int, default=0)
     campaign.add_argument(
+        "--estimator", default=None, help="the controller gets the state and current from it (e.g. ekf)"
+    )
+    campaign.add_argument(
+        "--no-mismatch", action="store_true", help="the controller's model is the plant's (any vehicle)"
+    )
+    campaign.add_argument(
+        "--faults",
+        default=None,
+        help="thrusters that fault in each trial, drawn per trial (a thruster vehicle, e.g. "
+        "bluerov2-heavy-thrusters)",
+    )
+    campaign.add_argument(
+        "--fault-kinds", default="failed,loss", help="drawn among these: failed, loss (50 %%), stuck"
+    )
+    campaign.add_argument(
+        "--fault-window", default="5,15", help="EARLIEST,LATEST fault time (s after the start)"
+    )
+    campaign.add_argument(
+        "--fault-tolerant", action="store_true", help="the NMPC with the fault detector (needs --estimator)"
+    )
+    campaign.add_argument(
         "--executor",
         choices=["local", "dask", "process"],
         default=None,
@@ -488,6 +509,7 @@ def _run_campaign(args: argparse.Namespace) -> int:
                     dt=args.dt,
                     max_current=args.max_current,
                     seed=args.seed,
+                    **_campaign_faults(args),
                 ),
             )
             run = {}
@@ -522,6 +544,46 @@ def _run_campaign(args: argparse.Namespace) -> int:
         print(table)
         print(f"config and summary saved as {Path(out) / stem}.toml and {Path(out) / stem}_summary.txt")
     return 0
+
+
+def _campaign_faults(args: argparse.Namespace) -> dict[str, Any]:
+    """Return the fault, estimator and mismatch flags of ``uuv-ocp campaign`` as CampaignConfig fields."""
+    from uuv_ocp.control.faults import RandomFaults
+
+    fields: dict[str, Any] = {}
+    estimator = _estimator(args.estimator)
+    if estimator is not None:
+        # the sensors carry the noise: noise_std is not used, only sized to the vehicle's state
+        fields.update(estimator=estimator, current_known=False)
+        fields["noise_std"] = (0.0,) * _vehicle(args.vehicle).layout.state_dim
+    if args.no_mismatch:
+        fields["mismatch"] = False
+    if args.fault_tolerant:
+        fields["fault_tolerant"] = True
+    if args.faults is None:
+        return fields
+    try:
+        count = int(args.faults)
+    except ValueError:
+        raise _UsageError(
+            f"--faults must be an integer >= 0 (thrusters per trial), got {args.faults!r}"
+        ) from None
+    try:
+        window = tuple(float(part) for part in args.fault_window.split(","))
+    except ValueError:
+        raise _UsageError(
+            f"--fault-window must be EARLIEST,LATEST (s; e.g. 5,15), got {args.fault_window!r}"
+        ) from None
+    kinds = tuple(part.strip() for part in args.fault_kinds.split(",") if part.strip())
+    try:
+        fields["faults"] = RandomFaults(count=count, window=window, kinds=kinds)  # type: ignore[arg-type]
+    except ValueError as error:
+        message = str(error)
+        for field, flag in (("count", "--faults"), ("window", "--fault-window"), ("kinds", "--fault-kinds")):
+            if message.startswith(field + " "):
+                raise _UsageError(f"{flag} {message.removeprefix(field + ' ')}") from None
+        raise _UsageError(f"--faults: {message}") from None
+    return fields
 
 
 def _unrecognized(

@@ -35,6 +35,7 @@ waypoint file may also be CSV: one ``x, y[, z]`` row per waypoint (m), ``#`` com
 from __future__ import annotations
 
 import dataclasses
+import functools
 import hashlib
 import importlib.util
 import math
@@ -63,7 +64,10 @@ VEHICLE_PRESETS: dict[str, Callable[[], AnyVehicle]] = {
     "rexrov": Vehicle.rexrov,
     "rexrov-controller": Vehicle.rexrov_controller_model,
     "bluerov2-heavy": Vehicle6DOF.bluerov2_heavy,
+    # controls are the thruster forces (allocation in the model): what thruster faults need
+    "bluerov2-heavy-thrusters": functools.partial(Vehicle6DOF.bluerov2_heavy, thrusters=True),
     "rexrov2": Vehicle6DOF.rexrov2,
+    "rexrov2-thrusters": functools.partial(Vehicle6DOF.rexrov2, thrusters=True),
     "remus100": Remus100,
 }
 #: Reference kinds a spec or a ``[reference]`` table may name.

@@ -193,3 +193,49 @@ def test_faults_are_refused_by_name(boat, station):
     # and through simulate, before anything runs
     with pytest.raises(ValueError, match=r"faults\[0\].thruster must be an index"):
         uo.simulate(uo.NMPC(station, "ipopt"), station.initial_state(), 0.5, faults=(ThrusterFault(9, 0.1),))
+
+
+def test_random_faults_are_drawn_from_the_generator_within_their_ranges():
+    """Seeded draws: equal for equal seeds, distinct thrusters, times/kinds/forces in range."""
+    spec = uo.RandomFaults(count=3, window=(2.0, 4.0), kinds=("failed", "loss", "stuck"), effectiveness=0.5)
+    bounds = np.linspace(30.0, 60.0, 8)
+    first = spec.draw(np.random.default_rng(5), bounds, t0=1.0)
+    assert first == spec.draw(np.random.default_rng(5), bounds, t0=1.0)
+    draws = [spec.draw(np.random.default_rng(seed), bounds, t0=1.0) for seed in range(200)]
+    assert any(draw != first for draw in draws[1:])
+    seen_thrusters, seen_kinds = set(), set()
+    for draw in draws:
+        assert len(draw) == 3 and len({item.thruster for item in draw}) == 3
+        assert [item.time for item in draw] == sorted(item.time for item in draw)
+        for item in draw:
+            assert 3.0 <= item.time <= 5.0  # the window counted from t0 = 1 s
+            seen_thrusters.add(item.thruster)
+            seen_kinds.add(item.kind)
+            if item.kind == "loss":
+                assert item.effectiveness == 0.5
+            if item.kind == "stuck":
+                assert 0.25 * bounds[item.thruster] <= abs(item.value) <= 0.75 * bounds[item.thruster]
+    assert seen_thrusters == set(range(8)) and seen_kinds == {"failed", "loss", "stuck"}
+    assert uo.RandomFaults(count=0).draw(np.random.default_rng(0), bounds) == ()
+
+
+@pytest.mark.parametrize(
+    ("changes", "match"),
+    [
+        ({"count": -1}, "count"),
+        ({"window": (5.0, 1.0)}, "window must be"),
+        ({"window": (-1.0, 1.0)}, "window"),
+        ({"kinds": ()}, "kinds must be a non-empty"),
+        ({"kinds": ("failed", "failed")}, "kinds must be a non-empty"),
+        ({"kinds": ("broken",)}, "kinds must be one of"),
+        ({"effectiveness": 1.0}, "effectiveness must lie in"),
+        ({"stuck_range": (0.5, 1.5)}, "stuck_range must be"),
+    ],
+)
+def test_bad_random_faults_are_refused_by_name(changes, match):
+    with pytest.raises(ValueError, match=match):
+        uo.RandomFaults(**changes)
+    with pytest.raises(ValueError, match="count must be at most"):
+        uo.RandomFaults(count=3).draw(np.random.default_rng(0), np.ones(2))
+    with pytest.raises(ValueError, match="rng must be a numpy.random.Generator"):
+        uo.RandomFaults().draw(0, np.ones(8))

@@ -5,9 +5,9 @@ and intercept rows) built here with explicit loops, and against a known health o
 data built from ``T``, ``f`` and ``h``; isolation and false alarms on seeded closed loops of the
 BlueROV2 Heavy survey (EKF with a bias, sqp-rti N = 10, 12 s, a drawn current direction), the
 plant's fault drawn per seed.  An open-loop replay of recorded commands was tried first and
-rejected: without the controller's reaction the commands barely vary after a fault, and the
-detector (which sees a loss through the variation of its command, ``intercept=True``) is blind
-there, so the replay would test a setting the detector never meets.
+rejected: without the controller's reaction the commands barely vary after a fault, so the
+replay would test a setting the detector never meets.  A stuck thruster's kind and force against
+the fault injected into a synthetic bias.
 """
 
 from __future__ import annotations
@@ -133,9 +133,7 @@ def test_the_detector_declares_a_clean_fault_on_synthetic_bias(boat):
     """Noise-free bias of a failed thruster 3 from step 40: detected after hold steps, at h ≈ 0."""
     rng = np.random.default_rng(5)
     T = np.array(boat.thrusters.allocation)
-    options = FaultDetectorOptions(
-        window=10, hold=3, arm_time=1.0, ridge=0.0, intercept=False, normalise=False
-    )
+    options = FaultDetectorOptions(window=10, hold=3, arm_time=1.0, ridge=0.0, normalise=False)
     detector = ThrusterFaultDetector(T, options)
     for k in range(80):
         f = rng.uniform(-30.0, 30.0, 8)
@@ -153,16 +151,80 @@ def test_the_detector_declares_a_clean_fault_on_synthetic_bias(boat):
     assert np.all(np.delete(detector.health, 3) == 1.0)
 
 
+def test_the_offset_columns_are_lstsq_and_recover_a_stuck_thruster(boat):
+    """Stuck thruster 2 at 12 N (h = 0, s = 12): bias T_2 (12 − f_2); lstsq on columns built here."""
+    rng = np.random.default_rng(8)
+    T = np.array(boat.thrusters.allocation)
+    forces = rng.uniform(-30.0, 30.0, (20, 8))
+    bias = np.array([T[:, 2] * (12.0 - f[2]) for f in forces])
+    rows = []
+    for f in forces:
+        rows.extend([[-T[j, i] * f[i] for i in range(8)] + [T[j, 2]] for j in range(6)])
+    expected, *_ = np.linalg.lstsq(np.array(rows), bias.ravel(), rcond=None)
+    fit = loss_regression(T, forces, bias, offsets=[2])
+    np.testing.assert_allclose(fit.loss, expected[:8], rtol=1e-10, atol=1e-10)
+    np.testing.assert_allclose(fit.offset[2], expected[8], rtol=1e-10)
+    np.testing.assert_allclose(fit.loss, np.eye(8)[2], atol=1e-10)  # ℓ = e_2: thruster 2 lost
+    assert abs(fit.offset[2] - 12.0) < 1e-9 and np.all(np.delete(fit.offset, 2) == 0.0)
+
+
+@pytest.mark.parametrize(("kind", "value"), [("stuck", 15.0), ("stuck", -20.0), ("failed", None)])
+def test_the_detector_tells_a_stuck_thruster_from_a_failed_one(boat, kind, value):
+    """Synthetic bias of the injected fault of thruster 3 from step 40: its kind and stuck force."""
+    rng = np.random.default_rng(9)
+    T = np.array(boat.thrusters.allocation)
+    options = FaultDetectorOptions(window=10, hold=5, arm_time=1.0, ridge=0.0, normalise=False)
+    detector = ThrusterFaultDetector(T, options, bounds=np.full(8, 40.0))
+    fault = uo.ThrusterFault(3, 4.0, kind, value=value)
+    for k in range(80):
+        f = rng.uniform(-30.0, 30.0, 8)
+        h, s = np.ones(8), np.zeros(8)
+        if k >= 40:
+            h[3], s[3] = fault.health, fault.offset
+        b = np.linalg.lstsq(T, T @ (h * f + s) - T @ f, rcond=None)[0]
+        detector.update(k, k * DT, f, b + rng.normal(0.0, 0.3, 8))
+    assert [item.thruster for item in detector.detections] == [3]
+    first = detector.detections[0]
+    assert first.kind == ("stuck" if kind == "stuck" else "loss")
+    if kind == "stuck":
+        assert abs(first.offset - value) < 0.1 * abs(value) and first.health == 0.0
+        assert abs(detector.offset[3] - value) < 0.1 * abs(value) and detector.stuck == (3,)
+    else:
+        assert first.offset == 0.0 and detector.offset[3] == 0.0 and detector.stuck == ()
+
+
 @pytest.mark.slow
-def test_a_seeded_fault_is_isolated_to_its_thruster_in_18_of_20_seeds(survey, controller, estimator):
+def test_a_seeded_stuck_thruster_is_isolated_in_19_of_20_seeds(survey, controller, estimator):
+    """A random thruster sticks at ±10..25 N at 5..7 s; the first detection names it."""
+    right = 0
+    for seed in range(SEEDS):
+        rng = np.random.default_rng(2000 + seed)
+        thruster, tenths = int(rng.integers(8)), int(rng.integers(50, 71))
+        value = float(rng.choice([-1.0, 1.0]) * rng.uniform(10.0, 25.0))
+        run = uo.simulate(
+            controller,
+            survey.initial_state(),
+            DURATION,
+            current=uo.Current(speed=0.3, direction=float(rng.uniform(0.0, 2.0 * np.pi))),
+            seed=seed,
+            estimator=estimator,
+            faults=(uo.ThrusterFault(thruster, tenths / 10, "stuck", value=value),),
+            fault_detector=FaultDetectorOptions(),
+        )
+        right += bool(run.detections.size and int(run.detections[0, 1]) == thruster)
+    assert right >= 19, f"isolated {right}/{SEEDS}"  # measured 20/20
+
+
+@pytest.mark.slow
+def test_a_seeded_fault_is_isolated_to_its_thruster_in_19_of_20_seeds(survey, controller, estimator):
     """A random thruster fails at a random time in 5..7 s; the first detection names it."""
     right = 0
     for seed in range(SEEDS):
         run, thruster, _ = _seeded_run(survey, controller, estimator, seed, faulty=True)
         right += bool(run.detections.size and int(run.detections[0, 1]) == thruster)
-    # the issue asks 19/20; measured 18/20: seeds 0 and 11 fail a horizontal thruster the
-    # controller then saturates (a constant command: the window's intercept absorbs its loss)
-    assert right >= 18, f"isolated {right}/{SEEDS}"
+    # the issue's goal; measured 20/20 (a per-window intercept, before the baseline, gave 18/20:
+    # seeds 0 and 11 saturate the failed thruster, a constant command the intercept absorbed)
+    assert right >= 19, f"isolated {right}/{SEEDS}"
 
 
 @pytest.mark.slow
@@ -221,7 +283,9 @@ def test_the_fault_tolerant_nmpc_is_told_the_estimated_health(survey, boat, tmp_
         ("arm_time", -1.0, "arm_time"),
         ("min_force", 0.0, "min_force"),
         ("ridge", -1.0, "ridge"),
-        ("intercept", 1, "intercept"),
+        ("baseline", 0.5, "baseline must be >= 1"),
+        ("pending", 1.5, "pending must lie in"),
+        ("stuck_force", 0.0, "stuck_force"),
         ("isolation", "bank", "isolation"),
         ("normalise", "yes", "normalise"),
     ],

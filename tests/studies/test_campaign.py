@@ -15,6 +15,7 @@ import pytest
 
 from tests.helpers_campaign import CLI_FLAGS, assert_same_records, small
 from uuv_ocp import cli
+from uuv_ocp.control import faults as uo_faults
 from uuv_ocp.studies import campaign as campaign_module
 from uuv_ocp.studies import records as records_module
 from uuv_ocp.studies.campaign import CampaignConfig, run_campaign
@@ -645,3 +646,115 @@ def test_the_resume_sweeps_temporaries_of_dead_writers_on_this_host_only(tmp_pat
         (tmp_path / name).write_bytes(b"half a record")
     assert sweep_temporaries(tmp_path) == 1
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(n for k, n in names.items() if k != "dead")
+
+
+def _fault_campaign(**changes):
+    settings = {
+        "vehicle": "bluerov2-heavy-thrusters",
+        "mismatch": False,
+        "reference": "hold 0,0,0",
+        "solver": "sqp",
+        "trials": 2,
+        "duration": 1.0,
+        "horizon": 5,
+        "max_current": 0.3,
+        "noise_std": (0.0,) * 12,
+        "faults": uo_faults.RandomFaults(count=2, window=(0.2, 0.6), kinds=("failed", "loss", "stuck")),
+    }
+    return CampaignConfig(**{**settings, **changes})
+
+
+def test_a_trials_faults_follow_its_seed_and_its_record_holds_them(tmp_path):
+    """Trial i's faults are RandomFaults.draw on default_rng([seed, i, 27]); the plant flies them."""
+    config = _fault_campaign()
+    problem = config.problem()
+    for index in range(2):
+        expected = config.faults.draw(
+            np.random.default_rng([config.seed, index, 27]),
+            problem.vehicle.control_bound,
+            t0=problem.reference.t_start,
+        )
+        assert campaign_module.trial_faults(config, index) == expected
+        assert config.trial_settings(index)["faults_drawn"] == [
+            {
+                "thruster": f.thruster,
+                "time": f.time,
+                "kind": f.kind,
+                "effectiveness": f.effectiveness,
+                "value": f.value,
+            }
+            for f in expected
+        ]
+    assert campaign_module.trial_faults(config, 0) != campaign_module.trial_faults(config, 1)
+    # the trial's current is the fault-free campaign's (the faults draw from their own stream)
+    assert (
+        campaign_module._trial_setup(config, 1)[0]
+        == campaign_module._trial_setup(_fault_campaign(faults=None), 1)[0]
+    )
+    result = run_campaign(config, tmp_path, workers=1, progress=False)
+    from uuv_ocp import ClosedLoopResult
+
+    for index in range(2):
+        run = ClosedLoopResult.load(str(result.directory / f"trial_{index:04d}.npz"))
+        health = np.ones((run.controls.shape[0], 8))
+        for fault in campaign_module.trial_faults(config, index):  # the schedule, on the step grid
+            first = int(np.ceil((fault.time - run.t[0]) / config.dt - 1e-9))
+            health[first:, fault.thruster] = fault.health
+        np.testing.assert_array_equal(run.thruster_health, health)
+    again = run_campaign(config, tmp_path, workers=1, progress=False)
+    assert again.resumed == 2
+
+
+def test_a_campaign_file_faults_table_reads_back(tmp_path):
+    from uuv_ocp.studies.campaign import to_toml
+
+    path = tmp_path / "faults.toml"
+    path.write_text(
+        '[campaign]\nvehicle = "bluerov2-heavy-thrusters"\nreference = "s2"\nsolver = "sqp"\nhorizon = 5\n'
+        '[disturbance]\nmismatch = false\ncurrent_known = false\nestimator = "ekf"\n'
+        "noise_std = [0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0, 0]\n"
+        '[faults]\ncount = 2\nwindow = [3.0, 9.0]\nkinds = ["stuck"]\nfault_tolerant = true\n'
+    )
+    (config,) = load_campaign_file(path).configs
+    assert config.faults == uo_faults.RandomFaults(count=2, window=(3.0, 9.0), kinds=("stuck",))
+    assert config.fault_tolerant
+    again = tmp_path / "again.toml"
+    again.write_text(to_toml([config]))
+    assert load_campaign_file(again).configs == (config,)
+    assert "[faults]" not in to_toml([small()])
+    assert "faults" not in small().settings()  # campaigns without faults keep their key
+
+
+@pytest.mark.parametrize(
+    ("changes", "match"),
+    [
+        ({"vehicle": "bluerov2-heavy"}, "faults needs a vehicle whose controls are thruster forces"),
+        ({"faults": {"count": 9}}, "faults.count must be at most"),
+        ({"faults": {"cuont": 1}}, "faults: .*cuont"),
+        ({"faults": None, "fault_tolerant": True}, "fault_tolerant needs an estimator"),
+        ({"faults": 1}, "faults must be a uuv_ocp.RandomFaults"),
+    ],
+)
+def test_bad_fault_configuration_raises(changes, match):
+    with pytest.raises(ValueError, match=match):
+        _fault_campaign(**changes)
+
+
+@pytest.mark.parametrize(
+    "flags",
+    [
+        ["--faults", "one"],
+        ["--faults", "-1"],
+        ["--faults", "1", "--fault-kinds", "broken"],
+        ["--faults", "1", "--fault-window", "9,3"],
+        ["--faults", "1", "--fault-window", "soon"],
+        ["--faults", "1", "--estimator", "kalman"],
+    ],
+)
+def test_cli_bad_fault_flags_are_one_line_and_exit_2(tmp_path, capsys, flags):
+    argv = ["campaign", "--vehicle", "bluerov2-heavy-thrusters", "--no-mismatch", "--estimator", "ekf"]
+    assert cli.main([*argv, *flags, "--trials", "1", "--out", str(tmp_path / "out")]) == 2
+    error = capsys.readouterr().err
+    assert error.startswith("error: ") and error.count("\n") == 1
+    assert "--faults" in error or "--fault-" in error or "--estimator" in error
+    assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())

@@ -297,3 +297,91 @@ def _inactive(steps: int) -> FaultSchedule:
     """Return the schedule of a run without faults or allocation: the loop's own plant and controller."""
     empty = np.zeros((steps, 0))
     return FaultSchedule(empty, empty, False, None, np.zeros(0), empty)
+
+
+@dataclass(frozen=True)
+class RandomFaults:
+    """Thruster faults drawn at random per trial (campaigns: ``CampaignConfig(faults=...)``).
+
+    :meth:`draw` picks ``count`` distinct thrusters uniformly, a time for each uniform in
+    ``window`` (s after the run's start), and a kind uniform among ``kinds``: ``"failed"`` (no
+    force), ``"loss"`` (``effectiveness`` of the command remains) or ``"stuck"`` (a force of a
+    random sign and a magnitude uniform in ``stuck_range`` times the thruster's bound).  All of it
+    from the one ``numpy.random.Generator`` it is given, so a trial's faults follow its seed.
+
+    Parameters
+    ----------
+    count : int
+        Thrusters that fault in each trial, >= 0 (0: none, the trial's fault-free twin).
+    window : tuple of float
+        ``(earliest, latest)`` fault time after the run's start (s), 0 <= earliest <= latest.
+    kinds : tuple of str
+        Non-empty, distinct, among ``"failed"``, ``"loss"``, ``"stuck"``.  Default: a complete
+        failure or a loss, the issue's "complete failure or 50 % loss".
+    effectiveness : float
+        Remaining effectiveness of a ``"loss"``, in [0, 1).  Default 0.5.
+    stuck_range : tuple of float
+        ``(low, high)`` magnitude of a stuck force as a fraction of the thruster's bound,
+        0 <= low <= high <= 1.  Default (0.25, 0.75).
+    """
+
+    count: int = 1
+    window: tuple[float, float] = (5.0, 15.0)
+    kinds: tuple[str, ...] = ("failed", "loss")
+    effectiveness: float = 0.5
+    stuck_range: tuple[float, float] = (0.25, 0.75)
+
+    def __post_init__(self) -> None:
+        """Check every field (``ValueError`` names it)."""
+        set_field = object.__setattr__
+        set_field(self, "count", check.positive_int("count", self.count, minimum=0))
+        window = check.vector("window", self.window, 2, nonnegative=True)
+        if window[0] > window[1]:
+            raise ValueError(f"window must be (earliest, latest) with earliest <= latest s, got {window!r}")
+        set_field(self, "window", window)
+        kinds = (self.kinds,) if isinstance(self.kinds, str) else self.kinds
+        if not isinstance(kinds, Sequence) or not kinds or len(set(kinds)) != len(kinds):
+            raise ValueError(f"kinds must be a non-empty tuple of distinct fault kinds, got {self.kinds!r}")
+        for kind in kinds:
+            check.choice("kinds", kind, FAULT_KINDS)
+        set_field(self, "kinds", tuple(kinds))
+        effectiveness = check.finite_float("effectiveness", self.effectiveness)
+        if not 0.0 <= effectiveness < 1.0:
+            raise ValueError(f"effectiveness must lie in [0, 1) (a loss), got {effectiveness!r}")
+        set_field(self, "effectiveness", effectiveness)
+        stuck = check.vector("stuck_range", self.stuck_range, 2, nonnegative=True)
+        if not stuck[0] <= stuck[1] <= 1.0:
+            raise ValueError(f"stuck_range must be (low, high) with 0 <= low <= high <= 1, got {stuck!r}")
+        set_field(self, "stuck_range", stuck)
+
+    def draw(self, rng: np.random.Generator, bounds: object, t0: float = 0.0) -> tuple[ThrusterFault, ...]:
+        """Return the faults of one trial, in time order (class doc).
+
+        Parameters
+        ----------
+        rng : numpy.random.Generator
+            The trial's generator (the only source of randomness).
+        bounds : array_like, shape (n,)
+            Each thruster's force bound (N): ``n`` thrusters to choose from, the stuck forces' scale.
+        t0 : float
+            The run's start time (s): the window is counted from it.
+        """
+        if not isinstance(rng, np.random.Generator):
+            raise ValueError(f"rng must be a numpy.random.Generator, got {type(rng).__name__}")
+        limits = np.asarray(bounds, dtype=float).ravel()
+        if self.count > limits.size:
+            raise ValueError(f"count must be at most the number of thrusters {limits.size}, got {self.count}")
+        thrusters = rng.choice(limits.size, size=self.count, replace=False)
+        faults = []
+        for thruster in thrusters:
+            time = t0 + float(rng.uniform(*self.window))
+            kind = self.kinds[int(rng.integers(len(self.kinds)))]
+            if kind == "loss":
+                faults.append(ThrusterFault(int(thruster), time, "loss", effectiveness=self.effectiveness))
+            elif kind == "stuck":
+                magnitude = float(rng.uniform(*self.stuck_range)) * limits[thruster]
+                sign = 1.0 if rng.random() < 0.5 else -1.0
+                faults.append(ThrusterFault(int(thruster), time, "stuck", value=sign * magnitude))
+            else:
+                faults.append(ThrusterFault(int(thruster), time, "failed"))
+        return tuple(sorted(faults, key=lambda item: item.time))

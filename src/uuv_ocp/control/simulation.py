@@ -614,7 +614,7 @@ def _fault_detector(
             "fault_detector needs estimator= with EstimatorOptions(bias=True): the detector regresses "
             "its thruster-force bias"
         )
-    return ThrusterFaultDetector(np.array(thrusters.allocation), options)
+    return ThrusterFaultDetector(np.array(thrusters.allocation), options, bounds=thrusters.max_thrust)
 
 
 def _detected(
@@ -714,8 +714,8 @@ class _Loop:
             return False
         told = self.schedule.told(k, self.known)
         if self.detector is not None and self.detector.detections:  # the estimated health
-            zero = np.zeros(self.detector.count)
-            told = {"parameters": {"health": self.detector.health.copy(), "thrust_offset": zero}}
+            detector = self.detector
+            told = {"parameters": {"health": detector.health.copy(), "thrust_offset": detector.offset.copy()}}
         start = time.perf_counter()  # the controller's step alone, not the loop's bookkeeping
         output = self.controller.step(measured, self.clock[k], u_prev, told_k, **told)
         log.controller_step(k, output, time.perf_counter() - start)

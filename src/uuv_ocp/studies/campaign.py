@@ -40,9 +40,11 @@ import numpy as np
 from uuv_ocp import _validation as check
 from uuv_ocp._version import __version__
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
+from uuv_ocp.control.faults import RandomFaults, ThrusterFault
 from uuv_ocp.control.mpc import NMPC
 from uuv_ocp.control.simulation import ClosedLoopResult, SimulationInterrupted, simulate
-from uuv_ocp.estimation.base import Estimator, available_estimators
+from uuv_ocp.estimation.base import Estimator, EstimatorOptions, available_estimators
+from uuv_ocp.estimation.faults import FaultDetectorOptions
 from uuv_ocp.estimation.sensors import Sensors
 from uuv_ocp.interrupts import check_interrupt, remember_interrupts
 from uuv_ocp.progress import ProgressBar
@@ -80,6 +82,7 @@ __all__ = [
     "INDEX_NAME",
     "CampaignConfig",
     "CampaignResult",
+    "RandomFaults",
     "IndexWarning",
     "RecordWarning",
     "SchedulerUnreachable",
@@ -154,6 +157,17 @@ class CampaignConfig:
         current, that this estimator infers from the vehicle's sensor suite
         (:meth:`Sensors.auv <uuv_ocp.Sensors.auv>` of the controller's model; the sensors
         carry their own noise, so ``noise_std`` is not used).
+    faults : RandomFaults or dict or None
+        Thruster faults drawn per trial (:class:`~uuv_ocp.control.faults.RandomFaults`; a dict
+        of its fields, as a campaign file's ``[faults]`` table gives it): trial ``i`` draws them
+        from ``numpy.random.default_rng([seed, i, FAULT_STREAM])``, a stream of its own (the
+        trial's current and noise are those of the fault-free campaign), and its record holds
+        them (``faults_drawn`` in :meth:`trial_settings`).  Needs a vehicle whose controls are
+        thruster forces (``"bluerov2-heavy-thrusters"``) for the plant and the controller.
+    fault_tolerant : bool
+        The fault-tolerant NMPC: the estimator also estimates a thruster-force bias, and the
+        fault detector (:mod:`uuv_ocp.estimation.faults`, default options) tells the controller
+        the estimated health.  Needs ``estimator`` and a thruster vehicle.  Default False.
     """
 
     reference: str = "s2"
@@ -173,6 +187,8 @@ class CampaignConfig:
     dt: float = 0.1
     current_decay: float = 0.1
     estimator: str | None = None
+    faults: RandomFaults | None = None
+    fault_tolerant: bool = False
 
     def __post_init__(self) -> None:
         """Validate the fields (``ValueError`` names the first bad one)."""
@@ -215,7 +231,45 @@ class CampaignConfig:
         object.__setattr__(
             self, "noise_std", check.vector("noise_std", self.noise_std, states, nonnegative=True)
         )
-        self.problem()  # the horizon fits the reference, the model matches the plant
+        problem = self.problem()  # the horizon fits the reference, the model matches the plant
+        self._check_faults(problem)
+
+    def _check_faults(self, problem: TrackingProblem) -> None:
+        """Validate ``faults`` and ``fault_tolerant`` (``ValueError`` names the field)."""
+        faults = self.faults
+        if isinstance(faults, dict):  # a campaign file's [faults] table
+            try:
+                faults = RandomFaults(**faults)
+            except TypeError as error:
+                raise ValueError(
+                    f"faults: {error} (fields: count, window, kinds, effectiveness, stuck_range)"
+                ) from None
+            object.__setattr__(self, "faults", faults)
+        if faults is not None and not isinstance(faults, RandomFaults):
+            raise ValueError(
+                f"faults must be a uuv_ocp.RandomFaults, a dict of its fields or None, got {faults!r}"
+            )
+        check.boolean("fault_tolerant", self.fault_tolerant)
+        if faults is None and not self.fault_tolerant:
+            return
+        field_name = "faults" if faults is not None else "fault_tolerant"
+        for role, vehicle in (("vehicle", self.plant()), ("controller_model", problem.vehicle)):
+            if getattr(vehicle, "thrusters", None) is None or "health" not in {
+                item.name for item in problem.model_parameters
+            }:
+                raise ValueError(
+                    f"{field_name} needs a {role} whose controls are thruster forces "
+                    f"(e.g. 'bluerov2-heavy-thrusters'), got {getattr(self, role) or self.model_spec!r}"
+                )
+        count = len(problem.vehicle.control_bound)
+        if faults is not None and faults.count > count:
+            raise ValueError(
+                f"faults.count must be at most the vehicle's {count} thrusters, got {faults.count}"
+            )
+        if self.fault_tolerant and self.estimator is None:
+            raise ValueError(
+                "fault_tolerant needs an estimator (e.g. 'ekf'): the detector reads its thruster-force bias"
+            )
 
     # ------------------------------------------------------------ what it builds
     @property
@@ -268,6 +322,9 @@ class CampaignConfig:
             del values["estimator"]
         else:
             values["sensors"] = "auv"
+        for name in ("faults", "fault_tolerant"):  # likewise the campaigns without faults
+            if not values[name]:
+                del values[name]
         values.update(
             model=self.model_spec,
             plant_content=self.plant(),
@@ -281,8 +338,11 @@ class CampaignConfig:
         return values
 
     def trial_settings(self, index: int) -> dict[str, Any]:
-        """Return the configuration of trial ``index``: :meth:`settings` and the trial index."""
-        return {**self.settings(), "trial": int(index)}
+        """Return the configuration of trial ``index``: :meth:`settings`, the index, its faults."""
+        settings = {**self.settings(), "trial": int(index)}
+        if self.faults is not None:  # the drawn faults, so that a record says what it flew
+            settings["faults_drawn"] = [dataclasses.asdict(item) for item in trial_faults(self, index)]
+        return settings
 
     @property
     def name(self) -> str:
@@ -330,6 +390,23 @@ def _trial_setup(config: CampaignConfig, index: int) -> tuple[Current, Measureme
     return current, MeasurementNoise(config.noise_std), int(rng.integers(2**31))
 
 
+#: Third word of a trial's fault generator seed ``[seed, trial, FAULT_STREAM]``: a stream apart
+#: from the trial's current and noise, which stay those of the campaign without faults.
+FAULT_STREAM = 27
+#: Random-walk intensity (N/√s) of the fault-tolerant NMPC's thruster-force bias: the value the
+#: detector's defaults were tuned with (:mod:`uuv_ocp.estimation.faults`).
+FAULT_BIAS_STD = 5.0
+
+
+def trial_faults(config: CampaignConfig, index: int) -> tuple[ThrusterFault, ...]:
+    """Return trial ``index``'s drawn thruster faults (none without ``config.faults``)."""
+    if config.faults is None:
+        return ()
+    problem = config.problem()
+    rng = np.random.default_rng([config.seed, index, FAULT_STREAM])
+    return config.faults.draw(rng, problem.vehicle.control_bound, t0=problem.reference.t_start)
+
+
 def _trial_path(directory: str | Path, index: int) -> Path:
     return Path(directory) / f"trial_{index:04d}.npz"
 
@@ -344,10 +421,15 @@ def trial_task(config: CampaignConfig, index: int) -> ClosedLoopResult:
     current, noise, simulation_seed = _trial_setup(config, index)
     controller = NMPC(problem, config.solver, options=config.solver_options or None, seed=simulation_seed)
     # with an estimator the sensors carry the noise; the estimator runs on the controller's model
-    sensing: dict[str, Any] = {"noise": noise}
+    sensing: dict[str, Any] = {"noise": noise, "faults": trial_faults(config, index)}
     if config.estimator is not None:
         sensors = Sensors.auv(problem.vehicle)
-        sensing = {"estimator": Estimator(problem, config.estimator, sensors=sensors)}
+        # the fault-tolerant NMPC's detector reads the estimator's thruster-force bias
+        options = EstimatorOptions(bias=True, bias_std=FAULT_BIAS_STD) if config.fault_tolerant else None
+        estimator = Estimator(problem, config.estimator, sensors=sensors, options=options)
+        sensing = {"estimator": estimator, "faults": sensing["faults"]}
+        if config.fault_tolerant:
+            sensing["fault_detector"] = FaultDetectorOptions()
     try:
         return simulate(
             controller,
@@ -609,6 +691,8 @@ DISTURBANCE_KEYS = (
     "mismatch",
     "estimator",
 )
+#: keys of a campaign file's ``[faults]`` table: RandomFaults' fields and ``fault_tolerant``
+FAULT_KEYS = ("count", "window", "kinds", "effectiveness", "stuck_range", "fault_tolerant")
 
 
 def _toml_value(value: Any) -> str:
@@ -644,6 +728,14 @@ def to_toml(configs: Sequence[CampaignConfig]) -> str:
         for key in DISTURBANCE_KEYS
         if getattr(first, key) is not None  # no estimator: the key is left out
     ]
+    if first.faults is not None or first.fault_tolerant:
+        lines.append("\n[faults]")
+        if first.faults is not None:
+            lines += [
+                f"{item.name} = {_toml_value(getattr(first.faults, item.name))}"
+                for item in dataclasses.fields(first.faults)
+            ]
+        lines.append(f"fault_tolerant = {_toml_value(first.fault_tolerant)}")
     for config in configs:
         if config.solver_options:
             lines.append(f'\n[solver_options."{config.solver}"]')

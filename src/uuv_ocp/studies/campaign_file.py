@@ -22,6 +22,13 @@ A TOML file with up to four tables; every key is optional (the defaults are
     noise_std = [0.02, 0.02, 0.005, 0.01, 0.01, 0.005]   # one per state
     mismatch = true
 
+    [faults]                           # thruster faults drawn per trial (a thruster vehicle)
+    count = 1                          # thrusters that fault in each trial
+    window = [5.0, 15.0]               # s after the start
+    kinds = ["failed", "loss"]         # and/or "stuck"
+    effectiveness = 0.5                # what a "loss" leaves
+    fault_tolerant = true              # the NMPC with the fault detector (needs an estimator)
+
     [run]
     executor = "local"                 # "local" or "dask"
     workers = 2
@@ -44,11 +51,12 @@ from pathlib import Path
 
 # the keys and the writer live with the configuration (below this module): a run writes its
 # config.toml without importing the file reader
-from uuv_ocp.studies.campaign import CAMPAIGN_KEYS, DISTURBANCE_KEYS, CampaignConfig, to_toml
+from uuv_ocp.studies.campaign import CAMPAIGN_KEYS, DISTURBANCE_KEYS, FAULT_KEYS, CampaignConfig, to_toml
 
 __all__ = [
     "CAMPAIGN_KEYS",
     "DISTURBANCE_KEYS",
+    "FAULT_KEYS",
     "RUN_KEYS",
     "TABLES",
     "CampaignFile",
@@ -57,7 +65,7 @@ __all__ = [
 ]
 
 RUN_KEYS = ("executor", "workers", "scheduler", "out")
-TABLES = ("campaign", "disturbance", "run", "solver_options")
+TABLES = ("campaign", "disturbance", "faults", "run", "solver_options")
 
 
 @dataclass(frozen=True)
@@ -108,10 +116,19 @@ def load_campaign_file(path: str | Path) -> CampaignFile:
     campaign = dict(document.get("campaign", {}))
     disturbance = dict(document.get("disturbance", {}))
     run = dict(document.get("run", {}))
+    faults = dict(document.get("faults", {}))
     options = dict(document.get("solver_options", {}))
     _unknown(source, "campaign", campaign, CAMPAIGN_KEYS)
     _unknown(source, "disturbance", disturbance, DISTURBANCE_KEYS)
     _unknown(source, "run", run, RUN_KEYS)
+    _unknown(source, "faults", faults, FAULT_KEYS)
+    fault_options: dict = {}
+    if "fault_tolerant" in faults:
+        fault_options["fault_tolerant"] = faults.pop("fault_tolerant")
+    if faults:
+        fault_options["faults"] = {
+            key: tuple(value) if isinstance(value, list) else value for key, value in faults.items()
+        }
     if "solver" in campaign and "solvers" in campaign:
         raise ValueError(f"{source}: give campaign.solver or campaign.solvers, not both")
     solvers = campaign.pop("solvers", None)
@@ -135,7 +152,11 @@ def load_campaign_file(path: str | Path) -> CampaignFile:
         try:
             configs.append(
                 CampaignConfig(
-                    solver=solver, solver_options=dict(options.get(solver, {})), **campaign, **disturbance
+                    solver=solver,
+                    solver_options=dict(options.get(solver, {})),
+                    **campaign,
+                    **disturbance,
+                    **fault_options,
                 )
             )
         except (ValueError, TypeError) as error:

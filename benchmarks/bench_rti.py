@@ -42,6 +42,7 @@ import subprocess
 import sys
 import time
 import warnings
+from pathlib import Path
 
 import numpy as np
 
@@ -541,11 +542,15 @@ def reference_interleaved(rounds: int = 3, steps: int = 300) -> list[dict]:
     return rows
 
 
-def _bluerov2_survey() -> tuple[uo.TrackingProblem, np.ndarray]:
-    """Return the BlueROV2 Heavy survey of ``examples/bluerov2_depth.py`` and its start (0.5 m above)."""
+def _bluerov2_survey(horizon: int = 20, thrusters: bool = False) -> tuple[uo.TrackingProblem, np.ndarray]:
+    """Return the BlueROV2 Heavy survey of ``examples/bluerov2_depth.py`` and its start (0.5 m above).
+
+    ``thrusters``: the vehicle's controls are its eight thruster forces instead of six
+    generalised forces.
+    """
     from uuv_ocp.model import Vehicle6DOF
 
-    sys.path.insert(0, "examples")
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples"))
     try:
         import bluerov2_depth as example
     finally:
@@ -558,7 +563,8 @@ def _bluerov2_survey() -> tuple[uo.TrackingProblem, np.ndarray]:
         speed=example.SPEED,
         depth=example.DEPTH,
     )
-    problem = uo.TrackingProblem(Vehicle6DOF.bluerov2_heavy(), survey, horizon=20, dt=0.1)
+    boat = Vehicle6DOF.bluerov2_heavy(thrusters=thrusters)
+    problem = uo.TrackingProblem(boat, survey, horizon=horizon, dt=0.1)
     start = survey.initial_state(0.0)
     start[2] -= 0.5
     return problem, start

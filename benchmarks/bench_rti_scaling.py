@@ -54,24 +54,9 @@ def problem_and_start(vehicle: str, horizon: int) -> tuple[object, np.ndarray]:
     if vehicle == "rexrov":
         problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=horizon, dt=0.1)
         return problem, problem.reference.initial_state(0.0)
-    sys.path.insert(0, str(ROOT / "examples"))
-    try:
-        import bluerov2_depth as example
-    finally:
-        sys.path.pop(0)
-    survey = uo.Reference.lawnmower(
-        (0.0, 0.0),
-        width=example.WIDTH,
-        spacing=example.SPACING,
-        lanes=3,
-        speed=example.SPEED,
-        depth=example.DEPTH,
-    )
-    boat = uo.Vehicle6DOF.bluerov2_heavy(thrusters=vehicle == "bluerov2-thrusters")
-    problem = uo.TrackingProblem(boat, survey, horizon=horizon, dt=0.1)
-    start = survey.initial_state(0.0)
-    start[2] -= 0.5  # 0.5 m above the survey depth, as the example
-    return problem, start
+    from benchmarks.bench_rti import _bluerov2_survey
+
+    return _bluerov2_survey(horizon, thrusters=vehicle == "bluerov2-thrusters")
 
 
 def closed_loop(controller: object, problem: object, start: np.ndarray, steps: int) -> dict:

@@ -38,7 +38,7 @@ import tarfile
 import tempfile
 import time
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -432,11 +432,16 @@ def build_policy() -> str:
     ValueError
         It is not one of :data:`HPIPM_BUILD_CHOICES`.
     """
-    raw = os.environ.get(HPIPM_BUILD_ENV, "")
-    policy = raw.strip().lower() or "auto"
-    if policy not in HPIPM_BUILD_CHOICES:
-        raise ValueError(f"{HPIPM_BUILD_ENV} must be one of {', '.join(HPIPM_BUILD_CHOICES)}, got {raw!r}")
-    return policy
+    return _environment_choice(HPIPM_BUILD_ENV, HPIPM_BUILD_CHOICES)
+
+
+def _environment_choice(name: str, choices: Sequence[str]) -> str:
+    """Return environment variable ``name`` lower-cased (unset or empty: ``"auto"``), one of ``choices``."""
+    raw = os.environ.get(name, "")
+    value = raw.strip().lower() or "auto"
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {', '.join(choices)}, got {raw!r}")
+    return value
 
 
 def first_need_decision(cache: str | os.PathLike[str] | None = None) -> str | None:
@@ -534,11 +539,7 @@ def hpipm_choice() -> str:
     ValueError
         It is not one of :data:`HPIPM_CHOICES`.
     """
-    raw = os.environ.get(HPIPM_ENV, "")
-    choice = raw.strip().lower() or "auto"
-    if choice not in HPIPM_CHOICES:
-        raise ValueError(f"{HPIPM_ENV} must be one of {', '.join(HPIPM_CHOICES)}, got {raw!r}")
-    return choice
+    return _environment_choice(HPIPM_ENV, HPIPM_CHOICES)
 
 
 def check_choice(native_needed: bool = True, cache: str | os.PathLike[str] | None = None) -> None:

@@ -802,7 +802,7 @@ def _well_conditioned(
     (:data:`CONDITIONING_DRAWS` random directions); an element that moves by more than
     ``limit / CONDITIONING_MARGIN`` (relative) is ill-conditioned there.
     """
-    floor = [np.zeros(np.shape(want)) for want in expected]
+    floor = [np.zeros(want.shape) for want in expected]  # DM.shape: numpy on a DM warns
     for _ in range(CONDITIONING_DRAWS):
         moved = [ca.DM(_one_ulp_away(np.asarray(a.full()), rng)) for a in arguments]
         for index, (got, want) in enumerate(zip(function.call(moved), expected, strict=True)):

@@ -18,6 +18,7 @@ Run from the repository root::
     python -m benchmarks.bench_swarm_functions
     python -m benchmarks.bench_swarm_functions --griewank   # GWO's solved share on Griewank
     python -m benchmarks.bench_swarm_functions --libraries  # uo.minimize vs mealpy, scipy, pymoo
+    python -m benchmarks.bench_swarm_functions --libraries --only igwo,mppi,scipy_de  # some columns
 
 mealpy is a benchmark-only dependency (``pip install -e ".[bench]"``).
 """
@@ -338,7 +339,11 @@ def _pymoo(
 
 
 def libraries(
-    seeds: int = 20, dims: tuple[int, ...] = (10, 30), population: int = 30, iterations: int = 200
+    seeds: int = 20,
+    dims: tuple[int, ...] = (10, 30),
+    population: int = 30,
+    iterations: int = 200,
+    only: tuple[str, ...] | None = None,
 ) -> list[dict]:
     """``uo.minimize`` beside mealpy, scipy and pymoo on a user's vectorised objective.
 
@@ -346,22 +351,19 @@ def libraries(
     gives the largest count measured); the table is the median final error over ``seeds`` and
     the mean wall time per run (ms).  The package's loop is numpy over the population, as is
     pymoo's and scipy's (``vectorized=True``); mealpy calls the objective once per individual.
+    ``only``: the column names to run (``--only igwo,mppi``), all by default.
     """
     griewank_box = {"griewank": (griewank, 600.0)}
     cases = {**FUNCTIONS, **griewank_box}
+
+    def ours(method: str) -> Callable:
+        return lambda f, lo, up, s: (
+            minimize(f, lo, up, method, population=population, iterations=iterations, seed=s).fun,
+            population * (iterations + 1),
+        )
+
     methods: dict[str, Callable] = {
-        "igwo": lambda f, lo, up, s: (
-            minimize(f, lo, up, "igwo", population=population, iterations=iterations, seed=s).fun,
-            population * (iterations + 1),
-        ),
-        "gwo": lambda f, lo, up, s: (
-            minimize(f, lo, up, "gwo", population=population, iterations=iterations, seed=s).fun,
-            population * (iterations + 1),
-        ),
-        "pso": lambda f, lo, up, s: (
-            minimize(f, lo, up, "pso", population=population, iterations=iterations, seed=s).fun,
-            population * (iterations + 1),
-        ),
+        **{method: ours(method) for method in ("igwo", "gwo", "pso", "mppi")},
         "mealpy gwo": lambda f, lo, up, s: run_mealpy(
             "gwo", f, lo, up, population, population * (iterations + 1), s
         ),
@@ -369,6 +371,8 @@ def libraries(
         "pymoo de": lambda f, lo, up, s: _pymoo("de", f, lo, up, population, iterations, s),
         "pymoo pso": lambda f, lo, up, s: _pymoo("pso", f, lo, up, population, iterations, s),
     }
+    if only is not None:
+        methods = {name: run for name, run in methods.items() if name in only}
     rows = []
     print(
         f"\nmedian final error over {seeds} seeds / mean ms per run, "
@@ -406,6 +410,7 @@ if __name__ == "__main__":
     if "--griewank" in sys.argv:
         griewank_solved()
     elif "--libraries" in sys.argv:
-        libraries()
+        chosen = sys.argv[sys.argv.index("--only") + 1].split(",") if "--only" in sys.argv else None
+        libraries(only=None if chosen is None else tuple(name.replace("_", " ") for name in chosen))
     else:
         main()

@@ -23,7 +23,7 @@ from uuv_ocp.optimize.benchmark_functions import (
     sphere,
 )
 
-METHODS = ["gwo", "igwo", "pso", "ssa"]
+METHODS = ["gwo", "igwo", "mppi", "pso", "ssa"]
 DIM = 10
 LOWER, UPPER = -5.0 * np.ones(DIM), 5.0 * np.ones(DIM)
 # optimum away from the origin and off the diagonal, so no origin/diagonal bias can help
@@ -566,7 +566,7 @@ def _mealpy_best(method, fun, bound, population, budget, seed):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", sorted(MEALPY))  # mppi has no mealpy counterpart: see test_mppi.py
 def test_against_mealpy_reference(method):
     pytest.importorskip("mealpy")
     seeds = 20

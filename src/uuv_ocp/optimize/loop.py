@@ -28,6 +28,8 @@ All randomness comes from one ``numpy.random.Generator`` created by
      term.
    * ``pso``:  ``draws = rng.random((2, population, dim))``; plane 0 -> cognitive ``r1``,
      plane 1 -> social ``r2``.
+   * ``mppi``: ``rng.standard_normal((population, dim))``, the cloud around the mean (row 0 is
+     replaced by the mean itself).
    * ``ssa``:  see :class:`uuv_ocp.optimize.ssa.SparrowSearch` (not meant for the C port; fixed
      order all the same).
 

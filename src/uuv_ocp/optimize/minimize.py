@@ -22,6 +22,7 @@ from uuv_ocp._validation import positive_float, positive_int
 from uuv_ocp.optimize.gwo import GreyWolf
 from uuv_ocp.optimize.igwo import ImprovedGreyWolf
 from uuv_ocp.optimize.loop import MinimizeResult, Objective, PopulationAlgorithm, validate_bounds
+from uuv_ocp.optimize.mppi import PathIntegral
 from uuv_ocp.optimize.pso import ParticleSwarm
 from uuv_ocp.optimize.ssa import SparrowSearch
 
@@ -29,7 +30,7 @@ __all__ = ["ALGORITHMS", "available_methods", "minimize", "register_algorithm"]
 
 _LOCK = threading.Lock()
 _ALGORITHMS: dict[str, type[PopulationAlgorithm]] = {
-    cls.name: cls for cls in (ImprovedGreyWolf, GreyWolf, SparrowSearch, ParticleSwarm)
+    cls.name: cls for cls in (ImprovedGreyWolf, GreyWolf, SparrowSearch, ParticleSwarm, PathIntegral)
 }
 #: Registry name -> algorithm class (a read-only view; :func:`register_algorithm` adds to it).
 ALGORITHMS: Mapping[str, type[PopulationAlgorithm]] = MappingProxyType(_ALGORITHMS)

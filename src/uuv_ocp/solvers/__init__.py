@@ -52,7 +52,9 @@ _BUILTIN: dict[str, tuple[SolverFactory, str]] = {
     "sqp": (SqpSolver, "exact"),
     "sqp-rti": (RtiSolver, "exact"),
     "slsqp": (SlsqpSolver, "exact"),
-    **{method: (swarm_factory(method), "swarm") for method in ALGORITHMS},
+    # "mppi" in ALGORITHMS is the static update of uo.minimize; as a solver it is the
+    # receding-horizon MppiSolver (shifted warm start, smoothing) on the same weights
+    **{method: (swarm_factory(method), "swarm") for method in ALGORITHMS if method != "mppi"},
     "mppi": (MppiSolver, "swarm"),  # a sampling method: a warm start for the hybrids like a swarm
 }
 

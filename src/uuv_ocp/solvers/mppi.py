@@ -45,6 +45,7 @@ from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE, score_terms
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.native.runtime import COMPILED_ENV, compiled_build
+from uuv_ocp.optimize.mppi import importance_weights
 from uuv_ocp.solvers.options import (
     AUTO,
     Check,
@@ -314,12 +315,7 @@ class MppiSolver:
 
     def weights(self, values: np.ndarray) -> np.ndarray:
         """Return the importance weights of fitness ``values`` (S,): softmax of −values/λ, non-finite -> 0."""
-        finite = np.isfinite(values)
-        if not np.any(finite):
-            return np.full(values.shape, 1.0 / values.size)
-        shifted = np.where(finite, values - np.min(values[finite]), np.inf)
-        weights = np.exp(-shifted / self.temperature)
-        return weights / np.sum(weights)
+        return importance_weights(values, self.temperature)
 
     def solve(
         self,

@@ -63,7 +63,7 @@ class PathIntegral(PopulationAlgorithm):
     of the iteration, so the weights do not depend on the objective's units; ``scale="none"``
     takes ``temperature`` as λ itself (the textbook update, in the objective's units).
 
-    Options: ``noise`` (0.2), ``final_noise`` (0.005), ``temperature`` (0.1),
+    Options: ``noise`` (0.2), ``final_noise`` (0.001), ``temperature`` (0.3),
     ``scale`` ("median").
     """
 
@@ -72,8 +72,8 @@ class PathIntegral(PopulationAlgorithm):
     default_iterations = 50
     default_options: ClassVar[Mapping[str, Any]] = {
         "noise": 0.2,
-        "final_noise": 0.005,
-        "temperature": 0.1,
+        "final_noise": 0.001,
+        "temperature": 0.3,
         "scale": "median",
     }
 

@@ -35,6 +35,7 @@ interleaved: see :func:`reference_interleaved`).
 
 from __future__ import annotations
 
+import argparse
 import json
 import math
 import os
@@ -446,7 +447,7 @@ def reference_problem(horizon: int = 20, dt: float = 0.1) -> uo.Ocp:
     """
     from casadi import DM, sin, vertcat
 
-    from uuv_ocp.tracking import Weights, _angle_indices, control_limits
+    from uuv_ocp.tracking import Weights, control_limits
 
     s2 = _problem()
     max_thrust = control_limits(s2.vehicle)[0]
@@ -463,7 +464,7 @@ def reference_problem(horizon: int = 20, dt: float = 0.1) -> uo.Ocp:
     reference = ocp.parameter("reference", 6, stagewise=True)
     ocp.set_der(state, s2.vehicle.dynamics_function()(state, tau, DM.zeros(2)))
     error = state - reference
-    angles = _angle_indices(6)  # s2's wrapping of the heading error
+    angles = s2.vehicle.layout.angles  # s2's wrapping of the heading error
     wrapped = vertcat(*[2.0 * sin(error[i] / 2.0) if i in angles else error[i] for i in range(6)])
     ocp.add_stage_cost(residual=tau / DM(max_thrust), weight=weights.rate)
     ocp.add_stage_cost(residual=wrapped, weight=(*weights.pose, *weights.velocity), start=1)
@@ -948,21 +949,54 @@ def main(
     print(f"load average at end: {' '.join(f'{v:.2f}' for v in os.getloadavg())}")
 
 
+def parse_arguments(argv: list[str] | None = None) -> argparse.Namespace:
+    """Parse the command line of ``python -m benchmarks.bench_rti`` (see the module's docstring)."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.bench_rti",
+        description="sqp-rti against the converged exact backends on s2: speed and closed-loop quality.",
+    )
+    parser.add_argument("--quick", action="store_true", help="speed table and the s2 quality row only")
+    parser.add_argument(
+        "--hpipm-options", action="store_true", help="only the hpipm-ocp path under each HPIPM setting"
+    )
+    parser.add_argument(
+        "--interleaved", action="store_true", help="only the C step's rows of INTERLEAVED, in rounds"
+    )
+    parser.add_argument("--rounds", type=int, default=3, help="rounds of --interleaved / --reference-problem")
+    parser.add_argument(
+        "--speed-abs-quality", action="store_true", help="only the closed-loop quality of HPIPM's speed_abs"
+    )
+    parser.add_argument(
+        "--quality", action="store_true", help="only the quality of the default C step, fatrop and converged"
+    )
+    parser.add_argument(
+        "--loose-first-qp", action="store_true", help="only converged mode with/without loose_first_qp"
+    )
+    parser.add_argument(
+        "--reference-problem", action="store_true", help="only issue 13's acados reference problem beside s2"
+    )
+    parser.add_argument(
+        "--baseline", metavar="SRC", default=None, help="with --interleaved: another checkout's src"
+    )
+    parser.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    arguments = parser.parse_args(argv)
+    if arguments.rounds < 1:
+        parser.error(f"--rounds must be at least 1, got {arguments.rounds}")
+    return arguments
+
+
 if __name__ == "__main__":
-    if "--worker" in sys.argv:
+    arguments = parse_arguments()
+    if arguments.worker:
         baseline_worker()
         sys.exit(0)
     main(
-        quick="--quick" in sys.argv,
-        settings="--hpipm-options" in sys.argv,
-        rounds=(int(sys.argv[sys.argv.index("--rounds") + 1]) if "--rounds" in sys.argv else 3)
-        if "--interleaved" in sys.argv
-        else 0,
-        speed_abs="--speed-abs-quality" in sys.argv,
-        quality_only="--quality" in sys.argv,
-        loose_first="--loose-first-qp" in sys.argv,
-        reference_rounds=(int(sys.argv[sys.argv.index("--rounds") + 1]) if "--rounds" in sys.argv else 3)
-        if "--reference-problem" in sys.argv
-        else 0,
-        baseline=sys.argv[sys.argv.index("--baseline") + 1] if "--baseline" in sys.argv else None,
+        quick=arguments.quick,
+        settings=arguments.hpipm_options,
+        rounds=arguments.rounds if arguments.interleaved else 0,
+        speed_abs=arguments.speed_abs_quality,
+        quality_only=arguments.quality,
+        loose_first=arguments.loose_first_qp,
+        reference_rounds=arguments.rounds if arguments.reference_problem else 0,
+        baseline=arguments.baseline,
     )

@@ -20,8 +20,8 @@ log-log fit over N = 20..80);
 ``python -m benchmarks.bench_rti_scaling --against /tmp/rti_base/src`` (the BlueROV2 survey and
 s2 at N = 20: this checkout's ``sqp-rti`` against the package in that ``src`` folder, rti and
 converged, interleaved; ``--rounds``, ``--steps``);
-``--profile``: where one BlueROV2 step's time goes (the C step's own clocks, see
-:func:`profile`).
+``--breakdown`` (with ``--vehicle``): the RTI step against N split into linearisation, QP and
+the Python around them, each with its growth exponent (:func:`breakdown`).
 """
 
 from __future__ import annotations
@@ -247,6 +247,37 @@ def compare_options(vehicle: str, horizon: int, variants: dict[str, dict], round
     return "\n".join(lines)
 
 
+def breakdown(vehicle: str, horizons: tuple[int, ...], rounds: int, steps: int) -> str:
+    """Split the default RTI step of ``vehicle`` against N: linearisation, QP, the rest, exponents.
+
+    Each horizon a worker of its own, interleaved (:func:`interleaved`); "Python" is the median
+    wall time minus the medians of the C step's two clocks (an estimate: medians do not add).
+    """
+    configs = {
+        str(n): {"vehicle": vehicle, "horizon": n, "solver": "sqp-rti", "options": RTI, "steps": steps}
+        for n in horizons
+    }
+    rows = interleaved(configs, rounds)
+    found = [n for n in horizons if str(n) in rows]
+    lines = [
+        f"| {vehicle}, sqp-rti rti | " + " | ".join(f"N = {n}" for n in found) + " | exponent (N = 20..80) |",
+        "|" + "---|" * (len(found) + 2),
+    ]
+    ordered = [rows[str(n)] for n in found]
+    columns = {
+        "wall ms": [row["wall"] for row in ordered],
+        "linearise ms (in C)": [row["lin"] for row in ordered],
+        "QP ms (in C)": [row["qp"] for row in ordered],
+        "Python ms (wall − C)": [row["wall"] - row["lin"] - row["qp"] for row in ordered],
+    }
+    for name, times in columns.items():
+        cells = " | ".join(f"{t:.3f}" for t in times)
+        lines.append(f"| {name} | {cells} | {growth_exponent(found, times):.2f} |")
+    shares = " | ".join(f"{row['equality_first']:.2f}" for row in ordered)
+    lines.append(f"| QPs answered by equality first | {shares} | |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--worker", help=argparse.SUPPRESS)
@@ -261,12 +292,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--horizon", type=int, default=20)
     parser.add_argument("--no-fatrop", action="store_true", help="scaling table without compiled fatrop")
     parser.add_argument("--quick", action="store_true", help="N = 10, 20, 40 and one round")
+    parser.add_argument(
+        "--breakdown", action="store_true", help="--vehicle's RTI step split against N (10..80)"
+    )
     arguments = parser.parse_args(argv)
     if arguments.worker:
         worker(json.loads(arguments.worker))
         return
     print(f"load: {os.getloadavg()}")
-    if arguments.options:
+    if arguments.breakdown:
+        print(breakdown(arguments.vehicle, HORIZONS, arguments.rounds, arguments.steps))
+    elif arguments.options:
         variants = json.loads(arguments.options)
         rounds, steps = arguments.rounds, arguments.steps
         print(compare_options(arguments.vehicle, arguments.horizon, variants, rounds, steps))

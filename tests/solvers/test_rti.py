@@ -1042,7 +1042,7 @@ def test_stage_data_called_per_stage_equal_the_horizon_function(case):
 
 
 def test_equality_first_auto_follows_the_cost_model(monkeypatch):
-    """``equality_first="auto"``: on for s2, off for the BlueROV2 survey with the native HPIPM.
+    """``equality_first="auto"``: on for s2 (N = 20 and 80), off for the BlueROV2 survey with native HPIPM.
 
     The flop estimate is checked against the closed form for constant stage sizes (N stages of
     nx lifted states, nu inputs; ne terminal equality rows), written out here; the decision
@@ -1057,28 +1057,36 @@ def test_equality_first_auto_follows_the_cost_model(monkeypatch):
         return n * factor + (ne + 2) * n * solve
 
     survey = uo.Reference.lawnmower((0.0, 0.0), width=6.0, spacing=2.0, lanes=2, speed=0.3, depth=2.0)
-    rexrov = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=20, dt=0.1)
-    bluerov2 = uo.TrackingProblem(uo.Vehicle6DOF.bluerov2_heavy(), survey, horizon=20, dt=0.1)
-    cases = {"s2": (rexrov, 9, 3, 6), "bluerov2": (bluerov2, 18, 6, 12)}
+    # s2 also at N = 80: the decision must not flip with the horizon (a bound on the total
+    # flops, which grow with N, turned it off there: a step in the cost against N)
+    s2 = uo.Reference.paper("s2")
+    rexrov = uo.Vehicle.rexrov()
+    cases = {("s2", n): (uo.TrackingProblem(rexrov, s2, horizon=n, dt=0.1), 9, 3, 6) for n in (20, 80)}
+    cases["bluerov2", 20] = (
+        uo.TrackingProblem(uo.Vehicle6DOF.bluerov2_heavy(), survey, horizon=20, dt=0.1),
+        18,
+        6,
+        12,
+    )
     decided = {}
-    for name, (problem, nx, nu, ne) in cases.items():
+    for (name, n), (problem, nx, nu, ne) in cases.items():
         backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp"})
         for variant, data in backend.variants.items():
             layout = rti_ocp.ocp_qp_layout(data, problem.spec().state_dim)
             if variant == "hard":  # constant stage sizes (the soft NLP's slacks sit at stage N - 1)
-                expected = closed_form(20, nx, nu, ne)
+                expected = closed_form(n, nx, nu, ne)
                 assert rti_ocp.equality_first_flops(layout, data) == pytest.approx(expected)
             for linked in ("native", "wheel"):
                 native = linked == "native"
                 monkeypatch.setattr(rti_ocp, "selected_hpipm", lambda native=native: native or None)
-                options = rti_ocp.ocp_qp_options({}, False, 20)
+                options = rti_ocp.ocp_qp_options({}, False, n)
                 resolved = rti_ocp.resolve_equality_first(options, layout, data)
-                decided[name, variant, linked] = resolved["equality_first"]
+                decided[name, n, variant, linked] = resolved["equality_first"]
                 forced = rti_ocp.resolve_equality_first({**options, "equality_first": False}, layout, data)
                 assert forced["equality_first"] is False
     assert decided == {
-        (name, variant, linked): not (name == "bluerov2" and linked == "native")
-        for name in cases
+        (name, n, variant, linked): not (name == "bluerov2" and linked == "native")
+        for name, n in cases
         for variant in ("hard", "soft")
         for linked in ("native", "wheel")
     }

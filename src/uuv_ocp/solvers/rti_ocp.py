@@ -17,8 +17,8 @@ stage N−1, so the exact-penalty NLP is the same QP, L1 weight included).
   the one stage whose variables it reads.
 
 Equality first (``qpsol_options["equality_first"]``, default ``"auto"``: on where
-:func:`equality_first_flops` says it pays, see :data:`EQUALITY_FIRST_MAX_FLOPS`): each QP is first solved
-with its equalities alone (dynamics, the fixed ``x_0``, the equality rows of one stage such as
+:func:`equality_first_flops` says it pays, see :data:`EQUALITY_FIRST_MAX_STAGE_FLOPS`): each QP
+is first solved with its equalities alone (dynamics, the fixed ``x_0``, the equality rows of one stage such as
 the terminal equality) by one Riccati recursion in the hand-written C; the exact-penalty
 slacks are held at their bound and each pair of slack rows that fixes a value becomes one
 equality.  If that solution satisfies every inequality (boxes, rate and path rows; no
@@ -71,16 +71,18 @@ OCP_QP_DEFAULTS: dict[str, Any] = {
     "cond_horizon": "auto",
     "loose_first_qp": True,
     #: try the QP with its equalities alone first (one Riccati recursion; see the module doc);
-    #: ``"auto"``: where its estimated cost is below :data:`EQUALITY_FIRST_MAX_FLOPS`
+    #: ``"auto"``: where its estimated cost per stage is below :data:`EQUALITY_FIRST_MAX_STAGE_FLOPS`
     "equality_first": "auto",
 }
 #: ``equality_first="auto"``: the Riccati solve is tried first where :func:`equality_first_flops`
-#: (one factorisation and ne + 2 passes of the hand-written scalar C) stays below this, by the
-#: HPIPM linked.  Measured (docs/benchmarks.md, issue 29): with the native HPIPM, s2 (8.0e4
-#: flops) gains from it and the BlueROV2 survey (6.0e5) lost 1.5x to HPIPM alone (BLASFEO's
-#: AVX2 kernels outrun the scalar loops at 18 lifted states); with the wheel's TARGET_GENERIC
-#: BLASFEO the Riccati solve won on both.
-EQUALITY_FIRST_MAX_FLOPS = {"native": 2.5e5, "wheel": math.inf}
+#: (one factorisation and ne + 2 passes of the hand-written scalar C) per stage stays below
+#: this, by the HPIPM linked.  Per stage, because both it and HPIPM's iterations grow linearly
+#: with N: a bound on the total (2.5e5 before) turned it off for s2 from N = 63 on, a step in the
+#: cost against N (4x from N = 40 to 80).  Measured (docs/benchmarks.md, issue 29): with the
+#: native HPIPM, s2 (4.0e3 flops per stage) gains from it and the BlueROV2 survey (3.0e4) lost
+#: 1.5x to HPIPM alone (BLASFEO's AVX2 kernels outrun the scalar loops at 18 lifted states);
+#: with the wheel's TARGET_GENERIC BLASFEO the Riccati solve won on both.
+EQUALITY_FIRST_MAX_STAGE_FLOPS = {"native": 1.25e4, "wheel": math.inf}
 #: ``cond_horizon="auto"``: partial condensing to ``horizon // 4`` stages from this horizon on,
 #: faster than none at the same settled error on s2 (docs/solvers.md, the condensing table)
 AUTO_CONDENSING_FROM = 8
@@ -179,11 +181,15 @@ def equality_first_flops(layout: OcpQpLayout, data: NlpData) -> float:
 
 
 def resolve_equality_first(options: dict[str, Any], layout: OcpQpLayout, data: NlpData) -> dict[str, Any]:
-    """``options`` with ``equality_first="auto"`` decided for this QP and the HPIPM linked."""
+    """``options`` with ``equality_first="auto"`` decided for this QP and the HPIPM linked.
+
+    The decision compares the estimated flops per stage, so it does not change with the horizon.
+    """
     if options.get("equality_first") != "auto":
         return options
     linked = "native" if selected_hpipm() is not None else "wheel"
-    pays = equality_first_flops(layout, data) <= EQUALITY_FIRST_MAX_FLOPS[linked]
+    per_stage = equality_first_flops(layout, data) / max(layout.horizon, 1)
+    pays = per_stage <= EQUALITY_FIRST_MAX_STAGE_FLOPS[linked]
     return {**options, "equality_first": bool(pays)}
 
 

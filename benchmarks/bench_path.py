@@ -22,9 +22,18 @@ row                 controller
                     EKF (``uo.Estimator(problem, "ekf", sensors=uo.Sensors.auv(vehicle))``; the
                     path parameter is the controller's own)
 ``fatrop-est``      the same with fatrop (``fatrop-c-est``: compiled)
-``sqp-rti-hpipm-est`` ``sqp-rti-est`` on CasADi's ``hpipm`` QP path (no C step to compile);
-                    ``-rate100``: ``PathWeights(rate=100)``, the increments weighed 100×
+``sqp-rti-hpipm-est`` ``sqp-rti-est`` on CasADi's ``hpipm`` QP path (no C step to compile)
+``sqp-rti-rateR-est`` ``sqp-rti-est`` with ``PathWeights(rate=R)`` instead of the default 500 (the
+                    increments' weight: how the default was chosen)
+``sqp-rti-reverse-est`` ``sqp-rti-est`` with ``control_lower = −u_max`` (reverse thrust allowed: no
+                    propeller floor)
 ==================  ====================================================================
+
+The NMPC rows use ``PathFollowingProblem``'s defaults (``PathWeights()``: rate 500; the
+propeller floored at 0.9 × its cruise speed; ``substeps=None``) unless the row says otherwise.
+Each record's configuration holds the controller's settings (weights, substeps, control
+bounds, solver and options; the guidance's options), so a record of other settings is recomputed,
+never misread.
 
 ``--rti`` adds the ``sqp-rti`` step of three vehicles, N = 20 (:func:`rti_step_times`).
 
@@ -43,6 +52,7 @@ Run: ``python -m benchmarks.bench_path [--seeds 10] [--rows ilos,los] [--out DIR
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import math
 import warnings
 from collections.abc import Callable
@@ -120,22 +130,65 @@ def _guidance(kappa: float | None) -> Callable[[uo.TrackingProblem, np.ndarray],
 
 
 def path_problem(
-    reference: uo.Reference, horizon: int = NMPC_HORIZON, weights: uo.PathWeights | None = None
+    reference: uo.Reference,
+    horizon: int = NMPC_HORIZON,
+    weights: uo.PathWeights | None = None,
+    control_lower: tuple[float, ...] | None = None,
 ) -> uo.PathFollowingProblem:
     """Return the NMPC rows' problem: REMUS 100 following the survey, N = 20, dt = 0.5 s."""
     return uo.PathFollowingProblem(
-        uo.Remus100(), reference, speed=SPEED, horizon=horizon, dt=NMPC_DT, weights=weights, substeps=None
+        uo.Remus100(),
+        reference,
+        speed=SPEED,
+        horizon=horizon,
+        dt=NMPC_DT,
+        weights=weights,
+        control_lower=control_lower,
     )
 
 
-def _nmpc(
-    solver: str, options: dict | None = None, weights: uo.PathWeights | None = None
-) -> Callable[[uo.TrackingProblem, np.ndarray], Start]:
-    def make(problem: uo.TrackingProblem, start: np.ndarray) -> Start:
-        following = path_problem(problem.reference, weights=weights)
-        return uo.NMPC(following, solver=solver, options=options), following.initial_state(start)
+#: ``control_lower`` of the ``-reverse`` rows: the vehicle's own bounds (no propeller floor)
+REVERSE = tuple(-bound for bound in uo.Remus100().control_bound)
 
-    return make
+
+@dataclasses.dataclass(frozen=True)
+class _Nmpc:
+    """An NMPC row: the solver, its options and the problem's non-default settings."""
+
+    solver: str
+    options: dict | None = None
+    weights: uo.PathWeights | None = None
+    control_lower: tuple[float, ...] | None = None
+
+    def __call__(self, problem: uo.TrackingProblem, start: np.ndarray) -> Start:
+        following = path_problem(problem.reference, weights=self.weights, control_lower=self.control_lower)
+        return uo.NMPC(following, solver=self.solver, options=self.options), following.initial_state(start)
+
+
+def _nmpc(
+    solver: str,
+    options: dict | None = None,
+    weights: uo.PathWeights | None = None,
+    control_lower: tuple[float, ...] | None = None,
+) -> Callable[[uo.TrackingProblem, np.ndarray], Start]:
+    return _Nmpc(solver, options, weights, control_lower)
+
+
+def settings(row: str, controller: uo.Controller) -> dict:
+    """Return the controller's settings a record is written for (module doc): weights, bounds, options."""
+    problem = controller.problem
+    if isinstance(controller, uo.LosGuidance):
+        return {"guidance": repr(controller.options)}
+    made = ROWS[row]
+    assert isinstance(made, _Nmpc) and isinstance(problem, uo.PathFollowingProblem)
+    return {
+        "solver": made.solver,
+        "options": repr(made.options),
+        "weights": repr(problem.weights),
+        "substeps": problem.substeps,
+        "horizon": problem.horizon,
+        "control_lower": repr(problem.control_lower),
+    }
 
 
 #: Row name -> ``(survey problem, start state) -> (controller, its start state)``.
@@ -147,7 +200,10 @@ ROWS: dict[str, Callable[[uo.TrackingProblem, np.ndarray], Start]] = {
     "fatrop-c-known": _nmpc("fatrop", {"compiled": True}),
     "sqp-rti-est": _nmpc("sqp-rti"),
     "sqp-rti-hpipm-est": _nmpc("sqp-rti", {"qpsol": "hpipm"}),
-    "sqp-rti-hpipm-est-rate100": _nmpc("sqp-rti", {"qpsol": "hpipm"}, uo.PathWeights(rate=100.0)),
+    "sqp-rti-rate1-est": _nmpc("sqp-rti", weights=uo.PathWeights(rate=1.0)),
+    "sqp-rti-rate100-est": _nmpc("sqp-rti", weights=uo.PathWeights(rate=100.0)),
+    "sqp-rti-rate2000-est": _nmpc("sqp-rti", weights=uo.PathWeights(rate=2000.0)),
+    "sqp-rti-reverse-est": _nmpc("sqp-rti", control_lower=REVERSE),
     "fatrop-est": _nmpc("fatrop"),
     "fatrop-c-est": _nmpc("fatrop", {"compiled": True}),
 }
@@ -173,6 +229,7 @@ def run_row(row: str, seeds: int, out: Path) -> list[dict[str, float]]:
     found = []
     for seed in range(seeds):
         config = {"bench": "path", "row": row, "seed": seed, "duration": duration, "dt": DT}
+        config.update(settings(row, controller), estimated=estimator is not None)
         path = out / f"{row}-{seed:02d}.npz"
         saved = read_record(path, config)
         if saved is None:

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 import uuv_ocp as uo
+from tests import helpers_remus as remus
 from tests.conftest import needs_compiler
 from uuv_ocp.path_following import PathFollowingProblem, PathWeights, path_errors
 from uuv_ocp.solvers import get_solver
@@ -40,24 +41,26 @@ def _signed_distance_to_line(points: np.ndarray, origin: np.ndarray, direction: 
 def test_remus_converges_to_a_straight_line_from_a_10_m_offset() -> None:
     """REMUS 100 at 1.5 m/s from 10 m to starboard: no steady cross-track or depth error.
 
-    With sqp-rti (CasADi's HPIPM in the suite).  Its transient has failed steps: RK4 in one
-    step of 0.5 s amplifies the REMUS roll mode (λ = −1.94 ± 6.03i /s) by |R(λh)| = 1.80 per
-    interval, so plans far from the optimum diverge along the horizon; the fallback chain takes
-    those steps, and a plan or QP gone non-finite is never kept as a warm start.  (With 2
-    substeps, stable, the vehicle stalls near the line instead: u -> 0.003 m/s by 40 s, open.)
+    With sqp-rti (CasADi's HPIPM in the suite) at the defaults: RK4 in 2 substeps (stable on
+    the roll mode) and the propeller floored at 0.9 × its cruise speed.  Without the floor this
+    loop stalled near the line (the plan reversed the propeller: u -> 0.003 m/s by 40 s).
+    The default rate weight (500, for calm fins) makes the approach a slow decaying weave:
+    measured |e_c| = 0.32, 0.14, 0.05, 0.014, 0.002 m at 20, 30, 40, 50, 60 s, hence 80 s.
     """
-    with pytest.warns(RuntimeWarning, match="RK4 with dt = 0.5 s and substeps = 1 is unstable"):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)  # the default substeps are stable
         problem = PathFollowingProblem(uo.Remus100(), _remus_line(), speed=1.5, horizon=20, dt=0.5)
+    assert problem.substeps == 2
     start = np.zeros(12)
     start[[1, 2, 6]] = (10.0, 10.0, 1.5)  # 10 m east of the line, at its depth, at cruise speed
     x0 = problem.initial_state(start)
     assert x0[-1] == pytest.approx(0.0, abs=1e-6)
-    run = uo.simulate(uo.NMPC(problem, solver="sqp-rti"), x0=x0, duration=40.0)
+    run = uo.simulate(uo.NMPC(problem, solver="sqp-rti"), x0=x0, duration=80.0)
     assert run.fault is None
     assert not any(run.fallback_steps[-40:])  # the last 20 s are fresh RTI plans
     cross = _signed_distance_to_line(run.states[:, :2], np.zeros(2), np.array([1.0, 0.0]))
     depth = run.states[:, 2] - 10.0
-    settled = run.t >= run.t[-1] - 10.0  # measured: |e_c| < 0.004 m, |e_z| < 4e-4 m from t = 30 s
+    settled = run.t >= run.t[-1] - 10.0  # measured: |e_c| < 4e-4 m from t = 70 s
     assert np.max(np.abs(cross[settled])) < 0.01
     assert np.max(np.abs(depth[settled])) < 0.01
     assert abs(cross[0]) == pytest.approx(10.0)
@@ -187,6 +190,10 @@ def test_closest_parameter_on_a_circle_is_the_polar_angle() -> None:
         ({"horizon": 0}, "horizon"),
         ({"path": "north"}, "path must be a uuv_ocp.Reference"),
         ({"obstacles": (uo.Obstacle.moving(lambda t: (t, 0 * t), 1.0),)}, "obstacles must be static"),
+        ({"control_lower": (0.0, 0.0)}, "control_lower must have shape"),
+        ({"control_lower": (0.0, 0.0, 2000.0)}, "control_lower must lie within"),
+        ({"control_lower": (0.0, 0.0, math.nan)}, "control_lower must be finite"),
+        ({"speed": 3.0}, "speed must be reachable"),  # beyond the REMUS's 2.5 m/s: no cruise rpm
     ],
 )
 def test_bad_inputs_are_refused_by_name(changes: dict, message: str) -> None:
@@ -210,6 +217,40 @@ def test_bad_weights_and_instances_are_refused_by_name() -> None:
         uo.solve(problem, "ipopt", x0=np.zeros(6))  # without the path parameter
     with pytest.raises(ValueError, match="parameters"), warnings.catch_warnings():
         problem.instance_parameters(x0, parameters={"current": [0.0, 0.0]})
+
+
+def test_the_propeller_is_floored_at_0_9_of_its_cruise_speed() -> None:
+    """The REMUS's default lower bounds: the fins' ``−δ_max`` and 0.9 × the cruise rpm.
+
+    The cruise rpm is checked on the independent REMUS implementation (tests/helpers_remus.py):
+    the surge acceleration of a straight run at 1.5 m/s vanishes there.  A one-step plan that
+    wants to brake (the vehicle 5 m ahead of ``p(s)`` at 2 m/s) keeps the propeller on the
+    floor; with ``control_lower = −u_max`` the same plan reverses it.
+    """
+    problem = PathFollowingProblem(uo.Remus100(), _remus_line(), speed=1.5, horizon=4, dt=0.5)
+    fin, _, top = uo.Remus100().control_bound
+    assert problem.control_lower[:2] == (-fin, -fin)
+    cruise = problem.control_lower[2] / 0.9
+    state = np.zeros(12)
+    state[0] = 1.5  # u: helpers_remus orders the state [ν, η]
+    assert remus.remus100_derivative(state, [0.0, 0.0, cruise])[0] == pytest.approx(0.0, abs=1e-9)
+    assert 500.0 < cruise < top
+    rexrov = PathFollowingProblem(uo.Vehicle.rexrov(), _planar_line(), speed=0.5, horizon=4)
+    np.testing.assert_array_equal(rexrov.control_lower, -np.asarray(uo.Vehicle.rexrov().control_bound))
+    start = np.zeros(12)
+    start[[0, 2, 6]] = (5.0, 10.0, 2.0)
+    lowest = {}
+    for name, lower in (("floor", None), ("reverse", (-fin, -fin, -top))):
+        braking = PathFollowingProblem(
+            uo.Remus100(), _remus_line(), speed=1.5, horizon=4, dt=0.5, control_lower=lower
+        )
+        x0 = np.r_[start, 0.0]  # p(s) at the origin, 5 m behind the vehicle
+        u_prev = np.r_[0.0, 0.0, braking.control_lower[2] if lower is None else 0.0, 1.5]
+        result = uo.solve(braking, "ipopt", x0=x0, u_prev=u_prev)
+        assert result.success
+        lowest[name] = float(np.min(result.controls[:, 2]))
+    assert lowest["floor"] == pytest.approx(problem.control_lower[2], abs=1e-3)  # it presses on the floor
+    assert lowest["reverse"] < 0.5 * problem.control_lower[2]  # measured: 12 rpm, braking
 
 
 def _survey(depth: float | None = 10.0) -> uo.Reference:

@@ -47,7 +47,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, ClassVar
 
 import casadi as ca
@@ -56,6 +56,7 @@ from scipy.optimize import minimize_scalar
 
 from uuv_ocp import _validation as check
 from uuv_ocp._concurrency import BUILD_LOCK
+from uuv_ocp.control.guidance import cruise_propeller_speed
 from uuv_ocp.control.scenario import Scenario, plant_dynamics, scenario
 from uuv_ocp.integrators import rk4_path
 from uuv_ocp.model.base import VehicleLayout, check_vehicle
@@ -81,6 +82,12 @@ PROJECTION_SAMPLES = 40_000
 PROJECTION_STEP = 0.02
 #: The path ends where its speed falls below this fraction of its peak for good (``path_end``).
 END_SPEED_FRACTION = 0.1
+#: Default lower bound of a propeller (a control named ``"n"``) as a fraction of the cruise
+#: propeller speed at the commanded speed (:func:`default_control_lower`).
+PROPELLER_FLOOR = 0.9
+#: Default ``PathWeights.rate`` of a fin-steered vehicle with a propeller, and of any other.
+FIN_RATE_WEIGHT = 500.0
+RATE_WEIGHT = 1.0
 
 
 @dataclass(frozen=True)
@@ -106,9 +113,14 @@ class PathWeights:
         (regulated to zero); a planar vehicle has none.
     effort : float
         Weight on the squared scaled vehicle controls ``τ / τ_max`` (dimensionless).
-    rate : float
+    rate : float or None
         Weight on the squared scaled control increments ``Δu / u_max``, the along-path speed's
-        included (dimensionless).
+        included (dimensionless).  ``None`` (default): per vehicle, resolved by
+        :class:`PathFollowingProblem` (:func:`default_rate_weight`): :data:`FIN_RATE_WEIGHT`
+        (500) for a fin-steered vehicle with a propeller (a control named ``"n"``: on the REMUS 100
+        survey of ``benchmarks/bench_path.py`` it calms the fins below ILOS's activity at a
+        fraction of its cross-track error, docs/benchmarks.md), else :data:`RATE_WEIGHT` (1: a
+        thruster craft such as the RexROV weaves about a line with 500, 0.10 m after 40 s).
     terminal : float
         Factor on the state terms at node N with ``terminal="cost"`` (dimensionless).
     terminal_penalty : float
@@ -124,7 +136,7 @@ class PathWeights:
     surge: float = 10.0
     attitude: float = 10.0
     effort: float = 0.0
-    rate: float = 1.0
+    rate: float | None = None
     terminal: float = 10.0
     terminal_penalty: float = 1e4
     rate_penalty: float = 1e4
@@ -138,10 +150,11 @@ class PathWeights:
             "speed",
             "attitude",
             "effort",
-            "rate",
             "terminal",
         ):
             object.__setattr__(self, name, check.nonnegative_float(f"weights.{name}", getattr(self, name)))
+        if self.rate is not None:
+            object.__setattr__(self, "rate", check.nonnegative_float("weights.rate", self.rate))
         for name in ("terminal_penalty", "rate_penalty"):
             object.__setattr__(self, name, check.positive_float(f"weights.{name}", getattr(self, name)))
         if self.cross_track == 0.0:
@@ -204,17 +217,18 @@ class PathFollowingProblem(DeclaredPreset):
     dt : float
         Sampling time (s), > 0.
     weights : PathWeights, optional
-        Cost weights (default ``PathWeights()``).
+        Cost weights (default ``PathWeights()``); a ``rate`` of ``None`` becomes the vehicle's
+        default (:func:`default_rate_weight`), so ``problem.weights.rate`` is always a float.
     terminal : {"cost", "none"}
         The state terms at node N weighted by ``weights.terminal``, or as at other nodes.
     substeps : int or None
-        RK4 steps per interval of the prediction model, >= 1 (default 1).  ``None``: the fewest
+        RK4 steps per interval of the prediction model, >= 1.  ``None`` (default): the fewest
         that keep RK4 stable on the vehicle's decaying modes at rest
-        (:func:`~uuv_ocp.tracking.stable_substeps`; the REMUS 100 at ``dt = 0.5`` s: 2).  A
-        value that does not warns (:class:`~uuv_ocp.tracking.Rk4StabilityWarning`).  Measured
-        with ``sqp-rti`` on the REMUS: 2 substeps calm the fins on the survey (1427° -> 116° in
-        its first 200 s) but stall the vehicle on a straight line from a 10 m offset (it stops
-        near the line), which 1 substep does not: not the default until that is understood.
+        (:func:`~uuv_ocp.tracking.stable_substeps`; the REMUS 100 at ``dt = 0.5`` s: 2, the
+        RexROV: 1).  A value that does not warns (:class:`~uuv_ocp.tracking.Rk4StabilityWarning`).
+        (The straight-line stall of the REMUS with 2 substeps, the plan reversing the propeller
+        until the vehicle stopped near the line, is gone with the propeller floor of
+        ``control_lower``.)
     transcription : {"multiple_shooting", "collocation"}
         As :class:`~uuv_ocp.tracking.TrackingProblem`.
     degree : int, optional
@@ -228,6 +242,16 @@ class PathFollowingProblem(DeclaredPreset):
     obstacles : tuple of Obstacle
         Static keep-out zones: hard constraints on the horizontal position of nodes 1..N (an
         exact penalty for the swarms).  Moving obstacles need a time the problem has not.
+    control_lower : sequence of float, optional
+        Lower bounds of the vehicle's controls (their units), each within ``[−u_max, u_max]``;
+        the upper bounds stay ``u_max``.  Default :func:`default_control_lower`: ``−u_max``, but
+        a propeller (a control named ``"n"``) floored at :data:`PROPELLER_FLOOR` × the cruise
+        propeller speed at ``speed`` (:func:`~uuv_ocp.control.guidance.cruise_propeller_speed`;
+        the REMUS 100 at 1.5 m/s: 0.9 × 896.2 = 806.6 rpm).  Why: without it the plan of a
+        fin-steered vehicle may brake with the propeller in a turn or near a line, and a torpedo
+        whose propeller stops loses its fins' authority and sinks (measured: 3 of 10 survey
+        seeds stalled with ``PathWeights(rate=100)``).  ``-numpy.array(vehicle.control_bound)``
+        allows reverse thrust again.
     """
 
     vehicle: Any
@@ -237,13 +261,14 @@ class PathFollowingProblem(DeclaredPreset):
     dt: float = 0.5
     weights: PathWeights | None = None
     terminal: str = "cost"
-    substeps: int | None = 1  # type: ignore[assignment]  # an int after __post_init__
+    substeps: int | None = None  # type: ignore[assignment]  # an int after __post_init__
     transcription: str = "multiple_shooting"
     degree: int | None = None
     rate_limits: bool = True
     max_path_speed: float | None = None
     path_acceleration: float = 1.0
     obstacles: tuple[Obstacle, ...] = ()
+    control_lower: tuple[float, ...] | None = None  # type: ignore[assignment]  # a tuple after __post_init__
     #: trailing states the controller owns (the path parameter): an
     #: :class:`~uuv_ocp.Estimator` estimates the vehicle's states only
     controller_states: ClassVar[int] = 1
@@ -269,6 +294,8 @@ class PathFollowingProblem(DeclaredPreset):
             set_field(self, "weights", PathWeights())
         if not isinstance(self.weights, PathWeights):
             raise ValueError(f"weights must be a uuv_ocp.PathWeights, got {check.shown(self.weights)}")
+        if self.weights.rate is None:
+            set_field(self, "weights", replace(self.weights, rate=default_rate_weight(self.vehicle)))
         check.choice("terminal", self.terminal, PATH_TERMINAL_MODES)
         if self.substeps is None:  # RK4 stable on the vehicle's modes at rest (the REMUS: 2 at 0.5 s)
             auto = self.transcription == "multiple_shooting"
@@ -294,6 +321,20 @@ class PathFollowingProblem(DeclaredPreset):
                 f"obstacles must be static for path following (the problem has no time), got moving {moving}"
             )
         set_field(self, "obstacles", obstacles)
+        set_field(self, "control_lower", self._checked_control_lower())
+
+    def _checked_control_lower(self) -> tuple[float, ...]:
+        """``control_lower`` as a tuple of floats, the default's if None (``ValueError`` names it)."""
+        if self.control_lower is None:
+            return default_control_lower(self.vehicle, self.speed)
+        bound, _ = control_limits(self.vehicle)
+        lower = check.finite_array("control_lower", self.control_lower, bound.shape)
+        outside = np.flatnonzero((lower < -bound) | (lower > bound))
+        if outside.size:
+            raise ValueError(
+                f"control_lower must lie within the vehicle's bounds ±{bound.tolist()}, got {lower.tolist()}"
+            )
+        return tuple(float(value) for value in lower)
 
     # ------------------------------------------------------------- the Ocp
     @functools.cached_property
@@ -312,7 +353,11 @@ class PathFollowingProblem(DeclaredPreset):
         s = ocp.state("s")
         max_control, max_rate = control_limits(vehicle)
         tau = ocp.control(
-            "tau", nu, lower=-max_control, upper=max_control, max_rate=max_rate if self.rate_limits else None
+            "tau",
+            nu,
+            lower=np.asarray(self.control_lower, dtype=float),
+            upper=max_control,
+            max_rate=max_rate if self.rate_limits else None,
         )
         top = self.max_path_speed
         v_s = ocp.control(
@@ -476,6 +521,31 @@ class PathFollowingProblem(DeclaredPreset):
             squared_distance, bounds=(low, high), method="bounded", options={"xatol": 1e-10}
         )
         return float(found.x)
+
+
+def default_rate_weight(vehicle: Any) -> float:
+    """Return the default ``PathWeights.rate`` of ``vehicle`` (dimensionless).
+
+    :data:`FIN_RATE_WEIGHT` for a vehicle with a propeller control ``"n"`` (a fin-steered
+    torpedo), else :data:`RATE_WEIGHT`.
+    """
+    return FIN_RATE_WEIGHT if "n" in tuple(vehicle.layout.control_names) else RATE_WEIGHT
+
+
+def default_control_lower(vehicle: Any, speed: float) -> tuple[float, ...]:
+    """Default lower control bounds of :class:`PathFollowingProblem` (the controls' units).
+
+    ``−u_max`` for every control but a propeller (a control named ``"n"``), which is floored at
+    :data:`PROPELLER_FLOOR` × its cruise speed at ``speed`` m/s
+    (:func:`~uuv_ocp.control.guidance.cruise_propeller_speed`): the plan keeps the vehicle
+    moving, so its fins keep their authority (no braking stall in turns or near a line).
+    """
+    bound, _ = control_limits(vehicle)
+    lower = -bound
+    names = tuple(vehicle.layout.control_names)
+    if "n" in names:
+        lower[names.index("n")] = PROPELLER_FLOOR * cruise_propeller_speed(vehicle, speed)
+    return tuple(float(value) for value in lower)
 
 
 def path_rate(v_s: Any, tangent: Any) -> Any:

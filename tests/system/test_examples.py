@@ -293,9 +293,10 @@ def test_remus_survey_example_first_lane(tmp_path, capsys):
         assert np.max(np.abs(run.states[:, 1])) < (3.0 if name == "ILOS" else 2.0), name
         assert np.max(np.abs(run.states[:, 2] - module.DEPTH)) < 1.0, name
         assert np.all(np.isfinite(run.states)), name
-    # NMPC, told the current, has settled on the lane by 20 s (measured: 0.105 m at 15.5 s, at
-    # most 0.016 m over the last 2.5 s); ILOS's integral is still winding up
+    # NMPC, told the current, is settling on the lane by 20 s (measured: at most 0.071 m over the
+    # last 2.5 s with the REMUS's default rate weight 500, which calms the fins and so slows the
+    # approach; 0.016 m with the old weight 1); ILOS's integral is still winding up
     nmpc, ilos = out.runs["NMPC ipopt"].states[-5:, 1], out.runs["ILOS"].states[-10:, 1]
-    assert np.max(np.abs(nmpc)) < 0.05 < 1.0 < np.min(np.abs(ilos))
+    assert np.max(np.abs(nmpc)) < 0.1 < 1.0 < np.min(np.abs(ilos))
     for figure in out.figures:
         assert figure.parent == tmp_path and figure.stat().st_size > 1000

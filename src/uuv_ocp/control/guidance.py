@@ -312,25 +312,36 @@ def _simplified(points: np.ndarray, tolerance: float) -> np.ndarray:
 def cruise_propeller_speed(vehicle: Any, speed: float) -> float:
     """Propeller speed (rpm) at which the vehicle's surge acceleration vanishes at ``speed`` m/s.
 
-    The model's ``u̇`` at a straight run (only ``u = speed`` nonzero, fins at zero, still water)
-    as a function of the propeller speed, solved by Brent's method on ``[0, n_max]``.
+    The model's ``u̇`` at a straight run (only ``u = speed`` nonzero, every other control at
+    zero, still water) as a function of the propeller speed (the control named ``"n"``), solved
+    by Brent's method on ``[0, n_max]``.  The one computation of the cruise propeller speed:
+    :class:`LosGuidance` holds it, and :class:`~uuv_ocp.path_following.PathFollowingProblem`
+    floors its propeller bound at a fraction of it.
 
     Raises
     ------
     ValueError
-        If even ``n_max`` cannot hold ``speed`` (beyond the vehicle's top speed).
+        If the vehicle has no control named ``"n"``, or even ``n_max`` cannot hold ``speed``
+        (beyond the vehicle's top speed).
     """
-    dynamics = vehicle.model_function()
     layout = vehicle.layout
+    if "n" not in layout.control_names:
+        raise ValueError(
+            f"vehicle must have a propeller control named 'n' (rpm), got controls {layout.control_names}"
+        )
+    propeller = layout.control_names.index("n")
+    dynamics = vehicle.model_function()
     state = np.zeros(layout.state_dim)
     state[layout.velocities[0]] = speed
     current = np.zeros(layout.current_dim)
     surge = layout.velocities[0]
 
     def acceleration(rpm: float) -> float:
-        return float(np.asarray(dynamics(state, [0.0, 0.0, rpm], current)).ravel()[surge])
+        control = np.zeros(layout.control_dim)
+        control[propeller] = rpm
+        return float(np.asarray(dynamics(state, control, current)).ravel()[surge])
 
-    top = float(vehicle.control_bound[2])
+    top = float(vehicle.control_bound[propeller])
     if acceleration(top) <= 0.0:
         raise ValueError(
             f"speed must be reachable at the propeller bound {top:g} rpm (the vehicle's top speed), "

@@ -27,6 +27,8 @@ import numpy as np
 from uuv_ocp import _validation as check
 
 CentrePath = Callable[[ca.SX], object]
+#: Window (s) over which :func:`centre_motion` samples a moving obstacle on an endless reference.
+MOTION_WINDOW = 3600.0
 KINDS = ("circle", "ellipse")
 
 
@@ -276,13 +278,17 @@ def centre_motion(
 
     ``(0, 0)`` for a fixed obstacle; for a moving one the exact derivatives of its centre
     path (CasADi's), taken at ``samples`` evenly spaced times: a sampled maximum, exact
-    for the straight and uniformly curving paths of the examples.
+    for the straight and uniformly curving paths of the examples.  An infinite ``t_end`` (a
+    reference without an end) stands for ``t_start`` + :data:`MOTION_WINDOW`.
     """
     if not isinstance(obstacle, Obstacle):
         raise ValueError(f"obstacle must be a uuv_ocp.Obstacle, got {obstacle!r}")
     if obstacle._path is None:
         return 0.0, 0.0
-    t_start, t_end = check.finite_float("t_start", t_start), check.finite_float("t_end", t_end)
+    t_start = check.finite_float("t_start", t_start)
+    if t_end == math.inf:
+        t_end = t_start + MOTION_WINDOW
+    t_end = check.finite_float("t_end", t_end)
     if t_end < t_start:
         raise ValueError(f"t_end must be >= t_start = {t_start}, got {t_end}")
     samples = check.positive_int("samples", samples, minimum=2)

@@ -36,15 +36,25 @@ class Course:
     x0: np.ndarray
 
 
-def courses(horizon: int = 20) -> list[Course]:
-    """Build the RexROV and BlueROV2 Heavy courses (obstacles a little off the line: two unequal sides)."""
+def courses(horizon: int = 20, obstacle_tolerance: float | str = "auto") -> list[Course]:
+    """Build the RexROV and BlueROV2 Heavy courses (obstacles a little off the line: two unequal sides).
+
+    ``obstacle_tolerance`` (``TrackingProblem``'s): ``"auto"`` keeps every plant step, not only
+    the controller's nodes, out of the enlarged obstacles; 0 constrains the nodes only.
+    """
     line = uo.Reference.from_xy(lambda t: 0.5 * t, lambda t: 0 * t, name="line")
     rexrov_obstacles = [
         uo.Obstacle.circle((5.0, 0.2), 1.0, margin=1.0, name="rock"),
         uo.Obstacle.ellipse((11.0, -0.3), (1.5, 0.8), angle=0.4, margin=1.0, name="wreck"),
     ]
     rexrov = uo.TrackingProblem(
-        uo.Vehicle.rexrov(), line, horizon=horizon, dt=0.1, terminal="cost", obstacles=rexrov_obstacles
+        uo.Vehicle.rexrov(),
+        line,
+        horizon=horizon,
+        dt=0.1,
+        terminal="cost",
+        obstacles=rexrov_obstacles,
+        obstacle_tolerance=obstacle_tolerance,
     )
     dive = uo.Reference.from_xyz(lambda t: 0.3 * t, lambda t: 0 * t, lambda t: 1.0 + 0 * t, name="dive")
     blue_obstacles = [
@@ -52,7 +62,13 @@ def courses(horizon: int = 20) -> list[Course]:
         uo.Obstacle.moving(lambda t: (3.5, -1.0 + 0.1 * t), 0.3, margin=0.3, name="diver"),
     ]
     blue = uo.TrackingProblem(
-        Vehicle6DOF.bluerov2_heavy(), dive, horizon=horizon, dt=0.1, terminal="cost", obstacles=blue_obstacles
+        Vehicle6DOF.bluerov2_heavy(),
+        dive,
+        horizon=horizon,
+        dt=0.1,
+        terminal="cost",
+        obstacles=blue_obstacles,
+        obstacle_tolerance=obstacle_tolerance,
     )
     return [
         Course("RexROV", rexrov, line.initial_state(0.0)),

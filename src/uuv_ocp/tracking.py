@@ -49,7 +49,7 @@ from uuv_ocp.model.base import (
     model_parameters,
     parametric_model_function,
 )
-from uuv_ocp.obstacles import Obstacle, check_obstacles
+from uuv_ocp.obstacles import Obstacle, between_nodes, centre_motion, check_obstacles, vehicle_motion
 from uuv_ocp.ocp import Ocp, OcpSpec, check_transcription
 from uuv_ocp.reference.path import UNWRAP_STEP, Reference
 
@@ -450,6 +450,15 @@ class TrackingProblem(DeclaredPreset):
         Keep-out zones (:class:`~uuv_ocp.obstacles.Obstacle`): hard constraints on nodes
         1..N for exact solvers, an exact penalty for swarms; moving ones are sampled at
         ``t0 + k dt``.
+    obstacle_tolerance : float or "auto"
+        How far (m, >= 0) the nodes are kept outside each enlarged obstacle
+        (``Obstacle.clearance(..., tolerance=)``), so that the path between two nodes stays
+        out too.  ``"auto"``: per obstacle, :func:`~uuv_ocp.obstacles.between_nodes` at this
+        ``dt`` with the vehicle's top horizontal speed and sampled largest acceleration
+        (:func:`~uuv_ocp.obstacles.vehicle_motion`) plus a moving obstacle's own
+        (:func:`~uuv_ocp.obstacles.centre_motion` over the reference window): a few mm for the
+        RexROV at ``dt = 0.1`` s (:attr:`obstacle_tolerances`).  The default 0 constrains the
+        nodes only, where the path between them may cut into the margin by a fraction of a mm.
     """
 
     vehicle: Any
@@ -464,6 +473,7 @@ class TrackingProblem(DeclaredPreset):
     rate_limits: bool = True
     position_tube: float | None = None
     obstacles: tuple[Obstacle, ...] = ()
+    obstacle_tolerance: float | str = 0.0
 
     def __post_init__(self) -> None:
         """Check the fields against each other and the vehicle; fill in the default weights."""
@@ -512,6 +522,15 @@ class TrackingProblem(DeclaredPreset):
             tube = check.positive_float("position_tube", self.position_tube)
             object.__setattr__(self, "position_tube", tube)
         object.__setattr__(self, "obstacles", check_obstacles(self.obstacles))
+        if self.obstacle_tolerance != "auto":
+            tolerance = self.obstacle_tolerance
+            if isinstance(tolerance, str):
+                raise ValueError(
+                    f"obstacle_tolerance must be a distance in m >= 0 or 'auto', got {tolerance!r}"
+                )
+            object.__setattr__(
+                self, "obstacle_tolerance", check.nonnegative_float("obstacle_tolerance", tolerance)
+            )
         if self.reference.t_end - self.reference.t_start < self.horizon * self.dt:
             raise ValueError(
                 f"horizon * dt = {self.horizon * self.dt} s exceeds the reference window "
@@ -550,10 +569,28 @@ class TrackingProblem(DeclaredPreset):
         horizontal = list(layout.positions[:2])  # (x, y)
         if self.position_tube is not None:
             ocp.bounded(-self.position_tube, error[horizontal], self.position_tube, soft=weights.tube_penalty)
-        for i, obstacle in enumerate(self.obstacles):
+        for i, (obstacle, tolerance) in enumerate(zip(self.obstacles, self.obstacle_tolerances, strict=True)):
             centre = ocp.parameter(f"obstacle{i}", 2, stagewise=True) if obstacle.is_moving else None
-            ocp.subject_to(obstacle.clearance(state[horizontal], centre) >= 0)
+            ocp.subject_to(obstacle.clearance(state[horizontal], centre, tolerance) >= 0)
         return ocp
+
+    @functools.cached_property
+    def obstacle_tolerances(self) -> tuple[float, ...]:
+        """Tolerance (m) each obstacle's node constraint holds (``obstacle_tolerance`` resolved)."""
+        if self.obstacle_tolerance != "auto":
+            return (float(self.obstacle_tolerance),) * len(self.obstacles)
+        if not self.obstacles:
+            return ()
+        speed, acceleration = vehicle_motion(self.vehicle)
+        window = (self.reference.t_start, self.reference.t_end)
+        tolerances = []
+        for obstacle in self.obstacles:
+            # relative to a moving centre the speeds and accelerations add (triangle inequality)
+            centre_speed, centre_acceleration = centre_motion(obstacle, *window)
+            tolerances.append(
+                between_nodes(obstacle, self.dt, speed + centre_speed, acceleration + centre_acceleration)
+            )
+        return tuple(tolerances)
 
     # ------------------------------------------------------------- dimensions
     @property

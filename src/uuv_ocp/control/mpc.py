@@ -25,7 +25,11 @@ Otherwise the step takes the *fallback*, the first admissible plan of
    velocities (an Ocp: the measured ones) at the measured pose against the model's drift
    (damping, current, restoring forces), i.e. the least-squares solution of ``f_v(x, u) = 0``
    for the rows ``f_v`` of the dynamics the controls drive, clipped to the box;
-3. the last applied control held;
+3. on a tracking problem, the *braking control* ramped to at the rate bound: the control (in
+   the box) whose driven velocity rates come closest to ``−ν / dt`` at the measured state,
+   i.e. the hardest stop the box allows (a vehicle that no plan steers clear of an obstacle
+   stops short of it instead of creeping on into it);
+4. the last applied control held;
 
 where admissible means: the judge finds the plan within the control box, the rate bound
 against the last applied control and the hard path constraints (to ``FEASIBILITY_TOLERANCE``)
@@ -132,7 +136,8 @@ class StepRecord:
         Whether the backend's ``deadline`` option stopped or outlasted this solve
         (``result.details["deadline_hit"]``; see the module doc).
     fallback_source : str
-        Which fallback plan was applied (module doc): ``"shifted plan"``, ``"steady control"``
+        Which fallback plan was applied (module doc): ``"shifted plan"``, ``"steady control"``,
+        ``"braking control"``
         or ``"held control"``, with ``" (least violation)"`` appended when none was
         admissible; empty when the fresh solution is applied.
     fast_path : str
@@ -612,6 +617,10 @@ class NMPC:
             steady = self._steady_control(p, last)
             if steady is not None:
                 yield "steady control", self._ramp(last, steady)
+            if isinstance(self.problem, TrackingProblem):
+                braking = self._steady_control(p, last, braking=True)
+                if braking is not None:
+                    yield "braking control", self._ramp(last, braking)
             yield "held control", np.tile(last, (spec.horizon, 1))
 
         best: tuple[float, str, np.ndarray] | None = None
@@ -659,8 +668,11 @@ class NMPC:
         function = ca.Function("steady_control", [x, u, parameters], [rate[rows], jacobian[rows, :]])
         return function, rows
 
-    def _steady_control(self, p: np.ndarray, start: np.ndarray) -> np.ndarray | None:
+    def _steady_control(self, p: np.ndarray, start: np.ndarray, braking: bool = False) -> np.ndarray | None:
         """Return the steady control of ``p`` (module doc), clipped to the box; ``None`` if not finite.
+
+        ``braking``: the braking control instead (module doc): the rows ``f_v`` at the measured
+        state are fitted to ``−x_v / dt`` (the driven velocities stopped within one interval).
 
         Least squares of ``f_v(x_s, u)`` over the control box, linearised at ``start`` (and
         relinearised, for a model not affine in the controls): ``f_v`` are the rows of the
@@ -673,7 +685,8 @@ class NMPC:
                 self._steady = self._steady_function(spec)
         function, rows = self._steady
         state = np.array(p[spec.layout.x0], dtype=float)
-        if isinstance(self.problem, TrackingProblem):  # hold the reference's velocities
+        target = -state[rows] / spec.dt if braking else np.zeros(rows.size)
+        if isinstance(self.problem, TrackingProblem) and not braking:  # hold the reference's velocities
             state[rows] = self.problem.parameter_parts(p)[1][0][rows]
         scale = spec.control_scale
         # the box in scaled controls z (u = centre + scale z): every column of the same order
@@ -683,6 +696,7 @@ class NMPC:
         for _ in range(STEADY_ITERATIONS):
             values = function(state, spec.physical(z), p)
             residual, derivative = (np.array(value, dtype=float) for value in values)
+            residual = residual.ravel() - target
             if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(derivative))):
                 return None
             slope = derivative * scale  # d f_v / d z

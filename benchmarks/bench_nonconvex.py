@@ -43,8 +43,9 @@ interval over instances (seeded, :func:`paired_bootstrap`).
 
 ``--out FILE`` appends one JSON line per finished instance (with a SHA-256 checksum of its
 content and the run's configuration); a rerun with the same ``--out`` skips the instances
-already there and recomputes any whose line is corrupted or from another configuration.
-Ctrl-C stops after the current instance and prints the table of those done.
+already there and recomputes any whose line is corrupted or from another configuration;
+``--report`` prints the table of the rows there without solving anything.  Ctrl-C stops after
+the current instance and prints the table of those done.
 
 Run: ``python -m benchmarks.bench_nonconvex [--instances 500] [--seed 11] [--trap 0.4]
 [--moving] [--workers 1] [--out FILE]`` (part of ``make bench``).
@@ -356,7 +357,6 @@ def run(config: dict, out: Path | None = None, workers: int = 1, progress: bool 
     Rows are appended to ``out`` as they finish (flushed), so an interrupted run loses at most
     the instances in flight.  Ctrl-C stops the run; the outcome then holds the rows done.
     """
-    labels = list(methods())
     done, rejected = read_rows(out, config) if out is not None else ({}, 0)
     todo = [i for i in range(config["instances"]) if i not in done]
     interrupted = False
@@ -387,6 +387,12 @@ def run(config: dict, out: Path | None = None, workers: int = 1, progress: bool 
     finally:
         if handle is not None:
             handle.close()
+    return summary(config, done, rejected, interrupted)
+
+
+def summary(config: dict, done: dict[int, dict], rejected: int = 0, interrupted: bool = False) -> dict:
+    """Return the outcome of the rows ``done`` (``{index: row}``): arrays over instances × methods."""
+    labels = list(methods())
     indices = sorted(done)
     fields = instances(config["instances"], config["seed"], config["trap"], config["moving"])
 
@@ -470,6 +476,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--workers", type=int, default=1, help="processes (each solve is timed in its own)")
     parser.add_argument("--out", type=Path, default=None, help="JSON-lines file of finished instances")
     parser.add_argument("--no-progress", action="store_true", help="draw no progress bar")
+    parser.add_argument("--report", action="store_true", help="only print the table of the rows in --out")
     args = parser.parse_args(argv if argv is not None else [])
     if args.instances < 1 or args.workers < 1:
         parser.error("--instances and --workers must be >= 1")
@@ -482,11 +489,17 @@ def main(argv: list[str] | None = None) -> None:
         "methods": list(methods()),
     }
     start = time.perf_counter()
-    outcome = run(config, args.out, args.workers, not args.no_progress)
+    if args.report:
+        if args.out is None:
+            parser.error("--report needs --out")
+        rows, rejected = read_rows(args.out, config)
+        outcome = summary(config, rows, rejected, interrupted=len(rows) < args.instances)
+    else:
+        outcome = run(config, args.out, args.workers, not args.no_progress)
     if outcome["rejected"]:
         print(f"{outcome['rejected']} line(s) of {args.out} rejected (corrupted or another configuration)")
     if outcome["interrupted"]:
-        print(f"interrupted: {len(outcome['indices'])} of {args.instances} instances done")
+        print(f"not finished: {len(outcome['indices'])} of {args.instances} instances done")
     print(format_table(outcome))
     print(
         f"({time.perf_counter() - start:.0f} s wall, load {os.getloadavg()[0]:.1f}; python -m "

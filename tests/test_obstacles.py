@@ -424,6 +424,111 @@ def test_benchmark_main_runs_at_a_tiny_size(capsys):
     bench = _bench_module()
     bench.main(["--instances", "4", "--workers", "1", "--reference-starts", "4"])
     out = capsys.readouterr().out
-    assert "4 instances (2 traps)" in out
+    assert "4 instances (2 traps, static obstacles" in out
     for label in bench.methods():
         assert f"\n{label} " in out
+    assert "paired bootstrap 95% CI" in out
+
+
+def test_benchmark_moving_fields_are_the_static_ones_where_the_vehicle_passes():
+    bench = _bench_module()
+    static, moving = bench.instances(10, seed=5), bench.instances(10, seed=5, moving=True)
+    for still, field in zip(static, moving, strict=True):
+        assert np.array_equal(still.data["goal"], field.data["goal"]) and np.array_equal(still.x0, field.x0)
+        speeds = np.hypot(*field.velocities.T)
+        assert np.all(speeds <= bench.MAX_SPEED) and np.any(speeds > 0.0)
+        centres = field.data["centres"].reshape(bench.HORIZON + 1, bench.SLOTS, 2)[:, : len(field.obstacles)]
+        times = bench.DT * np.arange(bench.HORIZON + 1)
+        np.testing.assert_allclose(
+            centres, field.obstacles[None, :, :2] + times[:, None, None] * field.velocities
+        )
+        goal = field.data["goal"]
+        along = goal / np.hypot(*goal)
+        passing = (
+            np.clip(still.obstacles[:, :2] @ along / np.hypot(*goal), 0.0, 1.0) * bench.HORIZON * bench.DT
+        )
+        if field.trap:  # A and B move as one, placed where A straddles the line at A's passing time
+            passing[1] = passing[0]
+            assert np.array_equal(field.velocities[0], field.velocities[1])
+        at_pass = field.obstacles[:, :2] + passing[:, None] * field.velocities
+        np.testing.assert_allclose(at_pass, still.obstacles[:, :2], atol=1e-12)
+
+
+def test_benchmark_wilson_interval_matches_the_textbook_and_the_quadratic():
+    bench = _bench_module()
+    # Newcombe (1998), Stat. Med. 17:857, example 81/263: Wilson 95 % interval 0.2553 to 0.3662
+    low, high = bench.wilson(81, 263)
+    assert (round(low, 4), round(high, 4)) == (0.2553, 0.3662)
+    # second implementation: the roots in p of (p̂ − p)² = z² p (1 − p) / n
+    for k, n in ((0, 10), (3, 10), (10, 10), (475, 500)):
+        z2, share = bench.Z95**2, k / n
+        roots = np.sort(np.roots([1 + z2 / n, -(2 * share + z2 / n), share**2]).real)
+        assert bench.wilson(k, n) == pytest.approx(tuple(np.clip(roots, 0.0, 1.0)), abs=1e-12)
+    with pytest.raises(ValueError, match="successes"):
+        bench.wilson(11, 10)
+    with pytest.raises(ValueError, match="trials"):
+        bench.wilson(0, 0)
+
+
+def test_benchmark_paired_bootstrap_is_seeded_and_near_the_normal_interval():
+    bench = _bench_module()
+    rng = np.random.default_rng(8)
+    a = (rng.random(500) < 0.95).astype(float)
+    b = np.where(rng.random(500) < 0.8, a, 1.0 - a)  # paired: b mostly agrees with a
+    first, again = bench.paired_bootstrap(a, b, seed=3), bench.paired_bootstrap(a, b, seed=3)
+    assert first == again and bench.paired_bootstrap(a, b, seed=4) != first
+    mean, low, high = first
+    difference = a - b
+    assert mean == pytest.approx(difference.mean())
+    half = bench.Z95 * difference.std(ddof=1) / np.sqrt(difference.size)  # the normal approximation
+    assert low == pytest.approx(mean - half, abs=0.15 * half) and high == pytest.approx(
+        mean + half, abs=0.15 * half
+    )
+    assert bench.paired_bootstrap(a, a) == (0.0, 0.0, 0.0)
+    with pytest.raises(ValueError, match="equal-length"):
+        bench.paired_bootstrap(a, b[:3])
+
+
+def test_benchmark_resume_skips_done_instances_and_solves_a_corrupted_line_again(tmp_path, monkeypatch):
+    bench = _bench_module()
+    labels = list(bench.methods())
+    solved = []
+
+    class FakeRunner:  # stands for the solvers: records what it is asked to solve
+        def __init__(self, config):
+            self.config = config
+
+        def solve(self, i):
+            solved.append(i)
+            return {
+                "index": i,
+                "cost": [1.0 + i] * len(labels),
+                "ok": [True] * len(labels),
+                "seconds": [0.01] * len(labels),
+                "reference": 1.0 + i,
+            }
+
+    monkeypatch.setattr(bench, "Runner", FakeRunner)
+    config = {
+        "instances": 4,
+        "seed": 1,
+        "trap": 0.4,
+        "moving": False,
+        "reference_starts": 2,
+        "methods": labels,
+    }
+    out = tmp_path / "rows.jsonl"
+    good = FakeRunner(config)
+    lines = [bench.encode_row(config, good.solve(i)) for i in range(3)]
+    lines[1] = lines[1].replace('"cost": [2.0', '"cost": [0.5')  # a changed value: checksum fails
+    other = bench.encode_row({**config, "seed": 2}, good.solve(2))  # another configuration
+    out.write_text("\n".join([lines[0], lines[1], other, lines[2][:-9]]) + "\n")  # last line cut short
+    solved.clear()
+    rows, rejected = bench.read_rows(out, config)
+    assert sorted(rows) == [0] and rejected == 3
+    outcome = bench.run(config, out, progress=False)
+    assert sorted(solved) == [1, 2, 3] and outcome["indices"] == [0, 1, 2, 3]
+    assert outcome["cost"][:, 0].tolist() == [1.0, 2.0, 3.0, 4.0]  # not the corrupted 0.5
+    solved.clear()
+    again = bench.run(config, out, progress=False)
+    assert solved == [] and again["indices"] == [0, 1, 2, 3]

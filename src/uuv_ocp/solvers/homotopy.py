@@ -1,0 +1,272 @@
+"""Initial guesses across homotopy classes: around each obstacle that blocks the reference path.
+
+Among circular obstacles an optimal-control problem has one local optimum per homotopy class
+(which side of each obstacle the path passes), and a gradient solver started on a path that
+runs through an obstacle is pushed to the side the path's deepest point already lies on, which
+may be the worse class.  This module builds one guess per class for the exact solver:
+
+1. **Blockers**: the discs (centre, radius with margin; possibly moving) that the guess's path
+   enters, at a node or on the straight segment between two nodes, sorted by depth
+   (radius − smallest distance of the path to the centre, m).  The :data:`BLOCKERS` deepest
+   are kept.
+2. **Classes**: each side assignment ``s ∈ {+1, −1}^k`` of the k kept blockers (``+1``: the
+   path passes to the left of the centre, seen along the path's chord from its first to its
+   last node).  The path is *pushed* around each blocker in turn: a node ``q`` with
+   ``q − c = a t + b n`` (``t`` the chord's direction, ``n`` its left normal) and
+   ``|a| < R`` moves to ``b = s √(R² − a²)`` unless it is already farther on that side
+   (``R`` = radius × (1 + :data:`PAD`), so the guess clears the disc).  Node 0 (the measured
+   state) never moves.
+3. **Order**: the classes are ranked by the squared displacement of their pushed path from the
+   original one (a cheap proxy of a tracking cost), the least first; near-duplicates (every
+   node within 1 cm) and assignments the pushes cannot realise (a later push across an
+   overlapping disc undoing an earlier one, checked at the node abreast of each centre) are
+   dropped.
+
+The guess of a class keeps the original guess's controls and every state except the
+horizontal position, which is the pushed path, and (when the geometry names them) the
+horizontal velocity, the path's finite differences over ``dt``.
+
+The geometry comes from a :class:`Geometry` provider (a callable of the parameter vector ``p``,
+the ``geometry`` option of the hybrids), or, for a
+:class:`~uuv_ocp.tracking.TrackingProblem`, from its ``obstacles`` (an ellipse is taken as the
+circle of its larger half-axis).
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from uuv_ocp.solvers.result import Iterate
+
+BLOCKERS = 3
+"""Number of blockers whose sides are enumerated (at most ``2**BLOCKERS`` classes)."""
+
+PAD = 0.1
+"""Relative clearance of a pushed path from a blocker's boundary (0.1: 10 % of its radius)."""
+
+SEGMENT_SAMPLES = 4
+"""Points per interval at which the path between two nodes is checked for entering a disc."""
+
+DUPLICATE = 0.01
+"""Two class paths closer than this at every node (m) are one guess."""
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Where the obstacles are and which states are the horizontal position.
+
+    Parameters
+    ----------
+    discs : ndarray, shape (N+1, n, 3)
+        Per node ``k`` and obstacle ``i``: centre x (m), centre y (m), radius including the
+        vehicle's margin (m), > 0.  A fixed obstacle repeats the same row at every node.
+    position : tuple of 2 int
+        State columns of the horizontal position (x, y).
+    velocity : tuple of 2 int or None
+        State columns of the horizontal velocity in the same frame (m/s), set from the pushed
+        path's finite differences; ``None``: the velocity of the guess is kept.
+    dt : float
+        Interval length (s), > 0 (only used with ``velocity``).
+    """
+
+    discs: np.ndarray
+    position: tuple[int, int]
+    velocity: tuple[int, int] | None = None
+    dt: float = 1.0
+
+    def __post_init__(self) -> None:
+        """Check shapes and values."""
+        discs = np.asarray(self.discs, dtype=float)
+        if discs.ndim != 3 or discs.shape[2] != 3:
+            raise ValueError(f"discs must have shape (N+1, n, 3), got {discs.shape}")
+        if not np.all(np.isfinite(discs)) or np.any(discs[:, :, 2] <= 0.0):
+            raise ValueError("discs must be finite with radii > 0")
+        object.__setattr__(self, "discs", discs)
+        for name in ("position", "velocity"):
+            value = getattr(self, name)
+            if value is None and name == "velocity":
+                continue
+            if len(value) != 2 or any(not isinstance(i, (int, np.integer)) or i < 0 for i in value):
+                raise ValueError(f"{name} must be 2 state columns (int >= 0), got {value!r}")
+            object.__setattr__(self, name, (int(value[0]), int(value[1])))
+        if not (np.isfinite(self.dt) and self.dt > 0.0):
+            raise ValueError(f"dt must be finite and > 0, got {self.dt!r}")
+
+
+GeometryProvider = Callable[[np.ndarray], Geometry | None]
+
+
+def _chord(path: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Return the unit direction of the path's chord (first to last node) and its left normal."""
+    chord = path[-1] - path[0]
+    length = float(np.hypot(*chord))
+    along = chord / length if length > 1e-9 else np.array([1.0, 0.0])
+    return along, np.array([-along[1], along[0]])
+
+
+def blockers(path: np.ndarray, discs: np.ndarray, count: int = BLOCKERS) -> list[tuple[int, float]]:
+    """Obstacles the path enters, deepest first: ``[(index, depth m), ...]`` (at most ``count``).
+
+    Parameters
+    ----------
+    path : ndarray, shape (N+1, 2)
+        Horizontal positions at the nodes (m).
+    discs : ndarray, shape (N+1, n, 3)
+        Obstacles per node (see :class:`Geometry`).
+    count : int
+        Largest number returned.
+    """
+    weights = np.linspace(0.0, 1.0, SEGMENT_SAMPLES + 1)[:-1]
+    # points between nodes, with the centres interpolated alike (moving obstacles)
+    points = np.concatenate([(1 - w) * path[:-1] + w * path[1:] for w in weights] + [path[-1:]], axis=0)
+    centres = np.concatenate(
+        [(1 - w) * discs[:-1, :, :2] + w * discs[1:, :, :2] for w in weights] + [discs[-1:, :, :2]],
+        axis=0,
+    )
+    radii = np.concatenate([discs[:-1, :, 2]] * len(weights) + [discs[-1:, :, 2]], axis=0)
+    distance = np.linalg.norm(points[:, None, :] - centres, axis=2)
+    depth = np.max(radii - distance, axis=0)
+    inside = [int(i) for i in np.flatnonzero(depth > 0.0)]
+    inside.sort(key=lambda i: -depth[i])
+    return [(i, float(depth[i])) for i in inside[:count]]
+
+
+def push(path: np.ndarray, track: np.ndarray, side: float, pad: float = PAD) -> np.ndarray:
+    """Return ``path`` pushed around one disc on ``side`` (+1 left of the centre, −1 right).
+
+    Parameters
+    ----------
+    path : ndarray, shape (N+1, 2)
+        Horizontal positions (m); node 0 is kept.
+    track : ndarray, shape (N+1, 3)
+        The disc at each node: centre x, y and radius (m).
+    side : {+1, -1}
+        Side of the centre the pushed path passes on, along the chord of ``path``.
+    pad : float
+        Relative extra clearance (the pushed nodes sit at radius × (1 + pad)).
+    """
+    along, normal = _chord(path)
+    out = path.copy()
+    offset = path - track[:, :2]
+    a = offset @ along
+    b = offset @ normal
+    reach = track[:, 2] * (1.0 + pad)
+    near = np.abs(a) < reach
+    near[0] = False  # the measured state does not move
+    wanted = side * np.sqrt(np.maximum(reach**2 - a**2, 0.0))
+    move = near & (side * b < np.abs(wanted))
+    out[move] = track[move, :2] + a[move, None] * along + wanted[move, None] * normal
+    return out
+
+
+def _passes(path: np.ndarray, track: np.ndarray, side: int) -> bool:
+    """Whether ``path`` is on ``side`` of the disc at the node most nearly abreast of its centre."""
+    along, normal = _chord(path)
+    offset = path[1:] - track[1:, :2]
+    k = int(np.argmin(np.abs(offset @ along)))
+    return bool(side * float(offset[k] @ normal) > 0.0)
+
+
+def class_paths(
+    path: np.ndarray, discs: np.ndarray, count: int = BLOCKERS, pad: float = PAD
+) -> list[tuple[dict[int, int], np.ndarray]]:
+    """Pushed paths of every side assignment of the ``count`` deepest blockers, best first.
+
+    Returns ``[(sides, path), ...]`` with ``sides`` mapping an obstacle index to +1 (left) or
+    −1 (right); ordered by squared displacement from ``path`` (least first), near-duplicates
+    dropped.  Empty when the path enters no obstacle.
+    """
+    found = [i for i, _ in blockers(path, discs, count)]
+    if not found:
+        return []
+    along, _ = _chord(path)
+    # push in the order the path meets them (nearest centre along the chord first)
+    found.sort(key=lambda i: float(np.min((discs[:, i, :2] - path[0]) @ along)))
+    ranked = []
+    for signs in itertools.product((1, -1), repeat=len(found)):
+        pushed = path
+        for i, s in zip(found, signs, strict=True):
+            pushed = push(pushed, discs[:, i, :], float(s), pad)
+        if not all(_passes(pushed, discs[:, i, :], s) for i, s in zip(found, signs, strict=True)):
+            continue  # a later push undid an earlier one (overlapping discs): not this class
+        ranked.append((float(np.sum((pushed - path) ** 2)), dict(zip(found, signs, strict=True)), pushed))
+    ranked.sort(key=lambda row: row[0])
+    out: list[tuple[dict[int, int], np.ndarray]] = []
+    for _, sides, pushed in ranked:
+        if all(np.max(np.abs(pushed - other)) > DUPLICATE for _, other in out):
+            out.append((sides, pushed))
+    return out
+
+
+def geometry_of(problem: Any, p: np.ndarray, provider: GeometryProvider | None = None) -> Geometry | None:
+    """Return the obstacle geometry of instance ``p``: the ``provider``'s, else a tracking problem's.
+
+    ``None`` when neither gives one (no obstacles known: no class guesses).
+    """
+    if provider is not None:
+        return provider(p)
+    obstacles = getattr(problem, "obstacles", None)
+    if not obstacles:
+        return None
+    spec = problem.spec()
+    layout = getattr(getattr(problem, "vehicle", None), "layout", None)
+    positions = getattr(layout, "positions", None)
+    if positions is None or len(positions) < 2:
+        return None
+    nodes = spec.horizon + 1
+    entries = spec.layout.entries
+    rows = []
+    for i, obstacle in enumerate(obstacles):
+        radius = obstacle.radius + obstacle.margin
+        if obstacle.is_moving:  # its centres at the nodes are a stagewise parameter of p
+            where = entries[f"obstacle{i}"][0]
+            centres = np.asarray(p[where], dtype=float).reshape(-1, 2)[:nodes]
+        else:
+            centres = np.tile(np.asarray(obstacle.centre, dtype=float), (nodes, 1))
+        rows.append(np.column_stack([centres, np.full(nodes, radius)]))
+    return Geometry(np.stack(rows, axis=1), (int(positions[0]), int(positions[1])), None, spec.dt)
+
+
+def class_guesses(
+    problem: Any,
+    p: np.ndarray,
+    warm_start: Iterate | None,
+    geometry: Geometry,
+    count: int = BLOCKERS,
+) -> list[tuple[str, Iterate]]:
+    """Exact solver's guesses across homotopy classes: ``[(label, Iterate), ...]``, best first.
+
+    The path is the warm start's horizontal position (the problem's cold guess without one);
+    the label names each blocker's side, e.g. ``"class 2L 0R"`` (obstacle 2 left, 0 right).
+    """
+    if warm_start is not None and warm_start.states is not None and warm_start.scaled_controls is not None:
+        states = np.asarray(warm_start.states, dtype=float)
+        controls = np.asarray(warm_start.scaled_controls, dtype=float)
+    else:
+        states, controls = problem.initial_guess(p)
+    columns = list(geometry.position)
+    out = []
+    for sides, path in class_paths(states[:, columns], geometry.discs, count):
+        new = states.copy()
+        new[:, columns] = path
+        if geometry.velocity is not None:
+            velocity = np.gradient(path, geometry.dt, axis=0)
+            new[1:, list(geometry.velocity)] = velocity[1:]
+        label = "class " + " ".join(f"{i}{'L' if s > 0 else 'R'}" for i, s in sides.items())
+        out.append(
+            (
+                label,
+                Iterate(
+                    scaled_controls=controls.copy(),
+                    states=new,
+                    variant=warm_start.variant if warm_start is not None else "hard",
+                    terminal_relaxed=warm_start.terminal_relaxed if warm_start is not None else False,
+                ),
+            )
+        )
+    return out

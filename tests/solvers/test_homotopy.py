@@ -1,0 +1,182 @@
+"""Initial guesses across homotopy classes (uuv_ocp.solvers.homotopy) and the hybrids' class starts."""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+import uuv_ocp as uo
+from uuv_ocp.solvers import homotopy
+from uuv_ocp.solvers.homotopy import Geometry
+from uuv_ocp.solvers.result import Iterate
+
+N, DT = 20, 0.375
+GOAL = np.array([10.0, 0.0])
+# one disc straddling the line, its centre 0.1 m to the left: a solver started on the line is
+# pushed to the right, while the vehicle starts moving left at 1 m/s, so left is the better class
+TRAP = np.array([[5.0, 0.1, 1.5]])
+LATERAL = 1.0
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+
+def _field(discs: np.ndarray, lateral: float = 0.0) -> tuple[uo.Ocp, np.ndarray, Iterate, Geometry]:
+    """Planar double integrator from the origin to GOAL tracking the straight line among ``discs``.
+
+    It starts at the line's speed plus ``lateral`` m/s to its left.
+    """
+    ocp = uo.Ocp(horizon=N, dt=DT, name="homotopy_test")
+    pos, vel = ocp.state("pos", 2), ocp.state("vel", 2)
+    acc = ocp.control("acc", 2, lower=-1.0, upper=1.0, max_rate=2.0)
+    line = ocp.parameter("line", 2, stagewise=True)
+    ocp.set_der(pos, vel)
+    ocp.set_der(vel, acc)
+    ocp.add_stage_cost(residual=ca.vertcat(0.3 * (pos - line), 0.5 * acc), start=1)
+    ocp.add_terminal_cost(residual=ca.vertcat(3.0 * (pos - ca.DM(GOAL)), vel))
+    for x, y, r in discs:
+        ocp.subject_to(ca.sumsqr(pos - ca.DM([x, y])) >= r**2)
+    speed = GOAL / (N * DT)
+    path = np.linspace(0.0, 1.0, N + 1)[:, None] * GOAL
+    x0 = np.r_[0.0, 0.0, speed + [0.0, lateral]]
+    p = ocp.parameters(x0, {"line": path})
+    states = np.column_stack([path, np.tile(speed, (N + 1, 1))])
+    states[0] = x0
+    guess = Iterate(scaled_controls=np.zeros((N, 2)), states=states)
+    geometry = Geometry(np.tile(discs, (N + 1, 1, 1)), (0, 1), (2, 3), DT)
+    return ocp, p, guess, geometry
+
+
+def test_class_paths_pass_each_blocker_on_the_stated_side():
+    rng = np.random.default_rng(4)
+    path = np.linspace(0.0, 1.0, N + 1)[:, None] * GOAL
+    checked = 0
+    for _ in range(20):
+        discs = np.column_stack(
+            [rng.uniform(2.0, 8.0, 3), rng.uniform(-0.8, 0.8, 3), rng.uniform(0.5, 1.2, 3)]
+        )
+        discs[:, 0] = np.sort(discs[:, 0]) + np.array([0.0, 0.5, 1.0])  # apart along the line
+        track = np.tile(discs, (N + 1, 1, 1))
+        classes = homotopy.class_paths(path, track)
+        found = [i for i, _ in homotopy.blockers(path, track)]
+        assert len(classes) <= 2 ** len(found)
+        for sides, pushed in classes:
+            assert np.allclose(pushed[0], path[0])  # the measured state stays
+            for i, side in sides.items():
+                centre = discs[i, :2]
+                nearest = pushed[np.argmin(np.abs(pushed[:, 0] - centre[0]))]
+                # independent check: sign of (chord) × (node − centre) at the node abreast of it
+                assert np.sign(_cross(GOAL - path[0], nearest - centre)) == side
+                checked += 1
+    assert checked > 40
+
+
+def test_a_single_push_clears_the_disc_and_moves_only_nearby_nodes():
+    path = np.linspace(0.0, 1.0, N + 1)[:, None] * GOAL
+    track = np.tile([5.0, 0.2, 1.0], (N + 1, 1))
+    for side in (1.0, -1.0):
+        pushed = homotopy.push(path, track, side)
+        distance = np.hypot(*(pushed - track[:, :2]).T)
+        assert np.all(distance >= 1.0 - 1e-12)
+        far = np.abs(path[:, 0] - 5.0) >= 1.1
+        assert np.array_equal(pushed[far], path[far])
+
+
+def test_blockers_are_the_discs_the_path_enters_deepest_first():
+    path = np.linspace(0.0, 1.0, N + 1)[:, None] * GOAL
+    discs = np.array([[3.0, 0.5, 1.0], [6.0, -0.1, 1.0], [8.0, 3.0, 1.0]])
+    found = homotopy.blockers(path, np.tile(discs, (N + 1, 1, 1)))
+    assert [i for i, _ in found] == [1, 0]  # the third is 2 m clear of the line
+    assert [d for _, d in found] == pytest.approx([0.9, 0.5])
+
+
+def test_blockers_see_a_disc_between_two_nodes():
+    path = np.array([[0.0, 0.0], [4.0, 0.0], [8.0, 0.0]])
+    disc = np.array([[[2.0, 0.5, 0.7]]] * 3)  # both nodes 2.06 m away, the segment 0.5 m
+    assert homotopy.blockers(path, disc) == [(0, pytest.approx(0.2))]
+
+
+def test_class_start_reaches_the_better_class_where_the_straight_start_does_not():
+    ocp, p, guess, geometry = _field(TRAP, LATERAL)
+    fatrop = uo.get_solver(ocp, "fatrop")
+    straight = fatrop.solve(p, guess)
+    # independent references: fatrop from hand-made paths bowing well above and below the disc
+    refs = {}
+    for side, offset in (("above", 2.2), ("below", -2.2)):
+        states = guess.states.copy()
+        bump = np.sin(np.linspace(0.0, np.pi, N + 1)) ** 0.5
+        states[:, 1] = offset * bump
+        refs[side] = fatrop.solve(p, Iterate(scaled_controls=np.zeros((N, 2)), states=states))
+    assert refs["above"].success and refs["below"].success
+    assert refs["above"].cost < 0.8 * refs["below"].cost  # the class above is clearly better
+    assert straight.cost == pytest.approx(refs["below"].cost, rel=1e-5)  # the straight start misses it
+    starts = [fatrop.solve(p, g) for _, g in homotopy.class_guesses(ocp, p, guess, geometry)]
+    best = min(r.cost for r in starts if r.success)
+    assert best == pytest.approx(refs["above"].cost, rel=1e-5)
+
+
+def test_the_default_hybrid_starts_the_exact_solver_from_the_classes_too():
+    ocp, p, guess, geometry = _field(TRAP, LATERAL)
+    hybrid = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry})
+    result = hybrid.solve(p, guess, np.random.default_rng(3))
+    starts = [c["start"] for c in result.details["candidates"]]
+    assert starts == ["swarm 0", "class 0R", "class 0L"]  # one blocker: both of its classes
+    assert result.details["class_starts"] == 2
+    kept = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry, "candidates": 2})
+    starts = [c["start"] for c in kept.solve(p, guess, np.random.default_rng(3)).details["candidates"]]
+    assert starts == ["swarm 0", "warm start", "class 0R", "class 0L"]
+    assert result.cost == pytest.approx(min(c["cost"] for c in result.details["candidates"] if c["success"]))
+    again = hybrid.solve(p, guess, np.random.default_rng(3))  # seeded: the same result
+    assert again.cost == result.cost and again.details["chosen"] == result.details["chosen"]
+    off = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry, "classes": 0})
+    assert "candidates" not in off.solve(p, guess, np.random.default_rng(3)).details
+
+
+def test_a_tracking_problem_gives_its_obstacles_fixed_and_moving():
+    reference = uo.Reference.from_xy(lambda t: 0.5 * t, lambda t: 0 * t, name="line", t_end=30.0)
+    crossing = uo.Obstacle.moving(lambda t: (3.0 + 0 * t, -2.1 + 0.3 * t), 0.3, margin=0.1)
+    fixed = uo.Obstacle.ellipse((2.8, 1.0), (0.4, 0.2), margin=0.1)
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), reference, terminal="cost", obstacles=[crossing, fixed])
+    t0 = 4.5
+    p = problem.parameters(reference.evaluate([t0])[0], t0)
+    geometry = homotopy.geometry_of(problem, p)
+    times = t0 + problem.dt * np.arange(problem.horizon + 1)
+    # the centres in numpy from the paths above; an ellipse is its larger half-axis' circle
+    np.testing.assert_allclose(
+        geometry.discs[:, 0, :2], np.column_stack([3.0 + 0 * times, -2.1 + 0.3 * times])
+    )
+    np.testing.assert_allclose(geometry.discs[:, 0, 2], 0.4)
+    np.testing.assert_allclose(geometry.discs[:, 1], np.tile([2.8, 1.0, 0.5], (times.size, 1)))
+    assert geometry.position == (0, 1)
+    assert homotopy.geometry_of(problem.replace(obstacles=()), p) is None
+
+
+@pytest.mark.parametrize(
+    ("options", "match"),
+    [
+        ({"classes": -1}, r"options\['classes'\].*integer >= 0"),
+        ({"classes": 1.5}, r"options\['classes'\].*integer >= 0"),
+        ({"classes": True}, r"options\['classes'\].*integer >= 0"),
+        ({"geometry": "discs"}, r"options\['geometry'\].*callable"),
+    ],
+)
+def test_bad_class_options_are_refused_by_name(options, match):
+    ocp, _, _, _ = _field(TRAP[:1])
+    with pytest.raises(ValueError, match=match):
+        uo.get_solver(ocp, "pso+fatrop", options)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"discs": np.zeros((3, 2))}, "discs must have shape"),
+        ({"discs": np.zeros((3, 1, 3))}, "radii > 0"),
+        ({"position": (0,)}, "position must be 2 state columns"),
+        ({"velocity": (2, -1)}, "velocity must be 2 state columns"),
+        ({"dt": 0.0}, "dt must be finite"),
+    ],
+)
+def test_bad_geometry_is_refused_by_name(kwargs, match):
+    fields = {"discs": np.ones((3, 1, 3)), "position": (0, 1), "velocity": None, "dt": 1.0}
+    with pytest.raises(ValueError, match=match):
+        Geometry(**{**fields, **kwargs})

@@ -292,6 +292,21 @@ class _NoiseThatFails(uo.MeasurementNoise):
         return np.full(6, np.nan) if self.calls[0] > self.fail_at else np.zeros(6)
 
 
+class _NoiseThatBlowsUp(_NoiseThatFails):
+    def sample(self, rng):
+        self.calls[0] += 1
+        return np.full(6, 1e74) if self.calls[0] > self.fail_at else np.zeros(6)
+
+
+def test_a_blown_up_measurement_ends_the_run_instead_of_raising():
+    """A diverged estimate (finite, 1e74) is a fault like a NaN, not the controller's ValueError."""
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=8)
+    x0 = problem.reference.initial_state(0.0)
+    run = uo.simulate(uo.NMPC(problem, "sqp"), x0, 1.0, noise=_NoiseThatBlowsUp(4))
+    assert run.fault is not None and "measurement beyond" in run.fault and "step 4" in run.fault
+    assert run.controls.shape[0] == 4
+
+
 def test_a_nan_measurement_ends_the_run_with_its_reason_and_keeps_what_came_before(tmp_path):
     problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=8)
     x0 = problem.reference.initial_state(0.0)

@@ -709,8 +709,13 @@ class _Loop:
     def step(self, log: _Log, k: int, u_prev: np.ndarray) -> bool:
         """Measure, control and move the plant over step ``k``; ``False`` (``log.fault`` set) ends the run."""
         measured, told_k = self.measure(log, k, u_prev)
-        if not np.all(np.isfinite(measured)):  # the controller would fail on it: stop here
+        # the controller would fail on it (an estimator that diverged gives finite but absurd
+        # states, 1e74 on a two-fault pseudo-inverse run): a fault that ends the run, no exception
+        if not np.all(np.isfinite(measured)):
             log.fault = f"non-finite measurement at t = {self.times[k]:.6g} s (step {k})"
+            return False
+        if np.max(np.abs(measured)) > BLOW_UP:
+            log.fault = f"measurement beyond {BLOW_UP:g} at t = {self.times[k]:.6g} s (step {k})"
             return False
         told = self.schedule.told(k, self.known)
         if self.detector is not None and self.detector.detections:  # the estimated health

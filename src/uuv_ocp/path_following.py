@@ -268,7 +268,7 @@ class PathFollowingProblem(DeclaredPreset):
     max_path_speed: float | None = None
     path_acceleration: float = 1.0
     obstacles: tuple[Obstacle, ...] = ()
-    control_lower: tuple[float, ...] | None = None  # type: ignore[assignment]  # a tuple after __post_init__
+    control_lower: tuple[float, ...] | None = None  # a tuple after __post_init__
     #: trailing states the controller owns (the path parameter): an
     #: :class:`~uuv_ocp.Estimator` estimates the vehicle's states only
     controller_states: ClassVar[int] = 1

@@ -245,3 +245,25 @@ def test_no_plant_step_enters_a_margin_on_the_course(solver):
 def test_without_the_tolerance_the_plant_cuts_into_the_margin_between_nodes():
     # the same loop, nodes only: the sub-step check above fails (what the tolerance is for)
     assert _smallest_clearance(_closed_loop("sqp", 0.0)) < 0.0
+
+
+@pytest.mark.parametrize("axes", [(10.0, 1.0), (5.0, 1.0), (3.0, 0.2)])
+def test_a_chord_across_a_flat_ellipse_tip_stays_out(axes):
+    """A flat ellipse's tip: chords longer than twice its radius of curvature there (b²/a).
+
+    Both ends on the tightened boundary either side of the tip, the chord as long as the speed
+    allows; the disc of the tip's curvature alone bounds the depth only up to its radius.
+    """
+    obstacle = uo.Obstacle.ellipse((0.0, 0.0), axes, 0.0)
+    dt, speed = 0.5, 2.0
+    tolerance = between_nodes(obstacle, dt, speed)
+    scale = 1.0 + tolerance / min(axes)
+    # bisection on the half-angle about the tip (angle 0) for a chord of length v dt
+    low, high = 0.0, math.pi / 2
+    for _ in range(80):
+        middle = 0.5 * (low + high)
+        ends = _boundary(obstacle, np.array([-middle, middle]), scale)
+        low, high = (middle, high) if np.linalg.norm(ends[1] - ends[0]) < speed * dt else (low, middle)
+    ends = _boundary(obstacle, np.array([-low, low]), scale)
+    chord = ends[0] + np.linspace(0.0, 1.0, SAMPLES)[:, None] * (ends[1] - ends[0])
+    assert np.min(_implicit(obstacle, chord)) >= -1e-12

@@ -218,12 +218,17 @@ def between_nodes(obstacle: Obstacle, dt: float, speed: float, acceleration: flo
        smallest radius of curvature of ``K'`` is ``ρ' = s b²/a`` (``R + δ`` for a circle), so
        a disc of radius ``ρ'`` rolls freely inside ``K'`` (Blaschke): a chord point ``m``
        at depth ``d`` in ``K'`` is at depth ``d`` in the disc tangent at the boundary point
-       nearest ``m``, whose outside holds the chord's ends, so ``d <= d(ρ', L)`` by 3.
+       nearest ``m``, whose outside holds the chord's ends, so ``d <= d(ρ', L)`` by 3. — as
+       long as ``d <= ρ'``.  Always, the ball of radius ``d`` about ``m`` lies in ``K'`` and
+       both ends lie outside it, so ``d <= L/2``: for ``L < 2ρ'`` this gives ``d < ρ'`` and
+       the disc's bound holds; for ``L >= 2ρ'`` the depth bound is ``L/2`` (a flat
+       ellipse's tip, whose interior reaches much deeper than ``ρ'``).
     5. *Containment*: ``K'`` contains every point within ``(s − 1) b = δ`` of the enlarged
        obstacle ``K`` (compare the support functions: ``s h_K(u) >= h_K(u) + (s − 1) b``);
        so a point of ``K`` lies at depth ``>= δ`` in ``K'``.  A path point is within
        ``a dt²/8`` (2.) of a chord point at depth ``<= d(ρ', L)`` (3., 4.); it is outside
-       ``K`` whenever ``δ >= d(ρ', v dt) + a dt²/8``.
+       ``K`` whenever ``δ >= d(ρ', v dt) + a dt²/8`` (``v dt / 2 + a dt²/8`` when
+       ``v dt >= 2ρ'``).
 
     For a circle of enlarged radius ``R`` the least such ``δ`` is closed-form,
     ``δ = √((R + a dt²/8)² + (v dt / 2)²) − R ≈ (v dt)² / (8R) + a dt²/8``; for an ellipse
@@ -257,7 +262,7 @@ def between_nodes(obstacle: Obstacle, dt: float, speed: float, acceleration: flo
     def short(tolerance: float) -> float:
         """How much ``tolerance`` falls short of the depth bound (<= 0: enough); increasing."""
         radius = (1.0 + tolerance / minor) * minor**2 / major  # ρ' of the scaled ellipse
-        depth = radius - math.sqrt(radius**2 - chord**2 / 4.0) if chord < 2.0 * radius else radius
+        depth = radius - math.sqrt(radius**2 - chord**2 / 4.0) if chord < 2.0 * radius else chord / 2.0
         return depth + bulge - tolerance
 
     low, high = 0.0, bulge + chord + major

@@ -417,3 +417,33 @@ def test_path_metrics_against_numpy() -> None:
     assert found["completed"] == 1.0
     tracking = uo.path_metrics(run, uo.TrackingProblem(vehicle, line, horizon=1, dt=0.5))
     assert tracking == pytest.approx(found, rel=1e-12)  # the same path through a tracking problem
+
+
+def test_replace_recomputes_the_defaults_it_filled_in_and_u_prev_defaults_into_the_box() -> None:
+    """A copy at another speed gets that speed's propeller floor, another vehicle its rate weight.
+
+    The floor is checked against the cruise rpm of the independent REMUS implementation
+    (tests/helpers_remus.py); a given ``control_lower`` or rate weight is kept.
+    """
+    problem = PathFollowingProblem(uo.Remus100(), _remus_line(), speed=1.5, horizon=4, dt=0.5)
+    slower = problem.replace(speed=0.8)
+    state = np.zeros(12)
+    state[0] = 0.8
+    cruise = slower.control_lower[2] / 0.9
+    assert remus.remus100_derivative(state, [0.0, 0.0, cruise])[0] == pytest.approx(0.0, abs=1e-9)
+    assert slower.control_lower[2] < 0.6 * problem.control_lower[2]
+    assert slower.weights.rate == problem.weights.rate == 500.0
+    rexrov = problem.replace(vehicle=uo.Vehicle.rexrov(), path=_planar_line(), speed=0.5)
+    assert rexrov.weights.rate == 1.0
+    given = PathFollowingProblem(
+        uo.Remus100(), _remus_line(), speed=1.5, horizon=4, control_lower=(-0.1, -0.1, 100.0)
+    )
+    assert given.replace(speed=0.8).control_lower == (-0.1, -0.1, 100.0)
+    assert given.replace(weights=uo.PathWeights(rate=7.0)).weights.rate == 7.0
+    # no previous control given: zero clipped into the box (the floor), not a refusal
+    x0 = np.zeros(13)
+    x0[0] = 1.5
+    packed = problem.instance_parameters(x0)
+    spec = problem.spec()
+    explicit = problem.instance_parameters(x0, u_prev=np.clip(np.zeros(4), spec.lower, spec.upper))
+    np.testing.assert_array_equal(packed, explicit)

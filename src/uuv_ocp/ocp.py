@@ -541,9 +541,14 @@ class Ocp(Transcribed):
         return self.pack(x0, u_prev, checked)
 
     def check_previous(self, u_prev: object | None) -> np.ndarray:
-        """Validate the last applied control (zero if ``None``): finite, inside the box."""
+        """Validate the last applied control (``None``: zero clipped to the box): finite, inside the box.
+
+        Zero clipped, as ``simulate`` starts: a box that excludes zero (a propeller floored
+        above 0 rpm) must not refuse a call that gives no previous control.
+        """
         spec = self.spec()
-        u_prev = np.zeros(spec.control_size) if u_prev is None else u_prev
+        if u_prev is None:
+            u_prev = np.clip(np.zeros(spec.control_size), spec.lower, spec.upper)
         # the closed loop's hot path: one comparison with the slack box (its infinite ends made
         # the largest float, so that NaN and ±inf fail it) accepts a good value; anything else
         # takes the checks below for the error

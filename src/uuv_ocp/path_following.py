@@ -276,6 +276,10 @@ class PathFollowingProblem(DeclaredPreset):
     def __post_init__(self) -> None:
         """Check the fields against each other and the vehicle (``ValueError`` names the field)."""
         set_field = object.__setattr__
+        # the fields filled in below from the others: replace() leaves them None again
+        defaulted = {"control_lower": self.control_lower, "substeps": self.substeps}
+        defaulted["weights.rate"] = getattr(self.weights, "rate", None)
+        set_field(self, "_defaulted", tuple(name for name, value in defaulted.items() if value is None))
         layout = check_vehicle("vehicle", self.vehicle).layout
         if not isinstance(self.path, Reference):
             raise ValueError(f"path must be a uuv_ocp.Reference, got {type(self.path).__name__}")

@@ -386,7 +386,18 @@ class DeclaredPreset(Transcribed):
         return part
 
     def replace(self, **changes: Any) -> Self:
-        """Return a copy with some fields changed (a new, unbuilt problem)."""
+        """Return a copy with some fields changed (a new, unbuilt problem).
+
+        A field the preset filled in because it was left ``None`` (listed in ``_defaulted``,
+        e.g. a path-following problem's propeller floor, which depends on ``speed``) is left
+        ``None`` again unless changed, so the copy takes the default of its own fields.
+        """
+        for name in self.__dict__.get("_defaulted", ()):
+            if name == "weights.rate":
+                if "weights" not in changes:
+                    changes["weights"] = dataclasses.replace(self.weights, rate=None)
+            elif name not in changes:
+                changes[name] = None
         return dataclasses.replace(self, **changes)  # type: ignore[type-var]  # subclasses are dataclasses
 
 

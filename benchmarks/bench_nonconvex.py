@@ -58,6 +58,7 @@ import hashlib
 import json
 import math
 import os
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -506,6 +507,8 @@ def main(argv: list[str] | None = None) -> None:
         f"benchmarks.bench_nonconvex --instances {args.instances} --seed {args.seed} --workers {args.workers}"
         f"{' --moving' if args.moving else ''})"
     )
+    if outcome["interrupted"] and not args.report:
+        sys.exit(130)  # the rows so far are saved and the table printed; a script still sees the stop
 
 
 if __name__ == "__main__":

@@ -25,6 +25,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK
 
 CentrePath = Callable[[ca.SX], object]
 #: Window (s) over which :func:`centre_motion` samples a moving obstacle on an endless reference.
@@ -297,12 +298,13 @@ def centre_motion(
     if t_end < t_start:
         raise ValueError(f"t_end must be >= t_start = {t_start}, got {t_end}")
     samples = check.positive_int("samples", samples, minimum=2)
-    time = ca.SX.sym("t")
-    centre = obstacle._path(time)
-    velocity = ca.jacobian(centre, time)
-    motion = ca.Function("centre_motion", [time], [velocity, ca.jacobian(velocity, time)])
     times = np.linspace(t_start, t_end, samples).reshape(1, -1)
-    speeds, accelerations = (np.array(v) for v in motion.map(samples)(times))
+    with BUILD_LOCK:  # CasADi expressions and functions are built here (uuv_ocp._concurrency)
+        time = ca.SX.sym("t")
+        centre = obstacle._path(time)
+        velocity = ca.jacobian(centre, time)
+        motion = ca.Function("centre_motion", [time], [velocity, ca.jacobian(velocity, time)])
+        speeds, accelerations = (np.array(v) for v in motion.map(samples)(times))
     return float(np.max(np.linalg.norm(speeds, axis=0))), float(np.max(np.linalg.norm(accelerations, axis=0)))
 
 
@@ -341,15 +343,15 @@ def vehicle_motion(vehicle: Any, levels: int = 5) -> tuple[float, float]:
     bound = np.asarray(vehicle.control_bound, dtype=float)
     corners = np.array(np.meshgrid(*[(-1.0, 1.0)] * bound.size, indexing="ij")).reshape(bound.size, -1)
     controls = np.hstack([np.zeros((bound.size, 1)), corners * bound[:, None]])
-    x = ca.SX.sym("x", layout.state_dim)
-    u = ca.SX.sym("u", bound.size)
-    rhs = model_function("vehicle", vehicle)(x, u, ca.DM.zeros(layout.current_dim))
-    horizontal = rhs[list(layout.positions[:2])]
-    second = ca.Function("p_ddot", [x, u], [ca.mtimes(ca.jacobian(horizontal, x), rhs)])
     n_states, n_controls = states.shape[1], controls.shape[1]
-    values = np.array(
-        second.map(n_states * n_controls)(np.repeat(states, n_controls, axis=1), np.tile(controls, n_states))
-    )
+    with BUILD_LOCK:  # CasADi expressions and functions are built here (uuv_ocp._concurrency)
+        x = ca.SX.sym("x", layout.state_dim)
+        u = ca.SX.sym("u", bound.size)
+        rhs = model_function("vehicle", vehicle)(x, u, ca.DM.zeros(layout.current_dim))
+        horizontal = rhs[list(layout.positions[:2])]
+        second = ca.Function("p_ddot", [x, u], [ca.mtimes(ca.jacobian(horizontal, x), rhs)])
+        every = second.map(n_states * n_controls)
+        values = np.array(every(np.repeat(states, n_controls, axis=1), np.tile(controls, n_states)))
     return speed, float(np.max(np.linalg.norm(values, axis=0)))
 
 

@@ -470,6 +470,9 @@ class TrackingProblem(DeclaredPreset):
         (:func:`~uuv_ocp.obstacles.centre_motion` over the reference window): a few mm for the
         RexROV at ``dt = 0.1`` s (:attr:`obstacle_tolerances`).  The default 0 constrains the
         nodes only, where the path between them may cut into the margin by a fraction of a mm.
+        The vehicle's speed is through the water: the current is an instance parameter the
+        problem does not know when it is built, so under a current of ``c`` m/s give the
+        tolerance yourself, ``between_nodes(obstacle, dt, v + c, a)``.
     """
 
     vehicle: Any
@@ -533,7 +536,7 @@ class TrackingProblem(DeclaredPreset):
             tube = check.positive_float("position_tube", self.position_tube)
             object.__setattr__(self, "position_tube", tube)
         object.__setattr__(self, "obstacles", check_obstacles(self.obstacles))
-        if self.obstacle_tolerance != "auto":
+        if not (isinstance(self.obstacle_tolerance, str) and self.obstacle_tolerance == "auto"):
             tolerance = self.obstacle_tolerance
             if isinstance(tolerance, str):
                 raise ValueError(
@@ -588,7 +591,7 @@ class TrackingProblem(DeclaredPreset):
     @functools.cached_property
     def obstacle_tolerances(self) -> tuple[float, ...]:
         """Tolerance (m) each obstacle's node constraint holds (``obstacle_tolerance`` resolved)."""
-        if self.obstacle_tolerance != "auto":
+        if not isinstance(self.obstacle_tolerance, str):  # "auto" is the only string __post_init__ keeps
             return (float(self.obstacle_tolerance),) * len(self.obstacles)
         if not self.obstacles:
             return ()

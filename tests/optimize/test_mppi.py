@@ -84,6 +84,16 @@ def test_relative_temperature_makes_the_search_unit_free():
     assert np.allclose(small.x, large.x, rtol=0, atol=1e-12)
 
 
+def test_temperature_stays_unit_free_when_half_the_cloud_ties_at_the_best_cost():
+    # a plateau (most of the cloud at the minimum): λ from the full spread, so scaled costs
+    # give scaled λ and the same weights; only an all-equal cloud falls back to λ = temperature
+    algorithm = PathIntegral(np.zeros(2), np.ones(2), 5, 3, {"temperature": 0.5})
+    costs = np.array([2.0, 2.0, 2.0, 3.0, 6.0])
+    assert algorithm.temperature(costs) == pytest.approx(0.5 * 4.0)
+    assert algorithm.temperature(1000.0 * costs) == pytest.approx(1000.0 * algorithm.temperature(costs))
+    assert algorithm.temperature(np.full(5, 7.0)) == pytest.approx(0.5)
+
+
 @pytest.mark.parametrize(
     ("options", "name"),
     [

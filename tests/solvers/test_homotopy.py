@@ -173,10 +173,22 @@ def test_bad_class_options_are_refused_by_name(options, match):
         ({"discs": np.zeros((3, 1, 3))}, "radii > 0"),
         ({"position": (0,)}, "position must be 2 state columns"),
         ({"velocity": (2, -1)}, "velocity must be 2 state columns"),
-        ({"dt": 0.0}, "dt must be finite"),
+        ({"dt": 0.0}, "dt must be a finite number > 0"),
+        ({"dt": "x"}, "dt must be a real number"),
+        ({"position": 3}, "position must be 2 state columns"),
     ],
 )
 def test_bad_geometry_is_refused_by_name(kwargs, match):
     fields = {"discs": np.ones((3, 1, 3)), "position": (0, 1), "velocity": None, "dt": 1.0}
     with pytest.raises(ValueError, match=match):
         Geometry(**{**fields, **kwargs})
+
+
+def test_a_geometry_provider_of_the_wrong_horizon_is_refused_by_name():
+    ocp, p, _, geometry = _field(TRAP[:1])
+    short = Geometry(geometry.discs[:1], geometry.position, geometry.velocity, geometry.dt)
+    with pytest.raises(ValueError, match="geometry's discs must have"):
+        homotopy.geometry_of(ocp, p, lambda _: short)
+    with pytest.raises(ValueError, match="geometry must return a homotopy.Geometry"):
+        homotopy.geometry_of(ocp, p, lambda _: "discs")
+    assert homotopy.geometry_of(ocp, p, lambda _: geometry) is geometry

@@ -104,7 +104,10 @@ class PathIntegral(PopulationAlgorithm):
             return float(self.options["temperature"])
         finite = costs[np.isfinite(costs)]
         spread = float(np.median(finite) - np.min(finite)) if finite.size else 0.0
-        # all (or half) of the cloud at one cost: any λ gives the same ranking; keep it positive
+        if not (spread > 0.0 and math.isfinite(spread)):
+            # half the cloud or more ties at the best cost: the full spread keeps λ in the
+            # objective's scale (unit-free); 1 only when every finite cost is the same
+            spread = float(np.max(finite) - np.min(finite)) if finite.size else 0.0
         return self.options["temperature"] * (spread if spread > 0.0 and math.isfinite(spread) else 1.0)
 
     def initialize(self, positions: np.ndarray, costs: np.ndarray, rng: np.random.Generator) -> None:

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from uuv_ocp import _validation as check
 from uuv_ocp.solvers.result import Iterate
 
 BLOCKERS = 3
@@ -91,11 +92,14 @@ class Geometry:
             value = getattr(self, name)
             if value is None and name == "velocity":
                 continue
-            if len(value) != 2 or any(not isinstance(i, (int, np.integer)) or i < 0 for i in value):
+            if (
+                not isinstance(value, (tuple, list, np.ndarray))
+                or len(value) != 2
+                or any(not isinstance(i, (int, np.integer)) or i < 0 for i in value)
+            ):
                 raise ValueError(f"{name} must be 2 state columns (int >= 0), got {value!r}")
             object.__setattr__(self, name, (int(value[0]), int(value[1])))
-        if not (np.isfinite(self.dt) and self.dt > 0.0):
-            raise ValueError(f"dt must be finite and > 0, got {self.dt!r}")
+        object.__setattr__(self, "dt", check.positive_float("dt", self.dt))
 
 
 GeometryProvider = Callable[[np.ndarray], Geometry | None]
@@ -209,7 +213,18 @@ def geometry_of(problem: Any, p: np.ndarray, provider: GeometryProvider | None =
     ``None`` when neither gives one (no obstacles known: no class guesses).
     """
     if provider is not None:
-        return provider(p)
+        geometry = provider(p)
+        if geometry is not None:
+            if not isinstance(geometry, Geometry):
+                got = type(geometry).__name__
+                raise ValueError(f"geometry must return a homotopy.Geometry or None, got {got}")
+            horizon = problem.spec().horizon
+            if geometry.discs.shape[0] != horizon + 1:
+                raise ValueError(
+                    f"geometry's discs must have {horizon + 1} rows (N+1 nodes), "
+                    f"got {geometry.discs.shape[0]}"
+                )
+        return geometry
     obstacles = getattr(problem, "obstacles", None)
     if not obstacles:
         return None

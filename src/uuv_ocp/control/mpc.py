@@ -602,7 +602,8 @@ class NMPC:
         """Return the fallback's control and which plan it comes from (module doc); keep that plan.
 
         Candidates in order: the shifted previous plan, the steady control ramped to at the
-        rate bound, the last control held; the first the judge finds admissible on ``p``
+        rate bound, on a tracking problem the braking control ramped to at the rate bound, the
+        last control held; the first the judge finds admissible on ``p``
         (box, rate bound against the last applied control, hard path constraints), else the
         least violating.
         """
@@ -684,6 +685,12 @@ class NMPC:
             with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
                 self._steady = self._steady_function(spec)
         function, rows = self._steady
+        velocities = getattr(getattr(self.problem, "vehicle", None), "layout", None)
+        velocities = () if velocities is None else velocities.velocities
+        if braking and not set(rows.tolist()) <= set(velocities):
+            # −x_v/dt means "stop" only for velocity rows; a driven actuator state (a thruster's
+            # lag) would be switched off and the vehicle left coasting: no braking control then
+            return None
         state = np.array(p[spec.layout.x0], dtype=float)
         target = -state[rows] / spec.dt if braking else np.zeros(rows.size)
         if isinstance(self.problem, TrackingProblem) and not braking:  # hold the reference's velocities

@@ -117,12 +117,13 @@ def test_class_start_reaches_the_better_class_where_the_straight_start_does_not(
 
 def test_the_default_hybrid_starts_the_exact_solver_from_the_classes_too():
     ocp, p, guess, geometry = _field(TRAP, LATERAL)
-    hybrid = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry})
+    every = {"geometry": lambda _: geometry, "skip_swarm_class": False}
+    hybrid = uo.get_solver(ocp, "pso+fatrop", every)
     result = hybrid.solve(p, guess, np.random.default_rng(3))
     starts = [c["start"] for c in result.details["candidates"]]
     assert starts == ["swarm 0", "class 0R", "class 0L"]  # one blocker: both of its classes
     assert result.details["class_starts"] == 2
-    kept = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry, "candidates": 2})
+    kept = uo.get_solver(ocp, "pso+fatrop", {**every, "candidates": 2})
     starts = [c["start"] for c in kept.solve(p, guess, np.random.default_rng(3)).details["candidates"]]
     assert starts == ["swarm 0", "warm start", "class 0R", "class 0L"]
     assert result.cost == pytest.approx(min(c["cost"] for c in result.details["candidates"] if c["success"]))
@@ -180,3 +181,57 @@ def test_bad_geometry_is_refused_by_name(kwargs, match):
     fields = {"discs": np.ones((3, 1, 3)), "position": (0, 1), "velocity": None, "dt": 1.0}
     with pytest.raises(ValueError, match=match):
         Geometry(**{**fields, **kwargs})
+
+
+def _side(path: np.ndarray, centre: np.ndarray) -> int:
+    """Independent side of ``centre``: the chord × (node − centre) at the node abreast of it (x)."""
+    k = 1 + int(np.argmin(np.abs(path[1:, 0] - centre[0])))
+    return int(np.sign(_cross(path[-1] - path[0], path[k] - centre)))
+
+
+def test_sides_name_the_side_of_every_disc_and_the_skip_drops_the_solved_class():
+    ocp, p, guess, geometry = _field(TRAP, LATERAL)
+    for label, start in homotopy.class_guesses(ocp, p, guess, geometry):
+        expected = _side(start.states[:, :2], TRAP[0, :2])
+        assert homotopy.sides(start.states[:, :2], geometry.discs) == (expected,)
+        assert label.endswith("L" if expected > 0 else "R")
+    skip = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry})
+    full = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry, "skip_swarm_class": False})
+    result = skip.solve(p, guess, np.random.default_rng(3))
+    everything = full.solve(p, guess, np.random.default_rng(3))
+    # the exact solve from the swarm's plan (same seed, same plan), its side found independently
+    plan = skip.first.solve(p, guess, np.random.default_rng(3)).iterate
+    solved = uo.get_solver(ocp, "fatrop").solve(p, plan)
+    side = "L" if _side(solved.states[:, :2], TRAP[0, :2]) > 0 else "R"
+    assert result.details["skipped_starts"] == [f"class 0{side}"]
+    ran = [c["start"] for c in result.details["candidates"]]
+    assert ran == ["swarm 0", f"class 0{'R' if side == 'L' else 'L'}"]
+    # the skipped start found nothing better: both hybrids return the same plan
+    assert result.cost == pytest.approx(everything.cost, rel=1e-9)
+
+
+def test_starts_run_on_two_threads_give_the_sequential_result_bit_for_bit():
+    ocp, p, guess, geometry = _field(np.array([[3.5, 0.2, 1.0], [7.0, -0.3, 1.0]]), 0.5)
+    results = {}
+    for workers in (1, 2):
+        options = {"geometry": lambda _: geometry, "skip_swarm_class": False, "candidates": 2}
+        hybrid = uo.get_solver(ocp, "pso+fatrop", {**options, "workers": workers})
+        results[workers] = [hybrid.solve(p, guess, np.random.default_rng(seed)) for seed in (1, 2)]
+    for one, two in zip(results[1], results[2], strict=True):
+        assert len(one.details["candidates"]) >= 4  # the warm start and several classes
+        np.testing.assert_array_equal(one.states, two.states)
+        np.testing.assert_array_equal(one.controls, two.controls)
+        assert one.details["chosen"] == two.details["chosen"]
+        for a, b in zip(one.details["candidates"], two.details["candidates"], strict=True):
+            assert (a["start"], a["cost"], a["success"], a["iterations"]) == (
+                b["start"],
+                b["cost"],
+                b["success"],
+                b["iterations"],
+            )
+
+
+def test_workers_is_checked_by_name():
+    ocp, _, _, _ = _field(TRAP[:1])
+    with pytest.raises(ValueError, match=r"options\['workers'\].*integer >= 1"):
+        uo.get_solver(ocp, "pso+fatrop", {"workers": 0})

@@ -29,6 +29,17 @@ best homotopy class in about half the instances and the swarms' plans often miss
 of the one returned.  With k > 1 the swarm half must accept the ``candidates`` and
 ``candidate_distance`` options (the built-in swarms do).
 
+Option ``skip_swarm_class`` (default True): the class starts (option ``classes``, see
+:mod:`~uuv_ocp.solvers.homotopy`) whose guess passes every obstacle on the side the exact solve
+from the swarm's plan converged to (:func:`~uuv_ocp.solvers.homotopy.sides`) are not run: that
+homotopy class is solved already (``details["skipped_starts"]`` lists them).  Option ``workers``
+(default 1): the starts after the swarm's plan run on that many threads at once, each with an
+exact backend of its own (built on first use, kept); exact backends keep no state between calls
+that changes a result, and the best is chosen in the starts' order, so the result is the
+sequential one bit for bit (tested).  Fatrop's attempts run in forked worker processes
+(:mod:`~uuv_ocp.solvers.watchdog`) and the threads only wait on pipes, so they run on several
+cores.
+
 Option ``deadline`` (seconds, finite > 0): the wall-time budget of the whole hybrid solve.  The
 swarm gets :data:`SWARM_SHARE` (50 %) of it (it returns its best plan so far when that share is
 used up), the exact stage what is left when the swarm returns (built with ``deadline`` too, so
@@ -43,7 +54,10 @@ stopped the swarm.  Both halves must declare the ``time_limit`` capability
 
 from __future__ import annotations
 
+import concurrent.futures
 import dataclasses
+import threading
+import weakref
 from collections.abc import Callable
 from typing import Any
 
@@ -128,6 +142,20 @@ class HybridOptions:
         meaning="a TrackingProblem's obstacles",
         check=optional(_callable),
     )
+    skip_swarm_class: bool = option(
+        True,
+        "bool",
+        "drop the class starts whose guess passes every obstacle on the side the exact solve from the "
+        "swarm's plan converged to (its homotopy class: solved already)",
+        check=boolean,
+    )
+    workers: int = option(
+        1,
+        "int >= 1",
+        "threads running the starts after the swarm's plan at once, each with its own exact backend "
+        "(the result is the sequential one, bit for bit)",
+        check=positive_int,
+    )
     deadline: float | None = option(
         None,
         "float > 0 or `None`",
@@ -161,6 +189,9 @@ class HybridSolver:
         keep_warm_start: bool = True,
         classes: int = 0,
         geometry: homotopy.GeometryProvider | None = None,
+        skip_swarm_class: bool = False,
+        workers: int = 1,
+        make_exact: Callable[[], Any] | None = None,
     ) -> None:
         self.name = name
         self.first = first
@@ -170,8 +201,15 @@ class HybridSolver:
         self.keep_warm_start = keep_warm_start
         self.classes = classes
         self.geometry = geometry
+        self.skip_swarm_class = skip_swarm_class
+        self.workers = workers
+        if workers > 1 and make_exact is None:
+            raise ValueError(f"{name}: workers > 1 needs make_exact, a builder of more exact backends")
+        self._make_exact = make_exact
         self.problem = problem if problem is not None else getattr(first, "problem", None)
         self._decode: BufferedFunction | None = None
+        self._pool: concurrent.futures.ThreadPoolExecutor | None = None
+        self._local = threading.local()  # each pool thread's own exact backend
 
     def solve(
         self,
@@ -187,12 +225,13 @@ class HybridSolver:
         else:
             swarm = self.first.solve(p, warm_start, rng, time_limit=SWARM_SHARE * deadline)
 
-        def exact_solve(guess: Iterate | None) -> SolveResult | None:
+        def exact_solve(guess: Iterate | None, backend: Any = None) -> SolveResult | None:
             """Run the exact stage from ``guess`` in what is left of the deadline (None: nothing left)."""
+            backend = self.second if backend is None else backend
             if deadline is None:
-                return self.second.solve(p, guess)
+                return backend.solve(p, guess)
             remaining = deadline - (watchdog.now() - start)
-            return None if remaining <= 0.0 else self.second.solve(p, guess, time_limit=remaining)
+            return None if remaining <= 0.0 else backend.solve(p, guess, time_limit=remaining)
 
         # the exact stage's terminal strategy (sticky soft start after a relaxed step) carries on
         relaxed = warm_start.terminal_relaxed if warm_start is not None else False
@@ -216,7 +255,7 @@ class HybridSolver:
                 ),
             )
         results = [first_exact]
-        starts = self._starts(p, warm_start, swarm, plans)
+        starts, skipped = self._starts(p, warm_start, swarm, plans, first_exact)
         if not starts:
             exact = first_exact
             details = dict(exact.details)
@@ -224,9 +263,8 @@ class HybridSolver:
         else:
             origins = ["swarm 0"] + [origin for origin, _, _ in starts]
             fitness = [swarm.details.get("fitness")] + [f for _, _, f in starts]
-            for _, g, _ in starts:  # no start begins after the deadline
-                result = exact_solve(g)
-                if result is None:
+            for result in self._run([g for _, g, _ in starts], exact_solve):
+                if result is None:  # no start begins after the deadline
                     break
                 results.append(result)
             chosen = best_result(results)
@@ -240,6 +278,7 @@ class HybridSolver:
                     "max_violation": r.max_violation,
                     "success": r.success,
                     "status": r.status,
+                    "iterations": r.iterations,
                     "time": r.solve_time,
                 }
                 for i, r in enumerate(results)
@@ -248,6 +287,8 @@ class HybridSolver:
             details["class_starts"] = sum(origin.startswith("class") for origin in origins[: len(results)])
             iterations = sum(r.iterations for r in results)
             evaluations = sum(r.evaluations for r in results)
+        if skipped:
+            details["skipped_starts"] = skipped
         details.update(
             {
                 "swarm_fitness": swarm.details.get("fitness"),
@@ -269,21 +310,73 @@ class HybridSolver:
             details=SolveDetails.of(details),
         )
 
+    def _run(
+        self, guesses: list[Iterate | None], exact_solve: Callable[..., SolveResult | None]
+    ) -> list[SolveResult | None]:
+        """Solve from each guess, in order (``workers`` > 1: at once, each thread its own backend).
+
+        The exact backends keep no state between calls that changes a result, so a start's
+        result does not depend on which backend or thread solved it: the list is the
+        sequential one, and the choice among it (in list order) too.
+        """
+        if self.workers == 1 or len(guesses) < 2:
+            out: list[SolveResult | None] = []
+            for guess in guesses:
+                out.append(exact_solve(guess))
+                if out[-1] is None:
+                    break
+            return out
+        if self._pool is None:
+            # persistent threads: a watched plugin's worker process dies with the thread that
+            # forked it (watchdog), so short-lived threads would fork one per solve
+            self._pool = concurrent.futures.ThreadPoolExecutor(self.workers, f"{self.name}-start")
+            weakref.finalize(self, self._pool.shutdown, wait=False)
+
+        def solve_in_thread(guess: Iterate | None) -> SolveResult | None:
+            backend = getattr(self._local, "backend", None)
+            if backend is None:
+                assert self._make_exact is not None
+                backend = self._local.backend = self._make_exact()
+            return exact_solve(guess, backend)
+
+        return list(self._pool.map(solve_in_thread, guesses))
+
     def _starts(
-        self, p: np.ndarray, warm_start: Iterate | None, swarm: SolveResult, plans: Any
-    ) -> list[tuple[str, Iterate | None, float | None]]:
-        """List the exact half's starts after the swarm's best plan: ``[(origin, guess, fitness)]``.
+        self,
+        p: np.ndarray,
+        warm_start: Iterate | None,
+        swarm: SolveResult,
+        plans: Any,
+        first: SolveResult | None = None,
+    ) -> tuple[list[tuple[str, Iterate | None, float | None]], list[str]]:
+        """List the exact half's starts after the swarm's plan: ``([(origin, guess, fitness)], skipped)``.
 
         The caller's warm start (``keep_warm_start`` with ``candidates >= 2``),
         the swarm's next distinct plans (``candidates``), then the ``classes`` best homotopy-class
-        guesses (:mod:`~uuv_ocp.solvers.homotopy`) when the obstacles are known.
+        guesses (:mod:`~uuv_ocp.solvers.homotopy`) when the obstacles are known; with
+        ``skip_swarm_class``, minus the class guesses in the homotopy class of ``first`` (the
+        exact solve from the swarm's plan, when it succeeded), whose labels are ``skipped``.
         """
         out: list[tuple[str, Iterate | None, float | None]] = []
         classes: list[tuple[str, Iterate]] = []
+        skipped: list[str] = []
         if self.classes > 0 and self.problem is not None:
             geometry = homotopy.geometry_of(self.problem, p, self.geometry)
             if geometry is not None:
                 classes = homotopy.class_guesses(self.problem, p, warm_start, geometry)[: self.classes]
+            if geometry is not None and classes and self.skip_swarm_class and first and first.success:
+                # a start in the class the swarm's plan already converged in would find (on the
+                # obstacle benchmark: nearly always) that same local optimum again
+                columns = list(geometry.position)
+                solved = homotopy.sides(np.asarray(first.states)[:, columns], geometry.discs)
+                kept = []
+                for label, guess in classes:
+                    assert guess.states is not None
+                    if homotopy.sides(np.asarray(guess.states)[:, columns], geometry.discs) == solved:
+                        skipped.append(label)
+                    else:
+                        kept.append((label, guess))
+                classes = kept
         # the class guesses replace the straight start: the nearest one is it, pushed clear
         # (on the obstacle benchmark keeping it too cost 40 % more time for no better cost)
         if self.keep_warm_start and plans:  # None: the exact solver's own cold guess
@@ -299,7 +392,7 @@ class HybridSolver:
                 guess = plan_guess(problem, plan, p, warm_start, self._decode)
                 out.append((f"swarm {i}", guess, fitness[i] if i < len(fitness) else None))
         out += [(label, guess, None) for label, guess in classes]
-        return out
+        return out, skipped
 
 
 def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
@@ -329,6 +422,9 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
             keep,
             settings.classes,
             settings.geometry,
+            settings.skip_swarm_class,
+            settings.workers,
+            lambda: second(problem, exact_options),
         )
         for label, half in ((swarm_name, hybrid.first), (exact_name, hybrid.second)):
             check_backend(half, label)

@@ -7,6 +7,7 @@ import pytest
 import uuv_ocp as uo
 from uuv_ocp.solvers import homotopy
 from uuv_ocp.solvers.homotopy import Geometry
+from uuv_ocp.solvers.nlp import NlpSolver
 from uuv_ocp.solvers.result import Iterate
 
 N, DT = 20, 0.375
@@ -235,3 +236,24 @@ def test_workers_is_checked_by_name():
     ocp, _, _, _ = _field(TRAP[:1])
     with pytest.raises(ValueError, match=r"options\['workers'\].*integer >= 1"):
         uo.get_solver(ocp, "pso+fatrop", {"workers": 0})
+
+
+def test_shared_cold_retries_run_once_and_change_no_result(monkeypatch):
+    # three discs where some class starts fail at first and retry from the cold guess
+    discs = np.array([[7.643, 0.429, 0.805], [6.987, -0.56, 1.218], [2.515, 0.276, 1.025]])
+    ocp, p, guess, geometry = _field(discs, 0.5)
+    options = {"geometry": lambda _: geometry, "skip_swarm_class": False}
+    shared = uo.get_solver(ocp, "pso+fatrop", options).solve(p, guess, np.random.default_rng(1))
+    assert shared.details["cold_retries_reused"] >= 1
+    # the same hybrid with every cold retry run again (sharing switched off)
+    monkeypatch.setattr(NlpSolver, "share_cold_retries", lambda self, retries: None)
+    alone = uo.new_solver(ocp, "pso+fatrop", options).solve(p, guess, np.random.default_rng(1))
+    assert "cold_retries_reused" not in alone.details
+    np.testing.assert_array_equal(shared.states, alone.states)
+    for a, b in zip(shared.details["candidates"], alone.details["candidates"], strict=True):
+        assert (a["start"], a["cost"], a["status"], a["iterations"]) == (
+            b["start"],
+            b["cost"],
+            b["status"],
+            b["iterations"],
+        )

@@ -40,6 +40,11 @@ sequential one bit for bit (tested).  Fatrop's attempts run in forked worker pro
 (:mod:`~uuv_ocp.solvers.watchdog`) and the threads only wait on pipes, so they run on several
 cores.
 
+Without a ``deadline``, the exact backends on :class:`~uuv_ocp.solvers.nlp.NlpSolver` share
+their cold retries across the starts (:class:`~uuv_ocp.solvers.nlp.ColdRetries`): a start whose
+first attempt fails retries from the cold guess, the same attempt for every start, so it runs
+once per solve (``details["cold_retries_reused"]`` counts the others; the result is unchanged).
+
 Option ``deadline`` (seconds, finite > 0): the wall-time budget of the whole hybrid solve.  The
 swarm gets :data:`SWARM_SHARE` (50 %) of it (it returns its best plan so far when that share is
 used up), the exact stage what is left when the swarm returns (built with ``deadline`` too, so
@@ -69,6 +74,7 @@ from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers import homotopy, watchdog
 from uuv_ocp.solvers.base import check_backend, takes_time_limit
 from uuv_ocp.solvers.multistart import best_result, plan_guess
+from uuv_ocp.solvers.nlp import ColdRetries
 from uuv_ocp.solvers.options import (
     Option,
     boolean,
@@ -225,11 +231,20 @@ class HybridSolver:
         else:
             swarm = self.first.solve(p, warm_start, rng, time_limit=SWARM_SHARE * deadline)
 
+        retries = ColdRetries()
+
         def exact_solve(guess: Iterate | None, backend: Any = None) -> SolveResult | None:
             """Run the exact stage from ``guess`` in what is left of the deadline (None: nothing left)."""
             backend = self.second if backend is None else backend
             if deadline is None:
-                return backend.solve(p, guess)
+                share = getattr(backend, "share_cold_retries", None)
+                if share is None:
+                    return backend.solve(p, guess)
+                share(retries)  # every start's cold retry is one attempt: run it once
+                try:
+                    return backend.solve(p, guess)
+                finally:
+                    share(None)
             remaining = deadline - (watchdog.now() - start)
             return None if remaining <= 0.0 else backend.solve(p, guess, time_limit=remaining)
 
@@ -289,6 +304,8 @@ class HybridSolver:
             evaluations = sum(r.evaluations for r in results)
         if skipped:
             details["skipped_starts"] = skipped
+        if retries.reused:
+            details["cold_retries_reused"] = retries.reused
         details.update(
             {
                 "swarm_fitness": swarm.details.get("fitness"),

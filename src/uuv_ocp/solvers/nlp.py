@@ -301,14 +301,15 @@ class ColdRetries:
 
     A chain whose first attempt fails retries from the cold guess (``warm_start=None``): the
     same attempt whatever the failed start was.  Solves given one :class:`ColdRetries` (see
-    :meth:`NlpSolver.share_cold_retries`) run it once per NLP variant and instance and reuse it
+    :meth:`NlpSolver.share_cold_retries`) run it once per backend settings, NLP variant and
+    instance and reuse it
     after (the same :class:`~uuv_ocp.solvers.result.Attempt`, so the same result); only without
     a time limit, where an attempt does not depend on when it starts.  ``reused`` counts the
     attempts not run again.
     """
 
     def __init__(self) -> None:
-        self.attempts: dict[tuple[str, bool, bytes], Attempt] = {}
+        self.attempts: dict[tuple[str, str, bool, bytes], Attempt] = {}
         self.reused = 0
 
 
@@ -853,7 +854,9 @@ class NlpSolver:
         shared = self._cold_retries
         if shared is not None and warm is None and stage is Stage.PLAIN and math.isinf(self._clock.at):
             # the cold retry of an instance is one attempt whichever start failed before it
-            memo = (str(variant), key[2], np.asarray(chain.p, dtype=float).tobytes())
+            # a backend with other settings (a hybrid's class_exact) runs another attempt
+            settings = f"{type(self).__qualname__} {self.settings!r}"
+            memo = (settings, str(variant), key[2], np.asarray(chain.p, dtype=float).tobytes())
             attempt = shared.attempts.get(memo)
             if attempt is None:
                 attempt = shared.attempts[memo] = self._attempt(variant, chain.p, warm, stage)

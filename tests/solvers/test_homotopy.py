@@ -191,24 +191,35 @@ def _side(path: np.ndarray, centre: np.ndarray) -> int:
 
 
 def test_sides_name_the_side_of_every_disc_and_the_skip_drops_the_solved_class():
-    ocp, p, guess, geometry = _field(TRAP, LATERAL)
-    for label, start in homotopy.class_guesses(ocp, p, guess, geometry):
-        expected = _side(start.states[:, :2], TRAP[0, :2])
-        assert homotopy.sides(start.states[:, :2], geometry.discs) == (expected,)
-        assert label.endswith("L" if expected > 0 else "R")
+    ocp, p, guess, geometry = _field(np.array([[3.5, 0.2, 1.0], [7.0, -0.3, 1.0]]), 0.5)
+    centres = geometry.discs[0, :, :2]
+    classes = homotopy.class_guesses(ocp, p, guess, geometry)
+    assert len(classes) == 4
+    for label, start in classes:
+        expected = tuple(_side(start.states[:, :2], c) for c in centres)
+        assert homotopy.sides(start.states[:, :2], geometry.discs) == expected
+        assert all(f"{i}{'L' if s > 0 else 'R'}" in label for i, s in enumerate(expected))
     skip = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry})
     full = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry, "skip_swarm_class": False})
-    result = skip.solve(p, guess, np.random.default_rng(3))
-    everything = full.solve(p, guess, np.random.default_rng(3))
-    # the exact solve from the swarm's plan (same seed, same plan), its side found independently
-    plan = skip.first.solve(p, guess, np.random.default_rng(3)).iterate
-    solved = uo.get_solver(ocp, "fatrop").solve(p, plan)
-    side = "L" if _side(solved.states[:, :2], TRAP[0, :2]) > 0 else "R"
-    assert result.details["skipped_starts"] == [f"class 0{side}"]
-    ran = [c["start"] for c in result.details["candidates"]]
-    assert ran == ["swarm 0", f"class 0{'R' if side == 'L' else 'L'}"]
-    # the skipped start found nothing better: both hybrids return the same plan
-    assert result.cost == pytest.approx(everything.cost, rel=1e-9)
+    # the exact solve from the swarm's plan (same seed, same plan), its sides found independently
+    fatrop = uo.get_solver(ocp, "fatrop")
+    skipped_any = False
+    for seed in range(4):
+        result = skip.solve(p, guess, np.random.default_rng(seed))
+        everything = full.solve(p, guess, np.random.default_rng(seed))
+        plan = skip.first.solve(p, guess, np.random.default_rng(seed)).iterate
+        solved = fatrop.solve(p, plan)
+        sides = tuple(_side(solved.states[:, :2], c) for c in centres)
+        same = [
+            label for label, g in classes[1:] if tuple(_side(g.states[:, :2], c) for c in centres) == sides
+        ]
+        assert result.details.get("skipped_starts", []) == same  # never the nearest class
+        ran = [c["start"] for c in result.details["candidates"]]
+        assert ran == ["swarm 0"] + [label for label, _ in classes if label not in same]
+        skipped_any |= bool(same)
+        # the skipped starts found nothing better: both hybrids return the same plan
+        assert result.cost == pytest.approx(everything.cost, rel=1e-9)
+    assert skipped_any
 
 
 def test_starts_run_on_two_threads_give_the_sequential_result_bit_for_bit():

@@ -32,13 +32,17 @@ of the one returned.  With k > 1 the swarm half must accept the ``candidates`` a
 Option ``skip_swarm_class`` (default True): the class starts (option ``classes``, see
 :mod:`~uuv_ocp.solvers.homotopy`) whose guess passes every obstacle on the side the exact solve
 from the swarm's plan converged to (:func:`~uuv_ocp.solvers.homotopy.sides`) are not run: that
-homotopy class is solved already (``details["skipped_starts"]`` lists them).  Option ``workers``
-(default 1): the starts after the swarm's plan run on that many threads at once, each with an
-exact backend of its own (built on first use, kept); exact backends keep no state between calls
-that changes a result, and the best is chosen in the starts' order, so the result is the
-sequential one bit for bit (tested).  Fatrop's attempts run in forked worker processes
-(:mod:`~uuv_ocp.solvers.watchdog`) and the threads only wait on pipes, so they run on several
-cores.
+homotopy class is solved already (``details["skipped_starts"]`` lists them).  The nearest class
+(the first, the caller's warm start pushed clear) always runs: skipping it too lost 4 of the
+first 673 fields of the two benchmark runs, where the swarm's plan had converged to a worse
+optimum of the same class.
+
+Option ``workers`` (default 1): the starts after the swarm's plan run on that many threads at
+once, each with an exact backend of its own (built on first use, kept); exact backends keep no
+state between calls that changes a result, and the best is chosen in the starts' order, so the
+result is the sequential one bit for bit (tested).  Fatrop's attempts run in forked worker
+processes (:mod:`~uuv_ocp.solvers.watchdog`) and the threads only wait on pipes, so they run on
+several cores.
 
 Without a ``deadline``, the exact backends on :class:`~uuv_ocp.solvers.nlp.NlpSolver` share
 their cold retries across the starts (:class:`~uuv_ocp.solvers.nlp.ColdRetries`): a start whose
@@ -151,8 +155,8 @@ class HybridOptions:
     skip_swarm_class: bool = option(
         True,
         "bool",
-        "drop the class starts whose guess passes every obstacle on the side the exact solve from the "
-        "swarm's plan converged to (its homotopy class: solved already)",
+        "drop the class starts (but the nearest) whose guess passes every obstacle on the side the exact "
+        "solve from the swarm's plan converged to (its homotopy class: solved already)",
         check=boolean,
     )
     workers: int = option(
@@ -383,11 +387,12 @@ class HybridSolver:
                 classes = homotopy.class_guesses(self.problem, p, warm_start, geometry)[: self.classes]
             if geometry is not None and classes and self.skip_swarm_class and first and first.success:
                 # a start in the class the swarm's plan already converged in would find (on the
-                # obstacle benchmark: nearly always) that same local optimum again
+                # obstacle benchmark: nearly always) that same local optimum again; not so for
+                # the nearest class, which found a better optimum of that class on 4 of 673 fields
                 columns = list(geometry.position)
                 solved = homotopy.sides(np.asarray(first.states)[:, columns], geometry.discs)
-                kept = []
-                for label, guess in classes:
+                kept = classes[:1]  # the nearest class (the straight start pushed clear) always runs
+                for label, guess in classes[1:]:
                     assert guess.states is not None
                     if homotopy.sides(np.asarray(guess.states)[:, columns], geometry.discs) == solved:
                         skipped.append(label)

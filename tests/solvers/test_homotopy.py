@@ -7,6 +7,7 @@ import pytest
 import uuv_ocp as uo
 from uuv_ocp.solvers import homotopy
 from uuv_ocp.solvers.homotopy import Geometry
+from uuv_ocp.solvers.nlp import NlpSolver
 from uuv_ocp.solvers.result import Iterate
 
 N, DT = 20, 0.375
@@ -117,12 +118,13 @@ def test_class_start_reaches_the_better_class_where_the_straight_start_does_not(
 
 def test_the_default_hybrid_starts_the_exact_solver_from_the_classes_too():
     ocp, p, guess, geometry = _field(TRAP, LATERAL)
-    hybrid = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry})
+    every = {"geometry": lambda _: geometry, "skip_swarm_class": False}
+    hybrid = uo.get_solver(ocp, "pso+fatrop", every)
     result = hybrid.solve(p, guess, np.random.default_rng(3))
     starts = [c["start"] for c in result.details["candidates"]]
     assert starts == ["swarm 0", "class 0R", "class 0L"]  # one blocker: both of its classes
     assert result.details["class_starts"] == 2
-    kept = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry, "candidates": 2})
+    kept = uo.get_solver(ocp, "pso+fatrop", {**every, "candidates": 2})
     starts = [c["start"] for c in kept.solve(p, guess, np.random.default_rng(3)).details["candidates"]]
     assert starts == ["swarm 0", "warm start", "class 0R", "class 0L"]
     assert result.cost == pytest.approx(min(c["cost"] for c in result.details["candidates"] if c["success"]))
@@ -192,3 +194,62 @@ def test_a_geometry_provider_of_the_wrong_horizon_is_refused_by_name():
     with pytest.raises(ValueError, match="geometry must return a homotopy.Geometry"):
         homotopy.geometry_of(ocp, p, lambda _: "discs")
     assert homotopy.geometry_of(ocp, p, lambda _: geometry) is geometry
+
+
+def _side(path: np.ndarray, centre: np.ndarray) -> int:
+    """Independent side of ``centre``: the chord × (node − centre) at the node abreast of it (x)."""
+    k = 1 + int(np.argmin(np.abs(path[1:, 0] - centre[0])))
+    return int(np.sign(_cross(path[-1] - path[0], path[k] - centre)))
+
+
+def test_sides_name_the_side_of_every_disc_and_the_skip_drops_the_solved_class():
+    ocp, p, guess, geometry = _field(np.array([[3.5, 0.2, 1.0], [7.0, -0.3, 1.0]]), 0.5)
+    centres = geometry.discs[0, :, :2]
+    classes = homotopy.class_guesses(ocp, p, guess, geometry)
+    assert len(classes) == 4
+    for label, start in classes:
+        expected = tuple(_side(start.states[:, :2], c) for c in centres)
+        assert homotopy.sides(start.states[:, :2], geometry.discs) == expected
+        assert all(f"{i}{'L' if s > 0 else 'R'}" in label for i, s in enumerate(expected))
+    skip = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry})
+    full = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry, "skip_swarm_class": False})
+    # the exact solve from the swarm's plan (same seed, same plan), its sides found independently
+    fatrop = uo.get_solver(ocp, "fatrop")
+    skipped_any = False
+    for seed in range(4):
+        result = skip.solve(p, guess, np.random.default_rng(seed))
+        everything = full.solve(p, guess, np.random.default_rng(seed))
+        plan = skip.first.solve(p, guess, np.random.default_rng(seed)).iterate
+        solved = fatrop.solve(p, plan)
+        sides = tuple(_side(solved.states[:, :2], c) for c in centres)
+        same = [
+            label for label, g in classes[1:] if tuple(_side(g.states[:, :2], c) for c in centres) == sides
+        ]
+        assert result.details.get("skipped_starts", []) == same  # never the nearest class
+        ran = [c["start"] for c in result.details["candidates"]]
+        assert ran == ["swarm 0"] + [label for label, _ in classes if label not in same]
+        skipped_any |= bool(same)
+        # the skipped starts found nothing better: both hybrids return the same plan
+        assert result.cost == pytest.approx(everything.cost, rel=1e-9)
+    assert skipped_any
+
+
+def test_shared_cold_retries_run_once_and_change_no_result(monkeypatch):
+    # three discs where some class starts fail at first and retry from the cold guess
+    discs = np.array([[7.643, 0.429, 0.805], [6.987, -0.56, 1.218], [2.515, 0.276, 1.025]])
+    ocp, p, guess, geometry = _field(discs, 0.5)
+    options = {"geometry": lambda _: geometry, "skip_swarm_class": False}
+    shared = uo.get_solver(ocp, "pso+fatrop", options).solve(p, guess, np.random.default_rng(1))
+    assert shared.details["cold_retries_reused"] >= 1
+    # the same hybrid with every cold retry run again (sharing switched off)
+    monkeypatch.setattr(NlpSolver, "share_cold_retries", lambda self, retries: None)
+    alone = uo.new_solver(ocp, "pso+fatrop", options).solve(p, guess, np.random.default_rng(1))
+    assert "cold_retries_reused" not in alone.details
+    np.testing.assert_array_equal(shared.states, alone.states)
+    for a, b in zip(shared.details["candidates"], alone.details["candidates"], strict=True):
+        assert (a["start"], a["cost"], a["status"], a["iterations"]) == (
+            b["start"],
+            b["cost"],
+            b["status"],
+            b["iterations"],
+        )

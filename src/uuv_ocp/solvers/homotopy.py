@@ -176,6 +176,23 @@ def _passes(path: np.ndarray, track: np.ndarray, side: int) -> bool:
     return bool(side * float(offset[k] @ normal) > 0.0)
 
 
+def sides(path: np.ndarray, discs: np.ndarray) -> tuple[int, ...]:
+    """Homotopy class of ``path`` among every disc: the side it passes each one on (+1 left, −1 right).
+
+    The side of disc ``i`` is the sign of the path's offset from its centre along the chord's
+    left normal at the node most nearly abreast of the centre (node 0 excluded, as in the
+    pushes); two paths with equal tuples pass every obstacle on the same side.
+
+    Parameters
+    ----------
+    path : ndarray, shape (N+1, 2)
+        Horizontal positions at the nodes (m).
+    discs : ndarray, shape (N+1, n, 3)
+        Obstacles per node (see :class:`Geometry`).
+    """
+    return tuple(1 if _passes(path, discs[:, i, :], 1) else -1 for i in range(discs.shape[1]))
+
+
 def class_paths(
     path: np.ndarray, discs: np.ndarray, count: int = BLOCKERS, pad: float = PAD
 ) -> list[tuple[dict[int, int], np.ndarray]]:

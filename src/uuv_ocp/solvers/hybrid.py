@@ -29,6 +29,24 @@ best homotopy class in about half the instances and the swarms' plans often miss
 of the one returned.  With k > 1 the swarm half must accept the ``candidates`` and
 ``candidate_distance`` options (the built-in swarms do).
 
+Option ``skip_swarm_class`` (default True): the class starts (option ``classes``, see
+:mod:`~uuv_ocp.solvers.homotopy`) whose guess passes every obstacle on the side the exact solve
+from the swarm's plan converged to (:func:`~uuv_ocp.solvers.homotopy.sides`) are not run: that
+homotopy class is solved already (``details["skipped_starts"]`` lists them).  The nearest class
+(the first, the caller's warm start pushed clear) always runs: skipping it too lost 4 of the
+first 673 fields of the two benchmark runs, where the swarm's plan had converged to a worse
+optimum of the same class.
+
+The starts run one after the other.  Running them on threads was tried (each thread its own
+exact backend) and removed: on 1 of 1000 benchmark fields the threaded answer differed from the
+sequential one, unexplained (fatrop's attempts fork a worker process, and forking while another
+thread runs copies only the forking thread), and on 2 cores it gained nothing (docs/solvers.md).
+
+Without a ``deadline``, the exact backends on :class:`~uuv_ocp.solvers.nlp.NlpSolver` share
+their cold retries across the starts (:class:`~uuv_ocp.solvers.nlp.ColdRetries`): a start whose
+first attempt fails retries from the cold guess, the same attempt for every start, so it runs
+once per solve (``details["cold_retries_reused"]`` counts the others; the result is unchanged).
+
 Option ``deadline`` (seconds, finite > 0): the wall-time budget of the whole hybrid solve.  The
 swarm gets :data:`SWARM_SHARE` (50 %) of it (it returns its best plan so far when that share is
 used up), the exact stage what is left when the swarm returns (built with ``deadline`` too, so
@@ -55,6 +73,7 @@ from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers import homotopy, watchdog
 from uuv_ocp.solvers.base import check_backend, takes_time_limit
 from uuv_ocp.solvers.multistart import best_result, plan_guess
+from uuv_ocp.solvers.nlp import ColdRetries
 from uuv_ocp.solvers.options import (
     Option,
     boolean,
@@ -128,6 +147,13 @@ class HybridOptions:
         meaning="a TrackingProblem's obstacles",
         check=optional(_callable),
     )
+    skip_swarm_class: bool = option(
+        True,
+        "bool",
+        "drop the class starts (but the nearest) whose guess passes every obstacle on the side the exact "
+        "solve from the swarm's plan converged to (its homotopy class: solved already)",
+        check=boolean,
+    )
     deadline: float | None = option(
         None,
         "float > 0 or `None`",
@@ -161,6 +187,7 @@ class HybridSolver:
         keep_warm_start: bool = True,
         classes: int = 0,
         geometry: homotopy.GeometryProvider | None = None,
+        skip_swarm_class: bool = False,
     ) -> None:
         self.name = name
         self.first = first
@@ -170,6 +197,7 @@ class HybridSolver:
         self.keep_warm_start = keep_warm_start
         self.classes = classes
         self.geometry = geometry
+        self.skip_swarm_class = skip_swarm_class
         self.problem = problem if problem is not None else getattr(first, "problem", None)
         self._decode: BufferedFunction | None = None
 
@@ -187,12 +215,22 @@ class HybridSolver:
         else:
             swarm = self.first.solve(p, warm_start, rng, time_limit=SWARM_SHARE * deadline)
 
+        retries = ColdRetries()
+
         def exact_solve(guess: Iterate | None) -> SolveResult | None:
             """Run the exact stage from ``guess`` in what is left of the deadline (None: nothing left)."""
+            backend = self.second
             if deadline is None:
-                return self.second.solve(p, guess)
+                share = getattr(backend, "share_cold_retries", None)
+                if share is None:
+                    return backend.solve(p, guess)
+                share(retries)  # every start's cold retry is one attempt: run it once
+                try:
+                    return backend.solve(p, guess)
+                finally:
+                    share(None)
             remaining = deadline - (watchdog.now() - start)
-            return None if remaining <= 0.0 else self.second.solve(p, guess, time_limit=remaining)
+            return None if remaining <= 0.0 else backend.solve(p, guess, time_limit=remaining)
 
         # the exact stage's terminal strategy (sticky soft start after a relaxed step) carries on
         relaxed = warm_start.terminal_relaxed if warm_start is not None else False
@@ -216,7 +254,7 @@ class HybridSolver:
                 ),
             )
         results = [first_exact]
-        starts = self._starts(p, warm_start, swarm, plans)
+        starts, skipped = self._starts(p, warm_start, swarm, plans, first_exact)
         if not starts:
             exact = first_exact
             details = dict(exact.details)
@@ -224,9 +262,8 @@ class HybridSolver:
         else:
             origins = ["swarm 0"] + [origin for origin, _, _ in starts]
             fitness = [swarm.details.get("fitness")] + [f for _, _, f in starts]
-            for _, g, _ in starts:  # no start begins after the deadline
-                result = exact_solve(g)
-                if result is None:
+            for result in self._run([g for _, g, _ in starts], exact_solve):
+                if result is None:  # no start begins after the deadline
                     break
                 results.append(result)
             chosen = best_result(results)
@@ -240,6 +277,7 @@ class HybridSolver:
                     "max_violation": r.max_violation,
                     "success": r.success,
                     "status": r.status,
+                    "iterations": r.iterations,
                     "time": r.solve_time,
                 }
                 for i, r in enumerate(results)
@@ -248,6 +286,10 @@ class HybridSolver:
             details["class_starts"] = sum(origin.startswith("class") for origin in origins[: len(results)])
             iterations = sum(r.iterations for r in results)
             evaluations = sum(r.evaluations for r in results)
+        if skipped:
+            details["skipped_starts"] = skipped
+        if retries.reused:
+            details["cold_retries_reused"] = retries.reused
         details.update(
             {
                 "swarm_fitness": swarm.details.get("fitness"),
@@ -269,21 +311,54 @@ class HybridSolver:
             details=SolveDetails.of(details),
         )
 
+    def _run(
+        self, guesses: list[Iterate | None], exact_solve: Callable[..., SolveResult | None]
+    ) -> list[SolveResult | None]:
+        """Solve from each guess, in order, until one returns ``None`` (no time left)."""
+        out: list[SolveResult | None] = []
+        for guess in guesses:
+            out.append(exact_solve(guess))
+            if out[-1] is None:
+                break
+        return out
+
     def _starts(
-        self, p: np.ndarray, warm_start: Iterate | None, swarm: SolveResult, plans: Any
-    ) -> list[tuple[str, Iterate | None, float | None]]:
-        """List the exact half's starts after the swarm's best plan: ``[(origin, guess, fitness)]``.
+        self,
+        p: np.ndarray,
+        warm_start: Iterate | None,
+        swarm: SolveResult,
+        plans: Any,
+        first: SolveResult | None = None,
+    ) -> tuple[list[tuple[str, Iterate | None, float | None]], list[str]]:
+        """List the exact half's starts after the swarm's plan: ``([(origin, guess, fitness)], skipped)``.
 
         The caller's warm start (``keep_warm_start`` with ``candidates >= 2``),
         the swarm's next distinct plans (``candidates``), then the ``classes`` best homotopy-class
-        guesses (:mod:`~uuv_ocp.solvers.homotopy`) when the obstacles are known.
+        guesses (:mod:`~uuv_ocp.solvers.homotopy`) when the obstacles are known; with
+        ``skip_swarm_class``, minus the class guesses in the homotopy class of ``first`` (the
+        exact solve from the swarm's plan, when it succeeded), whose labels are ``skipped``.
         """
         out: list[tuple[str, Iterate | None, float | None]] = []
         classes: list[tuple[str, Iterate]] = []
+        skipped: list[str] = []
         if self.classes > 0 and self.problem is not None:
             geometry = homotopy.geometry_of(self.problem, p, self.geometry)
             if geometry is not None:
                 classes = homotopy.class_guesses(self.problem, p, warm_start, geometry)[: self.classes]
+            if geometry is not None and classes and self.skip_swarm_class and first and first.success:
+                # a start in the class the swarm's plan already converged in would find (on the
+                # obstacle benchmark: nearly always) that same local optimum again; not so for
+                # the nearest class, which found a better optimum of that class on 4 of 673 fields
+                columns = list(geometry.position)
+                solved = homotopy.sides(np.asarray(first.states)[:, columns], geometry.discs)
+                kept = classes[:1]  # the nearest class (the straight start pushed clear) always runs
+                for label, guess in classes[1:]:
+                    assert guess.states is not None
+                    if homotopy.sides(np.asarray(guess.states)[:, columns], geometry.discs) == solved:
+                        skipped.append(label)
+                    else:
+                        kept.append((label, guess))
+                classes = kept
         # the class guesses replace the straight start: the nearest one is it, pushed clear
         # (on the obstacle benchmark keeping it too cost 40 % more time for no better cost)
         if self.keep_warm_start and plans:  # None: the exact solver's own cold guess
@@ -299,7 +374,7 @@ class HybridSolver:
                 guess = plan_guess(problem, plan, p, warm_start, self._decode)
                 out.append((f"swarm {i}", guess, fitness[i] if i < len(fitness) else None))
         out += [(label, guess, None) for label, guess in classes]
-        return out
+        return out, skipped
 
 
 def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
@@ -329,6 +404,7 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
             keep,
             settings.classes,
             settings.geometry,
+            settings.skip_swarm_class,
         )
         for label, half in ((swarm_name, hybrid.first), (exact_name, hybrid.second)):
             check_backend(half, label)

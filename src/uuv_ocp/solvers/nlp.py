@@ -296,6 +296,23 @@ NLP_OPTIONS: tuple[Option, ...] = declaration(NlpOptions)
 """Rows of :class:`NlpOptions` (the docs' table; subclasses revise defaults and add their own)."""
 
 
+class ColdRetries:
+    """Cold retries shared by several solves of one instance (a hybrid's starts).
+
+    A chain whose first attempt fails retries from the cold guess (``warm_start=None``): the
+    same attempt whatever the failed start was.  Solves given one :class:`ColdRetries` (see
+    :meth:`NlpSolver.share_cold_retries`) run it once per backend settings, NLP variant and
+    instance and reuse it
+    after (the same :class:`~uuv_ocp.solvers.result.Attempt`, so the same result); only without
+    a time limit, where an attempt does not depend on when it starts.  ``reused`` counts the
+    attempts not run again.
+    """
+
+    def __init__(self) -> None:
+        self.attempts: dict[tuple[str, str, bool, bytes], Attempt] = {}
+        self.reused = 0
+
+
 @dataclasses.dataclass
 class _Chain:
     """The fallback chain of one :meth:`NlpSolver.solve` call: its attempts so far, in order.
@@ -402,6 +419,7 @@ class NlpSolver:
         self._plugins: dict[tuple[str, Stage, bool], str] = {}
         # attempts of plugins that cannot stop themselves run in this forked worker (see watched)
         self._worker = watchdog.Worker(self._solvers.__getitem__)
+        self._cold_retries: ColdRetries | None = None
         self._deadline_callbacks: list[_DeadlineCallback] = []  # kept alive for their nlpsols
         self._still_water_slice = problem.still_water_slice
         self._state_dim = built.spec.state_dim
@@ -786,6 +804,10 @@ class NlpSolver:
         index = self.variants[variant].terminal_slack_index
         return variant != HARD and bool(index.size) and float(np.max(primal[index])) > self.slack_tolerance
 
+    def share_cold_retries(self, retries: ColdRetries | None) -> None:
+        """Reuse the cold retries of ``retries`` in the next solves (``None``: stop; :class:`ColdRetries`)."""
+        self._cold_retries = retries
+
     # ------------------------------------------------------------------ solve
     def solve(
         self,
@@ -829,7 +851,20 @@ class NlpSolver:
             spent = watchdog.now() - built
             chain.build_time += spent
             self._clock.at += spent
-        chain.attempts.append(self._attempt(variant, chain.p, warm, stage))
+        shared = self._cold_retries
+        if shared is not None and warm is None and stage is Stage.PLAIN and math.isinf(self._clock.at):
+            # the cold retry of an instance is one attempt whichever start failed before it
+            # a backend with other settings (a hybrid's class_exact) runs another attempt
+            settings = f"{type(self).__qualname__} {self.settings!r}"
+            memo = (settings, str(variant), key[2], np.asarray(chain.p, dtype=float).tobytes())
+            attempt = shared.attempts.get(memo)
+            if attempt is None:
+                attempt = shared.attempts[memo] = self._attempt(variant, chain.p, warm, stage)
+            else:
+                shared.reused += 1
+            chain.attempts.append(attempt)
+        else:
+            chain.attempts.append(self._attempt(variant, chain.p, warm, stage))
         failed = not chain.last.success and stage is not Stage.RESCUE
         if failed and self.stalled(chain.last, chain.p) and self.rescue_options():
             # stuck next to a solution: the rest of the chain would stall the same way

@@ -292,7 +292,7 @@ class _CpuTimedNmpc(uo.NMPC):
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]
         self.cpu_times: list[float] = []
 
-    def step(self, *args: object, **kwargs: object) -> uo.StepRecord:  # type: ignore[override]
+    def step(self, *args: object, **kwargs: object) -> uo.StepRecord:
         start = time.thread_time()
         record = super().step(*args, **kwargs)  # type: ignore[arg-type]
         self.cpu_times.append(time.thread_time() - start)
@@ -321,7 +321,7 @@ def rti_step_times(duration: float = 30.0) -> list[tuple[str, int, float, float,
     dive[2] -= 0.5
     problem, start = survey()
     remus = path_problem(problem.reference)
-    cases = (
+    cases: tuple[tuple[str, int, uo.TrackingProblem | uo.PathFollowingProblem, np.ndarray, dict], ...] = (
         ("RexROV (s2)", 6, rexrov, rexrov.reference.initial_state(0.0), {}),
         ("BlueROV2 Heavy (survey)", 12, bluerov, dive, {}),
         ("REMUS 100 (path following)", 12, remus, remus.initial_state(start), {"current": seeded_current(0)}),

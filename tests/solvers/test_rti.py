@@ -1103,6 +1103,7 @@ def test_stage_data_from_the_rk4_sensitivity_equal_casadis_jacobian(case):
     """
     from uuv_ocp.solvers.rti_ocp import constraint_jacobian, ocp_qp_layout, stage_data_function
 
+    problem: uo.TrackingProblem | uo.PathFollowingProblem
     if case == "s2":
         problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=4, dt=0.1)
     else:

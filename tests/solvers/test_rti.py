@@ -1090,3 +1090,49 @@ def test_equality_first_auto_follows_the_cost_model(monkeypatch):
         for variant in ("hard", "soft")
         for linked in ("native", "wheel")
     }
+
+
+@pytest.mark.parametrize("case", ["remus-path", "s2"])
+def test_stage_data_from_the_rk4_sensitivity_equal_casadis_jacobian(case):
+    """Stage data and CasADi-path linearisation from ``rk4_sensitivity`` equal AD's.
+
+    Reference: the same stage data with ``casadi.jacobian`` of the whole constraint vector
+    (``sensitivity=False``, the former path), every variant, at random points; to rounding
+    (the operations differ in order).  The REMUS 100 path following (lifted rate controls, the
+    path parameter, the path-end slacks) and the RexROV on s2.
+    """
+    from uuv_ocp.solvers.rti import qp_functions
+    from uuv_ocp.solvers.rti_ocp import constraint_jacobian, ocp_qp_layout, stage_data_function
+
+    problem: uo.TrackingProblem | uo.PathFollowingProblem
+    if case == "s2":
+        problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=4, dt=0.1)
+    else:
+        path = uo.Reference.lawnmower((0.0, 0.0), width=150.0, spacing=60.0, lanes=2, speed=1.5, depth=10.0)
+        problem = uo.PathFollowingProblem(uo.Remus100(), path, speed=1.5, horizon=3, dt=0.5)
+    rng = np.random.default_rng(28)
+    backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp", "terminal_strategy": "soft"})
+    for name, data in backend.variants.items():
+        assert data.shooting and data.rk4 is not None
+        w, p = data.nlp["x"], data.nlp["p"]
+        mine = ca.Function("mine", [w, p], [ca.densify(constraint_jacobian(data))])
+        theirs = ca.Function("theirs", [w, p], [ca.densify(ca.jacobian(data.nlp["g"], w))])
+        layout = ocp_qp_layout(data, problem.spec().state_dim)
+        new, _ = stage_data_function(data, layout, 1.7, None, "new")
+        old, _ = stage_data_function(data, layout, 1.7, None, "old", sensitivity=False)
+        for _ in range(2):
+            w0 = rng.uniform(-1, 1, w.numel())
+            p0 = rng.uniform(-1, 1, p.numel())
+            if case == "remus-path":  # a REMUS under way: the surge and the propeller of cruise
+                w0[data.state_index[:, 6]] += 1.5
+            a, b = np.array(mine(w0, p0)), np.array(theirs(w0, p0))
+            np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-11 * np.abs(b).max(), err_msg=name)
+            a, b = np.array(new(w0, p0)), np.array(old(w0, p0))
+            np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-11 * np.abs(b).max(), err_msg=name)
+            # CasADi's QP path (qpsol="hpipm") linearises with the same Jacobian
+            (mine_qp, _, mine_a), (theirs_qp, _, theirs_a) = (
+                qp_functions(data, None, 1.7, "lin", sensitivity=flag) for flag in (True, False)
+            )
+            a = np.array(ca.DM(mine_a, mine_qp(w0, p0)[2]))
+            b = np.array(ca.DM(theirs_a, theirs_qp(w0, p0)[2]))
+            np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-11 * np.abs(b).max(), err_msg=name)

@@ -114,6 +114,7 @@ from uuv_ocp.solvers.rti_ocp import (
     OcpQpStep,
     UnsupportedStructure,
     build_step,
+    constraint_jacobian,
     ocp_qp_options,
 )
 from uuv_ocp.transcription.multiple_shooting import NlpData
@@ -309,12 +310,18 @@ ResidentPlan = CStepPlan
 
 @serialised
 def qp_functions(
-    data: NlpData, still_water_slice: slice | None, objective_scale: float, name: str
+    data: NlpData,
+    still_water_slice: slice | None,
+    objective_scale: float,
+    name: str,
+    sensitivity: bool = True,
 ) -> tuple[ca.Function, ca.Sparsity, ca.Sparsity]:
     """``linearise(w, p) -> (H_nz, grad, A_nz, g)`` of an NLP variant, and the sparsities of H, A.
 
     ``H`` is the Gauss–Newton Hessian of ``objective_scale · f`` (upper and lower part), ``A``
-    the constraint Jacobian.  With ``still_water_slice`` the current parameters are set to zero
+    the constraint Jacobian (the multiple-shooting gaps' rows from the RK4 step's sensitivity
+    with ``sensitivity``, as the C step's: :func:`~uuv_ocp.solvers.rti_ocp.constraint_jacobian`).
+    With ``still_water_slice`` the current parameters are set to zero
     *after* differentiation, so the still-water Function has the same nonzero layout as the
     general one (CasADi simplifies the vanished terms inside the entries).
     """
@@ -325,18 +332,18 @@ def qp_functions(
     other_hessian, _ = ca.hessian(data.other_objective, w)
     if other_hessian.nnz():  # expression costs (not least squares) keep their exact curvature
         hessian += objective_scale * other_hessian
-    constraint_jacobian = ca.jacobian(nlp["g"], w)
+    gaps_jacobian = constraint_jacobian(data, sensitivity)
     outputs = [
         _nonzeros(hessian),
         objective_scale * ca.gradient(nlp["f"], w),
-        _nonzeros(constraint_jacobian),
+        _nonzeros(gaps_jacobian),
         nlp["g"],
     ]
     if still_water_slice is not None:
         current = p[still_water_slice]
         outputs = ca.substitute(outputs, [current], [ca.DM.zeros(current.numel())])
     linearise = ca.Function(name, [w, p], outputs, ["w", "p"], ["h", "grad", "a", "g"])
-    return linearise, hessian.sparsity(), constraint_jacobian.sparsity()
+    return linearise, hessian.sparsity(), gaps_jacobian.sparsity()
 
 
 def _nonzeros(matrix: ca.SX) -> ca.SX:

@@ -51,6 +51,13 @@ class NlpData:
     interval_index: np.ndarray  # (N, m) positions of the strategy's interval variables (m = 0: none)
     primal_shift: np.ndarray = field(repr=False)
     constraint_shift: np.ndarray = field(repr=False)
+    #: multiple shooting: per interval ``(k, x_k, u_k, p_stage, p_global, X_{k+1}, z_k or None)``,
+    #: the step's arguments and the gap's other terms (its rows are ``X_{k+1} − [F(x_k, u_k); z_k]``),
+    #: and ``(dynamics, dt, substeps)`` of the RK4 step ``F``: the C step's stage data take the
+    #: gap's Jacobian from :func:`~uuv_ocp.integrators.rk4_sensitivity` instead of differentiating
+    #: the unrolled step (``()`` and ``None``: another transcription)
+    shooting: tuple[tuple[Any, ...], ...] = field(default=(), repr=False)
+    rk4: tuple[ca.Function, float, int] | None = field(default=None, repr=False)
 
 
 def parameter_blocks(spec: OcpSpec, p: ca.SX) -> tuple[ca.SX, ca.SX, ca.SX, list[ca.SX]]:
@@ -88,6 +95,7 @@ class _Rows:
         self.residuals: list[ca.SX] = []
         self.linear = ca.SX(0)  # exact-penalty slack terms
         self.other = ca.SX(0)  # expression (non-least-squares) costs
+        self.shooting: list[tuple[Any, ...]] = []  # NlpData.shooting
 
     def variable(self, kind: str, stage: int | None, size: int, lower: object, upper: object) -> ca.SX:
         symbol = ca.SX.sym(f"{kind}_{stage}" if stage is not None else kind, size)
@@ -214,6 +222,8 @@ def _stage(instance: _Instance, rows: _Rows, k: int, lifted: ca.SX) -> ca.SX:
     if k == n - 1:
         _last_stage_rows(instance, rows, path, next_state, control)
     following = rows.variable("X", k + 1, lifted.numel(), -np.inf, np.inf)
+    if strategy.name == "multiple_shooting":
+        rows.shooting.append((k, state, control, stage_p, pg, following, scaled if spec.lifted else None))
     target = ca.vertcat(next_state, scaled) if spec.lifted else next_state
     rows.rows("dynamics", k, following - target, 0.0, 0.0)
     for kind, stage, values, lower, upper in path:
@@ -299,6 +309,8 @@ def _nlp_data(spec: OcpSpec, p: ca.SX, rows: _Rows) -> NlpData:
         ),
         primal_shift=shift_map(variable_keys),
         constraint_shift=shift_map(constraint_keys),
+        shooting=tuple(rows.shooting),
+        rk4=(spec.dynamics, spec.dt, spec.substeps) if rows.shooting else None,
     )
 
 

@@ -62,7 +62,7 @@ DEADLINE = 0.1  # s: the controller's step, dt
 ROWS = ("naive", "ft", "oracle", "pinv")
 FAULTS = uo.RandomFaults(count=1, window=(5.0, 10.0), kinds=("failed", "loss"), effectiveness=0.5)
 VERSION = 2
-DETECTOR_VERSION = 4  # 4: a per-window intercept beside the baseline; hold 5, significance 5
+DETECTOR_VERSION = 5  # 5: the candidate must stand out from the other thrusters (separation 2)
 
 
 def survey() -> uo.Reference:

@@ -93,7 +93,9 @@ class Bench:
         self.in_thrusters = uo.TrackingProblem(self.boat, reference, horizon=horizon, dt=0.1, terminal="cost")
         self.in_forces = uo.TrackingProblem(forces, reference, horizon=horizon, dt=0.1, terminal="cost")
         self.x0 = self.in_thrusters.initial_state()
-        self.bounds = np.array(self.boat.thrusters.max_thrust)
+        thrusters = self.boat.thrusters
+        assert thrusters is not None  # the preset with thrusters=True has them
+        self.bounds = np.array(thrusters.max_thrust)
         options = uo.EstimatorOptions(bias=True, bias_std=BIAS_STD, compiled=False)
         sensors = uo.Sensors.auv(self.boat)
         self.thruster_ekf = uo.Estimator(self.in_thrusters, "ekf", sensors=sensors, options=options)

@@ -50,7 +50,9 @@ def main(out: Path, images: Path, trial: int, count: int) -> None:
     import matplotlib.pyplot as plt
 
     images.mkdir(parents=True, exist_ok=True)
-    runs = {row: uo.ClosedLoopResult.load(str(out / f"{row}-{count}-{trial}.npz")) for row in ROWS}
+    # the rows the benchmark flew (``--rows``): those whose records are there
+    paths = {row: out / f"{row}-{count}-{trial}.npz" for row in ROWS}
+    runs = {row: uo.ClosedLoopResult.load(str(path)) for row, path in paths.items() if path.exists()}
     faults = _fault_times(runs["oracle"])
 
     figure, axis = plt.subplots(figsize=(8, 3.6))
@@ -108,8 +110,9 @@ def main(out: Path, images: Path, trial: int, count: int) -> None:
     counts = sorted({key[1] for key in rms})
     figure, axes = plt.subplots(1, len(counts), figsize=(3.2 * len(counts), 3.4), sharey=True)
     for axis, faulted in zip(np.atleast_1d(axes), counts, strict=True):
-        data = [rms.get((row, faulted), [np.nan]) for row in ROWS]
-        axis.boxplot(data, tick_labels=list(ROWS))
+        flown = [row for row in ROWS if (row, faulted) in rms]
+        data = [rms[(row, faulted)] for row in flown]
+        axis.boxplot(data, tick_labels=flown)
         axis.set_title(f"{faulted} fault(s), {len(data[0])} trials")
         axis.set_yscale("log")
     np.atleast_1d(axes)[0].set_ylabel("tracking RMS after the fault (m)")

@@ -27,6 +27,7 @@ from uuv_ocp.model import Vehicle6DOF
 DT = 0.1
 DURATION = 12.0  # s of each closed loop
 SEEDS = 20
+LONG = 40.0  # s: the survey (3 lanes of 6 m, 2 turns) at 0.5 m/s
 
 
 @pytest.fixture(scope="module")
@@ -85,6 +86,12 @@ def test_the_loss_regression_is_numpy_lstsq_on_the_same_data(boat):
     fit = loss_regression(T, forces, bias)
     np.testing.assert_allclose(fit.loss, expected, rtol=1e-10, atol=1e-12)
     assert fit.rank == 8
+    # the covariance σ̂² (XᵀX)⁻¹ (full rank, no ridge), σ̂² over the 6 W − 8 degrees of freedom
+    X = np.array(rows)
+    residual = bias.ravel() - X @ expected
+    variance = residual @ residual / (X.shape[0] - 8)
+    np.testing.assert_allclose(fit.covariance, variance * np.linalg.inv(X.T @ X), rtol=1e-8)
+    np.testing.assert_allclose(np.sqrt(np.diag(fit.covariance)), fit.standard_error, rtol=1e-8)
 
 
 def test_the_ridge_and_intercept_regression_is_lstsq_on_the_stacked_system(boat):
@@ -168,6 +175,31 @@ def test_the_offset_columns_are_lstsq_and_recover_a_stuck_thruster(boat):
     assert abs(fit.offset[2] - 12.0) < 1e-9 and np.all(np.delete(fit.offset, 2) == 0.0)
 
 
+@pytest.mark.parametrize("separation", [0.0, 2.0])
+def test_a_loss_split_evenly_between_two_thrusters_is_not_isolated(boat, separation):
+    """Thrusters 0 and 3 both lose 40 % from step 40, their commands opposite.
+
+    Nearly collinear regressors, as at a survey turn: the largest loss is a coin flip, and only
+    the separation test keeps it from being declared.
+    """
+    rng = np.random.default_rng(11)
+    T = np.array(boat.thrusters.allocation)
+    options = FaultDetectorOptions(arm_time=1.0, separation=separation)
+    detector = ThrusterFaultDetector(T, options)
+    for k in range(100):
+        f = rng.uniform(-30.0, 30.0, 8)
+        f[3] = -f[0] + rng.normal(0.0, 1.0)  # 0 and 3 push against each other
+        h = np.ones(8)
+        if k >= 40:
+            h[[0, 3]] = 0.6
+        b = np.linalg.lstsq(T, T @ (h * f) - T @ f, rcond=None)[0]
+        detector.update(k, k * DT, f, b + rng.normal(0.0, 0.3, 8))
+    if separation:
+        assert detector.detections == []
+    else:  # the same data without the test: one of the pair is declared (either may be)
+        assert [item.thruster for item in detector.detections][:1] in ([0], [3])
+
+
 @pytest.mark.parametrize(("kind", "value"), [("stuck", 15.0), ("stuck", -20.0), ("failed", None)])
 def test_the_detector_tells_a_stuck_thruster_from_a_failed_one(boat, kind, value):
     """Synthetic bias of the injected fault of thruster 3 from step 40: its kind and stuck force."""
@@ -227,6 +259,17 @@ def test_a_seeded_fault_is_isolated_to_its_thruster_in_19_of_20_seeds(survey, co
     assert right >= 19, f"isolated {right}/{SEEDS}"
 
 
+def test_after_a_detection_the_thruster_pushing_against_it_is_not_declared(survey, controller, estimator):
+    """Seed 3: thruster 2 fails at 5.3 s and is isolated at 6.0 s; nothing else is declared.
+
+    Before the window restarted at a detection (``settle``), thruster 0 was declared at 7.0 s:
+    the estimator's bias along thruster 2 decays for a second after the controller reallocates,
+    and a window spanning both regimes read that decay as thruster 0's loss.
+    """
+    run, thruster, _ = _seeded_run(survey, controller, estimator, 3, faulty=True)
+    assert [int(row[1]) for row in run.detections] == [thruster], run.detections
+
+
 @pytest.mark.slow
 def test_no_false_alarm_on_fault_free_seeded_runs(survey, controller, estimator):
     alarms = [
@@ -235,6 +278,27 @@ def test_no_false_alarm_on_fault_free_seeded_runs(survey, controller, estimator)
         if _seeded_run(survey, controller, estimator, seed, faulty=False)[0].detections.size
     ]
     assert alarms == []
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", range(6))
+def test_no_false_alarm_on_long_fault_free_runs_through_the_turns(survey, controller, estimator, seed):
+    """40 s: the whole survey, its turns relative to the current included (where the bias drifts).
+
+    The benchmark's 50-s runs alarmed in 8 of 20 with a baseline alone (no per-window intercept):
+    the bias swings by tens of newtons with the heading relative to the current.
+    """
+    rng = np.random.default_rng(3000 + seed)
+    run = uo.simulate(
+        controller,
+        survey.initial_state(),
+        LONG,
+        current=uo.Current(speed=0.3, direction=float(rng.uniform(0.0, 2.0 * np.pi))),
+        seed=seed,
+        estimator=estimator,
+        fault_detector=FaultDetectorOptions(),
+    )
+    assert run.t[-1] > LONG - 1.0 and run.detections.size == 0, run.detections
 
 
 def test_the_fault_tolerant_nmpc_is_told_the_estimated_health(survey, boat, tmp_path):
@@ -288,6 +352,9 @@ def test_the_fault_tolerant_nmpc_is_told_the_estimated_health(survey, boat, tmp_
         ("stuck_force", 0.0, "stuck_force"),
         ("isolation", "bank", "isolation"),
         ("normalise", "yes", "normalise"),
+        ("intercept", 1, "intercept"),
+        ("separation", -1.0, "separation"),
+        ("settle", -0.5, "settle"),
     ],
 )
 def test_bad_options_are_refused_by_name(field, value, match):

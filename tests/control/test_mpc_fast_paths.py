@@ -222,12 +222,15 @@ def test_within_is_its_numpy_definition(size):
         check.within(np.zeros(size), [0.0] * (size - 1), 1.0)
 
 
-def test_check_previous_still_checks_the_default_zero_against_the_box():
+def test_check_previous_defaults_to_zero_clipped_into_the_box_and_checks_a_given_value():
+    # zero lies outside this box: the default is zero clipped into it (as simulate starts, so a
+    # propeller floored above 0 rpm needs no u_prev), and a given value outside still raises
     ocp = uo.Ocp(horizon=3, dt=0.1)
     x = ocp.state("x")
-    u = ocp.control("u", lower=1.0, upper=2.0)  # zero, the default u_prev, lies outside
+    u = ocp.control("u", lower=1.0, upper=2.0)
     ocp.set_der(x, u)
     ocp.add_stage_cost(ca.sumsqr(x))
+    assert np.array_equal(ocp.check_previous(None), [1.0])
     with pytest.raises(ValueError, match="u_prev must lie inside the control bounds"):
-        ocp.check_previous(None)
+        ocp.check_previous([0.0])
     assert np.array_equal(ocp.check_previous([1.5]), [1.5])

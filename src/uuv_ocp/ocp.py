@@ -494,8 +494,9 @@ class Ocp(Transcribed):
             Value of every declared parameter by name: shape ``(size,)`` for a global one,
             ``(N+1, size)`` for a stagewise one (a ``(size,)`` value is held on every node).
         u_prev : array_like, shape (nu,), optional
-            Last applied control (for rate bounds and ``previous()``); zero by default; it
-            must lie in the control box (to 1e-6 relative: a solver's bound tolerance).
+            Last applied control (for rate bounds and ``previous()``); zero clipped into the box
+            by default; it must lie in the control box (to 1e-6 relative: a solver's bound
+            tolerance).
 
         Raises
         ------

@@ -431,7 +431,8 @@ class PathFollowingProblem(DeclaredPreset):
         x0 : array_like, shape (nx + 1,)
             Vehicle state and path parameter ``s`` (s of the reference's time).
         u_prev : array_like, shape (nu + 1,), optional
-            Last applied control and along-path speed (m/s); zero by default.
+            Last applied control and along-path speed (m/s); zero clipped into the box by
+            default (the propeller floor).
         current : array_like, shape (nc,), (N, nc) or (N+1, nc), optional
             Inertial current velocity (m/s) the model assumes on each interval.
         """

@@ -783,7 +783,8 @@ class TrackingProblem(DeclaredPreset):
         t0 : float
             Current time (s); the reference is sampled at ``t0 + k dt``.
         u_prev : array_like, shape (nu,), optional
-            Last applied control (N, N·m); defaults to zero; must lie inside the thrust box.
+            Last applied control (N, N·m); defaults to zero clipped into the box; must lie
+            inside the thrust box.
         current : array_like, shape (nc,), (N, nc) or (N+1, nc), optional
             Inertial current velocity (m/s) the model assumes on each interval.
         model : mapping, optional

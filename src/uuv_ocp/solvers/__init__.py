@@ -293,7 +293,7 @@ def solve(
     t0 : float
         Start time on the reference (s); tracking problems only.
     u_prev : array_like, shape (3,), optional
-        Last applied control (N, N, N·m) for the first rate bound; zero by default.
+        Last applied control (N, N, N·m) for the first rate bound; zero clipped into the box by default.
     current : array_like, shape (2,) or (N, 2), optional
         Inertial current velocity (m/s) assumed by the model.
     warm_start : Iterate, optional

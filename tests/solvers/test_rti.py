@@ -1136,3 +1136,76 @@ def test_stage_data_from_the_rk4_sensitivity_equal_casadis_jacobian(case):
             a = np.array(ca.DM(mine_a, mine_qp(w0, p0)[2]))
             b = np.array(ca.DM(theirs_a, theirs_qp(w0, p0)[2]))
             np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-11 * np.abs(b).max(), err_msg=name)
+
+
+def _poison(step, w: np.ndarray, p: np.ndarray) -> None:
+    """Run the raw C iteration (no Python guard) from a diverged point ``w * 1e30``.
+
+    What a closed loop whose estimate diverged fed the C step: HPIPM's workspace then held
+    NaN, and every later QP of that memory came out non-finite.
+    """
+    step.w[:] = w * 1e30
+    step.p[:] = p
+    step.lam_x[:] = 0.0
+    step.lam_g[:] = 0.0
+    a = step._pointers
+    step._iterate(step.memory, a[0], a[1], 0, 1, 1e-8, 1e-6, math.inf, a[2], a[3], a[4])
+    assert not math.isfinite(step.info[1])  # the diverged QP itself is refused (violation inf)
+
+
+def test_a_diverged_qp_does_not_poison_the_later_c_steps(problem, instance):
+    """After a QP at a diverged point, the C step's next QP equals the one it gave before.
+
+    Before the fix every later QP of that memory was non-finite (violation inf): the benchmark's
+    shared controller fell back to IPOPT at every step of every later run.  Reference: the
+    same step's output before the diverged call, bit for bit.
+    """
+    needs_compiler("hpipm-ocp")
+    x0, reference = instance
+    backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp"})
+    p = problem.parameters(x0, 3.0)
+    step = backend.ocp_step("hard", backend._uses_still_water(p))
+    assert step is not None
+    w = reference.iterate.primal
+    zeros_x, zeros_g = np.zeros(step.lam_x.size), np.zeros(step.lam_g.size)
+    before = step.iterate(w, p, zeros_x, zeros_g, False, 1, 1e-8, 1e-6, math.inf)
+    assert math.isfinite(before[3][1])
+    diverged = step.iterate(w * 1e30, p, zeros_x, zeros_g, False, 1, 1e-8, 1e-6, math.inf)
+    assert not math.isfinite(diverged[3][1])  # refused ...
+    after = step.iterate(w, p, zeros_x, zeros_g, False, 1, 1e-8, 1e-6, math.inf)
+    for got, expected in zip(after[:3], before[:3], strict=True):  # ... and forgotten
+        np.testing.assert_array_equal(got, expected)
+    np.testing.assert_array_equal(after[3][:6], before[3][:6])  # the timings (6-8) differ
+
+
+def test_reset_after_a_poisoned_c_step_gives_a_fresh_controller_s_steps(problem):
+    """``NMPC.reset`` resets the backend: the next steps equal a new controller's, bit for bit.
+
+    The C memory is poisoned by the raw C call (as a diverged run left it before the guard of
+    the test above); without the backend's reset hook every later step failed its QP.
+    """
+    needs_compiler("hpipm-ocp")
+    used = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp"})
+    fresh = uo.NMPC(problem, "sqp-rti", options={"qpsol": "hpipm-ocp"})
+    x = problem.reference.initial_state(0.0)
+
+    def steps(controller: uo.NMPC) -> list:
+        records, control = [], np.zeros(3)
+        for k in range(4):
+            record = controller.step(x, k * problem.dt, control)
+            records.append(record)
+            control = record.control
+        return records
+
+    steps(used)
+    backend = used.backend
+    p = problem.parameters(x, 0.0)
+    assert backend._ocp_steps  # the hard and the soft NLP's C steps
+    for (variant, _), step in backend._ocp_steps.items():
+        _poison(step, backend._initial_point(variant, p, None)[0], p)
+    used.reset()
+    for got, expected in zip(steps(used), steps(fresh), strict=True):
+        assert not got.fallback, got.message
+        np.testing.assert_array_equal(got.control, expected.control)
+        assert got.fast_path == expected.fast_path
+        np.testing.assert_array_equal(got.result.iterate.primal, expected.result.iterate.primal)

@@ -273,7 +273,14 @@ class NMPC:
 
     @_one_thread
     def reset(self) -> None:
-        """Forget the warm start and the previous plan; restart the random generator."""
+        """Forget the warm start and the previous plan; restart the random generator; reset the backend.
+
+        A backend with a ``reset()`` hook (:class:`~uuv_ocp.solvers.base.Backend`; ``sqp-rti``:
+        its C steps' memory) is reset too: the next step is the one a new controller would take.
+        """
+        hook = getattr(self.backend, "reset", None)
+        if callable(hook):
+            hook()
         self._iterate = None
         self._plan = None
         self._deferred = None

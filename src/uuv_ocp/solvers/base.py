@@ -33,6 +33,12 @@ class Backend(Protocol):
         budget for that call, from the call; :class:`TimeLimited`).  A hybrid or multi-start
         with a ``deadline`` needs it of its halves; a backend without the attribute has not
         got it.
+
+    Optional hook: ``reset()`` (no arguments), called by :meth:`NMPC.reset
+    <uuv_ocp.control.mpc.NMPC.reset>` (and so before every :func:`~uuv_ocp.simulate` run of a
+    warmed-up controller): forget whatever the backend keeps from one solve to the next (warm
+    starts, solver memory), so that its next solve is the one a freshly built backend would
+    take; what it built (compiled code, NLPs) stays.  ``sqp-rti``: its C steps' memory.
     """
 
     name: str

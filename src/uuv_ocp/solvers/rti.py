@@ -483,6 +483,20 @@ class RtiSolver(NlpSolver):
         self._not_state: np.ndarray | None = None  # mask of p's entries other than the state
         self._first_controls: dict[str, tuple[np.ndarray, ...]] = {}
 
+    def reset(self) -> None:
+        """Forget what the steps keep (the optional ``reset`` hook of :class:`~uuv_ocp.solvers.base.Backend`).
+
+        Drops the preparation and gives every C step fresh memory (HPIPM's workspaces, the
+        resident warm start: :meth:`OcpQpStep.reset <uuv_ocp.solvers.rti_ocp.OcpQpStep.reset>`);
+        what was built and compiled stays.  After a run that diverged, a C step's memory held
+        NaN and every later QP of it was non-finite (each step then fell back to IPOPT, which
+        the 0.1 s deadline stopped), reset or not.
+        """
+        self._prepared = None
+        for ocp in self._ocp_steps.values():
+            if ocp is not None:
+                ocp.reset()
+
     # ---------------------------------------------------------------- functions
     @serialised
     def _sparsities(self, variant: str) -> tuple[ca.Function, ca.Sparsity, ca.Sparsity]:

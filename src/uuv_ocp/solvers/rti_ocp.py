@@ -752,16 +752,31 @@ class OcpQpStep:
         #: a mark of whose point the resident warm start is (:meth:`seed`'s ``owner``;
         #: ``RtiSolver.resident_step`` sets it to the primal of the plan that left it there)
         self.owner: object | None = None
-        settings = np.array(_options_array(options), dtype=float)
-        memory = create(settings.ctypes.data)
-        if not memory:
-            raise MemoryError("uuv_rti_create: out of memory")
-        self.memory = ctypes.c_void_p(memory)
-        weakref.finalize(self, free, self.memory)
+        self._create, self._free = create, free
+        self._settings = np.array(_options_array(options), dtype=float)
+        self.memory = ctypes.c_void_p()
+        self._finalizer: weakref.finalize | None = None
+        self.reset()
         # preallocated buffers: a call copies its inputs in and hands C their addresses
         self.w, self.p = np.zeros(nw), np.zeros(np_)
         self.lam_x, self.lam_g, self.info = np.zeros(nw), np.zeros(ng), np.zeros(INFO_SIZE)
         self._pointers = [a.ctypes.data for a in (self.w, self.p, self.lam_x, self.lam_g, self.info)]
+
+    def reset(self) -> None:
+        """Replace the C memory (HPIPM's workspaces, the resident warm start) by a fresh one.
+
+        A QP with a non-finite datum (a linearisation at a diverged point) leaves NaN in HPIPM's
+        workspace, and every later QP of this memory came out non-finite too (a controller stuck
+        on its fallback after a diverged run, reset or not): the step is then as just built.
+        """
+        memory = self._create(self._settings.ctypes.data)
+        if not memory:
+            raise MemoryError("uuv_rti_create: out of memory")
+        if self._finalizer is not None:
+            self._finalizer()  # frees the old memory now, once
+        self.memory = ctypes.c_void_p(memory)
+        self._finalizer = weakref.finalize(self, self._free, self.memory)
+        self.owner = None
 
     def __reduce__(self) -> tuple[type[OcpQpStep], tuple[Any, ...]]:
         """Rebuild from the library (a copy gets HPIPM memory of its own)."""
@@ -803,7 +818,9 @@ class OcpQpStep:
         self._iterate(
             self.memory, a[0], a[1], int(prepared), max_iter, tol, qp_tolerance, budget, a[2], a[3], a[4]
         )
-        return self.w.copy(), self.lam_x.copy(), self.lam_g.copy(), self.info.copy()
+        outputs = self.w.copy(), self.lam_x.copy(), self.lam_g.copy(), self.info.copy()
+        self._drop_non_finite()
+        return outputs
 
     def seed(self, w: np.ndarray, lam_x: np.ndarray, lam_g: np.ndarray, owner: object) -> None:
         """Keep ``w`` and the multipliers (this step's convention) as the resident warm start.
@@ -834,7 +851,16 @@ class OcpQpStep:
         code = self._resident_step(
             self.memory, a[1], max_iter, tol, qp_tolerance, int(converged_only), a[0], a[2], a[3], a[4]
         )
+        if code != 0:
+            self._drop_non_finite()
         return code == 0
+
+    def _drop_non_finite(self) -> None:
+        """Reset the C memory after a call whose QP solution was not finite (see :meth:`reset`)."""
+        # info[1], the linearised violation, is inf exactly when the QP solution (or the
+        # linearisation) was not finite: HPIPM's workspace may hold NaN from then on
+        if not math.isfinite(float(self.info[1])):
+            self.reset()
 
 
 def build_step(

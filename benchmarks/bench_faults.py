@@ -115,9 +115,9 @@ class Bench:
     ) -> uo.ClosedLoopResult:
         """Fly ``row`` with ``faults`` under the current of ``direction``."""
         options: dict = {"faults": faults}
-        # a new controller per run: NMPC.reset does not undo what a run that diverged leaves in
-        # the sqp-rti backend, and every later run of a shared one hit the 0.1 s deadline at
-        # every step (median 110 ms against 1 ms) after a pinv or ft run ended beyond BLOW_UP
+        # a new controller per run, so that a record does not depend on the runs before it in
+        # the process (a resumed benchmark runs them in another order); it also hid a leak since
+        # fixed: a diverged QP left NaN in the C step's HPIPM memory (OcpQpStep.reset)
         controller, estimator = self.controller(self.in_thrusters), self.thruster_ekf
         if row == "ft":
             options["fault_detector"] = uo.FaultDetectorOptions()

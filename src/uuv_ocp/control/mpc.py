@@ -692,9 +692,8 @@ class NMPC:
             with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
                 self._steady = self._steady_function(spec)
         function, rows = self._steady
-        velocities = getattr(getattr(self.problem, "vehicle", None), "layout", None)
-        velocities = () if velocities is None else velocities.velocities
-        if braking and not set(rows.tolist()) <= set(velocities):
+        layout = getattr(getattr(self.problem, "vehicle", None), "layout", None)
+        if braking and not set(rows.tolist()) <= set(getattr(layout, "velocities", ())):
             # −x_v/dt means "stop" only for velocity rows; a driven actuator state (a thruster's
             # lag) would be switched off and the vehicle left coasting: no braking control then
             return None

@@ -262,7 +262,8 @@ class HybridSolver:
         else:
             origins = ["swarm 0"] + [origin for origin, _, _ in starts]
             fitness = [swarm.details.get("fitness")] + [f for _, _, f in starts]
-            for result in self._run([g for _, g, _ in starts], exact_solve):
+            for _, start_guess, _ in starts:
+                result = exact_solve(start_guess)
                 if result is None:  # no start begins after the deadline
                     break
                 results.append(result)
@@ -310,17 +311,6 @@ class HybridSolver:
             history=swarm.history,
             details=SolveDetails.of(details),
         )
-
-    def _run(
-        self, guesses: list[Iterate | None], exact_solve: Callable[..., SolveResult | None]
-    ) -> list[SolveResult | None]:
-        """Solve from each guess, in order, until one returns ``None`` (no time left)."""
-        out: list[SolveResult | None] = []
-        for guess in guesses:
-            out.append(exact_solve(guess))
-            if out[-1] is None:
-                break
-        return out
 
     def _starts(
         self,

@@ -28,7 +28,8 @@ pso alone; the hybrids igwo+fatrop and pso+fatrop at their defaults (the exact s
 swarm's best plan and from the best ``classes = 4`` homotopy-class guesses of
 :mod:`uuv_ocp.solvers.homotopy`, the obstacles given by :func:`geometry`), and pso+fatrop with
 ``classes=0`` (the swarm's plan only: the hybrid before the class starts) and with
-``skip_swarm_class=False`` (every class start run, the default before the skip).
+``skip_swarm_class=False`` (every class start run, the default before the skip), and with
+``initial_population="classes"`` (half of the swarm's initial particles follow the class paths).
 Every method gets the same straight-line warm start and, for the random parts, the generator
 ``default_rng([seed, i])`` on instance ``i``.  The best-known cost of an instance is the best
 feasible cost found by any of them or by a 32-start multistart-fatrop (its starts capped at
@@ -220,6 +221,7 @@ def methods(provider: Callable[[np.ndarray], Geometry] | None = None) -> dict[st
         "pso+fatrop": ("pso+fatrop", dict(known)),
         "pso+fatrop classes=0": ("pso+fatrop", {"classes": 0}),
         "pso+fatrop no skip": ("pso+fatrop", {**known, "skip_swarm_class": False}),
+        "pso+fatrop pop=classes": ("pso+fatrop", {**known, "initial_population": "classes"}),
     }
 
 

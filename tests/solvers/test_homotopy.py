@@ -253,3 +253,104 @@ def test_shared_cold_retries_run_once_and_change_no_result(monkeypatch):
             b["status"],
             b["iterations"],
         )
+
+
+# two discs on the line, apart along it: four classes (left/right of each), each reachable
+PAIR = np.array([[3.5, 0.2, 1.0], [7.0, -0.3, 1.0]])
+
+
+def test_a_path_fit_recovers_a_reachable_path():
+    ocp, p, _, geometry = _field(PAIR)
+    fit = homotopy.PathFit(ocp, geometry.position)
+    rng = np.random.default_rng(7)
+    decode = ocp.build().decode
+    for _ in range(3):
+        # the path of a known interior W (its rollout in numpy: the double integrator exactly)
+        truth = rng.uniform(-0.6, 0.6, 2 * N)
+        acc = np.asarray(decode(truth, p)).reshape(N, 2)
+        pos, vel = np.zeros((N + 1, 2)), np.zeros((N + 1, 2))
+        vel[0] = p[ocp.spec().layout.x0][2:]
+        for k in range(N):
+            pos[k + 1] = pos[k] + DT * vel[k] + 0.5 * DT**2 * acc[k]
+            vel[k + 1] = vel[k] + DT * acc[k]
+        w = fit(pos, np.zeros(2 * N), p)
+        assert np.all(np.abs(w) <= 1.0)
+        # within 5 mm: the last controls hardly move the path, so the fit converges slowly there
+        np.testing.assert_allclose(fit.positions(w, p), pos, atol=5e-3)
+
+
+def _captured_population(monkeypatch, hybrid, p, guess, seed):
+    """Run ``hybrid`` and return its swarm's initial individuals (absolute W) and the result."""
+    from uuv_ocp.solvers import swarm as swarm_module
+
+    seen = {}
+    original = swarm_module.minimize
+
+    def spy(objective, lower, upper, *args, **kwargs):
+        seeds = kwargs["initial_population"]
+        # lower = -1 - offset: the rows back in absolute coordinates
+        seen["rows"] = None if seeds is None else seeds + (-1.0 - lower)
+        return original(objective, lower, upper, *args, **kwargs)
+
+    monkeypatch.setattr(swarm_module, "minimize", spy)
+    result = hybrid.solve(p, guess, np.random.default_rng(seed))
+    return seen["rows"], result
+
+
+def test_the_classes_population_seeds_every_class_inside_the_bounds(monkeypatch):
+    ocp, p, guess, geometry = _field(PAIR, 0.5)
+    options = {"geometry": lambda _: geometry, "initial_population": "classes"}
+    hybrid = uo.get_solver(ocp, "pso+fatrop", options)
+    rows, result = _captured_population(monkeypatch, hybrid, p, guess, 3)
+    population = hybrid.first.population
+    assert rows.shape == (1 + population // 2, 2 * N)  # the centre plan, then the class share
+    assert result.details["class_particles"] == population // 2
+    decode = ocp.build().decode
+    spec = ocp.spec()
+    wanted = {
+        tuple(_side(path, c) for c in PAIR[:, :2])
+        for _, path in homotopy.class_paths(guess.states[:, :2], geometry.discs)
+    }
+    assert len(wanted) == 4
+    found = set()
+    previous = spec.physical(ocp.previous_scaled(p))
+    for w in rows[1:]:
+        acc = spec.physical(np.asarray(decode(w, p)).reshape(N, 2))
+        # the bounds, checked on the physical controls: the box and the rate (2 m/s³ × dt)
+        assert np.all(np.abs(acc) <= 1.0 + 1e-12)
+        steps = np.diff(np.vstack([previous, acc]), axis=0)
+        assert np.all(np.abs(steps) <= 2.0 * DT + 1e-9)
+        states = ocp.rollout(acc, p)
+        found.add(tuple(_side(states[:, :2], c) for c in PAIR[:, :2]))  # independent sides
+    assert found == wanted
+    again, repeat = _captured_population(monkeypatch, hybrid, p, guess, 3)  # seeded
+    np.testing.assert_array_equal(again, rows)
+    assert repeat.cost == result.cost
+
+
+def test_the_uniform_population_is_the_swarms_own(monkeypatch):
+    ocp, p, guess, geometry = _field(PAIR, 0.5)
+    default = uo.get_solver(ocp, "pso+fatrop", {"geometry": lambda _: geometry})
+    uniform = uo.new_solver(
+        ocp, "pso+fatrop", {"geometry": lambda _: geometry, "initial_population": "uniform"}
+    )
+    rows, result = _captured_population(monkeypatch, uniform, p, guess, 5)
+    assert rows.shape[0] == 1  # only the centre plan, as without the option
+    before = default.solve(p, guess, np.random.default_rng(5))
+    np.testing.assert_array_equal(result.states, before.states)
+    assert result.cost == before.cost and "class_particles" not in result.details
+
+
+@pytest.mark.parametrize(
+    ("name", "options", "match"),
+    [
+        ("pso+fatrop", {"initial_population": "lines"}, r"options\['initial_population'\]"),
+        ("pso+fatrop", {"class_share": 1.0}, r"options\['class_share'\].*\(0, 1\)"),
+        ("pso+fatrop", {"class_share": 0.0}, r"options\['class_share'\]"),
+        ("mppi+fatrop", {"initial_population": "classes"}, "takes_initial"),
+    ],
+)
+def test_bad_population_options_are_refused_by_name(name, options, match):
+    ocp, _, _, _ = _field(TRAP[:1])
+    with pytest.raises(ValueError, match=match):
+        uo.get_solver(ocp, name, options)

@@ -26,6 +26,12 @@ The guess of a class keeps the original guess's controls and every state except 
 horizontal position, which is the pushed path, and (when the geometry names them) the
 horizontal velocity, the path's finite differences over ``dt``.
 
+**Swarm seeds** (:func:`class_seeds`, the hybrids' ``initial_population="classes"``): the same
+class paths, each turned into the swarm's search coordinates ``W ∈ [-1, 1]^{nu N}`` whose
+rollout follows it (:class:`PathFit`: projected Gauss-Newton on the squared position error, so
+box and rate bounds hold by construction through the swarm's ``decode``), plus seeded
+perturbations of them; the swarm then starts with particles in every class it can reach.
+
 The geometry comes from a :class:`Geometry` provider (a callable of the parameter vector ``p``,
 the ``geometry`` option of the hybrids), or, for a
 :class:`~uuv_ocp.tracking.TrackingProblem`, from its ``obstacles`` (an ellipse is taken as the
@@ -39,10 +45,13 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers.result import Iterate
+from uuv_ocp.transcription.condensed import encode
 
 BLOCKERS = 3
 """Number of blockers whose sides are enumerated (at most ``2**BLOCKERS`` classes)."""
@@ -55,6 +64,21 @@ SEGMENT_SAMPLES = 4
 
 DUPLICATE = 0.01
 """Two class paths closer than this at every node (m) are one guess."""
+
+FIT_ITERATIONS = 10
+"""Largest number of Gauss-Newton steps of :class:`PathFit`."""
+
+FIT_PADS = (0.5, 1.0)
+"""Wider clearances (relative to the radius) of the class paths refitted when a fit of the
+:data:`PAD` path ends in another class (the vehicle cuts the corner of a hard push)."""
+
+FREE_WEIGHT = 0.1
+"""Fit weight of the nodes a push left in place: a pushed path jumps sideways at its first moved
+node, which no bounded acceleration follows; the gates beside the obstacles decide the class."""
+
+CLASS_SPREAD = 0.05
+"""Standard deviation of the seeded perturbation of a class seed's coordinates ``W`` (of the
+range 2 of each): small enough that a perturbed particle stays in its class as a rule."""
 
 
 @dataclass(frozen=True)
@@ -302,3 +326,152 @@ def class_guesses(
             )
         )
     return out
+
+
+class PathFit:
+    """Swarm coordinates ``W`` whose rollout follows a horizontal path: ``fit(path, start, p)``.
+
+    Minimises ``Σ_{k≥1} c_k ‖pos_k(W) − path_k‖²`` (m², weights ``c_k``, default 1) over the
+    box ``W ∈ [-1, 1]^{nu N}`` by Gauss-Newton from ``start``: the coordinates on a bound that
+    the gradient pushes out stay fixed, the step (damped by 1e-6 × the largest curvature) is
+    clipped into the box and halved until it lowers the error (at most 3 times; else the fit
+    stops).  ``pos(W)`` is the rollout through the problem's own ``decode`` and RK4 Function,
+    so every ``W`` in the box holds the control box and the rate bound.
+
+    Parameters
+    ----------
+    problem : Transcribed
+        Any built problem (an :class:`~uuv_ocp.ocp.Ocp` or a tracking problem).
+    position : tuple of 2 int
+        State columns of the horizontal position (x, y) in m.
+    """
+
+    def __init__(self, problem: Any, position: tuple[int, int]) -> None:
+        spec = problem.spec()
+        built = problem.build()
+        self.dim = spec.control_size * spec.horizon
+        coordinates = ca.MX.sym("W", self.dim)
+        p = ca.MX.sym("p", spec.layout.size)
+        states = built.rollout(built.decode(coordinates, p), p)  # (nx, N + 1)
+        positions = ca.vec(states[list(position), 1:])  # x1, y1, x2, y2, ...
+        function = ca.Function("path_fit", [coordinates, p], [positions, ca.jacobian(positions, coordinates)])
+        try:  # the SX form evaluates several times faster on the virtual machine
+            function = function.expand()
+        except RuntimeError:  # a Function inside without an SX form: keep the MX one
+            pass
+        self._function = BufferedFunction(function)
+        self.position = position
+        self._x0 = spec.layout.x0
+
+    def __call__(
+        self,
+        path: np.ndarray,
+        start: np.ndarray,
+        p: np.ndarray,
+        iterations: int = FIT_ITERATIONS,
+        weights: np.ndarray | None = None,
+    ) -> np.ndarray:
+        """Return ``W`` (flat, in ``[-1, 1]``) whose rollout follows ``path`` (N+1, 2) on nodes 1..N.
+
+        ``weights`` (N+1,): of each node's squared error (node 0's unused); default all 1.
+        """
+        target = np.asarray(path, dtype=float)[1:].ravel()
+        root = np.ones(target.size) if weights is None else np.repeat(np.sqrt(weights[1:]), 2)
+        w = np.clip(np.asarray(start, dtype=float).ravel(), -1.0, 1.0)
+        positions, jacobian = self._evaluate(w, p, root)
+        target = root * target
+        error = float(np.sum((positions - target) ** 2))
+        for _ in range(iterations):
+            residual = positions - target
+            gradient = jacobian.T @ residual
+            # coordinates on a bound that the descent pushes further out stay there (active set)
+            free = ~(((w <= -1.0) & (gradient > 0.0)) | ((w >= 1.0) & (gradient < 0.0)))
+            if not np.any(free):
+                break
+            normal = jacobian[:, free].T @ jacobian[:, free]
+            normal[np.diag_indices_from(normal)] += 1e-6 * max(float(np.max(np.diag(normal))), 1e-12)
+            step = np.zeros_like(w)
+            step[free] = np.linalg.solve(normal, -gradient[free])
+            for length in (1.0, 0.5, 0.25, 0.125):  # backtrack: the clipped step must lower the error
+                trial = np.clip(w + length * step, -1.0, 1.0)
+                trial_positions, trial_jacobian = self._evaluate(trial, p, root)
+                trial_error = float(np.sum((trial_positions - target) ** 2))
+                if trial_error < error:
+                    break
+            else:
+                break  # no step lowers it: a (local) optimum of the fit
+            w, positions, jacobian, error = trial, trial_positions, trial_jacobian, trial_error
+        return w
+
+    def positions(self, w: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Horizontal positions (N+1, 2) of the rollout of ``w`` (m); node 0 the measured state."""
+        states = self._function(w, p)[0].reshape(-1, 2)
+        x0 = np.asarray(p[self._x0], dtype=float)[list(self.position)]
+        return np.vstack([x0, states])
+
+    def _evaluate(self, w: np.ndarray, p: np.ndarray, root: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted positions (2N,) and their Jacobian (2N, nu N) at ``w`` (rows times ``root``)."""
+        positions, jacobian = self._function(w, p)
+        return root * positions, root[:, None] * jacobian.reshape(positions.size, self.dim, order="F")
+
+
+def _gates(path: np.ndarray, pushed: np.ndarray) -> np.ndarray:
+    """Return the fit weight of each node: 1 where the push moved it (a gate), else :data:`FREE_WEIGHT`."""
+    return np.where(np.any(np.abs(pushed - path) > 1e-9, axis=1), 1.0, FREE_WEIGHT)
+
+
+def _reached(path: np.ndarray, discs: np.ndarray, wanted: dict[int, int]) -> bool:
+    """Whether ``path`` passes every obstacle of ``wanted`` on its side."""
+    passed = sides(path, discs)
+    return all(passed[i] == side for i, side in wanted.items())
+
+
+def class_seeds(
+    problem: Any,
+    p: np.ndarray,
+    warm_start: Iterate | None,
+    geometry: Geometry,
+    fit: PathFit,
+    size: int,
+    rng: np.random.Generator,
+    count: int = BLOCKERS,
+    spread: float = CLASS_SPREAD,
+) -> tuple[np.ndarray, list[dict[int, int]]]:
+    """Return initial swarm particles across the homotopy classes: ``(W rows (k, nu N), sides per row)``.
+
+    One particle per class of :func:`class_paths` (of the warm start's path, best first), each
+    the :class:`PathFit` of the class path from the warm start's coordinates, then, while fewer
+    than ``size`` rows, perturbed copies of them in turn (``W + N(0, spread²)`` from ``rng``,
+    clipped into ``[-1, 1]``).  Empty (shape (0, nu N)) when the path enters no obstacle or
+    ``size`` is 0.  The sides are the intended class of each row (obstacle index -> +1 left,
+    −1 right), not checked here: a class whose path the vehicle cannot follow may be missed.
+    """
+    if warm_start is not None and warm_start.states is not None and warm_start.scaled_controls is not None:
+        states = np.asarray(warm_start.states, dtype=float)
+        controls = np.asarray(warm_start.scaled_controls, dtype=float)
+    else:
+        states, controls = problem.initial_guess(p)
+    start = encode(problem.spec(), controls, problem.previous_scaled(p))
+    path = states[:, list(geometry.position)]
+    classes = class_paths(path, geometry.discs, count)[:size]
+    if not classes or size < 1:
+        return np.empty((0, start.size)), []
+    wider = {pad: class_paths(path, geometry.discs, count, pad) for pad in FIT_PADS}
+    fitted = []
+    for wanted, target in classes:
+        w = fit(target, start, p, weights=_gates(path, target))
+        for pad in FIT_PADS:  # the fit cut a corner into the other class: push the path farther out
+            if _reached(fit.positions(w, p), geometry.discs, wanted):
+                break
+            farther = [other for sides_, other in wider[pad] if sides_ == wanted]
+            if farther:
+                w = fit(farther[0], w, p, weights=_gates(path, farther[0]))
+        fitted.append(w)
+    rows, sides = list(fitted), [dict(s) for s, _ in classes]
+    extra = size - len(rows)
+    if extra > 0:  # round robin: the best-ranked classes get the first perturbed copies
+        base = np.array([fitted[i % len(fitted)] for i in range(extra)])
+        noise = spread * rng.standard_normal(base.shape)
+        rows += list(np.clip(base + noise, -1.0, 1.0))
+        sides += [dict(classes[i % len(classes)][0]) for i in range(extra)]
+    return np.array(rows), sides

@@ -37,6 +37,16 @@ homotopy class is solved already (``details["skipped_starts"]`` lists them).  Th
 first 673 fields of the two benchmark runs, where the swarm's plan had converged to a worse
 optimum of the same class.
 
+Option ``initial_population`` (default ``"uniform"``: the swarm's own initial population):
+with ``"classes"`` and the obstacles known (``geometry`` or a tracking problem's), a share
+``class_share`` (default 0.5) of the swarm's initial particles are
+:func:`~uuv_ocp.solvers.homotopy.class_seeds`: one per homotopy class of the warm start's path
+(its controls fitted so the rollout follows the class path; box and rate bounds held by the
+swarm's ``decode``), then seeded perturbations of them; the centre plan and the rest as
+without it.  The swarm then compares the classes itself (``details["class_particles"]``
+counts the seeded particles).  The swarm half must accept ``solve(..., initial=rows)``
+(``takes_initial = True``; the built-in swarms do, MPPI does not).
+
 The starts run one after the other.  Running them on threads was tried (each thread its own
 exact backend) and removed: on 1 of 1000 benchmark fields the threaded answer differed from the
 sequential one, unexplained (fatrop's attempts fork a worker process, and forking while another
@@ -76,9 +86,11 @@ from uuv_ocp.solvers.multistart import best_result, plan_guess
 from uuv_ocp.solvers.nlp import ColdRetries
 from uuv_ocp.solvers.options import (
     Option,
+    among,
     boolean,
     declaration,
     mapping,
+    one_of,
     option,
     optional,
     parse_options,
@@ -94,9 +106,19 @@ SWARM_SHARE = 0.5
 CLASSES = 4
 """Default ``classes``: exact starts from the best four homotopy-class guesses (where known)."""
 
+INITIAL_POPULATIONS = ("uniform", "classes")
+"""Values of ``initial_population``: the swarm's own start, or a share seeded across the classes."""
+
 
 def _nonnegative_int(label: str, value: Any) -> int:
     return check.positive_int(label, value, minimum=0)
+
+
+def _share(label: str, value: Any) -> float:
+    share = check.positive_float(label, value)
+    if share >= 1.0:
+        raise ValueError(f"{label} must be a share in (0, 1), got {value!r}")
+    return share
 
 
 def _callable(label: str, value: Any) -> Any:
@@ -154,6 +176,19 @@ class HybridOptions:
         "solve from the swarm's plan converged to (its homotopy class: solved already)",
         check=boolean,
     )
+    initial_population: str = option(
+        "uniform",
+        one_of(INITIAL_POPULATIONS),
+        '"classes": a share of the swarm\'s initial particles follow the homotopy-class paths '
+        "(and seeded perturbations of them) where the obstacles are known; the rest as the swarm's own",
+        check=among(INITIAL_POPULATIONS),
+    )
+    class_share: float = option(
+        0.5,
+        "float in (0, 1)",
+        'initial_population="classes": share of the swarm\'s population seeded from the classes',
+        check=_share,
+    )
     deadline: float | None = option(
         None,
         "float > 0 or `None`",
@@ -188,6 +223,8 @@ class HybridSolver:
         classes: int = 0,
         geometry: homotopy.GeometryProvider | None = None,
         skip_swarm_class: bool = False,
+        initial_population: str = "uniform",
+        class_share: float = 0.5,
     ) -> None:
         self.name = name
         self.first = first
@@ -198,6 +235,9 @@ class HybridSolver:
         self.classes = classes
         self.geometry = geometry
         self.skip_swarm_class = skip_swarm_class
+        self.initial_population = initial_population
+        self.class_share = class_share
+        self._fit: homotopy.PathFit | None = None  # built on the first solve with "classes"
         self.problem = problem if problem is not None else getattr(first, "problem", None)
         self._decode: BufferedFunction | None = None
 
@@ -210,10 +250,15 @@ class HybridSolver:
         """Swarm, then exact solve warm-started on the swarm's plan."""
         start = watchdog.now()
         deadline = self.deadline
+        seeded: dict[str, Any] = {}
+        if self.initial_population == "classes":
+            initial = self._class_seeds(p, warm_start, rng)
+            if initial is not None:
+                seeded["initial"] = initial
         if deadline is None:
-            swarm = self.first.solve(p, warm_start, rng)
+            swarm = self.first.solve(p, warm_start, rng, **seeded)
         else:
-            swarm = self.first.solve(p, warm_start, rng, time_limit=SWARM_SHARE * deadline)
+            swarm = self.first.solve(p, warm_start, rng, time_limit=SWARM_SHARE * deadline, **seeded)
 
         retries = ColdRetries()
 
@@ -289,6 +334,8 @@ class HybridSolver:
             evaluations = sum(r.evaluations for r in results)
         if skipped:
             details["skipped_starts"] = skipped
+        if "initial" in seeded:
+            details["class_particles"] = len(seeded["initial"])
         if retries.reused:
             details["cold_retries_reused"] = retries.reused
         details.update(
@@ -311,6 +358,31 @@ class HybridSolver:
             history=swarm.history,
             details=SolveDetails.of(details),
         )
+
+    def _class_seeds(
+        self, p: np.ndarray, warm_start: Iterate | None, rng: np.random.Generator | None
+    ) -> np.ndarray | None:
+        """Return the swarm's initial particles across the classes (None: no obstacle known or in the way).
+
+        ``class_share`` of the swarm's population, one below it at most (the centre plan
+        stays); the perturbations draw from ``rng`` before the swarm does (the swarm's own
+        ``seed`` without one), so the run is seeded as a whole.
+        """
+        problem = self.problem
+        if problem is None:
+            return None
+        geometry = homotopy.geometry_of(problem, p, self.geometry)
+        if geometry is None:
+            return None
+        population = int(getattr(self.first, "population", 0))
+        size = min(int(self.class_share * population), population - 1)
+        if size < 1:
+            return None
+        if self._fit is None or self._fit.position != geometry.position:
+            self._fit = homotopy.PathFit(problem, geometry.position)
+        generator = rng if rng is not None else np.random.default_rng(getattr(self.first, "seed", 0))
+        rows, _ = homotopy.class_seeds(problem, p, warm_start, geometry, self._fit, size, generator)
+        return rows if len(rows) else None
 
     def _starts(
         self,
@@ -395,7 +467,14 @@ def hybrid_factory(name: str, first: Callable, second: Callable) -> Callable:
             settings.classes,
             settings.geometry,
             settings.skip_swarm_class,
+            settings.initial_population,
+            settings.class_share,
         )
+        if settings.initial_population == "classes" and not getattr(hybrid.first, "takes_initial", False):
+            raise ValueError(
+                f"options['initial_population'] of {name!r}: 'classes' needs a swarm half that accepts "
+                f"solve(..., initial=rows) (takes_initial = True); {type(hybrid.first).__name__} does not"
+            )
         for label, half in ((swarm_name, hybrid.first), (exact_name, hybrid.second)):
             check_backend(half, label)
             if deadline is not None and not takes_time_limit(half):

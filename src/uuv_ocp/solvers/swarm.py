@@ -410,6 +410,7 @@ class SwarmSolver:
     """
 
     time_limited = True  # solve(..., time_limit=) (the Backend protocol's capability)
+    takes_initial = True  # solve(..., initial=W rows): a hybrid's initial_population="classes"
 
     def __init__(self, problem: Transcribed, options: dict[str, Any] | None = None, *, method: str) -> None:
         check.choice("method", method, sorted(ALGORITHMS))
@@ -502,11 +503,15 @@ class SwarmSolver:
         rng: np.random.Generator | None = None,
         *,
         time_limit: float | None = None,
+        initial: np.ndarray | None = None,
     ) -> SolveResult:
         """One swarm solve of the instance with parameter vector ``p``.
 
         ``time_limit`` (seconds from the call) overrides the ``deadline`` option for this call
-        (a hybrid gives its swarm a share of its own deadline).
+        (a hybrid gives its swarm a share of its own deadline).  ``initial`` (k, nu N): further
+        initial individuals in the search coordinates ``W`` (clipped into ``[-1, 1]``), placed
+        after the centre plan (``seed_warm_start``); the rest of the population is uniform as
+        without it (a hybrid's ``initial_population="classes"``).
         """
         start = time.perf_counter()
         limit = self.deadline if time_limit is None else check.positive_float("time_limit", time_limit)
@@ -517,6 +522,16 @@ class SwarmSolver:
         seeds = None
         if self.seed_warm_start and (warm_start is not None or self.search == "deviation"):
             seeds = (center - offset)[None, :]
+        if initial is not None and len(initial):
+            extra = np.clip(np.asarray(initial, dtype=float), self._lower, self._upper) - offset
+            if extra.ndim != 2 or extra.shape[1] != center.size:
+                raise ValueError(f"initial must have shape (k, {center.size}), got {extra.shape}")
+            seeds = extra if seeds is None else np.vstack([seeds, extra])
+            if seeds.shape[0] > self.population:
+                raise ValueError(
+                    f"initial must leave room in the population ({self.population}) beside the centre "
+                    f"plan, got {len(initial)} rows"
+                )
         evaluate = self._evaluate
         archive = self._candidate_archive(p) if self.candidates > 1 else None
 

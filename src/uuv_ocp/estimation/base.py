@@ -79,6 +79,14 @@ class EstimatorOptions:
         Mean μ of the Gauss–Markov current, each entry (m/s).  Default 0.
     initial_current_std : float
         Standard deviation of the initial current estimate (m/s), > 0.  Default 0.5.
+    current_filter : float
+        Time constant ``T`` (s, >= 0) of the first-order low-pass filter on the current handed
+        to a controller (:attr:`Estimate.current_filtered`, what :func:`~uuv_ocp.simulate`
+        tells the NMPC): ``ĉ_f,k = ĉ_f,k−1 + (1 − e^(−dt/T)) (ĉ_k − ĉ_f,k−1)`` from the prior
+        mean at :meth:`Estimator.reset`; its bandwidth is ``1/(2πT)`` Hz.  The filter's own
+        estimate stays consistent (its noise model unchanged); the controller sees the current's
+        slow part without the step-to-step wander a plan would chase with its fins.  Default 0:
+        the estimate itself.
     bias : bool
         Also estimate a bias added to the controls (a random walk).
     bias_std : float
@@ -120,6 +128,7 @@ class EstimatorOptions:
     current_time_constant: float = 600.0
     current_mean: float = 0.0
     initial_current_std: float = 0.5
+    current_filter: float = 0.0
     bias: bool = False
     bias_std: float = 1.0
     initial_bias_std: float = 100.0
@@ -151,6 +160,9 @@ class EstimatorOptions:
         ):
             set_field(self, name, check.positive_float(f"options.{name}", getattr(self, name)))
         set_field(self, "current_mean", check.finite_float("options.current_mean", self.current_mean))
+        set_field(
+            self, "current_filter", check.nonnegative_float("options.current_filter", self.current_filter)
+        )
         alpha = check.positive_float("options.alpha", self.alpha)
         if alpha > 1.0:
             raise ValueError(f"options.alpha must lie in (0, 1], got {alpha}")
@@ -191,6 +203,9 @@ class Estimate:
         Measurement minus its prediction (angles wrapped), for those sensors' outputs in order.
     innovation_covariance : numpy.ndarray, shape (m, m)
         Its predicted covariance ``S`` (for NIS: ``yᵀ S⁻¹ y``).
+    current_filtered : numpy.ndarray, shape (nc,)
+        The current low-passed for a controller (``EstimatorOptions.current_filter``; equal to
+        :attr:`current` when that is 0), m/s; empty without a current.
     """
 
     step: int
@@ -201,6 +216,7 @@ class Estimate:
     sensors: tuple[int, ...] = ()
     innovations: np.ndarray = field(default_factory=lambda: np.zeros(0))
     innovation_covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    current_filtered: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def augmented(self) -> np.ndarray:
@@ -404,6 +420,9 @@ class Estimator:
         self.x = np.zeros(self.model.size)
         self.P = self.model.P0.copy()
         self.steps = 0
+        # the controller's low-passed current (options.current_filter) and the last step it took
+        self._current_filtered = np.zeros(self.model.nc)
+        self._filtered_step: int | None = None
         self.compiled = self.compiles and (
             compiled_by_default("the estimator runs on CasADi's virtual machine", stacklevel=4)
             if options.compiled is None
@@ -454,6 +473,8 @@ class Estimator:
         self.x = np.concatenate([x, c, np.zeros(m.nb)])
         self.P = P
         self.steps = 0
+        self._current_filtered = c.copy()
+        self._filtered_step = None
         self._reset_hook()
 
     def _check_prior(self, P: np.ndarray) -> None:
@@ -500,17 +521,30 @@ class Estimator:
         innovations: np.ndarray | None = None,
         S: np.ndarray | None = None,
     ) -> Estimate:
-        """Return the current estimate as a record (copies)."""
+        """Return the current estimate as a record (copies).
+
+        The low-passed current (``options.current_filter``) moves once per ``step`` index: a
+        second record of the same step reads it again, a later step advances it over the steps
+        between (``step − last`` control intervals).
+        """
         m = self.model
+        current = self.x[m.nx : m.nx + m.nc].copy()
+        T = self.options.current_filter
+        if T > 0.0 and m.nc and step != self._filtered_step:
+            elapsed = m.dt * (1 if self._filtered_step is None else max(step - self._filtered_step, 1))
+            self._current_filtered += -math.expm1(-elapsed / T) * (current - self._current_filtered)
+            self._filtered_step = step
+        filtered = self._current_filtered.copy() if T > 0.0 else current.copy()
         return Estimate(
             step,
             self.x[: m.nx].copy(),
-            self.x[m.nx : m.nx + m.nc].copy(),
+            current,
             self.x[m.nx + m.nc :].copy(),
             self.P.copy(),
             sensors,
             np.zeros(0) if innovations is None else innovations,
             np.zeros((0, 0)) if S is None else S,
+            filtered,
         )
 
     def _control(self, u: object) -> np.ndarray:

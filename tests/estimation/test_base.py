@@ -378,3 +378,38 @@ def test_the_current_handed_to_a_controller_is_low_passed_at_the_filters_bandwid
     assert unfiltered.estimate(5).current_filtered[0] == 0.3  # current_filter = 0: the estimate
     with pytest.raises(ValueError, match="options.current_filter"):
         EstimatorOptions(current_filter=-1.0)
+
+
+def test_simulate_tells_the_controller_the_low_passed_current():
+    """With ``current_filter = T`` the NMPC gets the first-order low-pass of the logged estimates.
+
+    The reference recursion runs here on ``run.estimates.currents`` (the filter's own estimates)
+    from the prior mean 0; a spy records what ``NMPC.step`` was handed.
+    """
+    vehicle = uo.Vehicle.rexrov()
+    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=5)
+    T = 2.0
+    options = uo.EstimatorOptions(current_filter=T)
+    estimator = uo.Estimator(problem, "ekf", sensors=_precise_sensors(), options=options)
+    told = []
+
+    class Spy(uo.NMPC):
+        def step(self, x, t=0.0, u_prev=None, current=None, parameters=None):
+            told.append(np.array(current, dtype=float))
+            return super().step(x, t, u_prev, current, parameters)
+
+    x0 = problem.reference.initial_state(0.0)
+    run = uo.simulate(
+        Spy(problem, "sqp-rti"), x0, 3.0, current=uo.Current(0.8, 1.0), seed=1, estimator=estimator
+    )
+    estimates = run.estimates.currents
+    assert estimates.shape[0] == 30
+    told = told[-30:]  # the loop's steps (the warm-up before them calls step too)
+    a = 1.0 - np.exp(-problem.dt / T)
+    expected, filtered = [], np.zeros(estimates.shape[1])
+    for current in estimates:
+        filtered = filtered + a * (current - filtered)
+        expected.append(filtered.copy())
+    np.testing.assert_allclose(np.array(told), np.array(expected), rtol=0, atol=1e-12)
+    # the filter lags its estimate: what the controller was told moved less than the estimate
+    assert np.linalg.norm(told[-1]) < 0.95 * np.linalg.norm(estimates[-1])

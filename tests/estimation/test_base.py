@@ -402,6 +402,7 @@ def test_simulate_tells_the_controller_the_low_passed_current():
     run = uo.simulate(
         Spy(problem, "sqp-rti"), x0, 3.0, current=uo.Current(0.8, 1.0), seed=1, estimator=estimator
     )
+    assert run.estimates is not None
     estimates = run.estimates.currents
     assert estimates.shape[0] == 30
     told = told[-30:]  # the loop's steps (the warm-up before them calls step too)

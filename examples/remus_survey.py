@@ -69,8 +69,11 @@ def main(
         )
         nmpc = uo.NMPC(following, solver=solver)
         # the current unknown to the NMPC too: an EKF estimates it with the vehicle's states
-        # (the path parameter is the controller's own)
-        ekf = uo.Estimator(following, "ekf", sensors=uo.Sensors.auv(following.vehicle)) if estimate else None
+        # (the path parameter is the controller's own); a horizontal current (the vertical
+        # noise 100x smaller) told to the NMPC low-passed over 20 s, or the fins chase its noise
+        options = uo.EstimatorOptions(current_std=(0.01, 0.01, 1e-4), current_filter=20.0)
+        sensors = uo.Sensors.auv(following.vehicle)
+        ekf = uo.Estimator(following, "ekf", sensors=sensors, options=options) if estimate else None
         name = f"NMPC {solver}" + (" + EKF" if estimate else "")
         runs[name] = uo.simulate(
             nmpc, following.initial_state(start), duration, current=CURRENT, estimator=ekf, seed=0

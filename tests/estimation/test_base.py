@@ -328,3 +328,89 @@ def test_an_estimator_of_a_thruster_vehicle_predicts_with_healthy_thrusters():
     predicted = np.array(prediction(xa, forces, model.p_stage, model.p_global)).ravel()[:12]
     expected = np.array(uo.rk4_step(boat.dynamics, 0.1)(x, boat.allocation @ forces, np.zeros(3))).ravel()
     np.testing.assert_allclose(predicted, expected, rtol=1e-12, atol=1e-12)
+
+
+def test_the_current_handed_to_a_controller_is_low_passed_at_the_filters_bandwidth():
+    """``current_filter = T``: a sinusoidal estimate at ω = 1/T comes out at 1/√2 of its amplitude.
+
+    The filter is driven by writing the estimate's current between steps; the reference is the
+    continuous first-order low-pass ``1/(1 + jωT)`` (dt = T/100: the discrete filter's gain is
+    within 1e-3 of it).  A second record of the same step does not move it; ``reset`` restarts it.
+    """
+    dt, T = 0.1, 10.0
+    ocp = uo.Ocp(horizon=3, dt=dt)
+    x = ocp.state("x")
+    u = ocp.control("u", lower=-1.0, upper=1.0)
+    current = ocp.parameter("current", stagewise=True)
+    ocp.set_der(x, u + current)
+    ocp.add_stage_cost(x**2 + u**2)
+    sensors = Sensors([Sensor.of_states("fix", [0], 1, 10.0, 0.01)])
+    options = EstimatorOptions(current_filter=T, compiled=False)
+    estimator = Estimator(ocp, "ekf", sensors=sensors, options=options, parameters={"current": 0.0})
+    estimator.reset([0.0], current=[0.2])
+    omega = 1.0 / T
+    steps = np.arange(4000)
+    filtered = np.empty(steps.size)
+    for k in steps:
+        estimator.x[1] = np.sin(omega * k * dt)
+        record = estimator.estimate(int(k))
+        assert record.current[0] == estimator.x[1]  # the estimate itself is not filtered
+        filtered[k] = record.current_filtered[0]
+        if k == 0:  # one step from the prior mean 0.2 towards sin(0) = 0
+            np.testing.assert_allclose(filtered[0], 0.2 * np.exp(-dt / T), rtol=1e-12)
+    np.testing.assert_array_equal(estimator.estimate(int(steps[-1])).current_filtered, filtered[-1])
+    settled = steps > 10 * T / dt  # the start's transient has decayed by e^-10
+    t = steps[settled] * dt
+    basis = np.column_stack([np.sin(omega * t), np.cos(omega * t)])
+    (a, b), *_ = np.linalg.lstsq(basis, filtered[settled], rcond=None)
+    np.testing.assert_allclose(np.hypot(a, b), 1.0 / np.sqrt(2.0), rtol=1e-3)
+    # the lag: −45° at ω = 1/T, less half a sample (the filter takes the step's own estimate)
+    np.testing.assert_allclose(np.arctan2(b, a), -np.pi / 4 + omega * dt / 2, atol=1e-3)
+    estimator.reset([0.0], current=[-0.1])
+    estimator.x[1] = 0.5
+    step = 1.0 - np.exp(-dt / T)
+    assert estimator.estimate(0).current_filtered[0] == pytest.approx(-0.1 + step * 0.6, rel=1e-12)
+    unfiltered = Estimator(
+        ocp, "ekf", sensors=sensors, options=EstimatorOptions(compiled=False), parameters={"current": 0.0}
+    )
+    unfiltered.reset([0.0])
+    unfiltered.x[1] = 0.3
+    assert unfiltered.estimate(5).current_filtered[0] == 0.3  # current_filter = 0: the estimate
+    with pytest.raises(ValueError, match="options.current_filter"):
+        EstimatorOptions(current_filter=-1.0)
+
+
+def test_simulate_tells_the_controller_the_low_passed_current():
+    """With ``current_filter = T`` the NMPC gets the first-order low-pass of the logged estimates.
+
+    The reference recursion runs here on ``run.estimates.currents`` (the filter's own estimates)
+    from the prior mean 0; a spy records what ``NMPC.step`` was handed.
+    """
+    vehicle = uo.Vehicle.rexrov()
+    problem = uo.TrackingProblem(vehicle, uo.Reference.paper("s2"), horizon=5)
+    T = 2.0
+    options = uo.EstimatorOptions(current_filter=T)
+    estimator = uo.Estimator(problem, "ekf", sensors=_precise_sensors(), options=options)
+    told = []
+
+    class Spy(uo.NMPC):
+        def step(self, x, t=0.0, u_prev=None, current=None, parameters=None):
+            told.append(np.array(current, dtype=float))
+            return super().step(x, t, u_prev, current, parameters)
+
+    x0 = problem.reference.initial_state(0.0)
+    run = uo.simulate(
+        Spy(problem, "sqp-rti"), x0, 3.0, current=uo.Current(0.8, 1.0), seed=1, estimator=estimator
+    )
+    assert run.estimates is not None
+    estimates = run.estimates.currents
+    assert estimates.shape[0] == 30
+    told = told[-30:]  # the loop's steps (the warm-up before them calls step too)
+    a = 1.0 - np.exp(-problem.dt / T)
+    expected, filtered = [], np.zeros(estimates.shape[1])
+    for current in estimates:
+        filtered = filtered + a * (current - filtered)
+        expected.append(filtered.copy())
+    np.testing.assert_allclose(np.array(told), np.array(expected), rtol=0, atol=1e-12)
+    # the filter lags its estimate: what the controller was told moved less than the estimate
+    assert np.linalg.norm(told[-1]) < 0.95 * np.linalg.norm(estimates[-1])

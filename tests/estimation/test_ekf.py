@@ -98,3 +98,50 @@ def test_a_sensor_that_did_not_report_never_poisons_the_ekf():
     assert np.all(np.isfinite(one_call.augmented)) and np.all(np.isfinite(one_call.covariance))
     np.testing.assert_allclose(one_call.augmented, reference.augmented, atol=1e-12)
     np.testing.assert_allclose(one_call.covariance, reference.covariance, atol=1e-12)
+
+
+def test_per_axis_current_noise_gives_the_analytic_kalman_steady_state():
+    """A current of different intensity per axis settles where the discrete Riccati equation says.
+
+    A point moved by its control and a 2-D current, ``ṗ = u + c``, a position fix every step:
+    the augmented model is linear, so the EKF's covariance must reach scipy's solution of the
+    discrete algebraic Riccati equation for ``Q = diag(σ_p², σ_p², q_1² dt, q_2² dt)``, axis by
+    axis; the quieter axis's current variance (and its gain: the estimate's bandwidth) is smaller.
+    """
+    from scipy.linalg import solve_discrete_are
+
+    dt, position_std, fix_std, intensities = 0.5, 1e-3, 0.5, (0.01, 1e-4)
+    ocp = uo.Ocp(horizon=3, dt=dt)
+    p = ocp.state("p", 2)
+    u = ocp.control("u", 2, lower=-1.0, upper=1.0)
+    current = ocp.parameter("current", 2, stagewise=True)
+    ocp.set_der(p, u + current)
+    ocp.add_stage_cost(residual=p, weight=(1.0, 1.0))
+    sensors = Sensors([Sensor.of_states("fix", [0, 1], 2, 1.0 / dt, fix_std)])
+    options = EstimatorOptions(state_std=position_std, current_std=intensities, compiled=False)
+    ekf = Estimator(ocp, "ekf", sensors=sensors, options=options, parameters={"current": (0.0, 0.0)})
+    ekf.reset(np.zeros(2))
+    rng = np.random.default_rng(3)
+    for k in range(1, 4000):  # the covariance does not depend on the data: any fixes do
+        ekf.step(np.zeros(2), sensors.measure(k, dt, np.zeros(2), rng))
+    for axis, q in enumerate(intensities):
+        # one axis: [p, c], p⁺ = p + dt c (RK4 is exact on it), c⁺ = c
+        F = np.array([[1.0, dt], [0.0, 1.0]])
+        H = np.array([[1.0, 0.0]])
+        Q = np.diag([position_std**2, q**2 * dt])
+        prior = solve_discrete_are(F.T, H.T, Q, np.array([[fix_std**2]]))
+        gain = prior @ H.T / (H @ prior @ H.T + fix_std**2)
+        posterior = (np.eye(2) - gain @ H) @ prior
+        rows = [axis, 2 + axis]
+        np.testing.assert_allclose(ekf.P[np.ix_(rows, rows)], posterior, rtol=1e-6, atol=1e-14)
+    assert ekf.P[3, 3] < 0.05 * ekf.P[2, 2]
+    with pytest.raises(ValueError, match=r"options.current_std must have shape \(2,\)"):
+        Estimator(
+            ocp,
+            "ekf",
+            sensors=sensors,
+            options=EstimatorOptions(current_std=(0.01, 0.01, 0.01)),
+            parameters={"current": (0.0, 0.0)},
+        )
+    with pytest.raises(ValueError, match="options.current_std must be a finite number > 0"):
+        EstimatorOptions(current_std=0.0)

@@ -743,7 +743,9 @@ class _Loop:
             self.detector.update(k, self.times[k], u_prev, estimate.bias)
             log.estimated_health[k] = self.detector.estimate
         state = estimate.state if estimator.model.own == 0 else np.r_[estimate.state, log.states[k, nx:]]
-        return state, (estimate.current if self.estimated else told_k)
+        # the controller is told the low-passed current (EstimatorOptions.current_filter; the
+        # estimate itself by default): the filter's step-to-step wander would move the fins
+        return state, (estimate.current_filtered if self.estimated else told_k)
 
 
 def _check_arguments(

@@ -67,15 +67,26 @@ class EstimatorOptions:
         How the current evolves; ``"none"``: no current in the state (the filter takes its
         effect for process noise and a closed loop's controller is told no current: the naive
         controller, on estimated states).
-    current_std : float
-        Noise intensity ``q_c`` of the current (m/s/√s), > 0.  Default 0.01: the current may
-        drift by ≈ 0.08 m/s in a minute.
+    current_std : float or sequence of float
+        Noise intensity ``q_c`` of the current (m/s/√s), > 0: one for every inertial axis, or
+        one per axis (``(north, east, down)`` of a 6-DOF vehicle's current).  Default 0.01: the
+        current may drift by ≈ 0.08 m/s in a minute.  An ocean current at survey depth is
+        horizontal: a small vertical entry keeps the filter from turning sensor noise into a
+        vertical current the depth loop then chases (``benchmarks/bench_path.py``).
     current_time_constant : float
         Correlation time τ of the Gauss–Markov current (s), > 0.  Default 600.
     current_mean : float
         Mean μ of the Gauss–Markov current, each entry (m/s).  Default 0.
     initial_current_std : float
         Standard deviation of the initial current estimate (m/s), > 0.  Default 0.5.
+    current_filter : float
+        Time constant ``T`` (s, >= 0) of the first-order low-pass filter on the current handed
+        to a controller (:attr:`Estimate.current_filtered`, what :func:`~uuv_ocp.simulate`
+        tells the NMPC): ``ĉ_f,k = ĉ_f,k−1 + (1 − e^(−dt/T)) (ĉ_k − ĉ_f,k−1)`` from the prior
+        mean at :meth:`Estimator.reset`; its bandwidth is ``1/(2πT)`` Hz.  The filter's own
+        estimate stays consistent (its noise model unchanged); the controller sees the current's
+        slow part without the step-to-step wander a plan would chase with its fins.  Default 0:
+        the estimate itself.
     bias : bool
         Also estimate a bias added to the controls (a random walk).
     bias_std : float
@@ -113,10 +124,11 @@ class EstimatorOptions:
     initial_state_std: float | tuple[float, ...] = 0.1
     current_parameter: str | None = None
     current_model: str = "random_walk"
-    current_std: float = 0.01
+    current_std: float | tuple[float, ...] = 0.01
     current_time_constant: float = 600.0
     current_mean: float = 0.0
     initial_current_std: float = 0.5
+    current_filter: float = 0.0
     bias: bool = False
     bias_std: float = 1.0
     initial_bias_std: float = 100.0
@@ -141,7 +153,6 @@ class EstimatorOptions:
         if self.compiled is not None:
             check.boolean("options.compiled", self.compiled)
         for name in (
-            "current_std",
             "current_time_constant",
             "initial_current_std",
             "bias_std",
@@ -149,6 +160,9 @@ class EstimatorOptions:
         ):
             set_field(self, name, check.positive_float(f"options.{name}", getattr(self, name)))
         set_field(self, "current_mean", check.finite_float("options.current_mean", self.current_mean))
+        set_field(
+            self, "current_filter", check.nonnegative_float("options.current_filter", self.current_filter)
+        )
         alpha = check.positive_float("options.alpha", self.alpha)
         if alpha > 1.0:
             raise ValueError(f"options.alpha must lie in (0, 1], got {alpha}")
@@ -159,10 +173,12 @@ class EstimatorOptions:
         check.choice("options.mode", self.mode, MHE_MODES)
         set_field(self, "max_iterations", check.positive_int("options.max_iterations", self.max_iterations))
         set_field(self, "tolerance", check.positive_float("options.tolerance", self.tolerance))
-        for name in ("state_std", "initial_state_std"):
+        for name in ("state_std", "initial_state_std", "current_std"):
             value = getattr(self, name)
             if isinstance(value, (list, np.ndarray)):
                 set_field(self, name, tuple(float(v) for v in value))
+        if isinstance(self.current_std, (int, float)) and not isinstance(self.current_std, bool):
+            set_field(self, "current_std", check.positive_float("options.current_std", self.current_std))
 
 
 @dataclass(frozen=True)
@@ -187,6 +203,9 @@ class Estimate:
         Measurement minus its prediction (angles wrapped), for those sensors' outputs in order.
     innovation_covariance : numpy.ndarray, shape (m, m)
         Its predicted covariance ``S`` (for NIS: ``yᵀ S⁻¹ y``).
+    current_filtered : numpy.ndarray, shape (nc,)
+        The current low-passed for a controller (``EstimatorOptions.current_filter``; equal to
+        :attr:`current` when that is 0), m/s; empty without a current.
     """
 
     step: int
@@ -197,6 +216,7 @@ class Estimate:
     sensors: tuple[int, ...] = ()
     innovations: np.ndarray = field(default_factory=lambda: np.zeros(0))
     innovation_covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    current_filtered: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @property
     def augmented(self) -> np.ndarray:
@@ -279,18 +299,18 @@ class AugmentedModel:
         state_std = _per_state("options.state_std", options.state_std, nx)
         initial_std = _per_state("options.initial_state_std", options.initial_state_std, nx)
         dt = spec.dt
+        # per axis: the vertical intensity may differ from the horizontal ones (options doc)
+        current_std = _per_state("options.current_std", options.current_std, nc) if nc else np.zeros(0)
         if options.current_model == "gauss_markov":
             tau = options.current_time_constant
             self.decay = math.exp(-dt / tau)
-            current_variance = options.current_std**2 * tau / 2.0 * (1.0 - self.decay**2)
+            current_variance = current_std**2 * tau / 2.0 * (1.0 - self.decay**2)
         else:
             self.decay = 1.0
-            current_variance = options.current_std**2 * dt
+            current_variance = current_std**2 * dt
         self.mean = options.current_mean
         self.Q = np.diag(
-            np.concatenate(
-                [state_std**2, np.full(nc, current_variance), np.full(nb, options.bias_std**2 * dt)]
-            )
+            np.concatenate([state_std**2, current_variance, np.full(nb, options.bias_std**2 * dt)])
         )
         self.P0 = np.diag(
             np.concatenate(
@@ -400,6 +420,9 @@ class Estimator:
         self.x = np.zeros(self.model.size)
         self.P = self.model.P0.copy()
         self.steps = 0
+        # the controller's low-passed current (options.current_filter) and the last step it took
+        self._current_filtered = np.zeros(self.model.nc)
+        self._filtered_step: int | None = None
         self.compiled = self.compiles and (
             compiled_by_default("the estimator runs on CasADi's virtual machine", stacklevel=4)
             if options.compiled is None
@@ -450,6 +473,8 @@ class Estimator:
         self.x = np.concatenate([x, c, np.zeros(m.nb)])
         self.P = P
         self.steps = 0
+        self._current_filtered = c.copy()
+        self._filtered_step = None
         self._reset_hook()
 
     def _check_prior(self, P: np.ndarray) -> None:
@@ -496,17 +521,30 @@ class Estimator:
         innovations: np.ndarray | None = None,
         S: np.ndarray | None = None,
     ) -> Estimate:
-        """Return the current estimate as a record (copies)."""
+        """Return the current estimate as a record (copies).
+
+        The low-passed current (``options.current_filter``) moves once per ``step`` index: a
+        second record of the same step reads it again, a later step advances it over the steps
+        between (``step − last`` control intervals).
+        """
         m = self.model
+        current = self.x[m.nx : m.nx + m.nc].copy()
+        T = self.options.current_filter
+        if T > 0.0 and m.nc and step != self._filtered_step:
+            elapsed = m.dt * (1 if self._filtered_step is None else max(step - self._filtered_step, 1))
+            self._current_filtered += -math.expm1(-elapsed / T) * (current - self._current_filtered)
+            self._filtered_step = step
+        filtered = self._current_filtered.copy() if T > 0.0 else current.copy()
         return Estimate(
             step,
             self.x[: m.nx].copy(),
-            self.x[m.nx : m.nx + m.nc].copy(),
+            current,
             self.x[m.nx + m.nc :].copy(),
             self.P.copy(),
             sensors,
             np.zeros(0) if innovations is None else innovations,
             np.zeros((0, 0)) if S is None else S,
+            filtered,
         )
 
     def _control(self, u: object) -> np.ndarray:

@@ -34,18 +34,22 @@ class ExtendedKalmanFilter(Estimator):
         h_at = ca.Function("ekf_h", [m.xa], [m.h, ca.jacobian(m.h, m.xa)])
         # h and H at the predicted mean: substituted, so one call does predict and linearise
         h, H = h_at(predicted)
-        covariance = F @ P @ F.T + ca.DM(m.Q)
-        self._predict = buffered("ekf_predict", [*m.inputs, P], [predicted, covariance, h, H])
+        # the process noise's diagonal is an input, not a constant: the compiled step (minutes
+        # of C compiler on a 6-DOF vehicle) serves every noise setting from its disk cache
+        q = ca.SX.sym("q", n)
+        self._q = np.diag(m.Q).copy()
+        covariance = F @ P @ F.T + ca.diag(q)
+        self._predict = buffered("ekf_predict", [*m.inputs, P, q], [predicted, covariance, h, H])
         self._measure = buffered("ekf_measure", [m.xa], list(h_at(m.xa)))
         self._h: np.ndarray | None = None
         self._H: np.ndarray | None = None
         self._identity = np.eye(n)
-        self._fused = self._fused_step(P, predicted, 0.5 * (covariance + covariance.T), h, H)
+        self._fused = self._fused_step(P, q, predicted, 0.5 * (covariance + covariance.T), h, H)
         self._z = np.zeros(self.R.size)
         self._mask = np.zeros(self.R.size)
 
     def _fused_step(
-        self, P: ca.SX, predicted: ca.SX, covariance: ca.SX, h: ca.SX, H: ca.SX
+        self, P: ca.SX, q: ca.SX, predicted: ca.SX, covariance: ca.SX, h: ca.SX, H: ca.SX
     ) -> BufferedFunction:
         """Return the one-call predict-and-update for every combination of reporting sensors.
 
@@ -74,7 +78,7 @@ class ExtendedKalmanFilter(Estimator):
         updated = A @ covariance @ A.T + K @ R @ K.T
         fused = ca.Function(
             "uuv_ocp_ekf_step",
-            [*m.inputs, P, z, mask],
+            [*m.inputs, P, q, z, mask],
             [ca.densify(o) for o in (predicted + K @ y, 0.5 * (updated + updated.T), y, S)],
         )
         if self.compiled:
@@ -94,7 +98,7 @@ class ExtendedKalmanFilter(Estimator):
         z.fill(0.0)
         mask.fill(0.0)
         z[rows], mask[rows] = measurement.values, 1.0
-        x, P, y, S = self._fused(self.x, self._control(u), m.p_stage, m.p_global, self.P, z, mask)
+        x, P, y, S = self._fused(self.x, self._control(u), m.p_stage, m.p_global, self.P, self._q, z, mask)
         self.x, self.P = x, P.reshape(n, n, order="F")
         self._h = self._H = None
         self.steps += 1
@@ -108,7 +112,7 @@ class ExtendedKalmanFilter(Estimator):
         """``x⁻ = f(x, u)``, ``P⁻ = F P Fᵀ + Q`` (and the sensors linearised at ``x⁻``)."""
         m = self.model
         n = m.size
-        x, P, h, H = self._predict(self.x, self._control(u), m.p_stage, m.p_global, self.P)
+        x, P, h, H = self._predict(self.x, self._control(u), m.p_stage, m.p_global, self.P, self._q)
         self.x = x
         P = P.reshape(n, n, order="F")
         self.P = 0.5 * (P + P.T)

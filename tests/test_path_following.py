@@ -18,6 +18,7 @@ from tests import helpers_remus as remus
 from tests.conftest import needs_compiler
 from uuv_ocp.path_following import PathFollowingProblem, PathWeights, path_errors
 from uuv_ocp.solvers import get_solver
+from uuv_ocp.tracking import control_limits
 
 
 def _remus_line() -> uo.Reference:
@@ -447,3 +448,92 @@ def test_replace_recomputes_the_defaults_it_filled_in_and_u_prev_defaults_into_t
     spec = problem.spec()
     explicit = problem.instance_parameters(x0, u_prev=np.clip(np.zeros(4), spec.lower, spec.upper))
     np.testing.assert_array_equal(packed, explicit)
+
+
+def test_the_path_end_bound_on_node_n_alone_gives_the_plan_of_every_node(monkeypatch) -> None:
+    """``s_N <= path_end`` (hard, PATH_END_AT = "terminal") plans as the L1 penalty on every node.
+
+    ``s`` never decreases along a plan (``v_s >= 0``), so node N's bound holds every node's:
+    the same optimum (the exact penalty inactive on a feasible plan) without the N slacks.
+    Reference: IPOPT on the former formulation (``"path"``), 3 s before the end of a planar
+    survey, where the bound is active within the horizon; and a start past ``path_end`` (the
+    plant's overshoot) stays feasible: the bound is ``max(path_end, s_0)``.
+    """
+    from uuv_ocp import path_following
+
+    plans, slacks = {}, {}
+    for place in ("path", "terminal"):
+        monkeypatch.setattr(path_following, "PATH_END_AT", place)
+        problem = PathFollowingProblem(uo.Vehicle.rexrov(), _survey(None), speed=0.5, horizon=10, dt=0.5)
+        point = np.array(problem.geometry(problem.path_end - 3.0)[0]).ravel()
+        x0 = problem.initial_state([*point, math.pi, 0.5, 0.0, 0.0])
+        backend = get_solver(problem, "ipopt", {"plugin_options": {"ipopt.tol": 1e-10}})
+        result = backend.solve(problem.parameters(x0, np.r_[0.0, 0.0, 0.0, 0.5]), None)
+        assert result.success
+        plans[place] = result
+        slacks[place] = sum(key[0].endswith("slack") for key in problem.build().hard.variable_keys)
+    new, old = plans["terminal"], plans["path"]
+    assert new.states[-1, -1] == pytest.approx(problem.path_end, abs=1e-6)  # the bound is active
+    np.testing.assert_allclose(new.states, old.states, rtol=0, atol=1e-6)
+    bound, _ = control_limits(problem.vehicle)  # the controls to 1e-7 of their bounds (IPOPT's tol)
+    np.testing.assert_allclose(new.controls[:, :-1], old.controls[:, :-1], rtol=0, atol=1e-7 * bound.max())
+    np.testing.assert_allclose(new.controls[:, -1], old.controls[:, -1], rtol=0, atol=1e-7)
+    assert (slacks["path"], slacks["terminal"]) == (10, 0)
+    beyond = np.r_[x0[:-1], problem.path_end + 1e-9]
+    overshoot = backend.solve(problem.parameters(beyond, np.r_[0.0, 0.0, 0.0, 0.5]), None)
+    assert overshoot.success
+    np.testing.assert_allclose(overshoot.states[:, -1], beyond[-1], rtol=0, atol=1e-6)  # v_s = 0
+
+
+def test_the_path_window_gives_the_whole_tables_point_and_tangent_wherever_a_plan_reaches() -> None:
+    """PathWindow: rows chosen from s_0, the path's point and tangent as the whole look-up.
+
+    On the 3-D survey (REMUS 100, N = 20, dt = 0.5: a plan moves at most 30 m along the
+    path) from 400 starts, at s up to 30 m of path ahead (20 s of reference time at 1.5 m/s)
+    and 0.5 s behind: the window's point and tangent against ``problem.geometry`` (the
+    reference's full table, its tangent rotated from heading and body velocities), to rounding.
+    Past the window (beyond its reach) the last piece's formula is extended: 250 m ahead, on
+    the second lane, the first turn's circle is not the lane.
+    """
+    survey = uo.Reference.lawnmower(width=150.0, spacing=60.0, lanes=3, speed=1.5, depth=10.0)
+    problem = PathFollowingProblem(uo.Remus100(), survey, speed=1.5, horizon=20, dt=0.5)
+    window = problem.window
+    assert window is not None and window.rows == (2, 2)  # x, y, heading share one table; depth
+    s, rows = ca.SX.sym("s"), ca.SX.sym("w", window.size)
+    windowed = ca.Function("windowed", [s, rows], [ca.vertcat(*window.geometry(s, rows))])
+    rng = np.random.default_rng(7)
+    worst = 0.0
+    for s0 in rng.uniform(0.0, problem.path_end, 400):
+        values = window.values(s0)
+        for t in np.r_[s0 - 0.5, np.linspace(s0, s0 + 20.0, 9)]:
+            exact = np.concatenate([np.array(part).ravel() for part in problem.geometry(t)])
+            worst = max(worst, float(np.max(np.abs(np.array(windowed(t, values)).ravel() - exact))))
+    assert worst < 1e-12
+    far = 2.0 + 250.0 / 1.5  # 3 m along the first lane (120 m), then 250 m: the second lane
+    exact = np.concatenate([np.array(part).ravel() for part in problem.geometry(far)])
+    assert np.max(np.abs(np.array(windowed(far, window.values(2.0))).ravel() - exact)) > 1.0
+
+
+def test_the_path_window_plans_as_the_whole_table(monkeypatch) -> None:
+    """A plan with the window (rows from s_0) is the plan with the whole table, across a turn.
+
+    The RexROV 1 m before the first turn of three 40 m lanes, N = 10: IPOPT with PATH_WINDOW
+    on and off.
+    """
+    from uuv_ocp import path_following
+
+    plans = {}
+    for on in (False, True):
+        monkeypatch.setattr(path_following, "PATH_WINDOW", on)
+        survey = uo.Reference.lawnmower(width=40.0, spacing=10.0, lanes=3, speed=1.5)
+        problem = PathFollowingProblem(uo.Vehicle.rexrov(), survey, speed=0.5, horizon=10, dt=0.5)
+        assert (problem.window is not None) == on
+        s0 = (40.0 - 5.0 - 1.0) / 1.5  # 1 m before the arc of radius 5 m at the first lane's end
+        point = np.array(problem.geometry(s0)[0]).ravel()
+        x0 = np.r_[point, 0.0, 0.5, 0.0, 0.0, s0]
+        backend = get_solver(problem, "ipopt", {"plugin_options": {"ipopt.tol": 1e-10}})
+        plans[on] = backend.solve(problem.parameters(x0, np.r_[0.0, 0.0, 0.0, 0.5]), None)
+        assert plans[on].success
+    assert plans[True].states[-1, -1] > (40.0 - 5.0) / 1.5  # the plan reaches into the turn
+    np.testing.assert_allclose(plans[True].states, plans[False].states, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(plans[True].controls, plans[False].controls, rtol=1e-8, atol=1e-6)

@@ -18,7 +18,6 @@ from tests import helpers_remus as remus
 from tests.conftest import needs_compiler
 from uuv_ocp.path_following import PathFollowingProblem, PathWeights, path_errors
 from uuv_ocp.solvers import get_solver
-from uuv_ocp.tracking import control_limits
 
 
 def _remus_line() -> uo.Reference:
@@ -448,41 +447,6 @@ def test_replace_recomputes_the_defaults_it_filled_in_and_u_prev_defaults_into_t
     spec = problem.spec()
     explicit = problem.instance_parameters(x0, u_prev=np.clip(np.zeros(4), spec.lower, spec.upper))
     np.testing.assert_array_equal(packed, explicit)
-
-
-def test_the_path_end_bound_on_node_n_alone_gives_the_plan_of_every_node(monkeypatch) -> None:
-    """``s_N <= path_end`` (hard, PATH_END_AT = "terminal") plans as the L1 penalty on every node.
-
-    ``s`` never decreases along a plan (``v_s >= 0``), so node N's bound holds every node's:
-    the same optimum (the exact penalty inactive on a feasible plan) without the N slacks.
-    Reference: IPOPT on the former formulation (``"path"``), 3 s before the end of a planar
-    survey, where the bound is active within the horizon; and a start past ``path_end`` (the
-    plant's overshoot) stays feasible: the bound is ``max(path_end, s_0)``.
-    """
-    from uuv_ocp import path_following
-
-    plans, slacks = {}, {}
-    for place in ("path", "terminal"):
-        monkeypatch.setattr(path_following, "PATH_END_AT", place)
-        problem = PathFollowingProblem(uo.Vehicle.rexrov(), _survey(None), speed=0.5, horizon=10, dt=0.5)
-        point = np.array(problem.geometry(problem.path_end - 3.0)[0]).ravel()
-        x0 = problem.initial_state([*point, math.pi, 0.5, 0.0, 0.0])
-        backend = get_solver(problem, "ipopt", {"plugin_options": {"ipopt.tol": 1e-10}})
-        result = backend.solve(problem.parameters(x0, np.r_[0.0, 0.0, 0.0, 0.5]), None)
-        assert result.success
-        plans[place] = result
-        slacks[place] = sum(key[0].endswith("slack") for key in problem.build().hard.variable_keys)
-    new, old = plans["terminal"], plans["path"]
-    assert new.states[-1, -1] == pytest.approx(problem.path_end, abs=1e-6)  # the bound is active
-    np.testing.assert_allclose(new.states, old.states, rtol=0, atol=1e-6)
-    bound, _ = control_limits(problem.vehicle)  # the controls to 1e-7 of their bounds (IPOPT's tol)
-    np.testing.assert_allclose(new.controls[:, :-1], old.controls[:, :-1], rtol=0, atol=1e-7 * bound.max())
-    np.testing.assert_allclose(new.controls[:, -1], old.controls[:, -1], rtol=0, atol=1e-7)
-    assert (slacks["path"], slacks["terminal"]) == (10, 0)
-    beyond = np.r_[x0[:-1], problem.path_end + 1e-9]
-    overshoot = backend.solve(problem.parameters(beyond, np.r_[0.0, 0.0, 0.0, 0.5]), None)
-    assert overshoot.success
-    np.testing.assert_allclose(overshoot.states[:, -1], beyond[-1], rtol=0, atol=1e-6)  # v_s = 0
 
 
 def test_the_path_window_gives_the_whole_tables_point_and_tangent_wherever_a_plan_reaches() -> None:

@@ -39,8 +39,7 @@ The path must move where it is followed (``|p'(s)| > 0``).  Where a path of a fi
 comes to rest (a waypoint reference's final braking and hold), the path parameter stops at
 :attr:`PathFollowingProblem.path_end`, the last time its speed is at least
 :data:`END_SPEED_FRACTION` of its peak: an exact L1 penalty (``weights.terminal_penalty``)
-on ``s_N > path_end`` (node N bounds every node: ``s`` never decreases along a plan,
-:data:`PATH_END_AT`), so the vehicle comes to the end of the path and stays.
+on ``s > path_end`` at nodes 1..N, so the vehicle comes to the end of the path and stays.
 """
 
 from __future__ import annotations
@@ -84,17 +83,6 @@ PROJECTION_SAMPLES = 40_000
 PROJECTION_STEP = 0.02
 #: The path ends where its speed falls below this fraction of its peak for good (``path_end``).
 END_SPEED_FRACTION = 0.1
-#: Where ``s <= path_end`` is written: ``"terminal"``, a hard row on node N with the bound
-#: ``max(path_end, s_0)`` (a parameter: the plant may overshoot ``path_end`` by an ulp).  The
-#: path parameter never decreases along a plan (``ṡ = v_s / |p'(s)|`` with ``v_s >= 0``, and
-#: every RK4 or collocation increment of a non-negative rate is non-negative), so ``s_N`` bounds
-#: nodes 1..N as well: the same feasible plans and optimum as the former exact L1 penalty on
-#: every node (``"path"``, kept as the tests' reference), without its N slacks (the REMUS 100
-#: survey's OCP-QP: 4 inputs and 4 general rows at stages 1..N−1 instead of 5 and 6).  A soft
-#: bound on node N alone is no choice: written on ``F(x_(N−1), u_(N−1))`` (fatrop's last stage
-#: has no inputs for a slack), past the path's end, where ``|p'|`` falls to its floor, its plans
-#: ran ``s`` far beyond ``path_end`` and a closed loop stopped short of it.
-PATH_END_AT = "terminal"
 #: Look a piecewise path's pieces up in the window the horizon can reach (:class:`PathWindow`),
 #: whose rows are a parameter set from ``s_0``, instead of in the whole table (``False``: the
 #: former formulation, kept as the tests' reference).
@@ -586,12 +574,10 @@ class PathFollowingProblem(DeclaredPreset):
             ocp.add_stage_cost(residual=residual, weight=stage, start=1)
         factor = weights.terminal if self.terminal == "cost" else 1.0
         ocp.add_terminal_cost(residual=residual, weight=[factor * w for w in stage])
-        if math.isfinite(self.path_end) and PATH_END_AT == "terminal":
-            # s never decreases along a plan (v_s >= 0): s_N <= path_end bounds every node, a
-            # hard row on node N; its bound a parameter, max(path_end, s_0), as the plant may
-            # overshoot path_end by an ulp (PATH_END_AT)
-            ocp.bounded(-math.inf, s - ocp.parameter("path_end"), 0.0, at="terminal")
-        elif math.isfinite(self.path_end):  # the former soft bound on every node
+        if math.isfinite(self.path_end):  # soft: the plant may overshoot it by an ulp
+            # on every node, though s never decreases along a plan and node N's bound would
+            # do: soft on node N alone (written on F(x_(N-1), u_(N-1))) let plans run s far
+            # past the end, and a hard row makes every RTI plan judged (+0.27 ms a step)
             ocp.bounded(-math.inf, s, self.path_end, soft=weights.terminal_penalty)
         horizontal = list(layout.positions[:2])
         for obstacle in self.obstacles:
@@ -647,8 +633,6 @@ class PathFollowingProblem(DeclaredPreset):
         }
         if self.window is not None:
             values["path_window"] = self.window.values(float(x0[-1]))
-        if "path_end" in self.ocp.parameter_names:
-            values["path_end"] = np.array([max(self.path_end, float(x0[-1]))])
         return self.ocp.pack(x0, self.ocp.check_previous(u_prev), values)
 
     def initial_guess(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -35,6 +35,10 @@ parameter is the controller's own state, known exactly, and the plant of :func:`
 closest path point.  :func:`path_errors` measures a run's cross-track, vertical and
 along-track errors by projection on the path.
 
+A waypoint path (``Reference.waypoints``, the lawnmower) is looked up in the pieces a plan can
+reach from ``s_0`` (:class:`PathWindow`, a parameter :meth:`PathFollowingProblem.parameters`
+chooses from ``s_0``): a chain over 2 rows instead of every piece, the same point and tangent.
+
 The path must move where it is followed (``|p'(s)| > 0``).  Where a path of a finite window
 comes to rest (a waypoint reference's final braking and hold), the path parameter stops at
 :attr:`PathFollowingProblem.path_end`, the last time its speed is at least

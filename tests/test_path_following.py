@@ -501,3 +501,20 @@ def test_the_path_window_plans_as_the_whole_table(monkeypatch) -> None:
     assert plans[True].states[-1, -1] > (40.0 - 5.0) / 1.5  # the plan reaches into the turn
     np.testing.assert_allclose(plans[True].states, plans[False].states, rtol=0, atol=1e-8)
     np.testing.assert_allclose(plans[True].controls, plans[False].controls, rtol=1e-8, atol=1e-6)
+
+
+def test_with_state_chooses_the_path_window_again() -> None:
+    """``with_state(p, x)`` is ``parameters(x, ...)``: the window follows ``s_0`` (NMPC.prepare's path).
+
+    From a start on the first lane to one in the first turn (another window).
+    """
+    survey = uo.Reference.lawnmower(width=150.0, spacing=60.0, lanes=3, speed=1.5, depth=10.0)
+    problem = PathFollowingProblem(uo.Remus100(), survey, speed=1.5, horizon=20, dt=0.5)
+    x_lane = problem.initial_state(np.r_[10.0, np.zeros(5), 1.5, np.zeros(5)])
+    x_turn = np.r_[x_lane[:-1], (120.0 + 50.0) / 1.5]  # 50 m into the first turn
+    u_prev, current = np.r_[0.0, 0.0, 1000.0, 1.5], [0.1, -0.2, 0.0]
+    p = problem.parameters(x_lane, u_prev, current)
+    expected = problem.parameters(x_turn, u_prev, current)
+    window = problem.spec().layout.entries["path_window"][0]
+    assert not np.array_equal(p[window], expected[window])  # another window
+    np.testing.assert_array_equal(problem.with_state(p, x_turn), expected)

@@ -639,6 +639,18 @@ class PathFollowingProblem(DeclaredPreset):
             values["path_window"] = self.window.values(float(x0[-1]))
         return self.ocp.pack(x0, self.ocp.check_previous(u_prev), values)
 
+    def with_state(self, p: np.ndarray, x0: object) -> np.ndarray:
+        """Return a copy of the instance ``p`` with its state set to ``x0`` (checked as there).
+
+        Equal to :meth:`parameters` with ``x0`` and the last control and current of ``p``: the
+        path window (:class:`PathWindow`) is chosen again from the new ``s_0``.
+        """
+        new = super().with_state(p, x0)
+        if self.window is not None:
+            rows: slice = self.spec().layout.entries["path_window"][0]
+            new[rows] = self.window.values(float(new[self.spec().layout.x0][-1]))
+        return new
+
     def initial_guess(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cold start: the last control held, ``v_s`` at the commanded speed, and their rollout.
 

@@ -392,3 +392,30 @@ def test_fatrop_stalling_on_an_obstacle_is_finished_by_ipopt_from_its_iterate():
     assert [name for name, _, _ in fatrop.details["attempts"]] == ["hard", "hard (rescue)"]
     assert fatrop.cost == pytest.approx(ipopt.cost, rel=1e-8)
     assert np.min(rock.signed_distance(fatrop.states[1:])) >= -1e-6
+
+
+def test_a_one_sided_soft_constraint_has_no_rows_on_its_infinite_side():
+    """``vel <= 1.5`` (soft) gets its upper rows only; the plan is the two-sided one's.
+
+    Reference: the same Ocp with the soft constraint written ``-1e3 <= vel <= 1.5`` (a finite
+    side that never binds: rows on both sides, as every soft constraint had before), IPOPT.
+    """
+    results, rows = {}, {}
+    for lower in (-np.inf, -1e3):
+        ocp = uo.Ocp(horizon=20, dt=0.2)
+        pos = ocp.state("pos", 2)
+        vel = ocp.state("vel", 2)
+        acc = ocp.control("acc", 2, lower=-1.0, upper=1.0, max_rate=2.0)
+        ocp.set_der(pos, vel)
+        ocp.set_der(vel, acc)
+        ocp.add_stage_cost(ca.sumsqr(pos - ca.DM([4.0, 0.0])) + 0.1 * ca.sumsqr(acc))
+        ocp.bounded(lower, vel, 1.5, soft=1e3)  # binds: the goal is 4 m away, 4 s to get there
+        results[lower] = uo.solve(ocp, "ipopt", x0=[0.0] * 4, options=TIGHT["ipopt"])
+        keys = ocp.build().hard.constraint_keys
+        rows[lower] = sorted({key[0] for key in keys if key[0].startswith("c0")})
+    assert rows[-np.inf] == ["c0_upper"] and rows[-1e3] == ["c0_lower", "c0_upper"]
+    one, two = results[-np.inf], results[-1e3]
+    assert one.success and two.success
+    assert np.max(one.states[:, 2:]) == pytest.approx(1.5, abs=1e-6)  # the bound binds
+    np.testing.assert_allclose(one.controls, two.controls, rtol=0, atol=1e-7)
+    assert one.cost == pytest.approx(two.cost, rel=1e-9)

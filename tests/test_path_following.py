@@ -447,3 +447,74 @@ def test_replace_recomputes_the_defaults_it_filled_in_and_u_prev_defaults_into_t
     spec = problem.spec()
     explicit = problem.instance_parameters(x0, u_prev=np.clip(np.zeros(4), spec.lower, spec.upper))
     np.testing.assert_array_equal(packed, explicit)
+
+
+def test_the_path_window_gives_the_whole_tables_point_and_tangent_wherever_a_plan_reaches() -> None:
+    """PathWindow: rows chosen from s_0, the path's point and tangent as the whole look-up.
+
+    On the 3-D survey (REMUS 100, N = 20, dt = 0.5: a plan moves at most 30 m along the
+    path) from 400 starts, at s up to 30 m of path ahead (20 s of reference time at 1.5 m/s)
+    and 0.5 s behind: the window's point and tangent against ``problem.geometry`` (the
+    reference's full table, its tangent rotated from heading and body velocities), to rounding.
+    Past the window (beyond its reach) the last piece's formula is extended: 250 m ahead, on
+    the second lane, the first turn's circle is not the lane.
+    """
+    survey = uo.Reference.lawnmower(width=150.0, spacing=60.0, lanes=3, speed=1.5, depth=10.0)
+    problem = PathFollowingProblem(uo.Remus100(), survey, speed=1.5, horizon=20, dt=0.5)
+    window = problem.window
+    assert window is not None and window.rows == (2, 2)  # x, y, heading share one table; depth
+    s, rows = ca.SX.sym("s"), ca.SX.sym("w", window.size)
+    windowed = ca.Function("windowed", [s, rows], [ca.vertcat(*window.geometry(s, rows))])
+    rng = np.random.default_rng(7)
+    worst = 0.0
+    for s0 in rng.uniform(0.0, problem.path_end, 400):
+        values = window.values(s0)
+        for t in np.r_[s0 - 0.5, np.linspace(s0, s0 + 20.0, 9)]:
+            exact = np.concatenate([np.array(part).ravel() for part in problem.geometry(t)])
+            worst = max(worst, float(np.max(np.abs(np.array(windowed(t, values)).ravel() - exact))))
+    assert worst < 1e-12
+    far = 2.0 + 250.0 / 1.5  # 3 m along the first lane (120 m), then 250 m: the second lane
+    exact = np.concatenate([np.array(part).ravel() for part in problem.geometry(far)])
+    assert np.max(np.abs(np.array(windowed(far, window.values(2.0))).ravel() - exact)) > 1.0
+
+
+def test_the_path_window_plans_as_the_whole_table(monkeypatch) -> None:
+    """A plan with the window (rows from s_0) is the plan with the whole table, across a turn.
+
+    The RexROV 1 m before the first turn of three 40 m lanes, N = 10: IPOPT with PATH_WINDOW
+    on and off.
+    """
+    from uuv_ocp import path_following
+
+    plans = {}
+    for on in (False, True):
+        monkeypatch.setattr(path_following, "PATH_WINDOW", on)
+        survey = uo.Reference.lawnmower(width=40.0, spacing=10.0, lanes=3, speed=1.5)
+        problem = PathFollowingProblem(uo.Vehicle.rexrov(), survey, speed=0.5, horizon=10, dt=0.5)
+        assert (problem.window is not None) == on
+        s0 = (40.0 - 5.0 - 1.0) / 1.5  # 1 m before the arc of radius 5 m at the first lane's end
+        point = np.array(problem.geometry(s0)[0]).ravel()
+        x0 = np.r_[point, 0.0, 0.5, 0.0, 0.0, s0]
+        backend = get_solver(problem, "ipopt", {"plugin_options": {"ipopt.tol": 1e-10}})
+        plans[on] = backend.solve(problem.parameters(x0, np.r_[0.0, 0.0, 0.0, 0.5]), None)
+        assert plans[on].success
+    assert plans[True].states[-1, -1] > (40.0 - 5.0) / 1.5  # the plan reaches into the turn
+    np.testing.assert_allclose(plans[True].states, plans[False].states, rtol=0, atol=1e-8)
+    np.testing.assert_allclose(plans[True].controls, plans[False].controls, rtol=1e-8, atol=1e-6)
+
+
+def test_with_state_chooses_the_path_window_again() -> None:
+    """``with_state(p, x)`` is ``parameters(x, ...)``: the window follows ``s_0`` (NMPC.prepare's path).
+
+    From a start on the first lane to one in the first turn (another window).
+    """
+    survey = uo.Reference.lawnmower(width=150.0, spacing=60.0, lanes=3, speed=1.5, depth=10.0)
+    problem = PathFollowingProblem(uo.Remus100(), survey, speed=1.5, horizon=20, dt=0.5)
+    x_lane = problem.initial_state(np.r_[10.0, np.zeros(5), 1.5, np.zeros(5)])
+    x_turn = np.r_[x_lane[:-1], (120.0 + 50.0) / 1.5]  # 50 m into the first turn
+    u_prev, current = np.r_[0.0, 0.0, 1000.0, 1.5], [0.1, -0.2, 0.0]
+    p = problem.parameters(x_lane, u_prev, current)
+    expected = problem.parameters(x_turn, u_prev, current)
+    window = problem.spec().layout.entries["path_window"][0]
+    assert not np.array_equal(p[window], expected[window])  # another window
+    np.testing.assert_array_equal(problem.with_state(p, x_turn), expected)

@@ -35,6 +35,10 @@ parameter is the controller's own state, known exactly, and the plant of :func:`
 closest path point.  :func:`path_errors` measures a run's cross-track, vertical and
 along-track errors by projection on the path.
 
+A waypoint path (``Reference.waypoints``, the lawnmower) is looked up in the pieces a plan can
+reach from ``s_0`` (:class:`PathWindow`, a parameter :meth:`PathFollowingProblem.parameters`
+chooses from ``s_0``): a chain over 2 rows instead of every piece, the same point and tangent.
+
 The path must move where it is followed (``|p'(s)| > 0``).  Where a path of a finite window
 comes to rest (a waypoint reference's final braking and hold), the path parameter stops at
 :attr:`PathFollowingProblem.path_end`, the last time its speed is at least
@@ -63,6 +67,7 @@ from uuv_ocp.model.base import VehicleLayout, check_vehicle
 from uuv_ocp.obstacles import Obstacle, check_obstacles
 from uuv_ocp.ocp import Ocp, check_transcription
 from uuv_ocp.reference.path import Reference
+from uuv_ocp.reference.waypoints import window_look_up
 from uuv_ocp.tracking import (
     DeclaredPreset,
     control_limits,
@@ -82,6 +87,13 @@ PROJECTION_SAMPLES = 40_000
 PROJECTION_STEP = 0.02
 #: The path ends where its speed falls below this fraction of its peak for good (``path_end``).
 END_SPEED_FRACTION = 0.1
+#: Look a piecewise path's pieces up in the window the horizon can reach (:class:`PathWindow`),
+#: whose rows are a parameter set from ``s_0``, instead of in the whole table (``False``: the
+#: former formulation, kept as the tests' reference).
+PATH_WINDOW = True
+#: :class:`PathWindow`'s reach: this factor on ``N dt max_path_speed`` plus ``WINDOW_MARGIN`` m.
+WINDOW_REACH_FACTOR = 1.1
+WINDOW_MARGIN = 1.0
 #: Default lower bound of a propeller (a control named ``"n"``) as a fraction of the cruise
 #: propeller speed at the commanded speed (:func:`default_control_lower`).
 PROPELLER_FLOOR = 0.9
@@ -169,15 +181,172 @@ def path_geometry(reference: Reference) -> ca.Function:
     spatial reference (its pitch is zero).
     """
     s = ca.SX.sym("s")
-    state = reference.function(s)
-    if reference.spatial:
+    position, velocity = _point_and_tangent(reference.function(s), reference.spatial)
+    return ca.Function("path_geometry", [s], [position, velocity], ["s"], ["position", "tangent"])
+
+
+def _point_and_tangent(state: ca.SX, spatial: bool) -> tuple[ca.SX, ca.SX]:
+    """``(p, p')`` from a reference state (:func:`path_geometry`)."""
+    if spatial:
         position, heading, surge, sway, heave = state[0:3], state[5], state[6], state[7], state[8]
     else:
         position, heading, surge, sway, heave = state[0:2], state[2], state[3], state[4], None
     cos_psi, sin_psi = ca.cos(heading), ca.sin(heading)
     horizontal = [surge * cos_psi - sway * sin_psi, surge * sin_psi + sway * cos_psi]
     velocity = ca.vertcat(*horizontal, *([heave] if heave is not None else []))
-    return ca.Function("path_geometry", [s], [position, velocity], ["s"], ["position", "tangent"])
+    return position, velocity
+
+
+@dataclass(frozen=True, eq=False)
+class PathWindow:
+    """The pieces of a piecewise path (waypoints, lawnmower) the horizon can reach, as parameters.
+
+    A waypoint path's point is a look-up of its piece's constants (a ``casadi.if_else`` chain
+    over every piece, evaluated at each RK4 stage of each interval: 8 times a stage on the
+    REMUS 100 survey).  The path parameter of a plan starting at ``s_0`` stays within
+    ``σ(s_0) − BACK`` and ``σ(s_0) + REACH`` of look-up key ``σ`` (horizontal arc length, m):
+    ``s`` never decreases and the along-path speed is at most ``max_path_speed``, so in
+    ``N dt`` the path point moves at most ``N dt max_path_speed`` m along the path (REACH adds
+    10 % and 1 m for the discretisation and the QP's linearised steps).  Only the rows of each
+    table that meet that window enter the NLP, as the parameter ``"path_window"`` chosen from
+    ``s_0`` by :meth:`PathFollowingProblem.parameters` (a chain over ``rows`` rows instead of
+    the whole table): the same point, tangent and plan wherever the plan's ``σ`` stays in the
+    window; outside it, the window's last (first) piece's formula is extended beyond its end
+    (before its start), continuous in value and tangent with the neighbour's (C¹ joints).
+
+    Attributes
+    ----------
+    time : casadi.SX
+        The path parameter symbol (s).
+    position, tangent : casadi.SX
+        ``p`` and ``dp/dt`` in ``time`` and the placeholders (``Reference.piecewise_parts``).
+    parts : list
+        Per look-up: ``(constants, key, table)``.
+    rows : tuple of int
+        Rows of each table in the window (the most any window of the path meets).
+    keys : casadi.Function
+        ``s -> σ`` of every look-up (their keys at ``s``).
+    """
+
+    time: ca.SX
+    position: ca.SX
+    tangent: ca.SX
+    parts: list
+    rows: tuple[int, ...]
+    keys: ca.Function
+
+    #: the window behind ``σ(s_0)`` (m of the key): a plan's ``s_k`` just below ``s_0``
+    BACK: ClassVar[float] = 1.0
+
+    @classmethod
+    def of(cls, reference: Reference, reach: float) -> PathWindow | None:
+        """Return the window of ``reference`` for plans that move at most ``reach`` m, or ``None``.
+
+        ``None`` when the reference has no tabled look-ups (``Reference.piecewise_parts``) or a
+        window would hold every row of a table anyway (no gain).
+        """
+        pieces = reference.piecewise_parts
+        if pieces is None:
+            return None
+        time, position, all_parts = pieces
+        # x, y and the heading look the same table up: one window (placeholders substituted
+        # by the same rows), so one chain
+        parts: list = []
+        for constants, key, table in all_parts:
+            for others, _, other_table in parts:
+                if other_table == table and others.numel() == constants.numel():
+                    position = ca.substitute(position, constants, others)
+                    break
+            else:
+                parts.append((constants, key, table))
+        rows = []
+        for _, _, table in parts:
+            starts = np.array([row[0] for row in table])
+            # the pieces [σ0 − BACK, σ0 + reach] meets: a step function of σ0, right-continuous,
+            # so its largest count is at one of the steps (σ0 − BACK or σ0 + reach at a start)
+            sigma0 = np.r_[starts + cls.BACK, starts - reach]
+            first = np.maximum(np.searchsorted(starts, sigma0 - cls.BACK, side="right") - 1, 0)
+            last = np.searchsorted(starts, sigma0 + reach, side="right") - 1
+            rows.append(int(np.max(last - first) + 1))
+        if all(count >= len(table) for count, (_, _, table) in zip(rows, parts, strict=True)):
+            return None
+        keys = ca.Function("path_window_keys", [time], [ca.vertcat(*[key for _, key, _ in parts])])
+        # p' straight from p (the pieces held: exact between joints), not rotated back from
+        # the reference's heading and body velocities as path_geometry (equal to rounding)
+        return cls(time, position, ca.jacobian(position, time), parts, tuple(rows), keys)
+
+    @property
+    def size(self) -> int:
+        """Length of the parameter ``"path_window"`` (every window row, row by row)."""
+        return sum(count * len(table[0]) for count, (_, _, table) in zip(self.rows, self.parts, strict=True))
+
+    def geometry(self, s: Any, window: Any) -> tuple[ca.SX, ca.SX]:
+        """``(p(s), p'(s))`` (m, m/s) from the window rows ``window`` (the parameter, SX)."""
+        constants, values, offset = [], [], 0
+        for (placeholder, key, table), count in zip(self.parts, self.rows, strict=True):
+            width = len(table[0])
+            rows = ca.reshape(window[offset : offset + count * width], width, count).T
+            constants.append(placeholder)
+            values.append(window_look_up(key, rows))
+            offset += count * width
+        both = ca.substitute(
+            ca.vertcat(self.position, self.tangent), ca.vertcat(*constants), ca.vertcat(*values)
+        )
+        both = ca.substitute(both, self.time, s)
+        size = self.position.numel()
+        return both[:size], both[size:]
+
+    def rows_from(self, key: np.ndarray) -> np.ndarray:
+        """Return the window rows (row by row) for the look-up keys ``key`` (m) at ``s_0``.
+
+        From each table's piece holding ``key − BACK``, padded with its last row.
+        """
+        blocks = []
+        for (_, _, table), count, value in zip(self.parts, self.rows, key, strict=True):
+            array = np.asarray(table, dtype=float)
+            first = max(int(np.searchsorted(array[:, 0], value - self.BACK, side="right")) - 1, 0)
+            chosen = array[first : first + count]
+            padding = np.repeat(chosen[-1:], count - len(chosen), axis=0)  # the last row selects itself
+            blocks.append(np.vstack([chosen, padding]).ravel())
+        return np.concatenate(blocks)
+
+    @functools.cached_property
+    def _steps(self) -> tuple[np.ndarray, np.ndarray]:
+        """Where (in s) a window's first row changes, and the window rows between those steps.
+
+        A key is non-decreasing in ``s``: the step of table row ``j`` is the ``s`` where its key
+        reaches ``start_j + BACK`` (bisection to 1e-12 s on the key Function, once), so a step's
+        look-up costs a ``searchsorted`` instead of a CasADi call (38 -> 2 µs).
+        """
+        steps: list[float] = []
+        for index, (_, _, table) in enumerate(self.parts):
+            for row in table[1:]:
+                target = row[0] + self.BACK
+                low, high = -1.0, 1.0
+                while float(self.keys(low)[index]) >= target and low > -1e12:
+                    low *= 2.0
+                while float(self.keys(high)[index]) < target and high < 1e12:
+                    high *= 2.0
+                if float(self.keys(high)[index]) < target:
+                    continue  # never reached
+                for _ in range(200):
+                    middle = 0.5 * (low + high)
+                    if float(self.keys(middle)[index]) >= target:
+                        high = middle
+                    else:
+                        low = middle
+                    if high - low <= 1e-12 * max(1.0, abs(high)):
+                        break
+                steps.append(high)
+        edges = np.unique(np.array(steps))
+        points = np.r_[edges[:1] - 1.0, edges] if edges.size else np.zeros(1)
+        windows = np.array([self.rows_from(np.array(self.keys(point)).ravel()) for point in points])
+        return edges, windows
+
+    def values(self, s0: float) -> np.ndarray:
+        """Return the window rows for a plan starting at path parameter ``s0`` (s), row by row."""
+        edges, windows = self._steps
+        return windows[int(np.searchsorted(edges, s0, side="right"))]
 
 
 def tangent_frame_errors(offset: Any, tangent: Any) -> list[Any]:
@@ -347,6 +516,20 @@ class PathFollowingProblem(DeclaredPreset):
         with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
             return path_geometry(self.path)
 
+    @functools.cached_property
+    def window(self) -> PathWindow | None:
+        """The pieces the horizon can reach as a parameter (:class:`PathWindow`), or ``None``.
+
+        ``None`` for a path without tabled pieces (``from_xyz``) or with :data:`PATH_WINDOW`
+        off; the reach is ``WINDOW_REACH_FACTOR · N dt max_path_speed + WINDOW_MARGIN`` m.
+        """
+        if not PATH_WINDOW:
+            return None
+        assert self.max_path_speed is not None
+        reach = WINDOW_REACH_FACTOR * self.horizon * self.dt * self.max_path_speed + WINDOW_MARGIN
+        with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
+            return PathWindow.of(self.path, reach)
+
     def _declare(self) -> Ocp:
         vehicle, weights = self.vehicle, self.weights
         assert weights is not None and self.max_path_speed is not None
@@ -369,7 +552,12 @@ class PathFollowingProblem(DeclaredPreset):
         )
         current = ocp.parameter("current", nc, stagewise=True)
         ocp.set_der(state, vehicle_rhs(vehicle, state, tau, current))
-        position, tangent = self.geometry(s)
+        window = self.window
+        if window is None:
+            position, tangent = self.geometry(s)
+        else:  # the reachable pieces, chosen from s_0 (parameters): a short look-up chain
+            rows = ocp.parameter("path_window", window.size)
+            position, tangent = window.geometry(s, rows)
         ocp.set_der(s, path_rate(v_s, tangent))
         ocp.add_stage_cost(
             residual=ca.vertcat(
@@ -391,6 +579,9 @@ class PathFollowingProblem(DeclaredPreset):
         factor = weights.terminal if self.terminal == "cost" else 1.0
         ocp.add_terminal_cost(residual=residual, weight=[factor * w for w in stage])
         if math.isfinite(self.path_end):  # soft: the plant may overshoot it by an ulp
+            # on every node, though s never decreases along a plan and node N's bound would
+            # do: soft on node N alone (written on F(x_(N-1), u_(N-1))) let plans run s far
+            # past the end, and a hard row makes every RTI plan judged (+0.27 ms a step)
             ocp.bounded(-math.inf, s, self.path_end, soft=weights.terminal_penalty)
         horizontal = list(layout.positions[:2])
         for obstacle in self.obstacles:
@@ -424,7 +615,7 @@ class PathFollowingProblem(DeclaredPreset):
     def parameters(
         self, x0: object, u_prev: object | None = None, current: object | None = None
     ) -> np.ndarray:
-        """Parameter vector ``p = [x0, u_prev, current]`` of one instance.
+        """Parameter vector ``p = [x0, u_prev, current, path window]`` of one instance.
 
         Parameters
         ----------
@@ -444,7 +635,21 @@ class PathFollowingProblem(DeclaredPreset):
             if rows is None
             else np.broadcast_to(rows, (self.horizon + 1, nc))
         }
+        if self.window is not None:
+            values["path_window"] = self.window.values(float(x0[-1]))
         return self.ocp.pack(x0, self.ocp.check_previous(u_prev), values)
+
+    def with_state(self, p: np.ndarray, x0: object) -> np.ndarray:
+        """Return a copy of the instance ``p`` with its state set to ``x0`` (checked as there).
+
+        Equal to :meth:`parameters` with ``x0`` and the last control and current of ``p``: the
+        path window (:class:`PathWindow`) is chosen again from the new ``s_0``.
+        """
+        new = super().with_state(p, x0)
+        if self.window is not None:
+            rows: slice = self.spec().layout.entries["path_window"][0]
+            new[rows] = self.window.values(float(new[self.spec().layout.x0][-1]))
+        return new
 
     def initial_guess(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Cold start: the last control held, ``v_s`` at the commanded speed, and their rollout.

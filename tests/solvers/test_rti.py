@@ -1099,7 +1099,7 @@ def test_stage_data_from_the_rk4_sensitivity_equal_casadis_jacobian(case):
     Reference: the same stage data with ``casadi.jacobian`` of the whole constraint vector
     (``sensitivity=False``, the former path), every variant, at random points; to rounding
     (the operations differ in order).  The REMUS 100 path following (lifted rate controls, the
-    path parameter, the path-end slacks) and the RexROV on s2.
+    path parameter, the path-end slacks, the path window's parameters) and the RexROV on s2.
     """
     from uuv_ocp.solvers.rti import qp_functions
     from uuv_ocp.solvers.rti_ocp import constraint_jacobian, ocp_qp_layout, stage_data_function

@@ -129,6 +129,9 @@ class Reference:
     # the map of the Function over n times, by n (shared: Functions are only read), and each
     # thread's zero-copy callers of them (.maps, by n: buffers are written by every call)
     _maps: dict = field(init=False, repr=False, compare=False, default_factory=dict)
+    # the position before its table look-ups: (time, position, [(constants, key, table), ...]), or
+    # None (no look-up, or one without a table): Reference.piecewise_parts
+    _piecewise: tuple | None = field(init=False, repr=False, compare=False, default=None)
     _callers: threading.local = field(init=False, repr=False, compare=False, default_factory=threading.local)
 
     def __post_init__(self) -> None:
@@ -457,7 +460,7 @@ class Reference:
         try:
             result = function(time)
             if isinstance(result, PiecewiseExpression):
-                placeholders.append((result.constants, result.values))
+                placeholders.append((result.constants, result.values, result.key, result.table))
                 result = result.expression
             expression = ca.SX(result) + 0 * time
         except Exception as error:  # user callables may fail in many ways
@@ -472,7 +475,7 @@ class Reference:
     @serialised
     def _build_function(self) -> ca.Function:
         time = ca.SX.sym("t")
-        placeholders: list[tuple[ca.SX, ca.SX]] = []
+        placeholders: list[tuple[Any, ...]] = []
         position_x = self._expression("path_x", self.path_x, time, placeholders)
         position_y = self._expression("path_y", self.path_y, time, placeholders)
         velocity_x = ca.jacobian(position_x, time)
@@ -501,8 +504,13 @@ class Reference:
             )  # fmt: skip
         else:
             outputs = ca.vertcat(position_x, position_y, heading, surge, sway, yaw_rate)
+        if placeholders and all(table is not None for *_, table in placeholders):
+            parts = [(constants, key, table) for constants, _, key, table in placeholders]
+            position = ca.vertcat(position_x, position_y, *([position_z] if self.path_z is not None else []))
+            object.__setattr__(self, "_piecewise", (time, position, parts))
         if placeholders:  # piecewise constants were held fixed for the derivatives: now their values
-            constants, values = (ca.vertcat(*parts) for parts in zip(*placeholders, strict=True))
+            constants = ca.vertcat(*[entry[0] for entry in placeholders])
+            values = ca.vertcat(*[entry[1] for entry in placeholders])
             outputs = ca.substitute(outputs, constants, values)
         free = [symbol for symbol in ca.symvar(outputs) if not ca.is_equal(symbol, time)]
         if free:
@@ -518,6 +526,19 @@ class Reference:
             return ca.Function(name, [time], [outputs], ["t"], ["state"])
         # piecewise paths (waypoints) look their pieces up once for x and once for y: share that
         return ca.Function(name, [time], [outputs], ["t"], ["state"], {"cse": True})
+
+    @property
+    def piecewise_parts(self) -> tuple[ca.SX, ca.SX, list[tuple[ca.SX, ca.SX, tuple]]] | None:
+        """The position before its piecewise constants are looked up, or ``None``.
+
+        ``(t, position, parts)``: the position ``(x, y[, z])`` (m) in the time symbol ``t`` and
+        each :class:`~uuv_ocp.reference.waypoints.PiecewiseExpression`'s placeholder
+        ``constants``, with ``parts`` their ``(constants, key, table)`` (the key an expression
+        of ``t``).  ``None`` for a reference without look-ups or with one that has no table.
+        Substituting each ``constants`` by its table's row at ``key`` gives the position of
+        :attr:`function`; its derivative in ``t`` with the constants held is the velocity.
+        """
+        return self._piecewise
 
     # ------------------------------------------------------------ construction check
     def check_window(self) -> None:

@@ -197,7 +197,7 @@ class WaypointPath:
             else:
                 expression = line
             values = _look_up(s, rows, "waypoint_pieces")
-            coordinates.append(PiecewiseExpression(expression, constants, values))
+            coordinates.append(PiecewiseExpression(expression, constants, values, s, tuple(rows)))
         return coordinates[0], coordinates[1]
 
     def heading(self, s: ca.SX) -> PiecewiseExpression:
@@ -215,7 +215,9 @@ class WaypointPath:
         line = ca.atan2(b, a)
         arc = b + (s - start) / ca.if_else(is_arc, a, 1.0)  # finite on lines too
         expression = ca.if_else(is_arc, arc, line)
-        return PiecewiseExpression(expression, constants, _look_up(s, rows, "waypoint_pieces"))
+        return PiecewiseExpression(
+            expression, constants, _look_up(s, rows, "waypoint_pieces"), s, tuple(rows)
+        )
 
     def depth(self, s: ca.SX) -> PiecewiseExpression:
         """Depth ``z`` (m, positive down) of a spatial path at arc length ``s`` (m, SX)."""
@@ -225,7 +227,8 @@ class WaypointPath:
         start, c0, c1, c2 = ca.vertsplit(constants)
         sigma = s - start
         expression = c0 + sigma * (c1 + sigma * c2)
-        return PiecewiseExpression(expression, constants, _look_up(s, self._depth_pieces, "waypoint_depth"))
+        values = _look_up(s, self._depth_pieces, "waypoint_depth")
+        return PiecewiseExpression(expression, constants, values, s, tuple(self._depth_pieces))
 
 
 @dataclass(frozen=True, eq=False)
@@ -240,6 +243,14 @@ class PiecewiseExpression:
         Column of placeholder symbols.
     values : casadi.SX
         Their values, expressions of time that are constant between joints (table look-ups).
+    key : casadi.SX or None
+        The look-up variable (an expression of time, non-decreasing), if ``values`` is a table
+        look-up: ``values`` is the row of ``table`` whose start (column 0) is the last one
+        ``<= key`` (the first row before the first start).
+    table : tuple of tuple of float or None
+        That table, one row per piece (as many columns as ``constants``), starts strictly
+        increasing.  With both, a caller may look up a window of the table (rows as parameters:
+        :func:`window_look_up`) instead of the whole (``PathFollowingProblem``).
 
     Notes
     -----
@@ -253,9 +264,24 @@ class PiecewiseExpression:
     expression: ca.SX
     constants: ca.SX
     values: ca.SX
+    key: ca.SX | None = None
+    table: tuple[tuple[float, ...], ...] | None = None
 
     def __post_init__(self) -> None:
         """Check the types and shapes."""
+        if (self.key is None) != (self.table is None):
+            raise ValueError("key and table must be given together (a table look-up) or both be None")
+        if self.key is not None:
+            if not isinstance(self.key, ca.SX) or self.key.shape != (1, 1):
+                raise ValueError(f"key must be a scalar casadi SX, got {self.key!r}")
+            table = np.array(self.table, dtype=float)
+            width = self.constants.numel()
+            if table.ndim != 2 or table.shape[1] != width or table.shape[0] < 1:
+                raise ValueError(
+                    f"table must have rows of {width} floats (as constants), got shape {table.shape}"
+                )
+            if np.any(np.diff(table[:, 0]) <= 0.0):
+                raise ValueError("table starts (column 0) must be strictly increasing")
         for label in ("expression", "constants", "values"):
             if not isinstance(getattr(self, label), ca.SX):
                 raise ValueError(f"{label} must be a casadi SX, got {type(getattr(self, label)).__name__}")
@@ -267,6 +293,20 @@ class PiecewiseExpression:
             raise ValueError(
                 f"values must have the shape of constants {self.constants.shape}, got {self.values.shape}"
             )
+
+
+def window_look_up(key: ca.SX, rows: ca.SX) -> ca.SX:
+    """Return the row of ``rows`` (SX, a row per piece) whose start (column 0) is the last <= ``key``.
+
+    The first row before its start: a window of a :class:`PiecewiseExpression`'s table whose
+    rows are parameters (chosen by the caller to hold every ``key`` it will meet), as
+    :func:`_look_up`'s chain on the whole table; a row repeated at the end (padding) selects
+    itself.
+    """
+    value = rows[0, :].T
+    for i in range(1, rows.size1()):
+        value = ca.if_else(key >= rows[i, 0], rows[i, :].T, value)
+    return value
 
 
 #: Most rows :func:`_look_up` selects by an ``if_else`` chain; longer tables use interpolants.

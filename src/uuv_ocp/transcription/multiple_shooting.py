@@ -124,11 +124,18 @@ class _Rows:
         weight: float,
         slack_kind: str | None = None,
     ) -> None:
-        """Queue ``lower <= values <= upper`` relaxed by slacks ``s >= 0`` with the L1 cost ``weight Σ s``."""
+        """Queue ``lower <= values <= upper`` relaxed by slacks ``s >= 0`` with the L1 cost ``weight Σ s``.
+
+        A side whose bounds are all infinite gets no rows: ``values + s >= −inf`` holds always,
+        and a solver carries such a row anyway (HPIPM: a masked general row in each of its
+        iterations; the REMUS 100 survey's path end, 6 -> 5 rows a stage).
+        """
         lower, upper = bounds
         slack = self.variable(slack_kind or f"{kind}_slack", stage, values.numel(), 0.0, np.inf)
-        path.append((f"{kind}_upper", stage, values - slack, -np.inf, upper))
-        path.append((f"{kind}_lower", stage, values + slack, lower, np.inf))
+        if np.any(np.isfinite(upper)):
+            path.append((f"{kind}_upper", stage, values - slack, -np.inf, upper))
+        if np.any(np.isfinite(lower)):
+            path.append((f"{kind}_lower", stage, values + slack, lower, np.inf))
         self.linear += weight * ca.sum1(slack)
 
 

@@ -78,6 +78,7 @@ from pathlib import Path
 import numpy as np
 
 import uuv_ocp as uo
+from uuv_ocp.estimation import SURVEY_CURRENT_FILTER, SURVEY_CURRENT_STD
 from uuv_ocp.studies.records import read_record, write_record
 
 DEPTH = 10.0  # m
@@ -195,7 +196,7 @@ def _nmpc(
 
 #: the ``-est`` rows' EKF options (module doc): horizontal current noise of the plant's intensity,
 #: a vertical one 100× smaller, the controller told the current low-passed with T = 20 s
-SURVEY_ESTIMATOR = uo.EstimatorOptions(current_std=(0.01, 0.01, 1e-4), current_filter=20.0)
+SURVEY_ESTIMATOR = uo.EstimatorOptions(current_std=SURVEY_CURRENT_STD, current_filter=SURVEY_CURRENT_FILTER)
 
 
 def settings(row: str, controller: uo.Controller) -> dict:
@@ -226,7 +227,7 @@ ROWS: dict[str, Callable[[uo.TrackingProblem, np.ndarray], Start]] = {
     "fatrop-c-known": _nmpc("fatrop", {"compiled": True}),
     "sqp-rti-est": _nmpc("sqp-rti"),
     "sqp-rti-ekf0-est": _nmpc("sqp-rti", estimator=uo.EstimatorOptions()),
-    "sqp-rti-vert-est": _nmpc("sqp-rti", estimator=uo.EstimatorOptions(current_std=(0.01, 0.01, 1e-4))),
+    "sqp-rti-vert-est": _nmpc("sqp-rti", estimator=uo.EstimatorOptions(current_std=SURVEY_CURRENT_STD)),
     "sqp-rti-hpipm-est": _nmpc("sqp-rti", {"qpsol": "hpipm"}),
     "sqp-rti-rate1-est": _nmpc("sqp-rti", weights=uo.PathWeights(rate=1.0)),
     "sqp-rti-rate100-est": _nmpc("sqp-rti", weights=uo.PathWeights(rate=100.0)),

@@ -71,7 +71,10 @@ def main(
         # the current unknown to the NMPC too: an EKF estimates it with the vehicle's states
         # (the path parameter is the controller's own); a horizontal current (the vertical
         # noise 100x smaller) told to the NMPC low-passed over 20 s, or the fins chase its noise
-        options = uo.EstimatorOptions(current_std=(0.01, 0.01, 1e-4), current_filter=20.0)
+        options = uo.EstimatorOptions(
+            current_std=uo.estimation.SURVEY_CURRENT_STD,
+            current_filter=uo.estimation.SURVEY_CURRENT_FILTER,
+        )
         sensors = uo.Sensors.auv(following.vehicle)
         ekf = uo.Estimator(following, "ekf", sensors=sensors, options=options) if estimate else None
         name = f"NMPC {solver}" + (" + EKF" if estimate else "")

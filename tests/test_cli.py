@@ -358,8 +358,41 @@ def test_follow_a_survey_with_ilos_prints_its_metrics(capsys):
         (["--solver", "ilos", "--estimator", "ekf"], "--estimator"),
         (["--path", "s2"], "--duration"),  # the paper's references have no end
         (["--vehicle", "submarine"], "--vehicle"),
+        (["--current-std", "fast"], "--current-std"),
+        (["--current-std", "0.01,0.01"], "--current-std"),  # the REMUS's current has 3 axes
+        (["--current-std", "0.01,0,0.01"], "--current-std"),
+        (["--current-filter", "-1"], "--current-filter"),
+        (["--current-filter", "nan"], "--current-filter"),
     ],
 )
 def test_follow_bad_input_is_one_line_and_exit_2(capsys, argv, named):
     assert cli.main(["follow", *argv]) == 2
     assert named in _one_error_line(capsys)
+
+
+@pytest.mark.parametrize(
+    ("argv", "current_std", "current_filter"),
+    [
+        ([], (0.01, 0.01, 1e-4), 20.0),  # the survey's horizontal current, low-passed 20 s
+        (["--current-std", "0.02", "--current-filter", "0"], 0.02, 0.0),
+        (["--current-std", "0.02,0.03,0.001"], (0.02, 0.03, 0.001), 20.0),
+    ],
+)
+def test_follow_hands_the_estimator_its_current_options(
+    monkeypatch, capsys, argv, current_std, current_filter
+):
+    """``follow --estimator ekf``: the EKF gets the survey options unless the flags say otherwise."""
+    import uuv_ocp as uo
+
+    told = {}
+
+    def spy(problem, method=None, *, sensors, options=None, parameters=None):
+        told["method"], told["options"] = method, options
+        raise ValueError("spy: stop before the closed loop")
+
+    monkeypatch.setattr(uo, "Estimator", spy)
+    assert cli.main(["follow", "--estimator", "ekf", "--quiet", *argv]) == 2
+    assert "spy: stop" in _one_error_line(capsys)
+    assert told["method"] == "ekf"
+    assert told["options"].current_std == current_std
+    assert told["options"].current_filter == current_filter

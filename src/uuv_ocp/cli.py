@@ -158,6 +158,21 @@ def _parser() -> argparse.ArgumentParser:
         default=None,
         help="the current unknown, estimated (ekf | ukf | mhe)",
     )
+    follow.add_argument(
+        "--current-std",
+        metavar="SIGMA[,SIGMA,...]",
+        default=None,
+        help="the estimator's current noise intensity (m/s/sqrt(s)): one value, or one per "
+        "inertial axis (default: a 6-DOF vehicle's uuv_ocp.estimation.SURVEY_CURRENT_STD, 0.01 "
+        "horizontal and 1e-4 vertical: a survey's current is horizontal; else 0.01)",
+    )
+    follow.add_argument(
+        "--current-filter",
+        type=float,
+        default=None,
+        help="time constant (s, >= 0) of the low-pass on the estimated current the NMPC is told "
+        "(default: uuv_ocp.estimation.SURVEY_CURRENT_FILTER, 20 s; 0: the estimate itself)",
+    )
     follow.add_argument("--seed", type=int, default=0, help="the sensors' noise")
     follow.add_argument("--quiet", "-q", action="store_true", help="no progress on standard error")
 
@@ -864,13 +879,55 @@ def _check_follow(args: argparse.Namespace) -> tuple[Any, Any]:
         _finite("--duration", args.duration)
     if ilos and args.estimator is not None:
         raise _UsageError("--estimator is for the NMPC: ILOS guidance takes no current")
+    if args.current_filter is not None and not (
+        math.isfinite(args.current_filter) and args.current_filter >= 0
+    ):
+        raise _UsageError(f"--current-filter must be a finite number >= 0 (s), got {args.current_filter:g}")
     vehicle = _vehicle(args.vehicle)
+    args.current_std = _current_std(args.current_std, vehicle.layout.current_dim)
     path = _follow_path(args, vehicle)
     if args.duration is None:
         if not math.isfinite(path.t_end):
             raise _UsageError(f"--duration is needed: the path {path.name} has no end")
         args.duration = path.t_end - path.t_start  # the survey: its length at --speed + 60 s
     return vehicle, path
+
+
+def _current_std(text: str | None, current_dim: int) -> float | tuple[float, ...]:
+    """Parse ``--current-std``: one intensity or one per current axis (m/s/√s), each > 0.
+
+    Without the flag a 6-DOF vehicle's vertical entry is small (``SURVEY_CURRENT_STD``): an
+    ocean current at survey depth is horizontal, and a vertical current made of sensor noise is
+    what the depth loop would chase (``benchmarks/bench_path.py``).
+    """
+    if text is None:
+        from uuv_ocp.estimation import SURVEY_CURRENT_STD
+
+        return SURVEY_CURRENT_STD if current_dim == len(SURVEY_CURRENT_STD) else SURVEY_CURRENT_STD[0]
+    try:
+        values = tuple(float(part) for part in text.split(","))
+    except ValueError:
+        raise _UsageError(
+            f"--current-std must be one number or {current_dim} comma-separated numbers "
+            f"(m/s/sqrt(s)), got {text!r}"
+        ) from None
+    if len(values) not in (1, current_dim):
+        raise _UsageError(
+            f"--current-std must have 1 or {current_dim} entries (the vehicle's current axes), "
+            f"got {len(values)}"
+        )
+    if not all(math.isfinite(v) and v > 0 for v in values):
+        raise _UsageError(f"--current-std must be finite numbers > 0, got {text!r}")
+    return values[0] if len(values) == 1 else values
+
+
+def _follow_estimator_options(args: argparse.Namespace) -> Any:
+    """Return the ``follow`` estimator's options: the current's noise per axis, the NMPC's low-pass."""
+    import uuv_ocp as uo
+    from uuv_ocp.estimation import SURVEY_CURRENT_FILTER
+
+    told = SURVEY_CURRENT_FILTER if args.current_filter is None else args.current_filter
+    return uo.EstimatorOptions(current_std=args.current_std, current_filter=told)
 
 
 def _run_follow(args: argparse.Namespace) -> int:
@@ -894,7 +951,12 @@ def _run_follow(args: argparse.Namespace) -> int:
             x0 = measured.initial_state(path.initial_state(path.t_start))
         estimator = None
         if args.estimator is not None:
-            estimator = uo.Estimator(measured, args.estimator, sensors=uo.Sensors.auv(vehicle))
+            estimator = uo.Estimator(
+                measured,
+                args.estimator,
+                sensors=uo.Sensors.auv(vehicle),
+                options=_follow_estimator_options(args),
+            )
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", RuntimeWarning)  # a finite path's end: its hold covers it
             run = uo.simulate(

@@ -6,6 +6,8 @@ ocean current from them on the problem's own discrete model (docs/estimation.md)
 """
 
 from uuv_ocp.estimation.base import (
+    SURVEY_CURRENT_FILTER,
+    SURVEY_CURRENT_STD,
     Estimate,
     Estimator,
     EstimatorOptions,
@@ -24,6 +26,8 @@ from uuv_ocp.estimation.sensors import Measurement, Sensor, Sensors
 from uuv_ocp.estimation.ukf import UnscentedKalmanFilter
 
 __all__ = [
+    "SURVEY_CURRENT_FILTER",
+    "SURVEY_CURRENT_STD",
     "Detection",
     "FaultDetectorOptions",
     "ThrusterFaultDetector",

@@ -40,6 +40,15 @@ from uuv_ocp.native.runtime import compiled_by_default
 CURRENT_MODELS = ("random_walk", "gauss_markov", "none")
 MHE_MODES = ("full", "rti")
 
+SURVEY_CURRENT_STD = (0.01, 0.01, 1e-4)
+"""A survey's current noise intensity per inertial axis (north, east, down; m/s/√s): horizontal.
+
+The vertical entry keeps the EKF from turning sensor noise into a vertical current that the depth
+loop chases (REMUS survey: stern-plane activity 45° → 14° over 200 s, docs/benchmarks.md)."""
+SURVEY_CURRENT_FILTER = 20.0
+"""Time constant of the survey's low-pass on the current told to the NMPC (s); see
+``EstimatorOptions.current_filter`` (REMUS survey: fins 185° → 155° at 0.135 → 0.176 m cross-track)."""
+
 
 def _per_state(name: str, value: object, size: int) -> np.ndarray:
     """Return ``size`` positive floats from one float or ``size`` of them."""

@@ -158,6 +158,38 @@ def test_the_detector_declares_a_clean_fault_on_synthetic_bias(boat):
     assert np.all(np.delete(detector.health, 3) == 1.0)
 
 
+@pytest.mark.parametrize(("window", "hold"), [(10, 3), (20, 5)])
+def test_the_baseline_freeze_ends_after_window_plus_hold_steps(boat, window, hold):
+    """A 20 % loss of thruster 3 from step 40: pending (>= 0.15), never a detection (< 0.3).
+
+    Without the limit the baseline would stay frozen forever; it must move again exactly
+    ``window + hold`` steps after the first step whose loss estimate (``1 − estimate``, read
+    here, not the detector's flag) reached ``pending · threshold``.  A slow drift of the
+    generalised bias keeps each baseline update non-zero.
+    """
+    rng = np.random.default_rng(21)
+    T = np.array(boat.thrusters.allocation)
+    options = FaultDetectorOptions(window=window, hold=hold, arm_time=1.0)
+    detector = ThrusterFaultDetector(T, options)
+    baselines, pending = [], []
+    for k in range(40 + 4 * (window + hold)):
+        f = rng.uniform(-30.0, 30.0, 8)
+        h = np.ones(8)
+        if k >= 40:
+            h[3] = 0.8
+        drift = np.linalg.lstsq(T, np.full(6, 0.05 * k), rcond=None)[0]
+        b = np.linalg.lstsq(T, T @ (h * f) - T @ f, rcond=None)[0] + drift
+        detector.update(k, k * DT, f, b + rng.normal(0.0, 0.05, 8))
+        baselines.append(detector.baseline)
+        pending.append(bool(np.max(1.0 - detector.estimate) >= options.pending * options.threshold))
+    assert detector.detections == []
+    onset = pending.index(True)
+    assert 40 <= onset < 40 + window and all(pending[onset:])  # it would freeze for ever
+    moved = [not np.array_equal(baselines[k], baselines[k - 1]) for k in range(onset + 1, len(baselines))]
+    assert moved[: window + hold] == [False] * (window + hold)  # frozen: window + hold steps
+    assert all(moved[window + hold :])  # then learns again, every step
+
+
 def test_the_offset_columns_are_lstsq_and_recover_a_stuck_thruster(boat):
     """Stuck thruster 2 at 12 N (h = 0, s = 12): bias T_2 (12 − f_2); lstsq on columns built here."""
     rng = np.random.default_rng(8)

@@ -423,6 +423,11 @@ class ThrusterFaultDetector:
         self.detections: list[Detection] = []
 
     @property
+    def baseline(self) -> np.ndarray | None:
+        """The no-fault generalised force (N, N·m; a copy) the window is regressed against, or None."""
+        return None if self._baseline is None else self._baseline.copy()
+
+    @property
     def isolated(self) -> tuple[int, ...]:
         """Thrusters declared faulty so far, in order."""
         return tuple(item.thruster for item in self.detections)

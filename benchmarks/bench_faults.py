@@ -66,7 +66,8 @@ DEADLINE = 0.1  # s: the controller's step, dt
 ROWS = ("naive", "ft", "oracle", "pinv")
 FAULTS = uo.RandomFaults(count=1, window=(5.0, 10.0), kinds=("failed", "loss"), effectiveness=0.5)
 VERSION = 3  # 3: a new controller per run (a shared one stayed degraded after a run diverged)
-DETECTOR_VERSION = 6  # 6: separation 2; the window restarts at a detection (settle 2 s)
+DETECTOR_VERSION = 7  # 7: hold_isolated 25 after a first detection; detections carry the stuck force
+OBSERVABLE = 10.0  # N: a command from which a 50 % loss removes 5 N (the detection clock's "observable")
 
 
 def survey() -> uo.Reference:
@@ -147,13 +148,20 @@ def scored(run: uo.ClosedLoopResult, faults: tuple[uo.ThrusterFault, ...]) -> di
     outside = np.flatnonzero((t >= last) & (error > TUBE))
     detections = run.detections
     failed = {item.thruster: item.time for item in faults}
-    delays, alarms = [], 0
+    delays, observable, alarms, stuck_right = [], [], 0, 0
     named: set[int] = set()
-    for when, thruster, _ in detections:
-        thruster = int(thruster)
+    kinds = {item.thruster: item.kind for item in faults}
+    for row in detections:
+        when, thruster = float(row[0]), int(row[1])
         if thruster in failed and when >= failed[thruster] - 1e-9 and thruster not in named:
             delays.append(when - failed[thruster])
             named.add(thruster)
+            # from the first step after the fault the thruster is commanded >= OBSERVABLE
+            commanded = np.abs(run.controls[:, thruster]) >= OBSERVABLE
+            steps = np.flatnonzero((t[: commanded.size] >= failed[thruster] - 1e-9) & commanded)
+            observable.append(when - max(t[steps[0]], failed[thruster]) if steps.size else np.nan)
+            told_stuck = row.size > 3 and row[3] != 0.0  # older records: no kind column
+            stuck_right += int(told_stuck == (kinds[thruster] == "stuck"))
         else:
             alarms += 1
     return {
@@ -163,6 +171,8 @@ def scored(run: uo.ClosedLoopResult, faults: tuple[uo.ThrusterFault, ...]) -> di
         "isolated": float(len(named)),
         "injected": float(len(faults)),
         "delays": delays,  # type: ignore[dict-item]
+        "observable": observable,  # type: ignore[dict-item]
+        "kind_right": float(stuck_right),
         "alarm": float(alarms > 0),
     }
 
@@ -233,7 +243,7 @@ def main(
                     write_record(path, run, config)
                 else:
                     run = saved[0]
-                figures.setdefault((row, count), []).append(scored(run, faults))
+                figures.setdefault((row, count), []).append({**scored(run, faults), "trial": trial})
                 times.setdefault((row, count), []).append(run.solve_times)
     print(
         f"\nBlueROV2 Heavy lawnmower at 2 m, {SURVEY_SPEED} m/s, {CURRENT} m/s current (unknown, EKF), "
@@ -261,6 +271,18 @@ def main(
                 f"{isolated if ft and count else '-':>9s} {detect if ft and count else '-':>16s} "
                 f"{alarms if ft else '-':>12s} {np.median(step):7.2f} {np.percentile(step, 90):7.2f}"
             )
+            if ft and count and delays:
+                seen = np.array([d for item in items for d in item["observable"]], dtype=float)
+                late = [(item["trial"], round(d, 1)) for item in items for d in item["delays"] if d > 2.0]
+                within = sum(d <= 2.0 + 1e-9 for d in delays)
+                print(
+                    f"        detect p90 {np.percentile(delays, 90):.1f} s, <= 2 s {within}/{len(delays)}; "
+                    f"from |command| >= {OBSERVABLE:g} N after the fault: median "
+                    f"{np.nanmedian(seen):.1f} max {np.nanmax(seen):.1f} s; kind (stuck or not) right "
+                    f"{int(sum(i['kind_right'] for i in items))}/{len(delays)}; > 2 s (trial, s): {late}"
+                )
+    load = os.getloadavg()
+    print(f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores")
 
 
 if __name__ == "__main__":

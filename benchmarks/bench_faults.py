@@ -28,6 +28,13 @@ time to recover (from the last fault to the last exit from the tube; 0 if it nev
 and for ``ft``: faults isolated to the right thruster / injected, median and worst time to
 detect (from each fault to the detection naming its thruster), false alarms (a detection on a
 0-fault trial, or naming a thruster that has not failed); median / p90 controller step (ms).
+Below each ``ft`` row: the 90th percentile and the count within 2 s of the detection time; the
+detection time counted from the first step after the fault at which the thruster is commanded
+at least ``OBSERVABLE`` = 10 N (a 50 % loss then removes 5 N); whether each isolated fault was
+told the right kind (stuck, or a loss; ``run.detections``' fourth column); and each detection
+later than 2 s with its time from the end of the first 2-s window after the fault over which
+the command's standard deviation reached ``VARIED`` = 5 N (the window's intercept absorbs a
+constant command's loss: a thruster saturated after the fault is not observable until it varies).
 
 Every run is a checked record (``uuv_ocp.studies.records``) in ``--out`` (default
 ``out/bench_faults``): an interrupted benchmark resumes, a damaged record is recomputed.
@@ -68,6 +75,7 @@ FAULTS = uo.RandomFaults(count=1, window=(5.0, 10.0), kinds=("failed", "loss"), 
 VERSION = 3  # 3: a new controller per run (a shared one stayed degraded after a run diverged)
 DETECTOR_VERSION = 7  # 7: hold_isolated 25 after a first detection; detections carry the stuck force
 OBSERVABLE = 10.0  # N: a command from which a 50 % loss removes 5 N (the detection clock's "observable")
+VARIED = 5.0  # N: command std over a 2-s window after the fault (what the per-window intercept leaves)
 
 
 def survey() -> uo.Reference:
@@ -148,7 +156,7 @@ def scored(run: uo.ClosedLoopResult, faults: tuple[uo.ThrusterFault, ...]) -> di
     outside = np.flatnonzero((t >= last) & (error > TUBE))
     detections = run.detections
     failed = {item.thruster: item.time for item in faults}
-    delays, observable, alarms, stuck_right = [], [], 0, 0
+    delays, observable, varied, alarms, stuck_right = [], [], [], 0, 0
     named: set[int] = set()
     kinds = {item.thruster: item.kind for item in faults}
     for row in detections:
@@ -160,6 +168,15 @@ def scored(run: uo.ClosedLoopResult, faults: tuple[uo.ThrusterFault, ...]) -> di
             commanded = np.abs(run.controls[:, thruster]) >= OBSERVABLE
             steps = np.flatnonzero((t[: commanded.size] >= failed[thruster] - 1e-9) & commanded)
             observable.append(when - max(t[steps[0]], failed[thruster]) if steps.size else np.nan)
+            # a constant command's loss is a constant force, which the window's intercept absorbs:
+            # the end of the first 2-s window after the fault whose command varied by >= VARIED
+            first = int(np.searchsorted(t, failed[thruster] - 1e-9))
+            ends = [
+                k
+                for k in range(first + 19, commanded.size)
+                if np.std(run.controls[k - 19 : k + 1, thruster]) >= VARIED
+            ]
+            varied.append(when - t[ends[0]] if ends else np.nan)
             told_stuck = row.size > 3 and row[3] != 0.0  # older records: no kind column
             stuck_right += int(told_stuck == (kinds[thruster] == "stuck"))
         else:
@@ -172,6 +189,7 @@ def scored(run: uo.ClosedLoopResult, faults: tuple[uo.ThrusterFault, ...]) -> di
         "injected": float(len(faults)),
         "delays": delays,  # type: ignore[dict-item]
         "observable": observable,  # type: ignore[dict-item]
+        "varied": varied,  # type: ignore[dict-item]
         "kind_right": float(stuck_right),
         "alarm": float(alarms > 0),
     }
@@ -273,13 +291,19 @@ def main(
             )
             if ft and count and delays:
                 seen = np.array([d for item in items for d in item["observable"]], dtype=float)
-                late = [(item["trial"], round(d, 1)) for item in items for d in item["delays"] if d > 2.0]
+                late = [
+                    (item["trial"], round(d, 1), round(v, 1))
+                    for item in items
+                    for d, v in zip(item["delays"], item["varied"], strict=True)
+                    if d > 2.0
+                ]
                 within = sum(d <= 2.0 + 1e-9 for d in delays)
                 print(
                     f"        detect p90 {np.percentile(delays, 90):.1f} s, <= 2 s {within}/{len(delays)}; "
                     f"from |command| >= {OBSERVABLE:g} N after the fault: median "
                     f"{np.nanmedian(seen):.1f} max {np.nanmax(seen):.1f} s; kind (stuck or not) right "
-                    f"{int(sum(i['kind_right'] for i in items))}/{len(delays)}; > 2 s (trial, s): {late}"
+                    f"{int(sum(i['kind_right'] for i in items))}/{len(delays)}; > 2 s (trial, s, s from "
+                    f"the first 2-s window of command std >= {VARIED:g} N): {late}"
                 )
     load = os.getloadavg()
     print(f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores")

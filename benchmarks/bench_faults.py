@@ -104,6 +104,7 @@ class Bench:
         reference = survey()
         self.boat = Vehicle6DOF.bluerov2_heavy(thrusters=True)
         if tau:  # thrusters with a first-order response, in the plant and every thruster row's model
+            assert self.boat.thrusters is not None  # the preset with thrusters=True has them
             thrusters = dataclasses.replace(self.boat.thrusters, time_constant=tau)
             self.boat = dataclasses.replace(self.boat, thrusters=thrusters)
         forces = Vehicle6DOF.bluerov2_heavy()

@@ -41,10 +41,9 @@ then reads as a loss of another for a second or two); it is isolated to that thr
 separation test is what keeps the turns quiet: thrusters 0 and 3 (1 and 2) push against each
 other there, their regressors nearly collinear, and a bias drift splits into equal losses on
 the pair (0.40 and 0.40 at 13 s of a 40-s fault-free test run, which alarmed on 0 then 3
-without it).  The
-statistic overstates confidence (the bias estimate is a smooth, autocorrelated series):
-``significance`` is set high and the false-alarm rate is *measured* (tests,
-``benchmarks/bench_faults.py``) rather than derived.
+without it).  The statistic overstates confidence (the bias estimate is a smooth,
+autocorrelated series): ``significance`` is set high and the false-alarm rate is *measured*
+(tests, ``benchmarks/bench_faults.py``) rather than derived.
 
 Stuck or loss: a thruster stuck at ``v`` (``h = 0, s = v``) leaves the bias ``T_i (v − f_i)``, a
 loss ``−ℓ T_i f_i``: both lose the command's variation, only the stuck one adds a constant force

@@ -105,8 +105,8 @@ class Bench:
         self.boat = Vehicle6DOF.bluerov2_heavy(thrusters=True)
         if tau:  # thrusters with a first-order response, in the plant and every thruster row's model
             assert self.boat.thrusters is not None  # the preset with thrusters=True has them
-            thrusters = dataclasses.replace(self.boat.thrusters, time_constant=tau)
-            self.boat = dataclasses.replace(self.boat, thrusters=thrusters)
+            lagging = dataclasses.replace(self.boat.thrusters, time_constant=tau)
+            self.boat = dataclasses.replace(self.boat, thrusters=lagging)
         forces = Vehicle6DOF.bluerov2_heavy()
         self.in_thrusters = uo.TrackingProblem(self.boat, reference, horizon=horizon, dt=0.1, terminal="cost")
         self.in_forces = uo.TrackingProblem(forces, reference, horizon=horizon, dt=0.1, terminal="cost")

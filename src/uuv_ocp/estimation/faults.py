@@ -272,7 +272,6 @@ def loss_regression(
     intercept: bool = False,
     columns: Sequence[int] | None = None,
     offsets: Sequence[int] = (),
-    nuisance: np.ndarray | None = None,
 ) -> LossFit:
     """Least-squares thruster losses of one window (module doc).
 
@@ -299,10 +298,6 @@ def loss_regression(
     offsets : sequence of int
         Also fit a constant force ``s_i`` (N) of these thrusters: the column ``T_i`` in every
         block, the stuck model ``h_i f_i + s_i`` (results in ``offset`` and ``offset_error``).
-    nuisance : numpy.ndarray, shape (6 W, m), optional
-        Further columns fitted and discarded (beside the intercept): a constant force in the
-        inertial frame seen in the body frame of each step (a current estimation error that
-        turns with the vehicle).
     """
     full = loss_regressors(allocation, forces)
     count = full.shape[1]
@@ -317,8 +312,6 @@ def loss_regression(
         design = np.hstack([design, np.tile(np.asarray(allocation, dtype=float)[:, stuck], (blocks, 1))])
     if intercept:
         design = np.hstack([design, np.tile(np.eye(6), (blocks, 1))])
-    if nuisance is not None:
-        design = np.hstack([design, np.asarray(nuisance, dtype=float).reshape(X.shape[0], -1)])
     extra = design.shape[1] - n
     stacked = np.vstack([design, np.hstack([ridge * np.eye(n), np.zeros((n, extra))])]) if ridge else design
     target = np.concatenate([y, np.zeros(n)]) if ridge else y

@@ -28,6 +28,13 @@ time to recover (from the last fault to the last exit from the tube; 0 if it nev
 and for ``ft``: faults isolated to the right thruster / injected, median and worst time to
 detect (from each fault to the detection naming its thruster), false alarms (a detection on a
 0-fault trial, or naming a thruster that has not failed); median / p90 controller step (ms).
+Below each ``ft`` row: the 90th percentile and the count within 2 s of the detection time; the
+detection time counted from the first step after the fault at which the thruster is commanded
+at least ``OBSERVABLE`` = 10 N (a 50 % loss then removes 5 N); whether each isolated fault was
+told the right kind (stuck, or a loss; ``run.detections``' fourth column); and each detection
+later than 2 s with its time from the end of the first 2-s window after the fault over which
+the command's standard deviation reached ``VARIED`` = 5 N (the window's intercept absorbs a
+constant command's loss: a thruster saturated after the fault is not observable until it varies).
 
 Every run is a checked record (``uuv_ocp.studies.records``) in ``--out`` (default
 ``out/bench_faults``): an interrupted benchmark resumes, a damaged record is recomputed.
@@ -40,6 +47,10 @@ interleaved on the same states (a survey closed loop's), median ms, with the loa
 of a random sign, 25..75 % of the bound); another set of kinds draws other faults, so give it
 its own ``--out``.
 
+``--tau 0.1`` gives the thrusters a first-order response of that time constant (s) in the
+plant and in the thruster rows' model and EKF (20 states: the delivered forces); not with
+``pinv`` (it plans generalised forces); give it its own ``--out``.
+
 Run: ``python -m benchmarks.bench_faults [--count 50] [--faults 0,1,2] [--duration 50]
 [--rows naive,ft,oracle,pinv] [--kinds failed,loss] [--out DIR] [--rti | --rti-only]``.
 """
@@ -47,6 +58,7 @@ Run: ``python -m benchmarks.bench_faults [--count 50] [--faults 0,1,2] [--durati
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import time
 from pathlib import Path
@@ -66,7 +78,9 @@ DEADLINE = 0.1  # s: the controller's step, dt
 ROWS = ("naive", "ft", "oracle", "pinv")
 FAULTS = uo.RandomFaults(count=1, window=(5.0, 10.0), kinds=("failed", "loss"), effectiveness=0.5)
 VERSION = 3  # 3: a new controller per run (a shared one stayed degraded after a run diverged)
-DETECTOR_VERSION = 6  # 6: separation 2; the window restarts at a detection (settle 2 s)
+DETECTOR_VERSION = 7  # 7: hold_isolated 25 after a first detection; detections carry the stuck force
+OBSERVABLE = 10.0  # N: a command from which a 50 % loss removes 5 N (the detection clock's "observable")
+VARIED = 5.0  # N: command std over a 2-s window after the fault (what the per-window intercept leaves)
 
 
 def survey() -> uo.Reference:
@@ -86,9 +100,13 @@ def drawn(
 class Bench:
     """The problems, controllers and estimators of the benchmark (built once)."""
 
-    def __init__(self, horizon: int = 10) -> None:
+    def __init__(self, horizon: int = 10, tau: float = 0.0) -> None:
         reference = survey()
         self.boat = Vehicle6DOF.bluerov2_heavy(thrusters=True)
+        if tau:  # thrusters with a first-order response, in the plant and every thruster row's model
+            assert self.boat.thrusters is not None  # the preset with thrusters=True has them
+            lagging = dataclasses.replace(self.boat.thrusters, time_constant=tau)
+            self.boat = dataclasses.replace(self.boat, thrusters=lagging)
         forces = Vehicle6DOF.bluerov2_heavy()
         self.in_thrusters = uo.TrackingProblem(self.boat, reference, horizon=horizon, dt=0.1, terminal="cost")
         self.in_forces = uo.TrackingProblem(forces, reference, horizon=horizon, dt=0.1, terminal="cost")
@@ -99,7 +117,7 @@ class Bench:
         options = uo.EstimatorOptions(bias=True, bias_std=BIAS_STD, compiled=False)
         sensors = uo.Sensors.auv(self.boat)
         self.thruster_ekf = uo.Estimator(self.in_thrusters, "ekf", sensors=sensors, options=options)
-        self.force_ekf = uo.Estimator(self.in_forces, "ekf", sensors=sensors, options=options)
+        self.force_ekf = uo.Estimator(self.in_forces, "ekf", sensors=uo.Sensors.auv(forces), options=options)
         # a real-time step: the fallback chain (soft NLP, cold retry, IPOPT) stops at dt, as it
         # would on the vehicle (without it a diverging naive loop spends seconds per step)
         self.thruster_mpc = self.controller(self.in_thrusters)
@@ -147,13 +165,29 @@ def scored(run: uo.ClosedLoopResult, faults: tuple[uo.ThrusterFault, ...]) -> di
     outside = np.flatnonzero((t >= last) & (error > TUBE))
     detections = run.detections
     failed = {item.thruster: item.time for item in faults}
-    delays, alarms = [], 0
+    delays, observable, varied, alarms, stuck_right = [], [], [], 0, 0
     named: set[int] = set()
-    for when, thruster, _ in detections:
-        thruster = int(thruster)
+    kinds = {item.thruster: item.kind for item in faults}
+    for row in detections:
+        when, thruster = float(row[0]), int(row[1])
         if thruster in failed and when >= failed[thruster] - 1e-9 and thruster not in named:
             delays.append(when - failed[thruster])
             named.add(thruster)
+            # from the first step after the fault the thruster is commanded >= OBSERVABLE
+            commanded = np.abs(run.controls[:, thruster]) >= OBSERVABLE
+            steps = np.flatnonzero((t[: commanded.size] >= failed[thruster] - 1e-9) & commanded)
+            observable.append(when - max(t[steps[0]], failed[thruster]) if steps.size else np.nan)
+            # a constant command's loss is a constant force, which the window's intercept absorbs:
+            # the end of the first 2-s window after the fault whose command varied by >= VARIED
+            first = int(np.searchsorted(t, failed[thruster] - 1e-9))
+            ends = [
+                k
+                for k in range(first + 19, commanded.size)
+                if np.std(run.controls[k - 19 : k + 1, thruster]) >= VARIED
+            ]
+            varied.append(when - t[ends[0]] if ends else np.nan)
+            told_stuck = row.size > 3 and row[3] != 0.0  # older records: no kind column
+            stuck_right += int(told_stuck == (kinds[thruster] == "stuck"))
         else:
             alarms += 1
     return {
@@ -163,6 +197,9 @@ def scored(run: uo.ClosedLoopResult, faults: tuple[uo.ThrusterFault, ...]) -> di
         "isolated": float(len(named)),
         "injected": float(len(faults)),
         "delays": delays,  # type: ignore[dict-item]
+        "observable": observable,  # type: ignore[dict-item]
+        "varied": varied,  # type: ignore[dict-item]
+        "kind_right": float(stuck_right),
         "alarm": float(alarms > 0),
     }
 
@@ -204,9 +241,12 @@ def main(
     rows: tuple[str, ...],
     out: Path,
     kinds: tuple[str, ...] = FAULTS.kinds,
+    tau: float = 0.0,
 ) -> None:
-    """Print the table of the module doc."""
-    bench = Bench()
+    """Print the table of the module doc (``tau``: the thrusters' time constant, s)."""
+    if tau and "pinv" in rows:
+        raise ValueError("--tau is for the thruster rows (naive, ft, oracle): pinv plans forces")
+    bench = Bench(tau=tau)
     out.mkdir(parents=True, exist_ok=True)
     figures: dict[tuple[str, int], list[dict]] = {}
     times: dict[tuple[str, int], list[np.ndarray]] = {}
@@ -226,6 +266,8 @@ def main(
                 }
                 if row == "ft":  # the detector's revision: its records only are recomputed
                     config["detector"] = DETECTOR_VERSION
+                if tau:
+                    config["tau"] = tau
                 path = out / f"{row}-{count}-{trial}.npz"
                 saved = read_record(path, config)
                 if saved is None:
@@ -233,7 +275,7 @@ def main(
                     write_record(path, run, config)
                 else:
                     run = saved[0]
-                figures.setdefault((row, count), []).append(scored(run, faults))
+                figures.setdefault((row, count), []).append({**scored(run, faults), "trial": trial})
                 times.setdefault((row, count), []).append(run.solve_times)
     print(
         f"\nBlueROV2 Heavy lawnmower at 2 m, {SURVEY_SPEED} m/s, {CURRENT} m/s current (unknown, EKF), "
@@ -261,6 +303,24 @@ def main(
                 f"{isolated if ft and count else '-':>9s} {detect if ft and count else '-':>16s} "
                 f"{alarms if ft else '-':>12s} {np.median(step):7.2f} {np.percentile(step, 90):7.2f}"
             )
+            if ft and count and delays:
+                seen = np.array([d for item in items for d in item["observable"]], dtype=float)
+                late = [
+                    (item["trial"], round(float(d), 1), round(float(v), 1))
+                    for item in items
+                    for d, v in zip(item["delays"], item["varied"], strict=True)
+                    if d > 2.0
+                ]
+                within = sum(d <= 2.0 + 1e-9 for d in delays)
+                print(
+                    f"        detect p90 {np.percentile(delays, 90):.1f} s, <= 2 s {within}/{len(delays)}; "
+                    f"from |command| >= {OBSERVABLE:g} N after the fault: median "
+                    f"{np.nanmedian(seen):.1f} max {np.nanmax(seen):.1f} s; kind (stuck or not) right "
+                    f"{int(sum(i['kind_right'] for i in items))}/{len(delays)}; > 2 s (trial, s, s from "
+                    f"the first 2-s window of command std >= {VARIED:g} N): {late}"
+                )
+    load = os.getloadavg()
+    print(f"load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} on {os.cpu_count()} cores")
 
 
 if __name__ == "__main__":
@@ -276,6 +336,9 @@ if __name__ == "__main__":
         help="fault kinds drawn (failed, loss, stuck); another set draws other faults: use another --out",
     )
     parser.add_argument("--out", type=Path, default=Path("out/bench_faults"))
+    parser.add_argument(
+        "--tau", type=float, default=0.0, help="thrusters' time constant (s), plant and model; not pinv"
+    )
     parser.add_argument("--rti", action="store_true", help="the RTI step timing first")
     parser.add_argument("--rti-only", action="store_true", help="only the RTI step timing")
     arguments = parser.parse_args()
@@ -289,4 +352,4 @@ if __name__ == "__main__":
         counts = tuple(int(item) for item in arguments.faults.split(","))
         chosen = tuple(range(arguments.first, arguments.first + arguments.count))
         kinds = tuple(item for item in arguments.kinds.split(",") if item)
-        main(chosen, counts, arguments.duration, picked, arguments.out, kinds)
+        main(chosen, counts, arguments.duration, picked, arguments.out, kinds, arguments.tau)

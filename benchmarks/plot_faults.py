@@ -61,7 +61,7 @@ def main(out: Path, images: Path, trial: int, count: int) -> None:
     for thruster, when in faults:
         axis.axvline(when, color="k", ls="--", lw=0.8)
         axis.annotate(f"thruster {thruster} fails", (when, axis.get_ylim()[1] * 0.9), fontsize=8)
-    for when, _thruster, _ in runs["ft"].detections:
+    for when in runs["ft"].detections[:, 0]:
         axis.axvline(when, color=COLOURS["ft"], ls=":", lw=0.8)
     axis.axhline(0.5, color="grey", lw=0.6)
     axis.set_xlabel("t (s)")
@@ -84,7 +84,7 @@ def main(out: Path, images: Path, trial: int, count: int) -> None:
             ls=":",
             label=f"window estimate h{thruster}",
         )
-    for when, _thruster, health in ft.detections:
+    for when, health in ft.detections[:, [0, 2]]:
         axis.plot([when], [health], "o", color="k")
     axis.set_ylim(-0.1, 1.2)
     axis.set_xlabel("t (s)")

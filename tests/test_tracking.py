@@ -259,3 +259,38 @@ def test_rk4_stability_of_the_remus_roll_mode_at_rest() -> None:
         warnings.simplefilter("error", Rk4StabilityWarning)
         uo.TrackingProblem(vehicle, reference, horizon=5, dt=0.5, substeps=2)
         assert uo.PathFollowingProblem(vehicle, reference, speed=1.5, dt=0.5, substeps=None).substeps == 2
+
+
+def test_the_ocp_plans_the_thrusters_first_order_response():
+    """BlueROV2 Heavy thrusters with τ = 0.3 s: the OCP's state carries the delivered forces.
+
+    Their weights are zero (referenced to zero, not tracked), and the plan of an IPOPT step from
+    rest obeys the exact discretisation of ``ḟ_a = (f − f_a)/τ`` under held commands,
+    ``f_a,k+1 = f_k + (f_a,k − f_k) exp(−dt/τ)`` (RK4's error at dt/τ = 1/3 is below 1e-4).
+    """
+    import dataclasses
+
+    boat = uo.Vehicle6DOF.bluerov2_heavy(thrusters=True)
+    constant = 0.3
+    boat = dataclasses.replace(boat, thrusters=dataclasses.replace(boat.thrusters, time_constant=constant))
+    reference = uo.Reference.lawnmower((0.0, 0.0), width=6.0, spacing=2.0, lanes=3, speed=0.5, depth=2.0)
+    problem = uo.TrackingProblem(boat, reference, horizon=5, dt=0.1, terminal="cost")
+    assert problem.weights.pose[6:] == (0.0,) * 8 and len(problem.weights.velocity) == 6
+    x0 = problem.initial_state()
+    assert x0.shape == (20,) and np.all(x0[6:14] == 0.0)
+    plan = uo.NMPC(problem, "ipopt").step(x0, 0.0, np.zeros(8)).result
+    states, controls = np.asarray(plan.states), np.asarray(plan.controls)
+    delivered = states[:, 6:14]
+    decay = np.exp(-problem.dt / constant)
+    expected = controls + (delivered[:-1] - controls) * decay
+    scale = np.abs(controls).max()
+    assert scale > 1.0  # the plan pushes, so the check has something to check
+    np.testing.assert_allclose(delivered[1:], expected, rtol=0.0, atol=1e-4 * scale)
+
+
+def test_weights_may_have_more_pose_entries_than_velocities():
+    """Actuator states in the pose (zero-weighted): 14 pose, 6 velocity, 20 terminal; not 6 > 3."""
+    weights = uo.Weights(pose=(1.0,) * 14, velocity=(1.0,) * 6, terminal=(1.0,) * 20)
+    assert len(weights.terminal) == 20
+    with pytest.raises(ValueError, match="weights.terminal must have 20 entries"):
+        uo.Weights(pose=(1.0,) * 14, velocity=(1.0,) * 6, terminal=(1.0,) * 28)

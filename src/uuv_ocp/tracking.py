@@ -252,15 +252,19 @@ class Weights:
                 f"weights.pose must have 3 entries or more (one per pose state: 3-DOF x, y, psi; "
                 f"6-DOF 6; your vehicle's layout.pose_dim), got {dof}: {check.shown(self.pose)}"
             )
-        if len(self.velocity) != dof:
+        # the pose block may also hold actuator states (a thruster's delivered force, referenced
+        # to zero): fewer velocities than pose weights then, never more
+        velocities = len(self.velocity)
+        if velocities > dof:
             raise ValueError(
                 f"weights.velocity must have {dof} entries (one per degree of freedom, as "
-                f"weights.pose), got {len(self.velocity)}: {check.shown(self.velocity)}"
+                f"weights.pose) or fewer (a pose with actuator states), got {velocities}: "
+                f"{check.shown(self.velocity)}"
             )
-        if len(self.terminal) != 2 * dof:
+        if len(self.terminal) != dof + velocities:
             raise ValueError(
-                f"weights.terminal must have {2 * dof} entries (one per state: {dof} pose, {dof} "
-                f"velocity), got {len(self.terminal)}: {check.shown(self.terminal)}"
+                f"weights.terminal must have {dof + velocities} entries (one per state: {dof} pose, "
+                f"{velocities} velocity), got {len(self.terminal)}: {check.shown(self.terminal)}"
             )
         if not any(self.pose + self.velocity + self.terminal):
             raise ValueError(

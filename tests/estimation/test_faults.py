@@ -158,6 +158,71 @@ def test_the_detector_declares_a_clean_fault_on_synthetic_bias(boat):
     assert np.all(np.delete(detector.health, 3) == 1.0)
 
 
+@pytest.mark.parametrize(("window", "hold"), [(10, 3), (20, 5)])
+def test_the_baseline_freeze_ends_after_window_plus_hold_steps(boat, window, hold):
+    """A 20 % loss of thruster 3 from step 40: pending (>= 0.15), never a detection (< 0.3).
+
+    Without the limit the baseline would stay frozen forever; it must move again exactly
+    ``window + hold`` steps after the first step whose loss estimate (``1 − estimate``, read
+    here, not the detector's flag) reached ``pending · threshold``.  A slow drift of the
+    generalised bias keeps each baseline update non-zero.
+    """
+    rng = np.random.default_rng(21)
+    T = np.array(boat.thrusters.allocation)
+    options = FaultDetectorOptions(window=window, hold=hold, arm_time=1.0)
+    detector = ThrusterFaultDetector(T, options)
+    baselines, pending = [], []
+    for k in range(40 + 4 * (window + hold)):
+        f = rng.uniform(-30.0, 30.0, 8)
+        h = np.ones(8)
+        if k >= 40:
+            h[3] = 0.8
+        drift = np.linalg.lstsq(T, np.full(6, 0.05 * k), rcond=None)[0]
+        b = np.linalg.lstsq(T, T @ (h * f) - T @ f, rcond=None)[0] + drift
+        detector.update(k, k * DT, f, b + rng.normal(0.0, 0.05, 8))
+        baselines.append(detector.baseline)
+        pending.append(bool(np.max(1.0 - detector.estimate) >= options.pending * options.threshold))
+    assert detector.detections == []
+    onset = pending.index(True)
+    assert 40 <= onset < 40 + window and all(pending[onset:])  # it would freeze for ever
+    moved = [not np.array_equal(baselines[k], baselines[k - 1]) for k in range(onset + 1, len(baselines))]
+    assert moved[: window + hold] == [False] * (window + hold)  # frozen: window + hold steps
+    assert all(moved[window + hold :])  # then learns again, every step
+
+
+def _second_fault_run(boat, hold_isolated, second_steps):
+    """Synthetic bias: thruster 3 fails at step 30; thruster 6 loses 70 % over ``second_steps``."""
+    rng = np.random.default_rng(13)
+    T = np.array(boat.thrusters.allocation)
+    options = FaultDetectorOptions(window=10, hold=3, hold_isolated=hold_isolated, arm_time=1.0, settle=0.5)
+    detector = ThrusterFaultDetector(T, options)
+    for k in range(160):
+        f = rng.uniform(-30.0, 30.0, 8)
+        h = np.ones(8)
+        if k >= 30:
+            h[3] = 0.0
+        if k in second_steps:
+            h[6] = 0.3
+        b = np.linalg.lstsq(T, T @ (h * f) - T @ f, rcond=None)[0]
+        detector.update(k, k * DT, f, b + rng.normal(0.0, 0.3, 8))
+    return detector
+
+
+@pytest.mark.parametrize("hold_isolated", [3, 15])
+def test_a_second_detection_needs_hold_isolated_steps(boat, hold_isolated):
+    """After thruster 3 is isolated, a loss of 6 must pass ``hold_isolated`` steps, not ``hold``.
+
+    A 12-step loss (a drift at a turn reads so) is declared with ``hold_isolated = hold`` = 3 and
+    not with 15; a lasting one is declared either way, no earlier than 15 passing steps.
+    """
+    brief = _second_fault_run(boat, hold_isolated, range(100, 112))
+    lasting = _second_fault_run(boat, hold_isolated, range(100, 160))
+    assert [item.thruster for item in brief.detections[:1]] == [3]
+    assert [item.thruster for item in brief.detections] == ([3, 6] if hold_isolated == 3 else [3])
+    assert [item.thruster for item in lasting.detections] == [3, 6]
+    assert lasting.detections[1].step >= 100 + hold_isolated - 1
+
+
 def test_the_offset_columns_are_lstsq_and_recover_a_stuck_thruster(boat):
     """Stuck thruster 2 at 12 N (h = 0, s = 12): bias T_2 (12 − f_2); lstsq on columns built here."""
     rng = np.random.default_rng(8)
@@ -316,7 +381,8 @@ def test_the_fault_tolerant_nmpc_is_told_the_estimated_health(survey, boat, tmp_
         faults=(uo.ThrusterFault(2, 6.0),),
         fault_detector=uo.FaultDetectorOptions(),
     )
-    assert run.detections.shape == (1, 3) and int(run.detections[0, 1]) == 2
+    assert run.detections.shape == (1, 4) and int(run.detections[0, 1]) == 2
+    assert run.detections[0, 3] == 0.0  # told a loss (a complete failure), not stuck
     declared = int(round((run.detections[0, 0] - run.t[0]) / DT))
     steps = controller.told[-run.controls.shape[0] :]  # warm_up's own steps come first
     # the detector decides on step k's estimate, before the controller's step k
@@ -344,6 +410,7 @@ def test_the_fault_tolerant_nmpc_is_told_the_estimated_health(survey, boat, tmp_
         ("threshold", 0.0, "threshold"),
         ("significance", -1.0, "significance"),
         ("hold", 0, "hold"),
+        ("hold_isolated", 0, "hold_isolated"),
         ("arm_time", -1.0, "arm_time"),
         ("min_force", 0.0, "min_force"),
         ("ridge", -1.0, "ridge"),

@@ -354,6 +354,76 @@ def test_thruster_dynamics_apply_the_allocation():
         )
 
 
+def _responding(constant):
+    """Return the BlueROV2 Heavy with thrusters of first-order time constant(s) ``constant`` (s)."""
+    vehicle = Vehicle6DOF.bluerov2_heavy(thrusters=True)
+    return dataclasses.replace(
+        vehicle, thrusters=dataclasses.replace(vehicle.thrusters, time_constant=constant)
+    )
+
+
+def test_a_zero_thruster_time_constant_is_the_vehicle_without_response():
+    """τ = 0 (explicit) is the default vehicle: equal, 12 states, the same numbers bit for bit."""
+    default, explicit = Vehicle6DOF.bluerov2_heavy(thrusters=True), _responding(0.0)
+    assert explicit == default and explicit.state_dim == 12 and explicit.layout == default.layout
+    rng = np.random.default_rng(4)
+    state, forces, current = random_state(rng), rng.uniform(-40.0, 40.0, 8), rng.normal(scale=0.3, size=3)
+    health, offset = rng.uniform(0.0, 1.0, 8), rng.uniform(-5.0, 5.0, 8)
+    np.testing.assert_array_equal(
+        call(explicit.thruster_dynamics, state, forces, current),
+        call(default.dynamics, state, default.allocation @ forces, current),
+    )
+    np.testing.assert_allclose(  # numpy's and CasADi's T (h ∘ f + s) round differently
+        call(explicit.faulty_thruster_dynamics, state, forces, current, health, offset),
+        call(default.dynamics, state, default.allocation @ (health * forces + offset), current),
+        rtol=1e-14,
+        atol=1e-13,
+    )
+
+
+def test_the_thruster_response_is_the_analytic_first_order_step_through_rk4():
+    """A step command from rest: ``f_a(t) = f (1 − exp(−t/τ))`` per thruster, through ``rk4_step``.
+
+    The rigid body sees the delivered force: its derivative is :attr:`dynamics` at ``T f_a``.
+    """
+    from uuv_ocp.integrators import rk4_step
+
+    constants = np.array([0.05, 0.1, 0.2, 0.4, 0.1, 0.1, 0.3, 0.15])
+    vehicle = _responding(tuple(constants))
+    assert vehicle.state_dim == 20 and vehicle.layout.velocities == tuple(range(14, 20))
+    assert vehicle.state_names[6:14] == tuple(f"f_a{i}" for i in range(1, 9))
+    rng = np.random.default_rng(6)
+    command = rng.uniform(-30.0, 30.0, 8)
+    dt, steps = 0.005, 200
+    step = rk4_step(vehicle.thruster_dynamics, dt)
+    x = np.zeros(20)
+    x[2] = 2.0
+    for k in range(1, steps + 1):
+        x = np.array(step(x, command, np.zeros(3))).ravel()
+        expected = command * (1.0 - np.exp(-k * dt / constants))
+        np.testing.assert_allclose(x[6:14], expected, rtol=0.0, atol=1e-6 * np.abs(command).max())
+    state, delivered, current = random_state(rng), rng.uniform(-40.0, 40.0, 8), rng.normal(scale=0.3, size=3)
+    full = np.concatenate([state[:6], delivered, state[6:]])
+    derivative = call(vehicle.thruster_dynamics, full, command, current)
+    body = call(vehicle.dynamics, state, vehicle.allocation @ delivered, current)
+    np.testing.assert_allclose(np.r_[derivative[:6], derivative[14:]], body, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(derivative[6:14], (command - delivered) / constants, rtol=1e-12)
+    health = np.full(8, 0.5)  # a fault acts on what the thruster delivers
+    faulty = call(vehicle.faulty_thruster_dynamics, full, command, current, health, np.zeros(8))
+    np.testing.assert_allclose(
+        faulty[14:],
+        call(vehicle.dynamics, state, vehicle.allocation @ (0.5 * delivered), current)[6:],
+        rtol=1e-12,
+        atol=1e-12,
+    )
+
+
+@pytest.mark.parametrize("constant", [-0.1, (0.1, 0.0, 0.1, 0.1, 0.1, 0.1, 0.1, 0.1)])
+def test_bad_thruster_time_constants_are_refused_by_name(constant):
+    with pytest.raises(ValueError, match="time_constant"):
+        _responding(constant)
+
+
 def test_derived_max_thrust_and_rates():
     params = dict(general_parameters(), max_thrust=None, thrusters=ThrusterConfiguration.bluerov2_heavy())
     vehicle = Vehicle6DOF(**params)

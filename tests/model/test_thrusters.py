@@ -5,6 +5,7 @@ limits against its published geometry, the RexROV 2's matrix against uuv_simulat
 """
 
 import numpy as np
+import pytest
 
 from uuv_ocp.model.fossen6dof import Vehicle6DOF
 from uuv_ocp.model.thrusters import ThrusterConfiguration
@@ -106,3 +107,14 @@ def test_rexrov_thrusters_reach_the_planar_box_corners_without_saturating():
             np.zeros(8), A_eq=config.allocation, b_eq=target, bounds=[(-2000.0, 2000.0)] * 8, method="highs"
         )
         assert result.status == 0, (signs, result.message)
+
+
+def test_a_time_constant_is_broadcast_and_all_zero_or_all_positive():
+    """A scalar τ applies to every thruster; 0 (default) means no response; mixed is refused."""
+    layout = ThrusterConfiguration.bluerov2_heavy()
+    assert layout.time_constant == (0.0,) * 8 and not layout.responds
+    slow = ThrusterConfiguration(layout.positions, layout.directions, layout.max_thrust, time_constant=0.1)
+    assert slow.time_constant == (0.1,) * 8 and slow.responds and slow != layout
+    for bad in ((0.1,) * 7 + (0.0,), -0.1, (0.1,) * 7):
+        with pytest.raises(ValueError, match="time_constant"):
+            ThrusterConfiguration(layout.positions, layout.directions, layout.max_thrust, time_constant=bad)

@@ -205,9 +205,11 @@ class ClosedLoopResult:
         the plant's true effectiveness of each thruster on each interval; empty otherwise.
     thruster_forces : numpy.ndarray, shape (n, thrusters), optional
         Such a run's force each thruster delivered on each interval (N, ``h ∘ f + s``).
-    detections : numpy.ndarray, shape (m, 3), optional
+    detections : numpy.ndarray, shape (m, 4), optional
         A run with ``fault_detector``: one row per detection, ``(time s, thruster, estimated
-        health)`` (:mod:`uuv_ocp.estimation.faults`); empty otherwise.
+        health, stuck force N)`` (:mod:`uuv_ocp.estimation.faults`; the force is 0 for a loss,
+        non-zero for a thruster declared stuck); empty otherwise.  Records saved before the
+        fourth column have three.
     estimated_health : numpy.ndarray, shape (n, thrusters), optional
         Such a run's regression health ``1 − clip(ℓ)`` of every thruster per step (NaN until
         a full window); empty otherwise.
@@ -244,7 +246,7 @@ class ClosedLoopResult:
     sensor_sizes: tuple[int, ...] = ()
     thruster_health: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     thruster_forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
-    detections: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    detections: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     estimated_health: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     #: the fields of a run with an estimator (saved only when there was one)
@@ -502,7 +504,8 @@ def simulate(
         The fault-tolerant NMPC: detect and isolate thruster faults from the estimator's bias
         (:mod:`uuv_ocp.estimation.faults`; needs ``estimator`` with ``EstimatorOptions(bias=True)``
         and a vehicle with thrusters) and, from a detection on, tell the controller the
-        *estimated* health.  ``run.detections`` (rows ``time s, thruster, estimated health``) and
+        *estimated* health.  ``run.detections`` (rows ``time s, thruster, estimated health, stuck
+        force N``) and
         ``run.estimated_health`` (the regression's health per step, NaN before a full window)
         record it.
 
@@ -622,8 +625,10 @@ def _detected(
 ) -> ClosedLoopResult:
     """Return ``result`` with the detector's detections and per-step estimated health."""
     n = result.controls.shape[0]
-    rows = [(item.time, item.thruster, item.health) for item in detector.detections if item.step < n]
-    detections = np.array(rows, dtype=float).reshape(-1, 3)
+    rows = [
+        (item.time, item.thruster, item.health, item.offset) for item in detector.detections if item.step < n
+    ]
+    detections = np.array(rows, dtype=float).reshape(-1, 4)
     return dataclasses.replace(result, detections=detections, estimated_health=health[:n].copy())
 
 

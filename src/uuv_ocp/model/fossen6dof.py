@@ -234,7 +234,10 @@ class Vehicle6DOF:
         (:attr:`control_dim` is the number of thrusters, bounded by the thrusters' own
         ``max_thrust``), :attr:`allocation` gives ``T`` with ``τ = T f`` and
         :attr:`thruster_dynamics` is ``f(x, f, current)``.  :attr:`dynamics` still takes the
-        generalised force ``τ``.
+        generalised force ``τ``.  Thrusters with a first-order response
+        (``ThrusterConfiguration.time_constant`` > 0) add their delivered forces ``f_a`` (N) to
+        the state, between the pose and the velocities: ``[η, f_a, ν]``, ``ḟ_a = (f − f_a) / τ``,
+        ``τ_gen = T f_a`` (:attr:`state_dim` 12 + n).
 
     Notes
     -----
@@ -465,9 +468,14 @@ class Vehicle6DOF:
 
     # --------------------------------------------------------------- dimensions
     @property
+    def response_dim(self) -> int:
+        """Number of delivered-thrust states: n with a thruster response, else 0."""
+        return self.thrusters.count if self.thrusters is not None and self.thrusters.responds else 0
+
+    @property
     def state_dim(self) -> int:
-        """Length of the state vector (12)."""
-        return STATE_DIM
+        """Length of the state vector (12, or 12 + n with a thruster response)."""
+        return STATE_DIM + self.response_dim
 
     @property
     def control_dim(self) -> int:
@@ -481,13 +489,14 @@ class Vehicle6DOF:
 
     @property
     def state_names(self) -> tuple[str, ...]:
-        """Names of the state components."""
-        return STATE_NAMES
+        """Names of the state components (``f_a1, ...`` after the pose with a thruster response)."""
+        delivered = tuple(f"f_a{index + 1}" for index in range(self.response_dim))
+        return STATE_NAMES[:6] + delivered + STATE_NAMES[6:]
 
     @property
     def state_units(self) -> tuple[str, ...]:
         """Units of the state components."""
-        return STATE_UNITS
+        return STATE_UNITS[:6] + ("N",) * self.response_dim + STATE_UNITS[6:]
 
     @property
     def control_names(self) -> tuple[str, ...]:
@@ -506,15 +515,16 @@ class Vehicle6DOF:
     @cached_property  # read on every parameters() call of a closed loop: built once
     def layout(self) -> VehicleLayout:
         """State ``[x, y, z, φ, θ, ψ, u, v, w, p, q, r]``, the control's names, spatial references."""
+        nx = self.state_dim
         return VehicleLayout(
-            state_names=STATE_NAMES,
-            state_units=STATE_UNITS,
+            state_names=self.state_names,
+            state_units=self.state_units,
             control_names=self.control_names,
             control_units=self.control_units,
             positions=(0, 1, 2),
             angles=(3, 4, 5),
             heading=5,
-            velocities=tuple(range(6, 12)),
+            velocities=tuple(range(nx - 6, nx)),
             current_dim=CURRENT_DIM,
             reference="spatial",
         )
@@ -827,10 +837,25 @@ class Vehicle6DOF:
         """Return the cached :attr:`dynamics` Function (same call as the 3-DOF model's method)."""
         return self.dynamics
 
+    def _responding(self, state, forces, generalised, current):
+        """``ẋ`` of a thruster vehicle: ``generalised(f)`` drives the 12 rigid-body states.
+
+        Without a response ``f`` is the command; with one it is the delivered ``f_a`` (the state
+        block after the pose) and ``ḟ_a = (f − f_a) / τ`` joins the derivative.
+        """
+        n = self.response_dim
+        if n == 0:
+            return self.dynamics_expression(state, generalised(forces), current)
+        body = ca.vertcat(state[:6], state[6 + n :])
+        delivered = state[6 : 6 + n]
+        rate = (forces - delivered) / ca.DM(self.thrusters.time_constant)  # type: ignore[union-attr]
+        derivative = self.dynamics_expression(body, generalised(delivered), current)
+        return ca.vertcat(derivative[:6], rate, derivative[6:])
+
     @cached_property
     @serialised
     def thruster_dynamics(self) -> ca.Function:
-        """``thruster_dynamics(x[12], f[n], current[3]) -> xdot[12]`` with ``τ = T f``.
+        """``thruster_dynamics(x[nx], f[n], current[3]) -> xdot[nx]`` with ``τ = T f`` (nx = state_dim).
 
         Inputs are named ``"x"``, ``"f"``, ``"current"`` and the output ``"xdot"``.
 
@@ -840,13 +865,13 @@ class Vehicle6DOF:
             If the vehicle has no thrusters.
         """
         allocation = ca.DM(self.allocation)
-        state = ca.SX.sym("x", STATE_DIM)
+        state = ca.SX.sym("x", self.state_dim)
         forces = ca.SX.sym("f", allocation.shape[1])
         current = ca.SX.sym("current", CURRENT_DIM)
         return ca.Function(
             "thruster_dynamics",
             [state, forces, current],
-            [self.dynamics_expression(state, allocation @ forces, current)],
+            [self._responding(state, forces, lambda delivered: allocation @ delivered, current)],
             ["x", "f", "current"],
             ["xdot"],
         )
@@ -854,7 +879,7 @@ class Vehicle6DOF:
     @cached_property
     @serialised
     def faulty_thruster_dynamics(self) -> ca.Function:
-        """``(x[12], f[n], current[3], health[n], thrust_offset[n]) -> xdot[12]``, ``τ = T (h ∘ f + s)``.
+        """``(x[nx], f[n], current[3], health[n], thrust_offset[n]) -> xdot[nx]``, ``τ = T (h ∘ f + s)``.
 
         Inputs are named ``"x"``, ``"f"``, ``"current"``, ``"health"``, ``"thrust_offset"``;
         equal to :attr:`thruster_dynamics` at ``health = 1``, ``thrust_offset = 0`` (see
@@ -867,16 +892,16 @@ class Vehicle6DOF:
         """
         allocation = ca.DM(self.allocation)
         count = allocation.shape[1]
-        state = ca.SX.sym("x", STATE_DIM)
+        state = ca.SX.sym("x", self.state_dim)
         forces = ca.SX.sym("f", count)
         current = ca.SX.sym("current", CURRENT_DIM)
         health = ca.SX.sym("health", count)
         offset = ca.SX.sym("thrust_offset", count)
-        delivered = health * forces + offset
+        # the fault acts on what the thruster delivers (after its response, if it has one)
         return ca.Function(
             "faulty_thruster_dynamics",
             [state, forces, current, health, offset],
-            [self.dynamics_expression(state, allocation @ delivered, current)],
+            [self._responding(state, forces, lambda f: allocation @ (health * f + offset), current)],
             ["x", "f", "current", "health", "thrust_offset"],
             ["xdot"],
         )

@@ -66,6 +66,13 @@ class ThrusterConfiguration:
         Symmetric bound ``|f_i| <= max_thrust[i]`` (N), > 0.  A scalar applies to every thruster.
     name : str
         Label used in tables and plots.
+    time_constant : float or array_like, shape (n,)
+        First-order response of each thruster (s), ``ḟ_a = (f − f_a) / τ``: the delivered
+        force ``f_a`` lags the command ``f``.  Either all 0 (default: the command acts at once,
+        the vehicle's state stays 12-long) or all > 0 (the vehicle's state carries ``f_a``,
+        :class:`~uuv_ocp.model.Vehicle6DOF`); a scalar applies to every thruster.  Why not
+        mixed: a thruster with τ = 0 has no state, and one layout per vehicle keeps the state's
+        meaning fixed.
 
     Notes
     -----
@@ -76,6 +83,7 @@ class ThrusterConfiguration:
     directions: tuple[tuple[float, float, float], ...]
     max_thrust: tuple[float, ...]
     name: str = "thrusters"
+    time_constant: tuple[float, ...] | float = 0.0
 
     def __post_init__(self) -> None:
         """Validate shapes, finiteness, unit directions and bounds; store rows as tuples."""
@@ -103,6 +111,18 @@ class ThrusterConfiguration:
         set_field(self, "max_thrust", check.vector("max_thrust", max_thrust, count, positive=True))
         if not isinstance(self.name, str):
             raise ValueError(f"name must be a string, got {self.name!r}")
+        constant = self.time_constant
+        if isinstance(constant, (int, float)) and not isinstance(constant, bool):
+            constant = (constant,) * count
+        constants = check.vector("time_constant", constant, count, nonnegative=True)
+        if any(constants) and not all(constants):
+            raise ValueError(f"time_constant must be all 0 or all > 0 (s), got {constants!r}")
+        set_field(self, "time_constant", constants)
+
+    @property
+    def responds(self) -> bool:
+        """True when the thrusters have a first-order response (``time_constant`` > 0)."""
+        return any(self.time_constant)  # type: ignore[arg-type]
 
     # ------------------------------------------------------------------ presets
     @classmethod

@@ -30,6 +30,7 @@ import argparse
 import json
 import math
 import os
+import select
 import subprocess
 import sys
 import time
@@ -113,8 +114,18 @@ def worker(config: dict) -> None:
         print(json.dumps(closed_loop(controller, problem, start, config["steps"])), flush=True)
 
 
+#: seconds a worker may take to build its row (``--build-timeout``; ``None``: no limit)
+BUILD_TIMEOUT: float | None = None
+#: rows left out and why (label: reason), filled by :func:`interleaved`
+LEFT_OUT: dict[str, str] = {}
+
+
 def interleaved(configs: dict[str, dict], rounds: int) -> dict[str, dict]:
-    """Run every configuration's worker, ``rounds`` loops each, interleaved; median per row."""
+    """Run every configuration's worker, ``rounds`` loops each, interleaved; median per row.
+
+    A worker that fails to build, or takes longer than :data:`BUILD_TIMEOUT` seconds (compiled
+    fatrop's JIT of the unrolled NLP at N = 80), is left out (:data:`LEFT_OUT` says why).
+    """
     workers = {}
     for label, config in configs.items():
         path = [config.pop("src", None) or str(ROOT / "src"), str(ROOT)]
@@ -128,9 +139,19 @@ def interleaved(configs: dict[str, dict], rounds: int) -> dict[str, dict]:
             text=True,
         )
         assert process.stdout is not None
+        begin = time.perf_counter()
+        ready, _, _ = select.select([process.stdout], [], [], BUILD_TIMEOUT)
+        if not ready:
+            process.kill()
+            process.wait()
+            LEFT_OUT[label] = f"not built within {BUILD_TIMEOUT:.0f} s"
+            print(f"{label}: {LEFT_OUT[label]}", file=sys.stderr, flush=True)
+            continue
         if not process.stdout.readline():  # a build failed: the row is left out
+            LEFT_OUT[label] = "the build failed"
             print(f"{label}: worker failed", file=sys.stderr)
             continue
+        print(f"{label}: built in {time.perf_counter() - begin:.0f} s", file=sys.stderr, flush=True)
         workers[label] = process
     samples: dict[str, list[dict]] = {label: [] for label in workers}
     try:
@@ -186,6 +207,9 @@ def scaling(
             times = [rows.get(json.dumps([vehicle, label, n]), {}).get("wall", math.nan) for n in horizons]
             cells = " | ".join("–" if not np.isfinite(t) else f"{t:.3f}" for t in times)
             lines.append(f"| {vehicle} | {label} | {cells} | {growth_exponent(list(horizons), times):.2f} |")
+    for key, reason in LEFT_OUT.items():
+        vehicle, label, horizon = json.loads(key)
+        lines.append(f"\n{vehicle}, {label}, N = {horizon}: {reason}")
     return "\n".join(lines)
 
 
@@ -293,12 +317,17 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--no-fatrop", action="store_true", help="scaling table without compiled fatrop")
     parser.add_argument("--quick", action="store_true", help="N = 10, 20, 40 and one round")
     parser.add_argument(
+        "--build-timeout", type=float, metavar="S", help="leave out a row whose build takes longer"
+    )
+    parser.add_argument(
         "--breakdown", action="store_true", help="--vehicle's RTI step split against N (10..80)"
     )
     arguments = parser.parse_args(argv)
     if arguments.worker:
         worker(json.loads(arguments.worker))
         return
+    global BUILD_TIMEOUT
+    BUILD_TIMEOUT = arguments.build_timeout
     print(f"load: {os.getloadavg()}")
     if arguments.breakdown:
         print(breakdown(arguments.vehicle, HORIZONS, arguments.rounds, arguments.steps))

@@ -72,7 +72,7 @@ def closed_loop(controller: object, problem: object, start: np.ndarray, steps: i
     still = np.zeros(plant.size1_in(2))
     controller.reset()
     state, control = start.copy(), np.zeros(problem.spec().control_size)
-    wall, cpu, lin, qp, eq = [], [], [], [], []
+    wall, cpu, lin, qp, eq, fast, sqp, ipm = [], [], [], [], [], [], [], []
     for k in range(steps):
         begin, begin_cpu = time.perf_counter(), time.thread_time()
         output = controller.step(state, k * problem.dt, control)
@@ -82,10 +82,13 @@ def closed_loop(controller: object, problem: object, start: np.ndarray, steps: i
             wall.append(elapsed)
             cpu.append(elapsed_cpu)
             info = getattr(getattr(controller, "_deferred", None), "info", None)
-            if getattr(output, "fast_path", False) and info is not None:
+            fast.append(bool(getattr(output, "fast_path", False)))
+            if fast[-1] and info is not None:
                 lin.append(info[6])
                 qp.append(info[7])
                 eq.append(info[4] == 0)
+                sqp.append(info[0])  # Gauss-Newton iterations of the step
+                ipm.append(info[4])  # HPIPM iterations of its last QP
         state = np.array(plant(state, control, still)).ravel()
 
     def median(values: list) -> float:
@@ -97,6 +100,10 @@ def closed_loop(controller: object, problem: object, start: np.ndarray, steps: i
         "lin": median(lin),
         "qp": median(qp),
         "equality_first": float(np.mean(eq)) if eq else math.nan,
+        # the share of steps the C step answered (the rest: solve()'s chain), its iterations
+        "fast": float(np.mean(fast)) if fast else math.nan,
+        "sqp_iterations": float(np.mean(sqp)) if sqp else math.nan,
+        "qp_iterations": float(np.median(ipm)) if ipm else math.nan,
     }
 
 
@@ -271,20 +278,28 @@ def compare_options(vehicle: str, horizon: int, variants: dict[str, dict], round
     return "\n".join(lines)
 
 
-def breakdown(vehicle: str, horizons: tuple[int, ...], rounds: int, steps: int) -> str:
-    """Split the default RTI step of ``vehicle`` against N: linearisation, QP, the rest, exponents.
+def breakdown(
+    vehicle: str, horizons: tuple[int, ...], rounds: int, steps: int, converged: bool = False
+) -> str:
+    """Split the ``sqp-rti`` step of ``vehicle`` against N: linearisation, QP, the rest, exponents.
 
     Each horizon a worker of its own, interleaved (:func:`interleaved`); "Python" is the median
     wall time minus the medians of the C step's two clocks (an estimate: medians do not add).
+    ``converged``: the converged mode, whose steps the C step answers only when it converges
+    (the rest go through ``solve()``): the share it answered and its iterations are listed.
     """
+    options = CONVERGED if converged else RTI
     configs = {
-        str(n): {"vehicle": vehicle, "horizon": n, "solver": "sqp-rti", "options": RTI, "steps": steps}
+        str(n): {"vehicle": vehicle, "horizon": n, "solver": "sqp-rti", "options": options, "steps": steps}
         for n in horizons
     }
     rows = interleaved(configs, rounds)
     found = [n for n in horizons if str(n) in rows]
+    mode = "converged" if converged else "rti"
     lines = [
-        f"| {vehicle}, sqp-rti rti | " + " | ".join(f"N = {n}" for n in found) + " | exponent (N = 20..80) |",
+        f"| {vehicle}, sqp-rti {mode} | "
+        + " | ".join(f"N = {n}" for n in found)
+        + " | exponent (N = 20..80) |",
         "|" + "---|" * (len(found) + 2),
     ]
     ordered = [rows[str(n)] for n in found]
@@ -299,6 +314,12 @@ def breakdown(vehicle: str, horizons: tuple[int, ...], rounds: int, steps: int) 
         lines.append(f"| {name} | {cells} | {growth_exponent(found, times):.2f} |")
     shares = " | ".join(f"{row['equality_first']:.2f}" for row in ordered)
     lines.append(f"| QPs answered by equality first | {shares} | |")
+    for key, name in (
+        ("fast", "steps the C step answered"),
+        ("sqp_iterations", "Gauss-Newton iterations (mean, C steps)"),
+        ("qp_iterations", "HPIPM iterations of the last QP (median)"),
+    ):
+        lines.append(f"| {name} | " + " | ".join(f"{row[key]:.2f}" for row in ordered) + " | |")
     return "\n".join(lines)
 
 
@@ -314,6 +335,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--vehicle", default="bluerov2", choices=VEHICLES)
     parser.add_argument("--only-vehicle", action="store_true", help="only --vehicle (--against, the table)")
     parser.add_argument("--horizon", type=int, default=20)
+    parser.add_argument("--converged", action="store_true", help="--breakdown of the converged mode")
     parser.add_argument("--no-fatrop", action="store_true", help="scaling table without compiled fatrop")
     parser.add_argument("--quick", action="store_true", help="N = 10, 20, 40 and one round")
     parser.add_argument(
@@ -330,7 +352,7 @@ def main(argv: list[str] | None = None) -> None:
     BUILD_TIMEOUT = arguments.build_timeout
     print(f"load: {os.getloadavg()}")
     if arguments.breakdown:
-        print(breakdown(arguments.vehicle, HORIZONS, arguments.rounds, arguments.steps))
+        print(breakdown(arguments.vehicle, HORIZONS, arguments.rounds, arguments.steps, arguments.converged))
     elif arguments.options:
         variants = json.loads(arguments.options)
         rounds, steps = arguments.rounds, arguments.steps

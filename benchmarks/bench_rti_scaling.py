@@ -30,6 +30,7 @@ import argparse
 import json
 import math
 import os
+import select
 import subprocess
 import sys
 import time
@@ -71,7 +72,7 @@ def closed_loop(controller: object, problem: object, start: np.ndarray, steps: i
     still = np.zeros(plant.size1_in(2))
     controller.reset()
     state, control = start.copy(), np.zeros(problem.spec().control_size)
-    wall, cpu, lin, qp, eq = [], [], [], [], []
+    wall, cpu, lin, qp, eq, fast, sqp, ipm = [], [], [], [], [], [], [], []
     for k in range(steps):
         begin, begin_cpu = time.perf_counter(), time.thread_time()
         output = controller.step(state, k * problem.dt, control)
@@ -81,10 +82,13 @@ def closed_loop(controller: object, problem: object, start: np.ndarray, steps: i
             wall.append(elapsed)
             cpu.append(elapsed_cpu)
             info = getattr(getattr(controller, "_deferred", None), "info", None)
-            if getattr(output, "fast_path", False) and info is not None:
+            fast.append(bool(getattr(output, "fast_path", False)))
+            if fast[-1] and info is not None:
                 lin.append(info[6])
                 qp.append(info[7])
                 eq.append(info[4] == 0)
+                sqp.append(info[0])  # Gauss-Newton iterations of the step
+                ipm.append(info[4])  # HPIPM iterations of its last QP
         state = np.array(plant(state, control, still)).ravel()
 
     def median(values: list) -> float:
@@ -96,6 +100,10 @@ def closed_loop(controller: object, problem: object, start: np.ndarray, steps: i
         "lin": median(lin),
         "qp": median(qp),
         "equality_first": float(np.mean(eq)) if eq else math.nan,
+        # the share of steps the C step answered (the rest: solve()'s chain), its iterations
+        "fast": float(np.mean(fast)) if fast else math.nan,
+        "sqp_iterations": float(np.mean(sqp)) if sqp else math.nan,
+        "qp_iterations": float(np.median(ipm)) if ipm else math.nan,
     }
 
 
@@ -113,8 +121,18 @@ def worker(config: dict) -> None:
         print(json.dumps(closed_loop(controller, problem, start, config["steps"])), flush=True)
 
 
+#: seconds a worker may take to build its row (``--build-timeout``; ``None``: no limit)
+BUILD_TIMEOUT: float | None = None
+#: rows left out and why (label: reason), filled by :func:`interleaved`
+LEFT_OUT: dict[str, str] = {}
+
+
 def interleaved(configs: dict[str, dict], rounds: int) -> dict[str, dict]:
-    """Run every configuration's worker, ``rounds`` loops each, interleaved; median per row."""
+    """Run every configuration's worker, ``rounds`` loops each, interleaved; median per row.
+
+    A worker that fails to build, or takes longer than :data:`BUILD_TIMEOUT` seconds (compiled
+    fatrop's JIT of the unrolled NLP at N = 80), is left out (:data:`LEFT_OUT` says why).
+    """
     workers = {}
     for label, config in configs.items():
         path = [config.pop("src", None) or str(ROOT / "src"), str(ROOT)]
@@ -128,9 +146,19 @@ def interleaved(configs: dict[str, dict], rounds: int) -> dict[str, dict]:
             text=True,
         )
         assert process.stdout is not None
+        begin = time.perf_counter()
+        ready, _, _ = select.select([process.stdout], [], [], BUILD_TIMEOUT)
+        if not ready:
+            process.kill()
+            process.wait()
+            LEFT_OUT[label] = f"not built within {BUILD_TIMEOUT:.0f} s"
+            print(f"{label}: {LEFT_OUT[label]}", file=sys.stderr, flush=True)
+            continue
         if not process.stdout.readline():  # a build failed: the row is left out
+            LEFT_OUT[label] = "the build failed"
             print(f"{label}: worker failed", file=sys.stderr)
             continue
+        print(f"{label}: built in {time.perf_counter() - begin:.0f} s", file=sys.stderr, flush=True)
         workers[label] = process
     samples: dict[str, list[dict]] = {label: [] for label in workers}
     try:
@@ -179,13 +207,28 @@ def scaling(
                     "steps": steps,
                 }
     rows = interleaved({json.dumps(key): dict(config) for key, config in configs.items()}, rounds)
-    header = "| vehicle | solver | " + " | ".join(f"N = {n}" for n in horizons) + " | exponent (N = 20..80) |"
+    # wall and thread CPU: on a shared machine a step longer than about a millisecond is
+    # preempted, so the wall exponent can be the load's (docs/benchmarks.md, issue 29)
+    header = (
+        "| vehicle | solver | "
+        + " | ".join(f"N = {n}, wall (CPU)" for n in horizons)
+        + " | exponent (N = 20..80), wall (CPU) |"
+    )
     lines = [header, "|" + "---|" * (len(horizons) + 3)]
     for vehicle in vehicles:
         for label, _, _ in solvers:
-            times = [rows.get(json.dumps([vehicle, label, n]), {}).get("wall", math.nan) for n in horizons]
-            cells = " | ".join("–" if not np.isfinite(t) else f"{t:.3f}" for t in times)
-            lines.append(f"| {vehicle} | {label} | {cells} | {growth_exponent(list(horizons), times):.2f} |")
+            found = [rows.get(json.dumps([vehicle, label, n]), {}) for n in horizons]
+            walls = [row.get("wall", math.nan) for row in found]
+            cpus = [row.get("cpu", math.nan) for row in found]
+            cells = " | ".join(
+                "–" if not np.isfinite(w) else f"{w:.3f} ({c:.3f})" for w, c in zip(walls, cpus, strict=True)
+            )
+            wall_exponent, cpu_exponent = (growth_exponent(list(horizons), t) for t in (walls, cpus))
+            exponents = f"{wall_exponent:.2f} ({cpu_exponent:.2f})"
+            lines.append(f"| {vehicle} | {label} | {cells} | {exponents} |")
+    for key, reason in LEFT_OUT.items():
+        vehicle, label, horizon = json.loads(key)
+        lines.append(f"\n{vehicle}, {label}, N = {horizon}: {reason}")
     return "\n".join(lines)
 
 
@@ -247,20 +290,28 @@ def compare_options(vehicle: str, horizon: int, variants: dict[str, dict], round
     return "\n".join(lines)
 
 
-def breakdown(vehicle: str, horizons: tuple[int, ...], rounds: int, steps: int) -> str:
-    """Split the default RTI step of ``vehicle`` against N: linearisation, QP, the rest, exponents.
+def breakdown(
+    vehicle: str, horizons: tuple[int, ...], rounds: int, steps: int, converged: bool = False
+) -> str:
+    """Split the ``sqp-rti`` step of ``vehicle`` against N: linearisation, QP, the rest, exponents.
 
     Each horizon a worker of its own, interleaved (:func:`interleaved`); "Python" is the median
     wall time minus the medians of the C step's two clocks (an estimate: medians do not add).
+    ``converged``: the converged mode, whose steps the C step answers only when it converges
+    (the rest go through ``solve()``): the share it answered and its iterations are listed.
     """
+    options = CONVERGED if converged else RTI
     configs = {
-        str(n): {"vehicle": vehicle, "horizon": n, "solver": "sqp-rti", "options": RTI, "steps": steps}
+        str(n): {"vehicle": vehicle, "horizon": n, "solver": "sqp-rti", "options": options, "steps": steps}
         for n in horizons
     }
     rows = interleaved(configs, rounds)
     found = [n for n in horizons if str(n) in rows]
+    mode = "converged" if converged else "rti"
     lines = [
-        f"| {vehicle}, sqp-rti rti | " + " | ".join(f"N = {n}" for n in found) + " | exponent (N = 20..80) |",
+        f"| {vehicle}, sqp-rti {mode} | "
+        + " | ".join(f"N = {n}" for n in found)
+        + " | exponent (N = 20..80) |",
         "|" + "---|" * (len(found) + 2),
     ]
     ordered = [rows[str(n)] for n in found]
@@ -275,6 +326,12 @@ def breakdown(vehicle: str, horizons: tuple[int, ...], rounds: int, steps: int) 
         lines.append(f"| {name} | {cells} | {growth_exponent(found, times):.2f} |")
     shares = " | ".join(f"{row['equality_first']:.2f}" for row in ordered)
     lines.append(f"| QPs answered by equality first | {shares} | |")
+    for key, name in (
+        ("fast", "steps the C step answered"),
+        ("sqp_iterations", "Gauss-Newton iterations (mean, C steps)"),
+        ("qp_iterations", "HPIPM iterations of the last QP (median)"),
+    ):
+        lines.append(f"| {name} | " + " | ".join(f"{row[key]:.2f}" for row in ordered) + " | |")
     return "\n".join(lines)
 
 
@@ -290,8 +347,12 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--vehicle", default="bluerov2", choices=VEHICLES)
     parser.add_argument("--only-vehicle", action="store_true", help="only --vehicle (--against, the table)")
     parser.add_argument("--horizon", type=int, default=20)
+    parser.add_argument("--converged", action="store_true", help="--breakdown of the converged mode")
     parser.add_argument("--no-fatrop", action="store_true", help="scaling table without compiled fatrop")
     parser.add_argument("--quick", action="store_true", help="N = 10, 20, 40 and one round")
+    parser.add_argument(
+        "--build-timeout", type=float, metavar="S", help="leave out a row whose build takes longer"
+    )
     parser.add_argument(
         "--breakdown", action="store_true", help="--vehicle's RTI step split against N (10..80)"
     )
@@ -299,9 +360,11 @@ def main(argv: list[str] | None = None) -> None:
     if arguments.worker:
         worker(json.loads(arguments.worker))
         return
+    global BUILD_TIMEOUT
+    BUILD_TIMEOUT = arguments.build_timeout
     print(f"load: {os.getloadavg()}")
     if arguments.breakdown:
-        print(breakdown(arguments.vehicle, HORIZONS, arguments.rounds, arguments.steps))
+        print(breakdown(arguments.vehicle, HORIZONS, arguments.rounds, arguments.steps, arguments.converged))
     elif arguments.options:
         variants = json.loads(arguments.options)
         rounds, steps = arguments.rounds, arguments.steps

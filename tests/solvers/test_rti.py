@@ -219,6 +219,40 @@ def test_equality_first_solves_an_inactive_qp_exactly(problem, calm_instance, co
     np.testing.assert_allclose(lam_g, results[False].iterate.lam_g, rtol=0, atol=1e-5 * scale)
 
 
+@pytest.mark.parametrize("cond_horizon", [0, 5])
+def test_x0_elimination_solves_the_qp_with_x0_in_its_box(problem, instance, cond_horizon):
+    """x_0 out of HPIPM's QP (``eliminate_x0``, the default) gives the former QP's step and multipliers.
+
+    The former QP keeps x_0 as a variable fixed by the box lbx = ubx (``eliminate_x0=False``);
+    on an instance with an active rate bound (HPIPM's path: ``equality_first=False``), tight
+    tolerances, the two steps agree to 1e-9 (1e-8 condensed) and both, with their multipliers
+    (x_0's box ones by stationarity in the eliminated QP), are KKT points of the independently
+    built Gauss–Newton QP.
+    """
+    needs_compiler("hpipm-ocp")
+    x0, reference = instance
+    data = problem.build().hard
+    w, warm = perturbed_states(data, reference.iterate.primal, seed=3)
+    p = problem.parameters(x0, 3.0)
+    results = {}
+    for eliminate in (True, False):
+        settings = {**TIGHT_OCP, "cond_horizon": cond_horizon, "equality_first": False}
+        settings["eliminate_x0"] = eliminate
+        backend = get_solver(problem, "sqp-rti", {"qpsol": "hpipm-ocp", "qpsol_options": settings})
+        results[eliminate] = backend.solve(p, warm)
+        assert results[eliminate].success and results[eliminate].iterations == 1
+        assert backend.ocp_step("hard", results[eliminate].details["still_water"]).info[4] > 0  # HPIPM's
+    eliminated, boxed = results[True].iterate, results[False].iterate
+    # condensed, HPIPM's own accuracy at these tolerances is the limit (2.3e-9 apart, measured)
+    np.testing.assert_allclose(eliminated.primal, boxed.primal, rtol=0, atol=1e-8 if cond_horizon else 1e-9)
+    # the multipliers are not unique here (a control at its box and its rate bound: dependent
+    # active rows), so each set is checked as a KKT point of the QP, x_0's rows included
+    initial = np.array([key[0] == "initial" for key in data.constraint_keys])
+    assert np.max(np.abs(eliminated.lam_g[initial])) > 1e-3  # x_0's multipliers carry weight
+    for result in results.values():
+        assert_qp_kkt(data, w, p, result, tolerance=1e-8)
+
+
 def assert_qp_kkt(data, w: np.ndarray, p: np.ndarray, result, tolerance: float = 1e-9) -> None:
     """Assert that ``result``'s step and multipliers are a KKT point of the Gauss–Newton QP at ``w``.
 
@@ -361,6 +395,10 @@ def test_closed_loop_holds_box_and_rate_bounds(problem, qpsol):
         (
             {"qpsol": "hpipm-ocp", "qpsol_options": {"equality_first": 0}},
             "options['qpsol_options']['equality_first']",
+        ),
+        (
+            {"qpsol": "hpipm-ocp", "qpsol_options": {"eliminate_x0": 1}},
+            "options['qpsol_options']['eliminate_x0']",
         ),
     ],
 )

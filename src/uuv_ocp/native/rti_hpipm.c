@@ -67,6 +67,11 @@ typedef struct {
   /* partial condensing to cond_n stages (0: none): the IPM runs on pqp */
   int cond_n;
   int eq_first;           /* try rti_eq_solve before HPIPM */
+  /* x_0 eliminated from HPIPM's QP (rti_x0_fixed): stage 0 has no state there, its fixed value
+   * enters b_0, r_0 and the stage-0 rows' bounds (rti_set_bounds0) */
+  int elim;
+  double xbar[RTI_MAX_NX], b0[RTI_MAX_NX], r0[RTI_MAX_NU], lg0[RTI_MAX_NG], ug0[RTI_MAX_NG];
+  double lam0[2 * (RTI_MAX_NU + RTI_MAX_NG)]; /* HPIPM's stage-0 multipliers without x_0's box */
   int qp_status;          /* HPIPM's status of the last QP (0 when rti_eq_solve solved it) */
   rti_eq eq;
   struct d_ocp_qp_dim pdim;
@@ -165,10 +170,11 @@ static int rti_rescue_create(const double* settings, struct d_ocp_qp_dim* dim, s
 }
 
 static int rti_eq_applies(void);
+static int rti_x0_fixed(void);
 
 /* options: the QP solver's settings (rti_ipm_create's seven), the partial condensing horizon
  * (0 or >= N: none), loose_first (0/1), the first QP's seven settings (read when loose_first),
- * and equality_first (0/1).
+ * equality_first (0/1) and eliminate_x0 (0/1: x_0 out of HPIPM's QP where rti_x0_fixed).
  * Returns NULL when out of memory. */
 void* uuv_rti_create(const double* options) {
   rti_memory* m = (rti_memory*)calloc(1, sizeof(rti_memory));
@@ -178,10 +184,11 @@ void* uuv_rti_create(const double* options) {
   m->dim_mem = malloc(d_ocp_qp_dim_memsize(RTI_N));
   if (!m->dim_mem) goto fail;
   d_ocp_qp_dim_create(RTI_N, &m->dim, m->dim_mem);
+  m->elim = options[17] != 0.0 && rti_x0_fixed();
   for (k = 0; k <= RTI_N; ++k) {
-    d_ocp_qp_dim_set_nx(k, rti_nx[k], &m->dim);
+    d_ocp_qp_dim_set_nx(k, k == 0 && m->elim ? 0 : rti_nx[k], &m->dim);
     d_ocp_qp_dim_set_nu(k, rti_nu[k], &m->dim);
-    d_ocp_qp_dim_set_nbx(k, rti_nbx[k], &m->dim);
+    d_ocp_qp_dim_set_nbx(k, k == 0 && m->elim ? 0 : rti_nbx[k], &m->dim);
     d_ocp_qp_dim_set_nbu(k, rti_nbu[k], &m->dim);
     d_ocp_qp_dim_set_ng(k, rti_ng[k], &m->dim);
     d_ocp_qp_dim_set_ns(k, 0, &m->dim);
@@ -225,7 +232,7 @@ void* uuv_rti_create(const double* options) {
                          &m->first_rescue_ws_mem, &m->first_rescue)))
     goto fail;
   for (k = 0; k <= RTI_N; ++k) {
-    if (rti_nbx[k]) d_ocp_qp_set_idxbx(k, (int*)(rti_idxbx + rti_obx[k]), &m->qp);
+    if (rti_nbx[k] && !(k == 0 && m->elim)) d_ocp_qp_set_idxbx(k, (int*)(rti_idxbx + rti_obx[k]), &m->qp);
     if (rti_nbu[k]) d_ocp_qp_set_idxbu(k, (int*)(rti_idxbu + rti_obu[k]), &m->qp);
   }
   return m;
@@ -241,7 +248,43 @@ static int rti_evaluate(rti_memory* m, const double* w, const double* p) {
   return RTI_DATA(m->arg_ptr, m->res_ptr, m->iw, m->w, 0);
 }
 
+/* Stage 0 of HPIPM's QP with x_0 = xbar eliminated: b_0 + A_0 xbar, r_0 + S_0 xbar and the
+ * stage-0 rows' bounds minus C_0 xbar (xbar from the box as moved by feedback). */
+static void rti_set_stage0(rti_memory* m) {
+  const double* data = m->data;
+  const int* o = rti_off[0];
+  const int nx = rti_nx[0], nu = rti_nu[0], ng = rti_ng[0], nx1 = RTI_N ? rti_nx[1] : 0;
+  int i, j;
+  for (i = 0; i < rti_nbx[0]; ++i) m->xbar[rti_idxbx[rti_obx[0] + i]] = m->lbx0[i];
+  for (i = 0; i < nx1; ++i) {
+    double v = data[o[O_BV] + i];
+    for (j = 0; j < nx; ++j) v += data[o[O_A] + i + j * nx1] * m->xbar[j];
+    m->b0[i] = v;
+  }
+  for (i = 0; i < nu; ++i) {
+    double v = data[o[O_RV] + i];
+    for (j = 0; j < nx; ++j) v += data[o[O_S] + i + j * nu] * m->xbar[j];
+    m->r0[i] = v;
+  }
+  for (i = 0; i < ng; ++i) {
+    double v = 0.0;
+    for (j = 0; j < nx; ++j) v += data[o[O_C] + i + j * ng] * m->xbar[j];
+    m->lg0[i] = data[o[O_LG] + i] - v;
+    m->ug0[i] = data[o[O_UG] + i] - v;
+  }
+  if (RTI_N) d_ocp_qp_set_b(0, m->b0, &m->qp);
+  d_ocp_qp_set_r(0, m->r0, &m->qp);
+  if (ng) {
+    d_ocp_qp_set_lg(0, m->lg0, &m->qp);
+    d_ocp_qp_set_ug(0, m->ug0, &m->qp);
+  }
+}
+
 static void rti_set_bounds0(rti_memory* m) {
+  if (m->elim) {
+    rti_set_stage0(m);
+    return;
+  }
   if (rti_nbx[0]) {
     d_ocp_qp_set_lbx(0, m->lbx0, &m->qp);
     d_ocp_qp_set_ubx(0, m->lbx0, &m->qp); /* the measured-state rows are equalities */
@@ -255,21 +298,26 @@ static void rti_load(rti_memory* m) {
   double* data = m->data;
   for (k = 0; k <= RTI_N; ++k) {
     const int* o = rti_off[k];
+    const int full = !(k == 0 && m->elim); /* stage 0 without x_0: B, R, D here, the rest in rti_set_stage0 */
     if (k < RTI_N) {
-      d_ocp_qp_set_A(k, data + o[O_A], &m->qp);
+      if (full) d_ocp_qp_set_A(k, data + o[O_A], &m->qp);
       d_ocp_qp_set_B(k, data + o[O_B], &m->qp);
-      d_ocp_qp_set_b(k, data + o[O_BV], &m->qp);
+      if (full) d_ocp_qp_set_b(k, data + o[O_BV], &m->qp);
     }
-    d_ocp_qp_set_Q(k, data + o[O_Q], &m->qp);
-    d_ocp_qp_set_S(k, data + o[O_S], &m->qp);
+    if (full) {
+      d_ocp_qp_set_Q(k, data + o[O_Q], &m->qp);
+      d_ocp_qp_set_S(k, data + o[O_S], &m->qp);
+      d_ocp_qp_set_q(k, data + o[O_QV], &m->qp);
+      d_ocp_qp_set_r(k, data + o[O_RV], &m->qp);
+    }
     d_ocp_qp_set_R(k, data + o[O_R], &m->qp);
-    d_ocp_qp_set_q(k, data + o[O_QV], &m->qp);
-    d_ocp_qp_set_r(k, data + o[O_RV], &m->qp);
     if (rti_ng[k]) {
-      d_ocp_qp_set_C(k, data + o[O_C], &m->qp);
+      if (full) {
+        d_ocp_qp_set_C(k, data + o[O_C], &m->qp);
+        d_ocp_qp_set_lg(k, data + o[O_LG], &m->qp);
+        d_ocp_qp_set_ug(k, data + o[O_UG], &m->qp);
+      }
       d_ocp_qp_set_D(k, data + o[O_D], &m->qp);
-      d_ocp_qp_set_lg(k, data + o[O_LG], &m->qp);
-      d_ocp_qp_set_ug(k, data + o[O_UG], &m->qp);
       d_ocp_qp_set_lg_mask(k, (double*)(rti_lg_mask + rti_og[k]), &m->qp);
       d_ocp_qp_set_ug_mask(k, (double*)(rti_ug_mask + rti_og[k]), &m->qp);
     }
@@ -524,9 +572,12 @@ static int rti_eq_small_solve(int n, double* M, double* rhs, double* x) {
 }
 
 /* The structure rti_eq_solve needs: x_0 fully fixed by its box, no inputs at stage N. */
-static int rti_eq_applies(void) {
+static int rti_eq_applies(void) { return rti_nu[RTI_N] == 0 && rti_x0_fixed(); }
+
+/* x_0 wholly fixed by its stage-0 box (lbx = ubx on every entry): it can leave HPIPM's QP. */
+static int rti_x0_fixed(void) {
   int i;
-  if (rti_nu[RTI_N] != 0 || rti_nbx[0] != rti_nx[0]) return 0;
+  if (rti_nbx[0] != rti_nx[0]) return 0;
   for (i = 0; i < rti_nbx[0]; ++i)
     if (rti_lbx_mask[rti_obx[0] + i] == 0.0 || rti_ubx_mask[rti_obx[0] + i] == 0.0) return 0;
   return 1;
@@ -610,6 +661,28 @@ static int rti_eq_structure(rti_memory* m) {
 
 static double rti_excess(const rti_memory* m, int inequalities_only);
 
+/* x_0's box multipliers (m->lam, stage 0) from stationarity in x_0 at the solution in m->ux,
+ * m->pi and the stage-0 rows' multipliers: the QPs that do not give them (rti_eq_solve, HPIPM's
+ * QP with x_0 eliminated). */
+static void rti_x0_multipliers(rti_memory* m) {
+  const double* data = m->data;
+  const int* o = rti_off[0];
+  const int nx = rti_nx[0], nu = rti_nu[0], nx1 = RTI_N ? rti_nx[1] : 0, nbk = rti_nbu[0] + rti_nbx[0];
+  const int ng = rti_ng[0];
+  const double *u = m->ux + rti_oux[0], *x = u + nu, *pi = m->pi;
+  double* lam = m->lam + rti_olam[0];
+  int i, l;
+  for (i = 0; i < rti_nbx[0]; ++i) {
+    const int jx = rti_idxbx[rti_obx[0] + i];
+    double v = data[o[O_QV] + jx]; /* Q x + S'u + q + A'pi + C'(lam_ug - lam_lg) in x_0's jx */
+    for (l = 0; l < nx; ++l) v += data[o[O_Q] + jx + l * nx] * x[l];
+    for (l = 0; l < nu; ++l) v += data[o[O_S] + l + jx * nu] * u[l];
+    for (l = 0; l < nx1; ++l) v += data[o[O_A] + l + jx * nx1] * pi[l];
+    for (l = 0; l < ng; ++l) v += data[o[O_C] + l + jx * ng] * rti_row_net(lam, nbk, ng, l);
+    rti_split(-v, lam + rti_nbu[0] + i, lam + nbk + rti_nbu[0] + i); /* lam_ub - lam_lb = -v */
+  }
+}
+
 /* Solve the loaded QP with its equalities alone; 1 (m->ux, m->pi, m->lam written) when that
  * solution satisfies every inequality and sign condition, else 0 (the QP goes to HPIPM). */
 static int rti_eq_solve(rti_memory* m) {
@@ -680,22 +753,7 @@ static int rti_eq_solve(rti_memory* m) {
       lam[rti_eq_ubox(k, j)] = v;
     }
   }
-  {
-    const int* o = rti_off[0];
-    const int nx = rti_nx[0], nu = rti_nu[0], nx1 = RTI_N ? rti_nx[1] : 0, nbk = rti_nbu[0] + rti_nbx[0];
-    const int ng = rti_ng[0];
-    const double *u = m->ux + rti_oux[0], *x = u + nu, *pi = m->pi;
-    double* lam = m->lam + rti_olam[0];
-    for (i = 0; i < rti_nbx[0]; ++i) {
-      const int jx = rti_idxbx[rti_obx[0] + i];
-      double v = data[o[O_QV] + jx]; /* Q x + S'u + q + A'pi + C'(lam_ug - lam_lg) in x_0's jx */
-      for (l = 0; l < nx; ++l) v += data[o[O_Q] + jx + l * nx] * x[l];
-      for (l = 0; l < nu; ++l) v += data[o[O_S] + l + jx * nu] * u[l];
-      for (l = 0; l < nx1; ++l) v += data[o[O_A] + l + jx * nx1] * pi[l];
-      for (l = 0; l < ng; ++l) v += data[o[O_C] + l + jx * ng] * rti_row_net(lam, nbk, ng, l);
-      rti_split(-v, lam + rti_nbu[0] + i, lam + nbk + rti_nbu[0] + i); /* lam_ub - lam_lb = -v */
-    }
-  }
+  rti_x0_multipliers(m);
   return 1;
 }
 
@@ -747,13 +805,29 @@ static int rti_hpipm_solve(rti_memory* m) {
     double *u = m->ux + rti_oux[k], *x = u + rti_nu[k], *lam = m->lam + rti_olam[k];
     const int nbk = rti_nbu[k] + rti_nbx[k], ng = rti_ng[k];
     d_ocp_qp_sol_get_u(k, &m->sol, u);
-    d_ocp_qp_sol_get_x(k, &m->sol, x);
     if (k < RTI_N) d_ocp_qp_sol_get_pi(k, &m->sol, m->pi + rti_ox[k + 1] - rti_nx[0]);
+    if (k == 0 && m->elim) {
+      /* HPIPM's stage 0 has the input boxes and the rows: spread them into the layout with
+       * x_0's box, whose multipliers come from stationarity once pi_0 is known */
+      const int nbu = rti_nbu[0];
+      double* h = m->lam0;
+      memcpy(x, m->xbar, sizeof(double) * rti_nx[0]);
+      d_ocp_qp_sol_get_lam_lb(0, &m->sol, h);
+      d_ocp_qp_sol_get_lam_ub(0, &m->sol, h + nbu);
+      d_ocp_qp_sol_get_lam_lg(0, &m->sol, h + 2 * nbu);
+      d_ocp_qp_sol_get_lam_ug(0, &m->sol, h + 2 * nbu + ng);
+      memcpy(lam, h, sizeof(double) * nbu);
+      memcpy(lam + nbk, h + nbu, sizeof(double) * nbu);
+      memcpy(lam + 2 * nbk, h + 2 * nbu, sizeof(double) * 2 * ng);
+      continue;
+    }
+    d_ocp_qp_sol_get_x(k, &m->sol, x);
     d_ocp_qp_sol_get_lam_lb(k, &m->sol, lam);
     d_ocp_qp_sol_get_lam_ub(k, &m->sol, lam + nbk);
     d_ocp_qp_sol_get_lam_lg(k, &m->sol, lam + 2 * nbk);
     d_ocp_qp_sol_get_lam_ug(k, &m->sol, lam + 2 * nbk + ng);
   }
+  if (m->elim) rti_x0_multipliers(m);
   return iterations;
 }
 

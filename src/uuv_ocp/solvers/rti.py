@@ -182,7 +182,8 @@ class RtiOptions(NlpOptions):
         AUTO,
         "dict",
         "options of the QP solver (`hpipm-ocp`: `mode`, `iter_max`, `tol_stat`, `tol_eq`, "
-        "`tol_ineq`, `tol_comp`, `warm_start`, `cond_horizon`, `loose_first_qp`, `equality_first`; with "
+        "`tol_ineq`, `tol_comp`, `warm_start`, `cond_horizon`, `loose_first_qp`, `equality_first`, "
+        "`eliminate_x0`; with "
         "`qpsol='auto'`, options with other keys, e.g. CasADi's `{'hpipm': {...}}`, select `hpipm`)",
         meaning="`HPIPM_DEFAULTS` (residuals 1e-10) for hpipm in converged mode, `OCP_QP_CONVERGED` "
         "(balance mode, 1e-10) for hpipm-ocp in converged mode, else `{}`",

@@ -74,6 +74,10 @@ OCP_QP_DEFAULTS: dict[str, Any] = {
     #: try the QP with its equalities alone first (one Riccati recursion; see the module doc);
     #: ``"auto"``: where its estimated cost per stage is below :data:`EQUALITY_FIRST_MAX_STAGE_FLOPS`
     "equality_first": "auto",
+    #: take the fixed first state x_0 out of HPIPM's QP (stage 0 without a state: its value
+    #: enters b_0, r_0 and the stage-0 rows' bounds, as acados' x0 elimination); ``False``: x_0
+    #: a variable with the box lbx = ubx, the former QP (same solution to the QP tolerance)
+    "eliminate_x0": True,
 }
 #: ``equality_first="auto"``: the Riccati solve is tried first where :func:`equality_first_flops`
 #: (one factorisation and ne + 2 passes of the hand-written scalar C) per stage stays below
@@ -142,7 +146,7 @@ def ocp_qp_options(options: dict[str, Any], converged: bool, horizon: int = 0) -
             raise ValueError(
                 f"{name} must be 'auto' or an int >= 0 (0: no partial condensing), got {value!r}"
             )
-        if key in ("warm_start", "loose_first_qp") and not isinstance(value, bool):
+        if key in ("warm_start", "loose_first_qp", "eliminate_x0") and not isinstance(value, bool):
             raise ValueError(f"{name} must be True or False, got {value!r}")
         if key == "equality_first" and not (isinstance(value, bool) or value == "auto"):
             raise ValueError(f"{name} must be True, False or 'auto', got {value!r}")
@@ -904,7 +908,7 @@ def _options_array(options: dict[str, Any]) -> list[float]:
 
     The QP solver's settings, the partial condensing horizon, ``loose_first_qp``, the first
     QP's settings (``loose_settings``, with the same ``iter_max`` and warm start), then
-    ``equality_first``.
+    ``equality_first`` and ``eliminate_x0``.
     """
 
     def settings(source: dict[str, Any]) -> list[float]:
@@ -918,6 +922,7 @@ def _options_array(options: dict[str, Any]) -> list[float]:
         float(options["loose_first_qp"]),
         *settings(options["loose_settings"]),
         float(options["equality_first"]),
+        float(options["eliminate_x0"]),
     ]
 
 

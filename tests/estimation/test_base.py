@@ -232,14 +232,19 @@ def test_review_fixes_name_what_is_wrong():
         estimator.reset(problem.initial_state(), covariance=covariance)
 
 
-def test_an_estimated_current_the_loop_cannot_hand_over_is_refused():
-    ocp = uo.Ocp(horizon=5, dt=0.1)
+def _drifting_integrator(horizon: int, dt: float) -> tuple[uo.Ocp, Sensors]:
+    """``ẋ = u + current`` (a stagewise current parameter) and a 10 Hz fix of ``x``."""
+    ocp = uo.Ocp(horizon=horizon, dt=dt)
     x = ocp.state("x")
     u = ocp.control("u", lower=-1.0, upper=1.0)
     current = ocp.parameter("current", stagewise=True)
     ocp.set_der(x, u + current)
     ocp.add_stage_cost(x**2 + u**2)
-    sensors = Sensors([Sensor.of_states("fix", [0], 1, 10.0, 0.01)])
+    return ocp, Sensors([Sensor.of_states("fix", [0], 1, 10.0, 0.01)])
+
+
+def test_an_estimated_current_the_loop_cannot_hand_over_is_refused():
+    ocp, sensors = _drifting_integrator(horizon=5, dt=0.1)
     estimator = Estimator(ocp, "ekf", sensors=sensors, parameters={"current": 0.0})
     assert estimator.model.nc == 1
     with pytest.raises(ValueError, match="estimator estimates a current of 1 entries"):
@@ -338,13 +343,7 @@ def test_the_current_handed_to_a_controller_is_low_passed_at_the_filters_bandwid
     within 1e-3 of it).  A second record of the same step does not move it; ``reset`` restarts it.
     """
     dt, T = 0.1, 10.0
-    ocp = uo.Ocp(horizon=3, dt=dt)
-    x = ocp.state("x")
-    u = ocp.control("u", lower=-1.0, upper=1.0)
-    current = ocp.parameter("current", stagewise=True)
-    ocp.set_der(x, u + current)
-    ocp.add_stage_cost(x**2 + u**2)
-    sensors = Sensors([Sensor.of_states("fix", [0], 1, 10.0, 0.01)])
+    ocp, sensors = _drifting_integrator(horizon=3, dt=dt)
     options = EstimatorOptions(current_filter=T, compiled=False)
     estimator = Estimator(ocp, "ekf", sensors=sensors, options=options, parameters={"current": 0.0})
     estimator.reset([0.0], current=[0.2])

@@ -441,7 +441,7 @@ class NMPC:
             failure_reason = f"exception: {type(error).__name__}: {error}"
         else:
             if preparable and isinstance(outcome, DeferredPlan):
-                finite = bool(np.all(np.isfinite(outcome.control)))  # a plug-in's NaN is no plan
+                finite = bool(np.isfinite(outcome.control).all())  # a plug-in's NaN: no plan
                 if finite and self._holds_path_constraints(outcome, p):  # judged where paths bind
                     self._deferred = outcome  # its iterate and plan are built when needed
                     control = self._admissible(outcome.control, u_prev)
@@ -599,8 +599,12 @@ class NMPC:
         lower, upper, step = self._bounds  # not written to: np.maximum/minimum make new arrays
         if u_prev is not None:
             previous = np.asarray(u_prev, dtype=float)
-            lower = np.maximum(lower, previous - step)
-            upper = np.minimum(upper, previous + step)
+            low = previous - step  # fresh arrays, so the maxima below can be written into them
+            np.maximum(lower, low, out=low)
+            high = previous + step
+            np.minimum(upper, high, out=high)
+            np.maximum(low, high, out=high)  # the same operations as before, fewer temporaries
+            return np.minimum(np.maximum(control, low), high)
         # np.clip's values (NaN included) without its dispatch, which costs more than the
         # arithmetic on a few controls
         return np.minimum(np.maximum(control, lower), np.maximum(lower, upper))

@@ -545,7 +545,7 @@ class SwarmSolver:
             if seeds.shape[0] > self.population:
                 raise ValueError(
                     f"initial must leave room in the population ({self.population}) beside the centre "
-                    f"plan, got {len(initial)} rows"
+                    f"plan, got {len(rows)} rows"
                 )
         evaluate = self._evaluate
         archive = self._candidate_archive(p) if self.candidates > 1 else None

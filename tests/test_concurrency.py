@@ -112,7 +112,8 @@ class _Lazy:
     """Two instances' built_once values: counts the computations and whether BUILD_LOCK was held."""
 
     def __init__(self, tag: int) -> None:
-        self.tag, self.calls, self.held = tag, 0, []
+        self.tag, self.calls = tag, 0
+        self.held: list[bool] = []
 
     @built_once
     def value(self) -> int:
@@ -154,8 +155,11 @@ class _Building:
 
 
 def test_built_once_has_no_lock_of_its_own_to_invert_with_the_build_lock():
-    """Forced interleaving: with functools.cached_property (Python 3.11) the reader holds the class
-    attribute's lock and waits for BUILD_LOCK while the builder holds BUILD_LOCK and waits for it."""
+    """Forced interleaving of a builder holding BUILD_LOCK and a reader of another instance.
+
+    With functools.cached_property (Python 3.11) the reader holds the class attribute's lock and
+    waits for BUILD_LOCK while the builder holds BUILD_LOCK and waits for that lock.
+    """
     first, second = _Building(), _Building()
     holding = threading.Event()
 

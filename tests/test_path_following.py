@@ -521,7 +521,9 @@ def test_with_state_chooses_the_path_window_again() -> None:
 
 
 def test_reading_a_window_while_another_problem_builds_does_not_deadlock(monkeypatch) -> None:
-    """.window and .geometry were functools.cached_property (one lock per class attribute in
+    """Reading b.window while a.ocp is being built in another thread returns (forced interleaving).
+
+    .window and .geometry were functools.cached_property (one lock per class attribute in
     Python 3.11) taking BUILD_LOCK inside, while .ocp holds BUILD_LOCK and reads .window: a
     lock-order inversion across instances.  Forced interleaving (legal in any run): B reads
     b.window while A is inside a._declare, holding BUILD_LOCK, before A reads a.window.
@@ -553,5 +555,7 @@ def test_reading_a_window_while_another_problem_builds_does_not_deadlock(monkeyp
         thread.join(20.0)  # a regression fails here instead of hanging the suite
     assert not any(thread.is_alive() for thread in threads), "deadlock: both threads still waiting after 20 s"
     fresh = PathFollowingProblem(uo.Remus100(), survey, speed=1.5, horizon=21, dt=0.5)  # this thread
-    assert isinstance(b.window, path_following.PathWindow) and b.window.rows == fresh.window.rows
+    window, expected = b.window, fresh.window
+    assert isinstance(window, path_following.PathWindow) and isinstance(expected, path_following.PathWindow)
+    assert window.rows == expected.rows
     assert b.path_end == fresh.path_end and "_declared_ocp" in a.__dict__

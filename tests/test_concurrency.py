@@ -10,7 +10,7 @@ import time
 import numpy as np
 import pytest
 
-from uuv_ocp._concurrency import BUILD_LOCK, BuildCache, serialised
+from uuv_ocp._concurrency import BUILD_LOCK, BuildCache, built_once, serialised
 
 
 def test_values_are_built_once_and_returned_by_identity():
@@ -106,3 +106,76 @@ def test_serialised_functions_never_overlap():
 def test_size_must_be_positive():
     with pytest.raises(ValueError, match="size must be an integer >= 1, got 0"):
         BuildCache(0)
+
+
+class _Lazy:
+    """Two instances' built_once values: counts the computations and whether BUILD_LOCK was held."""
+
+    def __init__(self, tag: int) -> None:
+        self.tag, self.calls = tag, 0
+        self.held: list[bool] = []
+
+    @built_once
+    def value(self) -> int:
+        self.calls += 1
+        self.held.append(BUILD_LOCK._is_owned())  # type: ignore[attr-defined]
+        time.sleep(0.05)  # widen the window in which other threads ask for it
+        return 10 * self.tag
+
+
+def test_built_once_computes_once_under_the_build_lock_and_then_reads_without_it():
+    lazy = _Lazy(3)
+    answers: list[int] = []
+    threads = [threading.Thread(target=lambda: answers.append(lazy.value), daemon=True) for _ in range(4)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=10.0)
+    assert answers == [30] * 4 and lazy.calls == 1 and lazy.held == [True]
+    read = []
+    with BUILD_LOCK:  # another thread building: the filled value is read without the lock
+        thread = threading.Thread(target=lambda: read.append(lazy.value), daemon=True)
+        thread.start()
+        thread.join(timeout=5.0)
+    assert read == [30]
+    assert isinstance(_Lazy.value, built_once)
+
+
+class _Building:
+    """A property that builds (takes BUILD_LOCK inside), like PathFollowingProblem.window did."""
+
+    def __init__(self) -> None:
+        self.calls = 0
+
+    @built_once
+    def value(self) -> int:
+        with BUILD_LOCK:
+            self.calls += 1
+            return self.calls
+
+
+def test_built_once_has_no_lock_of_its_own_to_invert_with_the_build_lock():
+    """Forced interleaving of a builder holding BUILD_LOCK and a reader of another instance.
+
+    With functools.cached_property (Python 3.11) the reader holds the class attribute's lock and
+    waits for BUILD_LOCK while the builder holds BUILD_LOCK and waits for that lock.
+    """
+    first, second = _Building(), _Building()
+    holding = threading.Event()
+
+    def builder() -> None:
+        with BUILD_LOCK:  # an Ocp's _declare: holds the lock, then reads the property
+            holding.set()
+            time.sleep(0.2)  # the reader asks for its value meanwhile
+            _ = first.value
+
+    threads = [
+        threading.Thread(target=builder, daemon=True),
+        threading.Thread(target=lambda: (holding.wait(), second.value), daemon=True),
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(timeout=10.0)  # a regression fails here instead of hanging the suite
+    assert not any(thread.is_alive() for thread in threads), "deadlock: both threads still waiting"
+    assert (first.value, second.value, first.calls, second.calls) == (1, 1, 1, 1)

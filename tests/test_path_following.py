@@ -518,3 +518,44 @@ def test_with_state_chooses_the_path_window_again() -> None:
     window = problem.spec().layout.entries["path_window"][0]
     assert not np.array_equal(p[window], expected[window])  # another window
     np.testing.assert_array_equal(problem.with_state(p, x_turn), expected)
+
+
+def test_reading_a_window_while_another_problem_builds_does_not_deadlock(monkeypatch) -> None:
+    """Reading b.window while a.ocp is being built in another thread returns (forced interleaving).
+
+    .window and .geometry were functools.cached_property (one lock per class attribute in
+    Python 3.11) taking BUILD_LOCK inside, while .ocp holds BUILD_LOCK and reads .window: a
+    lock-order inversion across instances.  Forced interleaving (legal in any run): B reads
+    b.window while A is inside a._declare, holding BUILD_LOCK, before A reads a.window.
+    """
+    import threading
+    import time
+
+    from uuv_ocp import path_following
+
+    survey = uo.Reference.lawnmower(width=150.0, spacing=60.0, lanes=3, speed=1.5, depth=10.0)
+    a = PathFollowingProblem(uo.Remus100(), survey, speed=1.5, horizon=20, dt=0.5)
+    b = PathFollowingProblem(uo.Remus100(), survey, speed=1.5, horizon=21, dt=0.5)
+    inside = threading.Event()
+    original = path_following.vehicle_rhs
+
+    def slow_rhs(*args, **kwargs):  # A is in _declare, holding BUILD_LOCK
+        inside.set()
+        time.sleep(0.3)  # B asks for its window meanwhile
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(path_following, "vehicle_rhs", slow_rhs)
+    threads = [
+        threading.Thread(target=lambda: a.ocp, daemon=True),
+        threading.Thread(target=lambda: (inside.wait(), b.window, b.path_end), daemon=True),
+    ]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join(20.0)  # a regression fails here instead of hanging the suite
+    assert not any(thread.is_alive() for thread in threads), "deadlock: both threads still waiting after 20 s"
+    fresh = PathFollowingProblem(uo.Remus100(), survey, speed=1.5, horizon=21, dt=0.5)  # this thread
+    window, expected = b.window, fresh.window
+    assert isinstance(window, path_following.PathWindow) and isinstance(expected, path_following.PathWindow)
+    assert window.rows == expected.rows
+    assert b.path_end == fresh.path_end and "_declared_ocp" in a.__dict__

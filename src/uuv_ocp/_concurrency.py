@@ -15,7 +15,7 @@ import functools
 import threading
 from collections import OrderedDict
 from collections.abc import Callable, Hashable
-from typing import Generic, ParamSpec, TypeVar
+from typing import Any, Generic, ParamSpec, TypeVar, overload
 
 #: Held while the package builds CasADi objects, generates or compiles code, or loads a library.
 #: Re-entrant: a build may call other builders.
@@ -84,3 +84,37 @@ class BuildCache(Generic[V]):
         """Forget every entry."""
         with self._lock:
             self._entries.clear()
+
+
+class built_once(Generic[R]):  # noqa: N801 (a decorator, named like functools.cached_property)
+    """``functools.cached_property`` whose first computation runs under :data:`BUILD_LOCK`.
+
+    Python 3.11's ``cached_property`` holds one lock per class attribute (shared by every
+    instance) while it computes: a property that builds (takes :data:`BUILD_LOCK` inside) then
+    deadlocks against a builder that holds :data:`BUILD_LOCK` and reads it on another instance.
+    Here :data:`BUILD_LOCK` is the only lock, taken first; once filled, the instance's
+    ``__dict__`` answers (a non-data descriptor), so reads take no lock.
+    """
+
+    def __init__(self, function: Callable[[Any], R]) -> None:
+        self.function = function
+        self.name = function.__name__
+        self.__doc__ = function.__doc__
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    @overload
+    def __get__(self, instance: None, owner: type | None = None) -> built_once[R]: ...
+
+    @overload
+    def __get__(self, instance: object, owner: type | None = None) -> R: ...
+
+    def __get__(self, instance: object, owner: type | None = None) -> R | built_once[R]:
+        if instance is None:
+            return self
+        cache = instance.__dict__
+        with BUILD_LOCK:
+            if self.name not in cache:  # another thread may have filled it while this one waited
+                cache[self.name] = self.function(instance)
+            return cache[self.name]

@@ -48,7 +48,6 @@ on ``s > path_end`` at nodes 1..N, so the vehicle comes to the end of the path a
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
@@ -59,7 +58,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 
 from uuv_ocp import _validation as check
-from uuv_ocp._concurrency import BUILD_LOCK
+from uuv_ocp._concurrency import built_once
 from uuv_ocp.control.guidance import cruise_propeller_speed
 from uuv_ocp.control.scenario import Scenario, plant_dynamics, scenario
 from uuv_ocp.integrators import rk4_path
@@ -310,7 +309,7 @@ class PathWindow:
             blocks.append(np.vstack([chosen, padding]).ravel())
         return np.concatenate(blocks)
 
-    @functools.cached_property
+    @built_once
     def _steps(self) -> tuple[np.ndarray, np.ndarray]:
         """Where (in s) a window's first row changes, and the window rows between those steps.
 
@@ -510,13 +509,14 @@ class PathFollowingProblem(DeclaredPreset):
         return tuple(float(value) for value in lower)
 
     # ------------------------------------------------------------- the Ocp
-    @functools.cached_property
+    # built_once, not functools.cached_property: its per-attribute lock, taken before BUILD_LOCK,
+    # deadlocked against an .ocp being built (BUILD_LOCK held) that reads another problem's window
+    @built_once
     def geometry(self) -> ca.Function:
-        """``s -> (p(s), p'(s))`` of the path (:func:`path_geometry`)."""
-        with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
-            return path_geometry(self.path)
+        """``s -> (p(s), p'(s))`` of the path (:func:`path_geometry`; built under BUILD_LOCK)."""
+        return path_geometry(self.path)
 
-    @functools.cached_property
+    @built_once
     def window(self) -> PathWindow | None:
         """The pieces the horizon can reach as a parameter (:class:`PathWindow`), or ``None``.
 
@@ -527,8 +527,7 @@ class PathFollowingProblem(DeclaredPreset):
             return None
         assert self.max_path_speed is not None
         reach = WINDOW_REACH_FACTOR * self.horizon * self.dt * self.max_path_speed + WINDOW_MARGIN
-        with BUILD_LOCK:  # CasADi expressions are built here (uuv_ocp._concurrency)
-            return PathWindow.of(self.path, reach)
+        return PathWindow.of(self.path, reach)  # under BUILD_LOCK (built_once)
 
     def _declare(self) -> Ocp:
         vehicle, weights = self.vehicle, self.weights
@@ -672,7 +671,7 @@ class PathFollowingProblem(DeclaredPreset):
         return np.r_[state, self.closest_parameter(state[list(layout.positions)])]
 
     # ------------------------------------------------------------- projection
-    @functools.cached_property
+    @built_once
     def polyline(self) -> tuple[np.ndarray, np.ndarray]:
         """Samples ``(times (m,), positions (m, d))`` of the path for the closest-point projection.
 
@@ -688,7 +687,7 @@ class PathFollowingProblem(DeclaredPreset):
         columns = [0, 1, 2] if self.path.spatial else [0, 1]
         return times, self.path.evaluate(times)[:, columns]
 
-    @functools.cached_property
+    @built_once
     def path_end(self) -> float:
         """Last path parameter (s) the path parameter may reach: ``inf`` for an unbounded window.
 

@@ -39,7 +39,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
-from uuv_ocp._concurrency import BUILD_LOCK
+from uuv_ocp._concurrency import BUILD_LOCK, built_once
 from uuv_ocp.build import Transcribed
 from uuv_ocp.model.base import (
     ModelParameter,
@@ -592,7 +592,7 @@ class TrackingProblem(DeclaredPreset):
             ocp.subject_to(obstacle.clearance(state[horizontal], centre, tolerance) >= 0)
         return ocp
 
-    @functools.cached_property
+    @built_once
     def obstacle_tolerances(self) -> tuple[float, ...]:
         """Tolerance (m) each obstacle's node constraint holds (``obstacle_tolerance`` resolved)."""
         if not isinstance(self.obstacle_tolerance, str):  # "auto" is the only string __post_init__ keeps
@@ -627,7 +627,7 @@ class TrackingProblem(DeclaredPreset):
         """Column of the heading in the vehicle's (reference) state."""
         return int(self.vehicle.layout.heading)
 
-    @functools.cached_property  # read on every instance of a closed loop: gathered once
+    @built_once  # read on every instance of a closed loop: gathered once
     def model_parameters(self) -> tuple[ModelParameter, ...]:
         """The vehicle's model parameters (``vehicle.model_parameters``; ``()`` if it declares none).
 
@@ -726,7 +726,7 @@ class TrackingProblem(DeclaredPreset):
         window = parts[0] if len(parts) == 1 else np.concatenate(parts)
         return window if window.shape[0] == horizon + 1 else None
 
-    @functools.cached_property
+    @built_once
     def sample_blocks(self) -> dict[int, tuple[int, np.ndarray] | None]:
         """Reference samples already taken, by block of :data:`SAMPLE_BLOCK` intervals (a memo).
 
@@ -845,7 +845,7 @@ class TrackingProblem(DeclaredPreset):
             for item in declared
         )
 
-    @functools.cached_property
+    @built_once
     def _default_model_values(self) -> tuple[tuple[str, np.ndarray], ...]:
         """The model parameters' defaults (only read: written into each new ``p``)."""
         return tuple((item.name, np.array(item.default)) for item in self.model_parameters)
@@ -865,7 +865,7 @@ class TrackingProblem(DeclaredPreset):
         _move_heading_branch(window, x0[heading_index], heading_index)
         return new
 
-    @functools.cached_property
+    @built_once
     def _parameter_layout(self) -> tuple[Any, int, int]:
         """The layout of ``p``, the current's size and the heading's column (the hot path's memo)."""
         return (self.spec().layout, vehicle_dimensions(self.vehicle)[2], self._heading_index)

@@ -1,5 +1,7 @@
 """Initial guesses across homotopy classes (uuv_ocp.solvers.homotopy) and the hybrids' class starts."""
 
+import time
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -354,3 +356,71 @@ def test_bad_population_options_are_refused_by_name(name, options, match):
     ocp, _, _, _ = _field(TRAP[:1])
     with pytest.raises(ValueError, match=match):
         uo.get_solver(ocp, name, options)
+
+
+def test_without_a_class_path_the_seeding_builds_no_path_fit(monkeypatch):
+    """Building a PathFit costs 0.4 s (RexROV, N = 20): only when some class path exists."""
+    far = np.array([[5.0, 8.0, 1.0]])  # off the path: nothing in the way
+    ocp, p, guess, geometry = _field(far, 0.5)
+    options = {"geometry": lambda _: geometry, "initial_population": "classes"}
+    hybrid = uo.new_solver(ocp, "pso+fatrop", options)
+    built = []
+
+    class CountedFit(homotopy.PathFit):
+        def __init__(self, *args):
+            built.append(1)
+            super().__init__(*args)
+
+    monkeypatch.setattr(homotopy, "PathFit", CountedFit)
+    result = hybrid.solve(p, guess, np.random.default_rng(0))
+    assert built == [] and hybrid._fit is None and "class_particles" not in result.details
+    assert result.details["seeding_time"] >= 0.0
+    ocp, p, guess, geometry = _field(PAIR, 0.5)  # two discs in the way: the fit is built, once
+    hybrid = uo.new_solver(
+        ocp, "pso+fatrop", {"geometry": lambda _: geometry, "initial_population": "classes"}
+    )
+    hybrid.solve(p, guess, np.random.default_rng(0))
+    hybrid.solve(p, guess, np.random.default_rng(1))
+    assert built == [1] and hybrid._fit is not None
+
+
+@pytest.mark.parametrize("seeding", [0.3, 0.5])
+def test_the_class_seeding_counts_against_the_deadline(monkeypatch, seeding):
+    """The swarm gets min(SWARM_SHARE deadline, what the seeding left).
+
+    It was handed its full share after the seeding, so seeding + swarm could use the whole
+    deadline (or more) and blame the swarm.
+
+    A seeding made to last at least ``seeding`` s (a sleep) against a 0.4 s deadline: the
+    swarm's time limit is checked, not how long anything took.
+    """
+    from uuv_ocp.solvers import hybrid as hybrid_module
+
+    ocp, p, guess, geometry = _field(PAIR, 0.5)
+    deadline = 0.4
+    options = {"geometry": lambda _: geometry, "initial_population": "classes", "deadline": deadline}
+    hybrid = uo.new_solver(ocp, "pso+fatrop", options)
+    original_seeds = homotopy.class_seeds
+
+    def slow_seeds(*args, **kwargs):
+        time.sleep(seeding)
+        return original_seeds(*args, **kwargs)
+
+    limits = []
+    original_solve = hybrid.first.solve
+
+    def spy(*args, time_limit=None, **kwargs):
+        limits.append(time_limit)
+        return original_solve(*args, time_limit=time_limit, **kwargs)
+
+    monkeypatch.setattr(homotopy, "class_seeds", slow_seeds)
+    monkeypatch.setattr(hybrid.first, "solve", spy)
+    result = hybrid.solve(p, guess, np.random.default_rng(0))
+    seeding_time = result.details["seeding_time"]
+    assert seeding_time >= seeding
+    (limit,) = limits
+    assert limit <= max(deadline - seeding, hybrid_module.MIN_SWARM_TIME)
+    assert limit <= hybrid_module.SWARM_SHARE * deadline
+    if seeding > deadline:  # nothing left for the exact stage: the swarm's plan, marked late
+        assert limit == hybrid_module.MIN_SWARM_TIME and result.details["deadline_hit"]
+        assert "class seeding" in result.status

@@ -247,3 +247,26 @@ def test_without_a_compiler_the_default_falls_back_with_one_warning(monkeypatch)
         with pytest.warns(RuntimeWarning, match="no C compiler.*virtual machine"):
             backend = uo.solvers.new_solver(ocp, name, {"seed": 9})
         assert backend.evaluation == "virtual machine" and backend.compiled is False
+
+
+@pytest.mark.parametrize(
+    ("rows", "expected"),
+    [
+        (lambda n: np.zeros((2, n + 1)), r"initial must have shape \(k, \d+\), got shape \(2, \d+\)"),
+        (lambda n: np.zeros(n), r"initial must have shape \(k, \d+\), got shape \(\d+,\)"),
+        (lambda n: np.full((2, n), np.nan), r"initial must be finite"),
+        (lambda n: np.r_[np.zeros(n - 1), np.inf][None, :], r"initial must be finite"),
+        (lambda n: [["a"] * n], r"initial must be a real array of shape \(k, \d+\)"),
+    ],
+)
+def test_bad_initial_rows_are_refused_before_the_search(instance, rows, expected):
+    """A wrong width used to fail in np.clip's broadcast, NaN rows ran (clip keeps NaN)."""
+    problem, _, _, p = instance
+    swarm = uo.new_solver(problem, "pso", {"population": 8, "iterations": 2, "compiled": False})
+    spec = problem.spec()
+    width = spec.control_size * spec.horizon
+    with pytest.raises(ValueError, match=expected):
+        swarm.solve(p, initial=rows(width))
+    # the same call with good rows runs (the check refuses only what is wrong)
+    result = swarm.solve(p, initial=np.zeros((2, width)))
+    assert result.evaluations == 8 * 3

@@ -53,7 +53,7 @@ import numpy as np
 import numpy.typing as npt
 
 from uuv_ocp import _validation as check
-from uuv_ocp._concurrency import serialised
+from uuv_ocp._concurrency import built_once
 from uuv_ocp.model.base import ModelParameter, VehicleLayout
 from uuv_ocp.model.damping import steady_speed
 from uuv_ocp.model.thrusters import GENERALISED_FORCE_NAMES, ThrusterConfiguration
@@ -814,8 +814,7 @@ class Vehicle6DOF:
         """Alias of :meth:`dynamics_expression` (the 3-DOF model's ``dynamics(state, control, current)``)."""
         return self.dynamics_expression(state, control, current)
 
-    @cached_property
-    @serialised
+    @built_once  # not cached_property + serialised: lock-order inversion (uuv_ocp._concurrency)
     def dynamics(self) -> ca.Function:
         """``dynamics(x[12], tau[6], current[3]) -> xdot[12]`` as a CasADi Function (SX graph).
 
@@ -852,8 +851,7 @@ class Vehicle6DOF:
         derivative = self.dynamics_expression(body, generalised(delivered), current)
         return ca.vertcat(derivative[:6], rate, derivative[6:])
 
-    @cached_property
-    @serialised
+    @built_once  # not cached_property + serialised: lock-order inversion (uuv_ocp._concurrency)
     def thruster_dynamics(self) -> ca.Function:
         """``thruster_dynamics(x[nx], f[n], current[3]) -> xdot[nx]`` with ``τ = T f`` (nx = state_dim).
 
@@ -876,8 +874,7 @@ class Vehicle6DOF:
             ["xdot"],
         )
 
-    @cached_property
-    @serialised
+    @built_once  # not cached_property + serialised: lock-order inversion (uuv_ocp._concurrency)
     def faulty_thruster_dynamics(self) -> ca.Function:
         """``(x[nx], f[n], current[3], health[n], thrust_offset[n]) -> xdot[nx]``, ``τ = T (h ∘ f + s)``.
 

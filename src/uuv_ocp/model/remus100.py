@@ -116,7 +116,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
-from uuv_ocp._concurrency import serialised
+from uuv_ocp._concurrency import built_once
 from uuv_ocp.model.base import VehicleLayout
 from uuv_ocp.model.fossen6dof import (
     STATE_NAMES,
@@ -563,8 +563,7 @@ class Remus100:
         torque = self.water_density * d_p**5 * (kq0 * np.abs(n_s) * n_s + (kq_max - kq0) / j_max * advance)
         return 2.0 * math.pi * n_s * torque
 
-    @cached_property
-    @serialised
+    @built_once  # not cached_property + serialised: lock-order inversion (uuv_ocp._concurrency)
     def dynamics(self) -> ca.Function:
         """``dynamics(x[12], u[3], current[3]) -> xdot[12]`` (SX graph), built once per instance."""
         state = ca.SX.sym("x", 12)

@@ -59,10 +59,11 @@ once per solve (``details["cold_retries_reused"]`` counts the others; the result
 
 Option ``deadline`` (seconds, finite > 0): the wall-time budget of the whole hybrid solve.  The
 swarm gets :data:`SWARM_SHARE` (50 %) of it (it returns its best plan so far when that share is
-used up), the exact stage what is left when the swarm returns (built with ``deadline`` too, so
-its in-attempt stops are active; see :mod:`~uuv_ocp.solvers.nlp`); with ``candidates=k`` no
-further start begins after the deadline.  If the swarm leaves no time at all, the exact stage
-does not start and the swarm's plan is returned (``success`` = the swarm's feasibility).
+used up; with ``initial_population="classes"`` at most what the seeding left, whose time is
+``details["seeding_time"]``), the exact stage what is left when the swarm returns (built with
+``deadline`` too, so its in-attempt stops are active; see :mod:`~uuv_ocp.solvers.nlp`); with
+``candidates=k`` no further start begins after the deadline.  If the swarm leaves no time at
+all, the exact stage does not start and the swarm's plan is returned (``success`` = the swarm's feasibility).
 ``details["deadline_hit"]`` says whether the hybrid's plan was late (the exact stage's own
 flag, or no time left for it); ``details["swarm_deadline_hit"]`` whether the swarm's share
 stopped the swarm.  Both halves must declare the ``time_limit`` capability
@@ -101,6 +102,9 @@ from uuv_ocp.solvers.result import Iterate, SolveDetails, SolveResult
 
 SWARM_SHARE = 0.5
 """Share of a hybrid's ``deadline`` given to its swarm; the exact stage gets the rest."""
+
+MIN_SWARM_TIME = 1e-6
+"""Time limit (s) of a swarm the class seeding left no time: it returns its first population's best."""
 
 
 CLASSES = 4
@@ -251,14 +255,19 @@ class HybridSolver:
         start = watchdog.now()
         deadline = self.deadline
         seeded: dict[str, Any] = {}
+        seeding_time = None
         if self.initial_population == "classes":
             initial = self._class_seeds(p, warm_start, rng)
+            seeding_time = watchdog.now() - start
             if initial is not None:
                 seeded["initial"] = initial
         if deadline is None:
             swarm = self.first.solve(p, warm_start, rng, **seeded)
         else:
-            swarm = self.first.solve(p, warm_start, rng, time_limit=SWARM_SHARE * deadline, **seeded)
+            # the seeding counts against the deadline: the swarm gets its share of what is left
+            left = deadline - (watchdog.now() - start)
+            limit = max(min(SWARM_SHARE * deadline, left), MIN_SWARM_TIME)
+            swarm = self.first.solve(p, warm_start, rng, time_limit=limit, **seeded)
 
         retries = ColdRetries()
 
@@ -289,13 +298,21 @@ class HybridSolver:
         plans = swarm.details.get("candidates") if self.candidates > 1 else None
         first_exact = exact_solve(guess)
         if first_exact is None:  # the swarm used up the whole deadline: no exact stage
+            used = (
+                "the swarm"
+                if seeding_time is None
+                else f"the class seeding ({seeding_time:.3g} s) and the swarm"
+            )
+            extra = {} if seeding_time is None else {"seeding_time": seeding_time}
             return dataclasses.replace(
                 swarm,
                 solver=self.name,
-                status=f"deadline: {deadline:g} s used up by the swarm, no exact stage; {swarm.status}",
+                status=f"deadline: {deadline:g} s used up by {used}, no exact stage; {swarm.status}",
                 solve_time=watchdog.now() - start,
                 details=swarm.details.replace(
-                    deadline_hit=True, swarm_deadline_hit=bool(swarm.details.get("deadline_hit", False))
+                    deadline_hit=True,
+                    swarm_deadline_hit=bool(swarm.details.get("deadline_hit", False)),
+                    **extra,
                 ),
             )
         results = [first_exact]
@@ -336,6 +353,8 @@ class HybridSolver:
             details["skipped_starts"] = skipped
         if "initial" in seeded:
             details["class_particles"] = len(seeded["initial"])
+        if seeding_time is not None:
+            details["seeding_time"] = seeding_time
         if retries.reused:
             details["cold_retries_reused"] = retries.reused
         details.update(
@@ -378,10 +397,14 @@ class HybridSolver:
         size = min(int(self.class_share * population), population - 1)
         if size < 1:
             return None
-        if self._fit is None or self._fit.position != geometry.position:
-            self._fit = homotopy.PathFit(problem, geometry.position)
+
+        def fit() -> homotopy.PathFit:  # built only when a class path exists (0.4 s for RexROV)
+            if self._fit is None or self._fit.position != geometry.position:
+                self._fit = homotopy.PathFit(problem, geometry.position)
+            return self._fit
+
         generator = rng if rng is not None else np.random.default_rng(getattr(self.first, "seed", 0))
-        rows, _ = homotopy.class_seeds(problem, p, warm_start, geometry, self._fit, size, generator)
+        rows, _ = homotopy.class_seeds(problem, p, warm_start, geometry, fit, size, generator)
         return rows if len(rows) else None
 
     def _starts(

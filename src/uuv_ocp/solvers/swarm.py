@@ -496,6 +496,21 @@ class SwarmSolver:
             plan = np.tile(previous, (spec.horizon, 1))
         return encode(spec, plan, previous)
 
+    @staticmethod
+    def _initial_rows(initial: object, width: int) -> np.ndarray:
+        """Return ``initial`` as a finite float array of shape (k, ``width``) (``ValueError`` names it)."""
+        try:
+            rows = np.array(initial, dtype=float)
+        except (TypeError, ValueError) as error:
+            raise ValueError(
+                f"initial must be a real array of shape (k, {width}), got {check.shown(initial)}"
+            ) from error
+        if rows.ndim != 2 or rows.shape[1] != width:
+            raise ValueError(f"initial must have shape (k, {width}), got shape {rows.shape}")
+        if not np.all(np.isfinite(rows)):
+            raise ValueError(f"initial must be finite (no NaN or inf), got {check.shown(rows)}")
+        return rows
+
     def solve(
         self,
         p: np.ndarray,
@@ -522,15 +537,15 @@ class SwarmSolver:
         seeds = None
         if self.seed_warm_start and (warm_start is not None or self.search == "deviation"):
             seeds = (center - offset)[None, :]
-        if initial is not None and len(initial):
-            extra = np.clip(np.asarray(initial, dtype=float), self._lower, self._upper) - offset
-            if extra.ndim != 2 or extra.shape[1] != center.size:
-                raise ValueError(f"initial must have shape (k, {center.size}), got {extra.shape}")
+        rows = None if initial is None else self._initial_rows(initial, center.size)
+        if rows is not None and len(rows):
+            # checked before the clip: a clip broadcasts a wrong width and keeps NaN rows
+            extra = np.clip(rows, self._lower, self._upper) - offset
             seeds = extra if seeds is None else np.vstack([seeds, extra])
             if seeds.shape[0] > self.population:
                 raise ValueError(
                     f"initial must leave room in the population ({self.population}) beside the centre "
-                    f"plan, got {len(initial)} rows"
+                    f"plan, got {len(rows)} rows"
                 )
         evaluate = self._evaluate
         archive = self._candidate_archive(p) if self.candidates > 1 else None

@@ -413,3 +413,70 @@ def test_simulate_tells_the_controller_the_low_passed_current():
     np.testing.assert_allclose(np.array(told), np.array(expected), rtol=0, atol=1e-12)
     # the filter lags its estimate: what the controller was told moved less than the estimate
     assert np.linalg.norm(told[-1]) < 0.95 * np.linalg.norm(estimates[-1])
+
+
+def test_reading_the_estimate_mid_run_does_not_move_the_low_passed_current():
+    """Review F2: ``estimate()`` (no step, or an earlier one) is a read; only a later step advances.
+
+    Two estimators see the same current estimates; one is also read mid-run.  Their filtered
+    currents agree bit for bit, and match the recursion from 0 (50 steps towards 0.5).
+    """
+    dt, T = 0.1, 10.0
+    ocp, sensors = _drifting_integrator(horizon=3, dt=dt)
+    options = EstimatorOptions(current_filter=T, compiled=False)
+    quiet, peeked = (
+        Estimator(ocp, "ekf", sensors=sensors, options=options, parameters={"current": 0.0}) for _ in range(2)
+    )
+    for estimator in (quiet, peeked):
+        estimator.reset([0.0], current=[0.0])
+    peeked.estimate()  # a read before the first step
+    records = {id(quiet): [], id(peeked): []}
+    for k in range(50):
+        for estimator in (quiet, peeked):
+            estimator.x[1] = 0.5
+            records[id(estimator)].append(estimator.estimate(k).current_filtered[0])
+        if k == 25:
+            assert peeked.estimate().current_filtered[0] == records[id(peeked)][-1]
+            peeked.estimate(3)  # an earlier step: a read too
+    assert records[id(peeked)] == records[id(quiet)]
+    expected = 0.5 * (1.0 - np.exp(-50 * dt / T))
+    assert records[id(quiet)][-1] == pytest.approx(expected, rel=1e-12)
+
+
+@pytest.mark.parametrize("name", ["state_std", "initial_state_std", "current_std"])
+@pytest.mark.parametrize("value", [np.float32(0.01), np.int64(1), 0.5, 2])
+def test_a_scalar_std_option_is_accepted_as_a_float(name, value):
+    """Review F3: numpy scalars are scalars, stored as the same positive float."""
+    stored = getattr(EstimatorOptions(**{name: value}), name)
+    assert type(stored) is float and stored == float(value)
+
+
+@pytest.mark.parametrize("name", ["state_std", "initial_state_std", "current_std"])
+@pytest.mark.parametrize(
+    "value",
+    [
+        -1.0,
+        0.0,
+        float("nan"),
+        "abc",
+        True,
+        (0.01, -1.0, 0.01),
+        (0.01, float("nan")),
+        (True, 1.0),
+        [[0.1]],
+        (),
+    ],
+)
+def test_a_bad_std_option_is_refused_when_the_options_are_made(name, value):
+    """Review F3: bad values fail in ``__post_init__``, naming the option (not at build time)."""
+    with pytest.raises(ValueError, match=f"options.{name}"):
+        EstimatorOptions(**{name: value})
+
+
+def test_a_numpy_scalar_current_std_builds_an_estimator():
+    """Review F3: ``np.float32`` current_std reaches the model as the float it is."""
+    ocp, sensors = _drifting_integrator(horizon=3, dt=0.1)
+    for value in (np.float32(0.25), (0.25,), np.array([0.25])):
+        options = EstimatorOptions(current_std=value, compiled=False)
+        estimator = Estimator(ocp, "ekf", sensors=sensors, options=options, parameters={"current": 0.0})
+        assert estimator.options.current_std in (0.25, (0.25,))

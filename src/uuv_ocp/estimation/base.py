@@ -183,11 +183,31 @@ class EstimatorOptions:
         set_field(self, "max_iterations", check.positive_int("options.max_iterations", self.max_iterations))
         set_field(self, "tolerance", check.positive_float("options.tolerance", self.tolerance))
         for name in ("state_std", "initial_state_std", "current_std"):
-            value = getattr(self, name)
-            if isinstance(value, (list, np.ndarray)):
-                set_field(self, name, tuple(float(v) for v in value))
-        if isinstance(self.current_std, (int, float)) and not isinstance(self.current_std, bool):
-            set_field(self, "current_std", check.positive_float("options.current_std", self.current_std))
+            set_field(self, name, _std_field(f"options.{name}", getattr(self, name)))
+
+
+def _std_field(name: str, value: object) -> float | tuple[float, ...]:
+    """Return a standard deviation option as one positive float or a tuple of positive floats.
+
+    Numpy scalars count as scalars (review F3); the vector's length is checked on use, against
+    the model's axes, since the options do not know the model.
+    """
+    if isinstance(value, (str, bytes)) or np.ndim(value) == 0:  # type: ignore[arg-type]
+        return check.positive_float(name, value)
+    expected = f"{name} must be a positive float or a 1-D sequence of them, got {check.shown(value)}"
+    try:
+        raw = np.asarray(value)
+        array = raw.astype(float)
+    except (TypeError, ValueError):
+        raise ValueError(expected) from None
+    # Bools and strings convert to floats silently: refuse them like the scalar path does.
+    items = value if isinstance(value, list | tuple) else raw.ravel().tolist()
+    booleans = any(isinstance(v, bool | np.bool_) for v in items)
+    if array.ndim != 1 or array.size == 0 or raw.dtype.kind not in "iuf" or booleans:
+        raise ValueError(expected)
+    if not np.all(np.isfinite(array)) or not np.all(array > 0.0):
+        raise ValueError(f"{name} must hold finite values > 0, got {check.shown(value)}")
+    return tuple(float(v) for v in array)
 
 
 @dataclass(frozen=True)
@@ -525,21 +545,25 @@ class Estimator:
 
     def estimate(
         self,
-        step: int = 0,
+        step: int | None = None,
         sensors: tuple[int, ...] = (),
         innovations: np.ndarray | None = None,
         S: np.ndarray | None = None,
     ) -> Estimate:
         """Return the current estimate as a record (copies).
 
-        The low-passed current (``options.current_filter``) moves once per ``step`` index: a
-        second record of the same step reads it again, a later step advances it over the steps
-        between (``step − last`` control intervals).
+        The low-passed current (``options.current_filter``) moves only forward in ``step``: a
+        later step advances it over the steps between (``step − last`` control intervals); the
+        same or an earlier step, or ``step=None`` (a plain read: a log, a plot), leaves it as it is.
         """
         m = self.model
         current = self.x[m.nx : m.nx + m.nc].copy()
         T = self.options.current_filter
-        if T > 0.0 and m.nc and step != self._filtered_step:
+        last = self._filtered_step
+        if step is None:
+            # A read must not move the filter the closed loop hands to the controller (review F2).
+            step = 0 if last is None else last
+        elif T > 0.0 and m.nc and (last is None or step > last):
             elapsed = m.dt * (1 if self._filtered_step is None else max(step - self._filtered_step, 1))
             self._current_filtered += -math.expm1(-elapsed / T) * (current - self._current_filtered)
             self._filtered_step = step

@@ -10,6 +10,7 @@ import time
 import numpy as np
 import pytest
 
+from tests.helpers_threads import read_while_building
 from uuv_ocp._concurrency import BUILD_LOCK, BuildCache, built_once, serialised
 
 
@@ -161,21 +162,5 @@ def test_built_once_has_no_lock_of_its_own_to_invert_with_the_build_lock():
     waits for BUILD_LOCK while the builder holds BUILD_LOCK and waits for that lock.
     """
     first, second = _Building(), _Building()
-    holding = threading.Event()
-
-    def builder() -> None:
-        with BUILD_LOCK:  # an Ocp's _declare: holds the lock, then reads the property
-            holding.set()
-            time.sleep(0.2)  # the reader asks for its value meanwhile
-            _ = first.value
-
-    threads = [
-        threading.Thread(target=builder, daemon=True),
-        threading.Thread(target=lambda: (holding.wait(), second.value), daemon=True),
-    ]
-    for thread in threads:
-        thread.start()
-    for thread in threads:
-        thread.join(timeout=10.0)  # a regression fails here instead of hanging the suite
-    assert not any(thread.is_alive() for thread in threads), "deadlock: both threads still waiting"
+    read_while_building(lambda: first.value, lambda: second.value, timeout=10.0)
     assert (first.value, second.value, first.calls, second.calls) == (1, 1, 1, 1)

@@ -144,16 +144,19 @@ def vector(
     return tuple(float(v) for v in array)
 
 
-def finite_array(name: str, value: object, shape: Sequence[int]) -> np.ndarray:
-    """Return ``value`` as a float array of exactly ``shape`` with finite entries."""
+def finite_array(name: str, value: object, shape: Sequence[int | None]) -> np.ndarray:
+    """Return ``value`` as a float array of ``shape`` with finite entries (``None``: any size there)."""
+    expected = tuple(shape)
+    wanted = "(" + ", ".join("k" if n is None else str(n) for n in expected)
+    wanted += ",)" if len(expected) == 1 else ")"
     try:
         array = np.array(value, dtype=float)
     except (TypeError, ValueError) as error:
-        raise ValueError(
-            f"{name} must be a real array of shape {tuple(shape)}, got {shown(value)}"
-        ) from error
-    if array.shape != tuple(shape):
-        raise ValueError(f"{name} must have shape {tuple(shape)}, got shape {array.shape}")
+        raise ValueError(f"{name} must be a real array of shape {wanted}, got {shown(value)}") from error
+    if array.ndim != len(expected) or any(
+        n is not None and a != n for a, n in zip(array.shape, expected, strict=True)
+    ):
+        raise ValueError(f"{name} must have shape {wanted}, got shape {array.shape}")
     if not np.all(np.isfinite(array)):
         raise ValueError(f"{name} must be finite (no NaN or inf), got {shown(array)}")
     return array

@@ -589,30 +589,11 @@ def test_reading_dynamics_while_another_thread_builds_does_not_deadlock():
     It was cached_property + serialised: the reader held the class attribute's lock (Python
     3.11) and waited for BUILD_LOCK while the builder held BUILD_LOCK and waited for that lock.
     """
-    import threading
-    import time
-
-    from uuv_ocp._concurrency import BUILD_LOCK
+    from tests.helpers_threads import read_while_building
 
     first, second = Vehicle6DOF.bluerov2_heavy(), Vehicle6DOF.rexrov2()
     assert "dynamics" not in first.__dict__ and "dynamics" not in second.__dict__  # not built yet
-    holding = threading.Event()
-
-    def builder() -> None:
-        with BUILD_LOCK:  # an Ocp's _declare: holds the lock, then reads a vehicle's dynamics
-            holding.set()
-            time.sleep(0.2)
-            _ = first.dynamics
-
-    threads = [
-        threading.Thread(target=builder, daemon=True),
-        threading.Thread(target=lambda: (holding.wait(), second.dynamics), daemon=True),
-    ]
-    for thread in threads:
-        thread.start()
-    for thread in threads:
-        thread.join(timeout=20.0)  # a regression fails here instead of hanging the suite
-    assert not any(thread.is_alive() for thread in threads), "deadlock: both threads still waiting"
+    read_while_building(lambda: first.dynamics, lambda: second.dynamics, timeout=20.0)
     x, tau, current = np.linspace(-0.5, 0.5, 12), np.linspace(-50.0, 50.0, 6), np.array([0.1, -0.1, 0.0])
     for vehicle, fresh in ((first, Vehicle6DOF.bluerov2_heavy()), (second, Vehicle6DOF.rexrov2())):
         expected = fresh.dynamics(x, tau, current)  # built in this thread alone

@@ -499,17 +499,7 @@ class SwarmSolver:
     @staticmethod
     def _initial_rows(initial: object, width: int) -> np.ndarray:
         """Return ``initial`` as a finite float array of shape (k, ``width``) (``ValueError`` names it)."""
-        try:
-            rows = np.array(initial, dtype=float)
-        except (TypeError, ValueError) as error:
-            raise ValueError(
-                f"initial must be a real array of shape (k, {width}), got {check.shown(initial)}"
-            ) from error
-        if rows.ndim != 2 or rows.shape[1] != width:
-            raise ValueError(f"initial must have shape (k, {width}), got shape {rows.shape}")
-        if not np.all(np.isfinite(rows)):
-            raise ValueError(f"initial must be finite (no NaN or inf), got {check.shown(rows)}")
-        return rows
+        return check.finite_array("initial", initial, (None, width))
 
     def solve(
         self,

@@ -430,7 +430,7 @@ def test_reading_the_estimate_mid_run_does_not_move_the_low_passed_current():
     for estimator in (quiet, peeked):
         estimator.reset([0.0], current=[0.0])
     peeked.estimate()  # a read before the first step
-    records = {id(quiet): [], id(peeked): []}
+    records: dict[int, list[float]] = {id(quiet): [], id(peeked): []}
     for k in range(50):
         for estimator in (quiet, peeked):
             estimator.x[1] = 0.5

@@ -564,7 +564,7 @@ class Estimator:
             # A read must not move the filter the closed loop hands to the controller (review F2).
             step = 0 if last is None else last
         elif T > 0.0 and m.nc and (last is None or step > last):
-            elapsed = m.dt * (1 if self._filtered_step is None else max(step - self._filtered_step, 1))
+            elapsed = m.dt * (1 if last is None else step - last)  # step > last here
             self._current_filtered += -math.expm1(-elapsed / T) * (current - self._current_filtered)
             self._filtered_step = step
         filtered = self._current_filtered.copy() if T > 0.0 else current.copy()

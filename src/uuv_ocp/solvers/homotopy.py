@@ -49,6 +49,7 @@ import casadi as ca
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.native.buffered import BufferedFunction
 from uuv_ocp.solvers.result import Iterate
 from uuv_ocp.transcription.condensed import encode
@@ -350,16 +351,18 @@ class PathFit:
         spec = problem.spec()
         built = problem.build()
         self.dim = spec.control_size * spec.horizon
-        coordinates = ca.MX.sym("W", self.dim)
-        p = ca.MX.sym("p", spec.layout.size)
-        states = built.rollout(built.decode(coordinates, p), p)  # (nx, N + 1)
-        positions = ca.vec(states[list(position), 1:])  # x1, y1, x2, y2, ...
-        function = ca.Function("path_fit", [coordinates, p], [positions, ca.jacobian(positions, coordinates)])
-        try:  # the SX form evaluates several times faster on the virtual machine
-            function = function.expand()
-        except RuntimeError:  # a Function inside without an SX form: keep the MX one
-            pass
-        self._function = BufferedFunction(function)
+        with BUILD_LOCK:  # CasADi's graph building is not thread-safe (hybrids in N threads)
+            coordinates = ca.MX.sym("W", self.dim)
+            p = ca.MX.sym("p", spec.layout.size)
+            states = built.rollout(built.decode(coordinates, p), p)  # (nx, N + 1)
+            positions = ca.vec(states[list(position), 1:])  # x1, y1, x2, y2, ...
+            jacobian = ca.jacobian(positions, coordinates)
+            function = ca.Function("path_fit", [coordinates, p], [positions, jacobian])
+            try:  # the SX form evaluates several times faster on the virtual machine
+                function = function.expand()
+            except RuntimeError:  # a Function inside without an SX form: keep the MX one
+                pass
+            self._function = BufferedFunction(function)
         self.position = position
         self._x0 = spec.layout.x0
 

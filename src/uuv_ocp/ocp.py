@@ -550,24 +550,14 @@ class Ocp(Transcribed):
         spec = self.spec()
         if u_prev is None:
             u_prev = np.clip(np.zeros(spec.control_size), spec.lower, spec.upper)
-        # the closed loop's hot path: one comparison with the slack box (its infinite ends made
-        # the largest float, so that NaN and ±inf fail it) accepts a good value; anything else
-        # takes the checks below for the error
-        bounds = self._previous_bounds
-        if bounds is None:
-            slack = 1e-6 * np.maximum(1.0, np.abs(spec.lower)), 1e-6 * np.maximum(1.0, np.abs(spec.upper))
-            largest = np.finfo(float).max
-            bounds = (
-                np.maximum(spec.lower - slack[0], -largest).tolist(),
-                np.minimum(spec.upper + slack[1], largest).tolist(),
-            )
-            self._previous_bounds = bounds
+        # the closed loop's hot path: one comparison with the slack box accepts a good value;
+        # anything else takes the checks below for the error
         try:
             value = np.array(u_prev, dtype=float)
         except (TypeError, ValueError):
             pass
         else:
-            if value.shape == (spec.control_size,) and check.within(value, *bounds):
+            if value.shape == (spec.control_size,) and check.within(value, *self.previous_bounds()):
                 return value
         u_prev = check.finite_array("u_prev", u_prev, (spec.control_size,))
         # solvers hold the box to their tolerance (IPOPT: ~1e-8 relative); more is an error
@@ -577,6 +567,24 @@ class Ocp(Transcribed):
                 f"u_prev must lie inside the control bounds [{spec.lower}, {spec.upper}], got {u_prev}"
             )
         return u_prev
+
+    def previous_bounds(self) -> tuple[list[float], list[float]]:
+        """Return the slack box :meth:`check_previous` accepts a last control in (float lists, built once).
+
+        The box widened by ``1e-6 · max(1, |bound|)`` (N, N·m), its infinite ends made the
+        largest float so that NaN and ±inf fail ``lower <= u <= upper``.
+        """
+        bounds = self._previous_bounds
+        if bounds is None:
+            spec = self.spec()
+            slack = 1e-6 * np.maximum(1.0, np.abs(spec.lower)), 1e-6 * np.maximum(1.0, np.abs(spec.upper))
+            largest = np.finfo(float).max
+            bounds = (
+                np.maximum(spec.lower - slack[0], -largest).tolist(),
+                np.minimum(spec.upper + slack[1], largest).tolist(),
+            )
+            self._previous_bounds = bounds
+        return bounds
 
     def pack(self, x0: np.ndarray, u_prev: np.ndarray, values: Mapping[str, np.ndarray]) -> np.ndarray:
         """Assemble ``p`` from already checked parts (no validation: the closed loop's hot path).

@@ -30,6 +30,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import operator
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -55,6 +56,7 @@ from uuv_ocp.reference.path import UNWRAP_STEP, Reference
 
 TERMINAL_MODES = ("equality", "cost", "none")
 SAMPLE_BLOCK = 64  # sampling intervals per cached block of reference samples
+_FLOAT = np.dtype(float)  # the dtype of the arrays the closed loop's fast instance takes as they are
 
 
 def vehicle_dimensions(vehicle: Any) -> tuple[int, int, int]:
@@ -697,8 +699,12 @@ class TrackingProblem(DeclaredPreset):
         _move_heading_branch(window, heading, self._heading_index)
         return window
 
-    def _window_from_samples(self, t0: float) -> np.ndarray | None:
-        """Return the window at ``t0 = i dt`` from cached sample blocks, or ``None`` (see above)."""
+    def _window_from_samples(self, t0: float, out: np.ndarray | None = None) -> np.ndarray | None:
+        """Return the window at ``t0 = i dt`` from cached sample blocks, or ``None`` (see above).
+
+        Written into ``out`` (shape (N+1, reference width), e.g. a view into ``p``) when given:
+        the same numbers without the window's own array; ``out`` is then unspecified after ``None``.
+        """
         dt, horizon, reference = self.dt, self.horizon, self.reference
         if not math.isfinite(t0):
             return None
@@ -706,7 +712,8 @@ class TrackingProblem(DeclaredPreset):
         last = first + horizon
         if first * dt != t0 or dt > UNWRAP_STEP or last * dt > reference.t_end:
             return None
-        parts: list[np.ndarray] = []
+        window = out
+        row = 0  # rows of the window written
         for block in range(first // SAMPLE_BLOCK, last // SAMPLE_BLOCK + 1):
             samples = self._sample_block(block)
             if samples is None:
@@ -715,16 +722,23 @@ class TrackingProblem(DeclaredPreset):
             lo, hi = max(first, start_index), min(last, start_index + states.shape[0] - 1)
             if lo > hi:
                 return None  # the reference starts after t0
-            part = states[lo - start_index : hi - start_index + 1].copy()
-            if parts:
+            part = states[lo - start_index : hi - start_index + 1]  # the memo's: only read
+            if window is None:
+                window = np.empty((horizon + 1, states.shape[1]))
+            elif window.shape[1] != states.shape[1]:
+                return None
+            if row:
                 # neighbouring blocks share their boundary sample: drop it, and move this
                 # block's heading to the branch of the previous one
-                column = self.reference.heading_index  # raw reference samples, before the mapping
-                _move_heading_branch(part, parts[-1][-1, column], column)
-                part = part[1:]
-            parts.append(part)
-        window = parts[0] if len(parts) == 1 else np.concatenate(parts)
-        return window if window.shape[0] == horizon + 1 else None
+                column = reference.heading_index  # raw reference samples, before the mapping
+                rows = window[row : row + part.shape[0] - 1]
+                rows[:] = part[1:]
+                _shift_heading(rows, window[row - 1, column], part[0, column], column)
+                row += part.shape[0] - 1
+            else:
+                window[: part.shape[0]] = part
+                row = part.shape[0]
+        return window if row == horizon + 1 else None
 
     @built_once
     def sample_blocks(self) -> dict[int, tuple[int, np.ndarray] | None]:
@@ -796,6 +810,10 @@ class TrackingProblem(DeclaredPreset):
             ``{"health": h}`` for a vehicle with thrusters); each omitted one takes its default.
             ``ValueError`` for an unknown name or a value of the wrong size or out of bounds.
         """
+        if model is None and current is None:
+            fast = self._closed_loop_parameters(x0, t0, u_prev)
+            if fast is not None:
+                return fast
         x0 = self.check_state(x0)
         model_values = self._model_values(model)
         t0 = self.check_time(t0)
@@ -823,6 +841,81 @@ class TrackingProblem(DeclaredPreset):
                 if obstacle.is_moving:
                     p[layout.entries[f"obstacle{i}"][0]] = np.ravel(obstacle.centre_at(times))
         return p
+
+    def _closed_loop_parameters(self, x0: object, t0: object, u_prev: object) -> np.ndarray | None:
+        """:meth:`parameters` of a closed loop's instance without a current or model values, or ``None``.
+
+        For float64 arrays ``x0`` (nx,) and ``u_prev`` (nu,) and a float ``t0``: both are
+        written straight into ``p`` and checked there in one pass against the bounds of the
+        general path (every entry of ``x0`` within ±PLAUSIBLE_MAGNITUDE, ``u_prev`` in the
+        slack box; NaN fails), and the window is cut from the sample blocks into ``p``.  The
+        same numbers as the general path (tests/control/test_mpc_fast_paths.py); ``None`` for anything else,
+        a bad value included: the general path then gives its ``ValueError``.
+        """
+        plan = self._closed_loop_plan
+        if (
+            plan is None
+            or type(x0) is not np.ndarray
+            or type(u_prev) is not np.ndarray
+            or not isinstance(t0, float)
+            or x0.dtype is not _FLOAT
+            or u_prev.dtype is not _FLOAT
+        ):
+            return None
+        size, nx, nu, lows, highs, t_low, t_high, window_part, current_part, defaults, heading = plan
+        t0 = float(t0)
+        if x0.shape != (nx,) or u_prev.shape != (nu,) or not t_low <= t0 <= t_high:
+            return None
+        p = np.empty(size)
+        p[:nx] = x0
+        p[nx : nx + nu] = u_prev
+        entries = p[: nx + nu].tolist()
+        if not (all(map(operator.le, lows, entries)) and all(map(operator.le, entries, highs))):
+            return None
+        window = p[window_part].reshape(self.horizon + 1, nx)  # a view into p
+        if self._window_from_samples(t0, window) is None:
+            window[:] = self.reference_window(t0, heading=x0[heading])
+        else:
+            _move_heading_branch(window, x0[heading], heading)
+        p[current_part] = 0.0
+        for part, value in defaults:
+            p[part] = value
+        return p
+
+    @built_once
+    def _closed_loop_plan(self) -> tuple[Any, ...] | None:
+        """Where :meth:`_closed_loop_parameters` writes, and its bounds (``None``: it does not apply).
+
+        It applies when ``p`` is ``[x0, u_prev]`` then the window, the current and model
+        parameters only (no moving obstacle), and the vehicle's states are the reference's.
+        """
+        layout, nc, heading = self._parameter_layout
+        nx, nu = self.state_dim, self.spec().control_size
+        entries = layout.entries
+        models = {item.name for item in self.model_parameters}
+        if (
+            (layout.x0.start, layout.x0.stop, layout.u_prev.start, layout.u_prev.stop) != (0, nx, nx, nx + nu)
+            or set(entries) != {"reference", "current", *models}
+            or self.vehicle.layout.reference_columns != tuple(range(nx))
+            or entries["reference"][0].stop - entries["reference"][0].start != (self.horizon + 1) * nx
+            or nx + nu + sum(part.stop - part.start for part, _, _ in entries.values()) != layout.size
+        ):
+            return None
+        x_low, x_high = -check.PLAUSIBLE_MAGNITUDE, check.PLAUSIBLE_MAGNITUDE
+        u_low, u_high = self.ocp.previous_bounds()
+        return (
+            layout.size,
+            nx,
+            nu,
+            [x_low] * nx + list(u_low),
+            [x_high] * nx + list(u_high),
+            self.reference.t_start - 1e-12,  # check_time's bounds
+            self.latest_start() + 1e-9,
+            entries["reference"][0],
+            entries["current"][0],
+            tuple((entries[name][0], value) for name, value in self._default_model_values),
+            heading,
+        )
 
     def _model_values(self, model: Mapping[str, object] | None) -> tuple[tuple[str, np.ndarray], ...]:
         """Return checked values of every model parameter (the defaults where ``model`` omits one)."""
@@ -895,9 +988,14 @@ def _move_heading_branch(states: np.ndarray, heading: float, column: int = 2) ->
 
     The multiple is the one that brings its first value closest to ``heading``.
     """
+    _shift_heading(states, heading, states[0, column], column)
+
+
+def _shift_heading(states: np.ndarray, heading: float, start: float, column: int) -> None:
+    """Add to ``states``' heading column the multiple of 2π that brings ``start`` closest to ``heading``."""
     # Python's round on a float (half to even, as np.round) instead of np.round on a numpy
     # scalar: this runs on every closed-loop step (a third of TrackingProblem.with_state's time)
-    turns = (float(heading) - float(states[0, column])) / (2.0 * math.pi)
+    turns = (float(heading) - float(start)) / (2.0 * math.pi)
     if not math.isfinite(turns):  # NaN and inf propagate as they did through np.round
         states[:, column] += turns
     elif turns := round(turns):  # no turn leaves the column as it is

@@ -144,6 +144,54 @@ def test_tracking_parameters_still_reject_bad_parts_by_name():
             problem.parameters(**arguments)
 
 
+@pytest.mark.parametrize("make", [_planar, _spatial, _with_moving_obstacle])
+def test_closed_loop_instance_rejects_what_the_general_path_rejects(make):
+    """Float arrays take the closed loop's fast instance: the same ``p`` and the same errors.
+
+    Every entry of ``x0`` and ``u_prev`` is pushed past its bound (NaN, ±inf, beyond
+    ±PLAUSIBLE_MAGNITUDE, past the slack box) and to just inside it; the time to NaN and past
+    the window.  Accepted exactly when the checks' definitions accept, with ``p`` then equal
+    to ``Ocp.parameters``'; a refusal names the part.
+    """
+    problem = make()
+    spec = problem.spec()
+    nx, nu = spec.state_dim, spec.control_size
+    assert (problem._closed_loop_plan is None) == any(o.is_moving for o in problem.obstacles)
+    t0 = problem.dt * 20
+    x0 = problem.reference.evaluate([t0])[0]
+    u_prev = 0.5 * (spec.lower + spec.upper)
+    slack_low = 1e-6 * np.maximum(1.0, np.abs(spec.lower))
+    slack_high = 1e-6 * np.maximum(1.0, np.abs(spec.upper))
+    cases = []
+    for i in range(nx):
+        for value in (np.nan, np.inf, -2e9, check.PLAUSIBLE_MAGNITUDE, -check.PLAUSIBLE_MAGNITUDE):
+            x = x0.copy()
+            x[i] = value
+            cases.append(("x0", x, u_prev, abs(value) <= check.PLAUSIBLE_MAGNITUDE))
+    for i in range(nu):
+        for value in (np.nan, -np.inf, spec.lower[i] - 2 * slack_low[i], spec.upper[i] + 2 * slack_high[i]):
+            u = u_prev.copy()
+            u[i] = value
+            cases.append(("u_prev", x0, u, False))
+        for value in (spec.lower[i] - 0.5 * slack_low[i], spec.upper[i] + 0.5 * slack_high[i]):
+            u = u_prev.copy()
+            u[i] = value
+            cases.append(("u_prev", x0, u, True))
+    for name, x, u, accepted in cases:
+        assert accepted == (
+            np.all(np.abs(x) <= check.PLAUSIBLE_MAGNITUDE) and _previous_accepted(spec.lower, spec.upper, u)
+        )
+        if accepted:
+            assert np.array_equal(problem.parameters(x, t0, u), _general_path(problem, x, t0, u, None))
+        else:
+            with pytest.raises(ValueError, match=name):
+                problem.parameters(x, t0, u)
+    for t in (math.nan, -1.0, problem.latest_start() + 1.0):
+        if math.isfinite(problem.latest_start()) or t <= 0:
+            with pytest.raises(ValueError, match="t0"):
+                problem.parameters(x0, t, u_prev)
+
+
 def _previous_accepted(lower, upper, value):
     """``check_previous``'s definition: finite, inside the box widened by 1e-6 relative (>= 1e-6)."""
     slack_low, slack_high = 1e-6 * np.maximum(1.0, np.abs(lower)), 1e-6 * np.maximum(1.0, np.abs(upper))

@@ -864,7 +864,7 @@ class TrackingProblem(DeclaredPreset):
             return None
         size, nx, nu, lows, highs, t_low, t_high, window_part, current_part, defaults, heading = plan
         t0 = float(t0)
-        if x0.shape != (nx,) or u_prev.shape != (nu,) or not t_low <= t0 <= t_high:
+        if x0.shape != (nx,) or u_prev.shape != (nu,) or not (t_low <= t0 <= t_high and math.isfinite(t0)):
             return None
         p = np.empty(size)
         p[:nx] = x0

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 import signal
@@ -15,7 +16,7 @@ import uuv_ocp as uo
 from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
 from uuv_ocp.solvers import REGISTRY, get_solver
 from uuv_ocp.solvers.result import Iterate
-from uuv_ocp.solvers.rti import HPIPM_DEFAULTS, RtiSolver
+from uuv_ocp.solvers.rti import HPIPM_DEFAULTS, RtiSolver, finite_warm_start
 from uuv_ocp.solvers.rti_ocp import STOP_CONVERGED, STOP_MAX_ITER, ocp_qp_options
 
 TIGHT_HPIPM = {"hpipm": {f"res_{k}_max": 1e-12 for k in "gbdm"}}
@@ -905,6 +906,17 @@ def test_step_takes_the_resident_c_step_with_the_general_path_s_numbers(problem,
         with pytest.warns(DeprecationWarning, match=r"NMPC\.step\(x, t, \.\.\.\)\.control"):
             a = lean.step_control(measured, k * problem.dt, control, np.zeros(2))
         paths.append(c.fast_path)
+        if c.fast_path:
+            # the plan's arrays: views of one copy, not of the C step's buffers (the next call
+            # writes those), found finite by one pass; the definition: each array's isfinite
+            plan = stepper._deferred
+            arrays = (plan.primal, plan.lam_x, plan.lam_g, plan.info, plan.control)
+            assert plan.all_finite == all(np.isfinite(a).all() for a in arrays)
+            assert plan.all_finite and finite_warm_start(plan) and plan.finite_control()
+            step_memory = stepper.backend._ocp_steps[(plan.variant, plan.still_water)].outputs
+            assert not any(np.shares_memory(a, step_memory) for a in arrays)
+            spoiled = dataclasses.replace(plan, lam_g=np.r_[plan.lam_g[:-1], np.nan], all_finite=False)
+            assert not finite_warm_start(spoiled) and spoiled.finite_control()
         assert b.fast_path == "" and (lean.last_output is None) == (c.fast_path != "")
         assert np.array_equal(c.control, b.control) and c.fallback == b.fallback, k
         assert np.array_equal(a, b.control), k

@@ -441,7 +441,7 @@ class NMPC:
             failure_reason = f"exception: {type(error).__name__}: {error}"
         else:
             if preparable and isinstance(outcome, DeferredPlan):
-                finite = bool(np.isfinite(outcome.control).all())  # a plug-in's NaN: no plan
+                finite = outcome.finite_control()  # a plug-in's NaN: no plan
                 if finite and self._holds_path_constraints(outcome, p):  # judged where paths bind
                     self._deferred = outcome  # its iterate and plan are built when needed
                     control = self._admissible(outcome.control, u_prev)

@@ -136,6 +136,10 @@ class DeferredPlan(abc.ABC):
     #: which fast path took the step, e.g. ``"resident C step"`` (shown in the step's record)
     path: str
 
+    def finite_control(self) -> bool:
+        """Whether every entry of :attr:`control` is finite (NMPC refuses a plan whose control is not)."""
+        return bool(np.isfinite(self.control).all())
+
     @abc.abstractmethod
     def iterate(self) -> Iterate:
         """Return the plan's warm start, unshifted: what ``result().iterate`` is."""

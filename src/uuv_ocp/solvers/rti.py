@@ -269,6 +269,9 @@ class CStepPlan(DeferredPlan):
         The C step's record of the call (``OcpQpStep.iterate``'s ``info``).
     elapsed : float
         Wall time of the step inside the backend (s).
+    all_finite : bool
+        ``True`` when every number of ``primal``, ``lam_x``, ``lam_g``, ``info`` and ``control``
+        is known finite (one pass at the step); ``False`` when one is not or it was not checked.
     """
 
     variant: str
@@ -283,6 +286,11 @@ class CStepPlan(DeferredPlan):
     p: np.ndarray
     info: np.ndarray
     elapsed: float
+    all_finite: bool = False
+
+    def finite_control(self) -> bool:
+        """Whether every entry of :attr:`control` is finite (known from the step's pass, if it was made)."""
+        return self.all_finite or bool(np.isfinite(self.control).all())
 
     def iterate(self) -> Iterate:
         """Return the plan and warm start as :meth:`RtiSolver.solve` returns them (unshifted)."""
@@ -679,20 +687,17 @@ class RtiSolver(NlpSolver):
         if not ocp.resident_step(p, limit, self.tol, self.qp_tolerance, converge):
             ocp.owner = None  # the caller goes on from its own copy of the plan
             return None
-        primal = ocp.w.copy()
-        # the new primal (a fresh array) marks the resident point as this plan's (resident_step
+        # one copy of the outputs with room for the first control after them: the plan's
+        # arrays are views of it, and one pass over it tells that all of them are finite
+        size = ocp.outputs.size
+        kept = np.empty(size + self._first_control(variant)[0].size)
+        kept[:size] = ocp.outputs
+        primal, lam_x, lam_g, info = ocp.split(kept[:size])
+        # the new primal (a fresh view) marks the resident point as this plan's (resident_step
         # above); not the plan itself, which refers to this backend (no reference cycle)
         ocp.owner = primal
         return self._c_plan(
-            variant,
-            still_water,
-            primal,
-            ocp.lam_x.copy(),
-            ocp.lam_g.copy(),
-            "resident C step",
-            p,
-            ocp.info.copy(),
-            start,
+            variant, still_water, primal, lam_x, lam_g, "resident C step", p, info, start, kept
         )
 
     def _c_plan(
@@ -706,12 +711,21 @@ class RtiSolver(NlpSolver):
         p: np.ndarray,
         info: np.ndarray,
         start: float,
+        kept: np.ndarray | None = None,
     ) -> CStepPlan:
-        """Return the :class:`CStepPlan` of a C call that succeeded (arrays already copied)."""
+        """Return the :class:`CStepPlan` of a C call that succeeded (arrays already copied).
+
+        ``kept``: the copy of :attr:`OcpQpStep.outputs <uuv_ocp.solvers.rti_ocp.OcpQpStep.outputs>`
+        the arrays are views of, with room for the first control at its end (the resident step).
+        """
         index, lower, upper, scale, centre = self._first_control(variant)
         # plan_iterate's clip to the box, then OcpSpec.physical, on the first control alone
-        # in place on the fresh gathered copy: the same operations, two temporaries fewer
-        control = primal[index]
+        # in place on the gathered copy: the same operations, two temporaries fewer
+        if kept is None:
+            control = primal[index]
+        else:
+            control = kept[kept.size - index.size :]
+            np.take(primal, index, out=control)
         np.maximum(control, lower, out=control)
         np.minimum(control, upper, out=control)
         np.multiply(scale, control, out=control)
@@ -729,6 +743,7 @@ class RtiSolver(NlpSolver):
             np.array(p, dtype=float),
             info,
             time.perf_counter() - start,
+            kept is not None and bool(np.isfinite(kept).all()),
         )
 
     def c_iterate(
@@ -1050,8 +1065,9 @@ def finite_warm_start(warm_start: Iterate | DeferredPlan) -> bool:
     no warm start: linearised there, the next QP is non-finite again, step after step.
     """
     if isinstance(warm_start, CStepPlan):
-        # unrolled (no generator): checked on every resident step of a closed loop
-        return bool(
+        # unrolled (no generator): checked on every resident step of a closed loop, whose
+        # plans were found finite by one pass at their step (all_finite)
+        return warm_start.all_finite or bool(
             np.isfinite(warm_start.primal).all()
             and np.isfinite(warm_start.lam_x).all()
             and np.isfinite(warm_start.lam_g).all()

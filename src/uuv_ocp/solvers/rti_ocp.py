@@ -761,10 +761,18 @@ class OcpQpStep:
         self.memory = ctypes.c_void_p()
         self._finalizer: weakref.finalize | None = None
         self.reset()
-        # preallocated buffers: a call copies its inputs in and hands C their addresses
-        self.w, self.p = np.zeros(nw), np.zeros(np_)
-        self.lam_x, self.lam_g, self.info = np.zeros(nw), np.zeros(ng), np.zeros(INFO_SIZE)
+        # preallocated buffers: a call copies its inputs in and hands C their addresses; the
+        # outputs are views of one array, so that a caller keeps them with one copy (outputs)
+        self.p = np.zeros(np_)
+        #: ``[w, lam_x, lam_g, info]`` of the last call, one array (:attr:`w` ... are its views)
+        self.outputs = np.zeros(2 * nw + ng + INFO_SIZE)
+        self.w, self.lam_x, self.lam_g, self.info = self.split(self.outputs)
         self._pointers = [a.ctypes.data for a in (self.w, self.p, self.lam_x, self.lam_g, self.info)]
+
+    def split(self, outputs: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Return views ``(w, lam_x, lam_g, info)`` of an array laid out as :attr:`outputs` (a copy of it)."""
+        nw, ng = self._args[1][0], self._args[1][1]
+        return outputs[:nw], outputs[nw : 2 * nw], outputs[2 * nw : 2 * nw + ng], outputs[2 * nw + ng :]
 
     def reset(self) -> None:
         """Replace the C memory (HPIPM's workspaces, the resident warm start) by a fresh one.

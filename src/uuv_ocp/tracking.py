@@ -712,6 +712,15 @@ class TrackingProblem(DeclaredPreset):
         last = first + horizon
         if first * dt != t0 or dt > UNWRAP_STEP or last * dt > reference.t_end:
             return None
+        joined = self._joined_blocks(first // SAMPLE_BLOCK, last // SAMPLE_BLOCK)
+        if joined is not None:
+            start_index, states = joined
+            if start_index <= first and last - start_index < states.shape[0]:
+                if out is None:
+                    return states[first - start_index : last - start_index + 1].copy()
+                if out.shape[1] == states.shape[1]:
+                    out[:] = states[first - start_index : last - start_index + 1]
+                    return out
         window = out
         row = 0  # rows of the window written
         for block in range(first // SAMPLE_BLOCK, last // SAMPLE_BLOCK + 1):
@@ -739,6 +748,42 @@ class TrackingProblem(DeclaredPreset):
                 window[: part.shape[0]] = part
                 row = part.shape[0]
         return window if row == horizon + 1 else None
+
+    def _joined_blocks(self, first: int, last: int) -> tuple[int, np.ndarray] | None:
+        """Return sample blocks ``first`` to ``last`` as one run (first index, states), or ``None``.
+
+        Each block after the first moved to the heading branch of the one before, as the loop
+        of :meth:`_window_from_samples` moves them: a window inside the run is a slice of it
+        (the same numbers; a memo, so the moves are made once per pair of blocks, not per step).
+        ``None`` when a block cannot be sampled or two do not meet: that loop then decides.
+        """
+        runs = self.joined_blocks
+        key = (first, last)
+        if key not in runs:
+            column = self.reference.heading_index  # raw reference samples, before the mapping
+            parts: list[np.ndarray] = []
+            start_index = end_index = 0
+            for block in range(first, last + 1):
+                samples = self._sample_block(block)
+                if samples is None or (parts and samples[0] != end_index):
+                    runs[key] = None
+                    return None
+                index, states = samples
+                if parts:
+                    part = states.copy()
+                    _move_heading_branch(part, parts[-1][-1, column], column)
+                    parts.append(part[1:])
+                else:
+                    start_index = index
+                    parts.append(states)
+                end_index = index + states.shape[0] - 1
+            runs[key] = (start_index, parts[0] if len(parts) == 1 else np.concatenate(parts))
+        return runs[key]
+
+    @built_once
+    def joined_blocks(self) -> dict[tuple[int, int], tuple[int, np.ndarray] | None]:
+        """Runs of sample blocks by (first block, last block): :meth:`_joined_blocks`' memo."""
+        return {}
 
     @built_once
     def sample_blocks(self) -> dict[int, tuple[int, np.ndarray] | None]:

@@ -281,3 +281,33 @@ def test_check_previous_defaults_to_zero_clipped_into_the_box_and_checks_a_given
     with pytest.raises(ValueError, match="u_prev must lie inside the control bounds"):
         ocp.check_previous([0.0])
     assert np.array_equal(ocp.check_previous([1.5]), [1.5])
+
+
+def test_a_fast_path_record_is_the_record_its_constructor_builds():
+    """``StepRecord._of_fast_path`` (no ``__init__``): the constructor's record, field by field."""
+    import dataclasses
+
+    from uuv_ocp.control.mpc import StepRecord
+
+    class Plan(uo.solvers.base.DeferredPlan):
+        path = "resident C step"
+        control = np.array([1.0, -2.0])
+
+        def iterate(self):
+            raise AssertionError("not built")
+
+        def result(self):
+            return "built"
+
+    plan, control = Plan(), np.array([0.5, -0.5])
+    fast, built = (
+        StepRecord._of_fast_path(control, plan),
+        StepRecord(control, plan, False, fast_path=plan.path),
+    )
+    names = [field.name for field in dataclasses.fields(StepRecord)]
+    assert names == list(vars(fast)) == list(vars(built))
+    assert all(getattr(fast, name) is getattr(built, name) for name in names)
+    assert fast == built and repr(fast) == repr(built)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        fast.fallback = True
+    assert fast.result == "built" and fast._result == "built"  # the deferred result, built once

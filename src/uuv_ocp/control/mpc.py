@@ -153,6 +153,21 @@ class StepRecord:
     fallback_source: str = ""
     fast_path: str = ""
 
+    @classmethod
+    def _of_fast_path(cls, control: np.ndarray, plan: DeferredPlan) -> StepRecord:
+        """Return ``StepRecord(control, plan, False, fast_path=plan.path)``, built without its ``__init__``.
+
+        Every field set at once: the frozen ``__init__`` sets seven one by one (1.4 against 0.6 µs
+        timeit, on every fast step of a closed loop; tests/control/test_mpc_fast_paths.py).
+        """
+        record = _NEW(cls)
+        _SET(
+            record,
+            "__dict__",
+            {**_FAST_DEFAULTS, "control": control, "_result": plan, "fast_path": plan.path},
+        )
+        return record
+
     @property
     def result(self) -> SolveResult | None:
         """The solver's result (``None`` if the solver raised); the judge's cost and violation included.
@@ -170,6 +185,17 @@ class StepRecord:
 
 #: The name of :class:`StepRecord` before the fast paths returned one too.
 StepOutput = StepRecord
+#: what :meth:`StepRecord._of_fast_path` uses: the fields of a fresh plan applied, in their order
+_FAST_DEFAULTS = {
+    "control": None,
+    "_result": None,
+    "fallback": False,
+    "message": "",
+    "deadline_hit": False,
+    "fallback_source": "",
+    "fast_path": "",
+}
+_NEW, _SET = object.__new__, object.__setattr__
 
 
 _Method = TypeVar("_Method", bound=Callable[..., Any])
@@ -445,7 +471,7 @@ class NMPC:
                 if finite and self._holds_path_constraints(outcome, p):  # judged where paths bind
                     self._deferred = outcome  # its iterate and plan are built when needed
                     control = self._admissible(outcome.control, u_prev)
-                    return StepRecord(control, outcome, False, fast_path=outcome.path)
+                    return StepRecord._of_fast_path(control, outcome)
                 # refused: refined and judged below, as a refused plan of solve() is
                 outcome = outcome.result()
             if not isinstance(outcome, SolveResult):  # a broken plug-in, not a failed solve

@@ -532,8 +532,9 @@ class NativeIgwo:
     ``(iterations, 8, population, dim)`` of uniform numbers or a ``numpy.random.Generator``
     on PCG64 (numpy's default), from which the C code draws exactly the numbers
     ``draws.random((iterations, 8, population, dim))`` would give, and advances it as that
-    call would, on a second thread one iteration ahead when ``rng_thread`` (the same numbers:
-    the 288 k uniform draws of a 20 × 30 step then cost no time on the step's own thread).
+    call would, shared with a second thread that runs up to four iterations ahead when
+    ``rng_thread`` (the same numbers: most of the 288 k uniform draws of a 20 × 30 step then
+    cost no time on the step's own thread).
     Inputs are float64 arrays; every length and shape is checked against the build (the C code
     trusts them).
 
@@ -595,7 +596,8 @@ class NativeIgwo:
         but never waits for it, as the step does for a block its worker is late with, ``3``
         draws the odd blocks on the step's thread and waits for the worker's even ones (test
         modes; the numbers are the same in every case).  ``late_blocks`` in the result counts the
-        iterations whose numbers the step drew itself because the second thread was late.
+        iterations after the first whose numbers the step drew (partly) itself because the
+        second thread was late.
 
         Shapes (``dim`` and ``population`` are the build's): ``p (parameter_dim,)``,
         ``offset``, ``lower``, ``upper (dim,)``, ``positions (population, dim)``, ``a`` and

@@ -174,7 +174,7 @@ def swarm_options(method: str) -> tuple[Option, ...]:
             "rng_thread",
             AUTO,
             "`True` or `False`",
-            "the all-C IGWO step draws 7/8 of its random numbers on a second thread (the same numbers)",
+            "the all-C IGWO step shares its random draws with a second thread (the same numbers)",
             meaning="`True` on a machine with 2 or more usable CPUs",
         ),
         Option(
@@ -399,9 +399,9 @@ class SwarmSolver:
         out each point that may enter the archive; k = 1 costs nothing.
         ``candidate_distance`` defaults per metric to :data:`CANDIDATE_DISTANCE`.
 
-        ``rng_thread``: the all-C IGWO step draws 7/8 of its random numbers on a second
-        thread, one iteration ahead — the same numbers; an iteration whose block the thread is
-        late with is drawn by the step itself, so a late thread never stalls the step; False
+        ``rng_thread``: the all-C IGWO step shares the drawing of its random numbers with a
+        second thread running up to four iterations ahead — the same numbers; the step draws
+        what the thread has not started itself, so a late thread never stalls the step; False
         keeps the step on one thread: better for the tail latency on a machine whose other
         CPUs are busy, e.g. inside a process pool, see docs/codegen.md.  ``compiled``: see
         docs/codegen.md; ``deadline``: see the module doc.

@@ -614,7 +614,8 @@ class NativeIgwo:
             "positions": (population, dim),
         }
         given = {"p": p, "offset": offset, "lower": lower, "upper": upper, "positions": positions}
-        inputs = [_float_array(name, given[name], shape) for name, shape in shapes.items()]
+        checked = (_float_array(name, given[name], shape) for name, shape in shapes.items())
+        p, offset, lower, upper, positions = checked
         a, w = (_float_array(name, v, (iterations,)) for name, v in (("a", a), ("w", w)))
         c1, c2 = check.finite_float("c1", c1), check.finite_float("c2", c2)
         if isinstance(rng_thread, bool):
@@ -626,7 +627,7 @@ class NativeIgwo:
                 raise ValueError(f"draws must use PCG64, got {type(draws.bit_generator).__name__}")
         else:
             draws = _float_array("draws", draws, (iterations, 8, population, dim))
-        return self._run(*inputs, draws, a, w, c1, c2, int(rng_thread))
+        return self._run(p, offset, lower, upper, positions, draws, a, w, c1, c2, int(rng_thread))
 
     def _run(
         self,

@@ -10,6 +10,7 @@ import time
 BENCHMARKS = (
     "benchmarks.bench_exact",
     "benchmarks.bench_swarm",
+    "benchmarks.bench_igwo_step",
     "benchmarks.bench_mppi",
     "benchmarks.bench_codegen",
     "benchmarks.bench_swarm_functions",

@@ -1,6 +1,7 @@
 """SIMD population kernels and the in-C PCG64: checked against libm, the VM and numpy."""
 
 import ctypes
+import subprocess
 
 import casadi as ca
 import numpy as np
@@ -259,8 +260,8 @@ def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
     # test modes of the C step: 2 never uses the worker's blocks, 3 uses only its even ones
     monkeypatch.setattr(native, "rng_thread", rng_thread)
     runs = []
-    run = native.native.run
-    monkeypatch.setattr(native.native, "run", lambda *args, **kw: runs.append(run(*args, **kw)) or runs[-1])
+    run = native.native._run  # what the solver calls (run() without the re-checks)
+    monkeypatch.setattr(native.native, "_run", lambda *args, **kw: runs.append(run(*args, **kw)) or runs[-1])
     python = uo.new_solver(s2_problem, "igwo", {"compiled": True})
     python.native = None  # the Python loop over the same compiled kernel
     for seed in (1, 2):
@@ -315,3 +316,86 @@ def test_a_bad_per_function_tolerance_is_named(tmp_path):
     x = ca.SX.sym("x")
     with pytest.raises(ValueError, match=r"tolerances\['f'\] must be a number >= 0, got -1"):
         codegen_core.compile_functions([ca.Function("f", [x], [x])], tmp_path, tolerances={"f": -1})
+
+
+#: the IGWO step on a toy separable cost, every drawing mode against the numbers given
+_STREAM_HARNESS = r"""
+#include <stdio.h>
+#include <string.h>
+#define CASADI_SYMBOL_EXPORT
+typedef double casadi_real;
+typedef long long casadi_int;
+static int cost_batch_work(casadi_int* a, casadi_int* r, casadi_int* i, casadi_int* w) {
+  *a = 2; *r = 1; *i = 0; *w = 0; return 0;
+}
+static int cost_batch(const casadi_real** arg, casadi_real** res, casadi_int* iw, casadi_real* w,
+                      int mem) {
+  int i, k;
+  (void)iw; (void)w; (void)mem;
+  for (i = 0; i < 20; ++i) {
+    double s = 0.0;
+    for (k = 0; k < 60; ++k) s += (1 + k % 3) * (arg[0][i * 60 + k] - 0.01 * k) * (arg[0][i * 60 + k] - 0.1);
+    res[0][i] = s;
+  }
+  return 0;
+}
+#include IGWO_SOURCE
+int main(void) {
+  static double draws[30 * 8 * 1200];
+  double p[1] = {0}, offset[60] = {0}, lower[60], upper[60], positions[1200], a[30], w[30];
+  double x[60], f, history[31], final[1200], history0[31], final0[1200];
+  const unsigned long long late_expected[4] = {0, 0, 29, 15};
+  int k, seed, mode, bad = 0;
+  for (k = 0; k < 60; ++k) { lower[k] = -1.0; upper[k] = 1.0; }
+  for (k = 0; k < 1200; ++k) positions[k] = ((k * 37) % 200) / 100.0 - 1.0;
+  for (k = 0; k < 30; ++k) { a[k] = 2.0 - k / 15.0; w[k] = 0.9 - k / 60.0; }
+  for (seed = 0; seed < 50; ++seed) {
+    const uint64_t start[4] = {0x1234u + seed, 0x9876543210ull * seed, 0x5555u, 2u * seed + 1u};
+    uuv_ocp_pcg64_random(start[0], start[1], start[2], start[3], draws, 30 * 9600);
+    uuv_ocp_igwo(p, offset, lower, upper, positions, draws, a, w, .5, .5, 20, 60, 30, x, &f,
+                 history0, final0);
+    for (mode = 0; mode < 4; ++mode) {
+      uint64_t pcg[5] = {start[0], start[1], start[2], start[3], 0};
+      uuv_ocp_igwo_pcg64(p, offset, lower, upper, positions, pcg, mode, a, w, .5, .5, 20, 60, 30,
+                         x, &f, history, final);
+      if (memcmp(history, history0, sizeof history) || memcmp(final, final0, sizeof final)) {
+        printf("seed %d mode %d: other numbers\n", seed, mode);
+        bad++;
+      }
+      if (mode != 1 && pcg[4] != late_expected[mode]) {
+        printf("seed %d mode %d: late %llu\n", seed, mode, (unsigned long long)pcg[4]);
+        bad++;
+      }
+    }
+  }
+  printf("mismatches %d\n", bad);
+  return bad != 0;
+}
+"""
+
+
+@needs_compiler
+@pytest.mark.parametrize("sanitizer", [None, "thread"])
+def test_c_step_draws_the_same_numbers_whoever_draws_them(tmp_path, sanitizer):
+    """Every drawing mode of the C step gives the run of the numbers given (50 seeds).
+
+    Modes: one thread, worker, worker never used, odd/even split; with ThreadSanitizer when the
+    compiler has it (a data race in the group claims or the ring fails the run).
+    """
+    source = tmp_path / "harness.c"
+    source.write_text(_STREAM_HARNESS)
+    binary = tmp_path / "harness"
+    igwo = runtime._IGWO_SOURCE
+    flags = ["-O2", "-ffp-contract=off", "-D_GNU_SOURCE", f'-DIGWO_SOURCE="{igwo}"', "-pthread"]
+    if sanitizer:
+        flags += [f"-fsanitize={sanitizer}", "-g"]
+    command = [codegen_core.find_c_compiler(), *flags, str(source), "-o", str(binary), "-lm"]
+    built = subprocess.run(command, capture_output=True, text=True)
+    if built.returncode != 0:
+        if sanitizer:
+            pytest.skip(f"the compiler has no -fsanitize={sanitizer}: {built.stderr[-200:]}")
+        raise AssertionError(built.stderr)
+    env = {"TSAN_OPTIONS": "halt_on_error=1 exitcode=66"}
+    ran = subprocess.run([str(binary)], capture_output=True, text=True, env=env, timeout=120)
+    assert ran.returncode == 0, ran.stdout[-2000:] + ran.stderr[-2000:]
+    assert "mismatches 0" in ran.stdout

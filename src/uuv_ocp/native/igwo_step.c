@@ -30,7 +30,7 @@
 /* ---- numpy's PCG64 ------------------------------------------------------------------ */
 typedef __uint128_t uuv_u128;
 #define UUV_PCG_MULTIPLIER (((uuv_u128)2549297995355413924ULL << 64) | 4865540595714422341ULL)
-#define UUV_PCG_SEGMENTS 8   /* a block of draws = 8 jump-started segments */
+#define UUV_PCG_SEGMENTS 16  /* a block of draws = 16 jump-started segments */
 #define UUV_PCG_INTERLEAVE 4 /* segments advanced together: independent multiply chains */
 
 typedef struct {
@@ -131,32 +131,43 @@ CASADI_SYMBOL_EXPORT void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state
   uuv_pcg_fill(state, inc, jumps, segment, out, count, 0, UUV_PCG_SEGMENTS);
 }
 
-/* The IGWO's random numbers, one iteration's block at a time.  With a second thread, the
- * step's own thread draws block 0 (timing it), the worker draws segments 0..6 of each later
- * block one iteration ahead (two buffers, release/acquire counters) and the step's thread
- * draws the last segment when it takes the block.  A block the worker has not delivered
- * within the time block 0 took to draw (the worker is still starting, or its CPU is busy with
- * another process) is drawn whole by the step's thread into a third buffer the worker never
- * touches; the worker skips the blocks already consumed.  So a late worker costs at most
- * about two block-times per block (the wait, then the draw), never a stall.  Each thread advances its own copy of the generator
- * state by one block per block: the same numbers in the same order, whoever draws them.
- * rng_thread: 0 one thread; 1 a worker; for tests: 2 a worker whose blocks are never used
+/* The IGWO's random numbers, one iteration's block at a time, shared between the step's thread
+ * and (rng_thread) a worker on another CPU.  Each block is split into UUV_PCG_GROUPS groups of
+ * UUV_PCG_INTERLEAVE jump-started segments; either thread claims a group with a compare-and-swap
+ * on its flag and draws it, so no group is drawn twice and neither thread waits for work the
+ * other has not started.  The worker runs up to UUV_PCG_RING blocks ahead into a ring of
+ * buffers (started before the first fitness evaluation, it usually delivers every block); the
+ * step's thread, when it needs block t, draws the groups still free itself and waits only for
+ * groups the worker is drawing at that moment (a few microseconds).  A worker that holds a
+ * group longer than the stream's patience (descheduled by the operating system) is left
+ * behind: the step draws that block and every later one alone into its own buffer, which the
+ * worker never touches.  Each thread advances its own copy of the generator state by one
+ * block per block: the same numbers in the same order, whoever draws them.
+ * rng_thread: 0 one thread; 1 a worker; for tests: 2 a worker whose groups are never used
  * (the step's thread draws every block), 3 the step's thread draws the odd blocks and waits
- * for the worker's even ones however long it takes (the worker skips, then hands over). */
+ * for the worker's even ones however long it takes. */
+#define UUV_PCG_RING 4 /* blocks the worker may run ahead: 4 x 77 kB for a 20 x 60 pack */
+#define UUV_PCG_GROUPS (UUV_PCG_SEGMENTS / UUV_PCG_INTERLEAVE)
+enum { UUV_GROUP_FREE = 0, UUV_GROUP_WORKER = 1, UUV_GROUP_DONE = 2, UUV_GROUP_STEP = 3 };
+
 typedef struct {
-  uuv_u128 state, worker_state, inc;
+  uuv_u128 state, worker_state, inc; /* state: the step's, at the start of its next block */
   uuv_pcg_jump jumps[UUV_PCG_SEGMENTS + 1];
   size_t segment, block_size;
-  double* buffers[3]; /* the worker's two, and the step thread's own */
-  int blocks, threaded, test_mode, stolen;
-  double patience; /* s: how long the step's thread waits for a block before drawing it */
+  double* ring; /* UUV_PCG_RING blocks: block t in slot t % UUV_PCG_RING */
+  double* own;  /* the step thread's block: test modes and after a worker was left behind */
+  atomic_int* claims; /* blocks x UUV_PCG_GROUPS flags UUV_GROUP_* */
+  int blocks, threaded, test_mode, solo, late;
+  double patience; /* s: how long the step waits for a group the worker is drawing */
   pthread_t worker;
-  atomic_int produced, consumed, stop;
+  atomic_int consumed, stop;
 } uuv_pcg_stream;
 
 static inline void uuv_pause(void) {
 #if defined(__x86_64__) || defined(__i386__)
   __builtin_ia32_pause();
+#elif defined(__aarch64__)
+  __asm__ __volatile__("yield");
 #endif
 }
 
@@ -174,26 +185,41 @@ static double uuv_seconds(void) {
   return (double)now.tv_sec + 1e-9 * (double)now.tv_nsec;
 }
 
+static int uuv_pcg_claim(uuv_pcg_stream* stream, int t, int group, int who) {
+  int expected = UUV_GROUP_FREE;
+  return atomic_compare_exchange_strong_explicit(&stream->claims[t * UUV_PCG_GROUPS + group],
+                                                 &expected, who, memory_order_acq_rel,
+                                                 memory_order_acquire);
+}
+
+static inline void uuv_pcg_group(const uuv_pcg_stream* stream, uuv_u128 state, int group,
+                                 double* block) {
+  uuv_pcg_fill(state, stream->inc, stream->jumps, stream->segment, block, stream->block_size,
+               group * UUV_PCG_INTERLEAVE, (group + 1) * UUV_PCG_INTERLEAVE);
+}
+
 static void* uuv_pcg_worker(void* argument) {
   uuv_pcg_stream* stream = (uuv_pcg_stream*)argument;
-  uuv_u128 state = stream->worker_state; /* at block 1: block 0 is the step thread's */
-  int t = 1, spins, consumed;
-  while (t < stream->blocks) {
-    for (spins = 0; t - atomic_load_explicit(&stream->consumed, memory_order_acquire) >= 2; ++spins) {
+  uuv_u128 state = stream->worker_state; /* block 0's */
+  int t, group, spins;
+  for (t = 0; t < stream->blocks; ++t) {
+    double* block = stream->ring + (size_t)(t % UUV_PCG_RING) * stream->block_size;
+    /* slot t % RING is free once the step has released block t - RING */
+    for (spins = 0;
+         t >= atomic_load_explicit(&stream->consumed, memory_order_acquire) + UUV_PCG_RING;
+         ++spins) {
       if (atomic_load_explicit(&stream->stop, memory_order_relaxed)) return NULL;
       uuv_wait(spins);
     }
-    if (atomic_load_explicit(&stream->stop, memory_order_relaxed)) return NULL;
-    consumed = atomic_load_explicit(&stream->consumed, memory_order_acquire);
-    if (consumed > t) { /* the step's thread drew these itself: skip them */
-      for (; t < consumed; ++t) state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], state);
-      continue;
+    for (group = 0; group < UUV_PCG_GROUPS; ++group) {
+      if (atomic_load_explicit(&stream->stop, memory_order_relaxed)) return NULL;
+      if (uuv_pcg_claim(stream, t, group, UUV_GROUP_WORKER)) {
+        uuv_pcg_group(stream, state, group, block);
+        atomic_store_explicit(&stream->claims[t * UUV_PCG_GROUPS + group], UUV_GROUP_DONE,
+                              memory_order_release);
+      }
     }
-    uuv_pcg_fill(state, stream->inc, stream->jumps, stream->segment, stream->buffers[t & 1],
-                 stream->block_size, 0, UUV_PCG_SEGMENTS - 1);
     state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], state);
-    atomic_store_explicit(&stream->produced, t + 1, memory_order_release);
-    ++t;
   }
   return NULL;
 }
@@ -223,32 +249,50 @@ static int uuv_start_worker(uuv_pcg_stream* stream) {
 static int uuv_pcg_stream_open(uuv_pcg_stream* stream, const uint64_t* pcg, size_t block_size,
                                int blocks, int rng_thread) {
   const int wanted = rng_thread != 0 && blocks > 1;
+  int k;
   stream->state = ((uuv_u128)pcg[0] << 64) | pcg[1];
+  stream->worker_state = stream->state;
   stream->inc = ((uuv_u128)pcg[2] << 64) | pcg[3];
   stream->block_size = block_size;
   stream->segment = uuv_pcg_jumps(stream->inc, block_size, stream->jumps);
-  stream->worker_state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], stream->state);
   stream->blocks = blocks;
   stream->test_mode = rng_thread == 2 || rng_thread == 3 ? rng_thread : 0;
-  stream->stolen = 0;
-  stream->patience = 0.0;
-  stream->buffers[0] = (double*)malloc(sizeof(double) * block_size * (wanted ? 3 : 1));
-  if (stream->buffers[0] == NULL) return 1;
-  stream->buffers[1] = stream->buffers[0] + block_size;
-  stream->buffers[2] = wanted ? stream->buffers[0] + 2 * block_size : stream->buffers[0];
-  atomic_init(&stream->produced, 1);
+  stream->solo = 0;
+  stream->late = 0;
+  stream->patience = 20e-6;
+  stream->ring = NULL;
+  stream->claims = NULL;
+  stream->threaded = 0;
+  stream->own = (double*)malloc(sizeof(double) * block_size);
+  if (stream->own == NULL) return 1;
+  if (wanted) {
+    stream->ring = (double*)malloc(sizeof(double) * block_size * UUV_PCG_RING);
+    stream->claims = (atomic_int*)malloc(sizeof(atomic_int) * (size_t)blocks * UUV_PCG_GROUPS);
+    if (stream->ring == NULL || stream->claims == NULL) {
+      free(stream->own);
+      free(stream->ring);
+      free(stream->claims);
+      return 1;
+    }
+    for (k = 0; k < blocks * UUV_PCG_GROUPS; ++k) atomic_init(&stream->claims[k], UUV_GROUP_FREE);
+  }
   atomic_init(&stream->consumed, 0);
   atomic_init(&stream->stop, 0);
   stream->threaded = wanted && uuv_start_worker(stream);
   return 0;
 }
 
-/* Wait for the worker's part of block t; 0 if it is later than the stream's patience. */
-static int uuv_pcg_stream_wait(uuv_pcg_stream* stream, int t) {
+/* Wait until the worker has drawn group `group` of block t: 1, or 0 after the stream's
+ * patience (never in test mode 3, which waits however long it takes). */
+static int uuv_pcg_stream_wait(uuv_pcg_stream* stream, int t, int group) {
+  const atomic_int* flag = &stream->claims[t * UUV_PCG_GROUPS + group];
   double deadline = 0.0;
   int spins;
-  if (stream->test_mode == 2 || (stream->test_mode == 3 && (t & 1))) return 0;
-  for (spins = 0; atomic_load_explicit(&stream->produced, memory_order_acquire) <= t; ++spins) {
+  int state;
+  /* FREE only in test mode 3, where the step claims nothing of the blocks it waits for */
+  for (spins = 0; (state = atomic_load_explicit(flag, memory_order_acquire)) != UUV_GROUP_DONE &&
+                  state != UUV_GROUP_STEP;
+       ++spins) {
     /* a clock read costs ~25 ns: look at it now and then */
     if ((spins & 31) == 31 && stream->test_mode == 0) {
       const double now = uuv_seconds();
@@ -260,34 +304,57 @@ static int uuv_pcg_stream_wait(uuv_pcg_stream* stream, int t) {
   return 1;
 }
 
-/* Block t: its last segment drawn here and the rest by the worker, or all of it here. */
+/* Block t, drawn by whichever thread got to each group first. */
 static const double* uuv_pcg_stream_take(uuv_pcg_stream* stream, int t) {
-  double* block = stream->buffers[2];
-  int first = 0;
-  double started = 0.0;
-  if (stream->threaded && t > 0) {
-    if (uuv_pcg_stream_wait(stream, t)) {
-      block = stream->buffers[t & 1];
-      first = UUV_PCG_SEGMENTS - 1;
-    } else {
-      stream->stolen += 1;
+  const uuv_u128 state = stream->state;
+  double* block;
+  int group, mine = 0;
+  stream->state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], state);
+  if (stream->threaded && !stream->solo &&
+      !(stream->test_mode == 2 || (stream->test_mode == 3 && (t & 1)))) {
+    block = stream->ring + (size_t)(t % UUV_PCG_RING) * stream->block_size;
+    for (group = 0; group < UUV_PCG_GROUPS && stream->test_mode != 3; ++group) {
+      if (uuv_pcg_claim(stream, t, group, UUV_GROUP_STEP)) {
+        const double started = mine ? 0.0 : uuv_seconds();
+        uuv_pcg_group(stream, state, group, block);
+        /* the first group drawn here sets the patience: about two block-times */
+        if (!mine) {
+          const double wait = 2.0 * UUV_PCG_GROUPS * (uuv_seconds() - started);
+          if (wait > stream->patience) stream->patience = wait;
+        }
+        mine = 1;
+      }
+    }
+    for (group = 0; group < UUV_PCG_GROUPS; ++group) {
+      if (!uuv_pcg_stream_wait(stream, t, group)) { /* the worker is descheduled: go alone */
+        stream->solo = 1;
+        atomic_store_explicit(&stream->stop, 1, memory_order_relaxed);
+        break;
+      }
+    }
+    if (!stream->solo) {
+      if (mine && t > 0) stream->late += 1;
+      return block;
     }
   }
-  if (stream->threaded && t == 0) started = uuv_seconds();
-  uuv_pcg_fill(stream->state, stream->inc, stream->jumps, stream->segment, block,
-               stream->block_size, first, UUV_PCG_SEGMENTS);
-  if (stream->threaded && t == 0) stream->patience = uuv_seconds() - started;
-  stream->state = uuv_pcg_apply(stream->jumps[UUV_PCG_SEGMENTS], stream->state);
-  return block;
+  if (stream->threaded) {
+    /* the worker skips the groups claimed here; a block drawn here after block 0 is late */
+    for (group = 0; group < UUV_PCG_GROUPS; ++group) uuv_pcg_claim(stream, t, group, UUV_GROUP_STEP);
+    if (t > 0) stream->late += 1;
+  }
+  uuv_pcg_fill(state, stream->inc, stream->jumps, stream->segment, stream->own, stream->block_size,
+               0, UUV_PCG_SEGMENTS);
+  return stream->own;
 }
 
-/* Block t is no longer read: its buffer may be refilled. */
+/* Block t is no longer read: its ring slot may be refilled. */
 static void uuv_pcg_stream_release(uuv_pcg_stream* stream, int t) {
   if (stream->threaded) atomic_store_explicit(&stream->consumed, t + 1, memory_order_release);
 }
 
 /* Stop the worker and write the generator's state after the blocks taken back to pcg[0..1];
- * pcg[4] = the number of blocks the step's thread drew because the worker was late. */
+ * pcg[4] = the number of blocks after the first that the step's thread drew (partly) itself
+ * because the worker was late. */
 static void uuv_pcg_stream_close(uuv_pcg_stream* stream, uint64_t* pcg) {
   if (stream->threaded) {
     atomic_store_explicit(&stream->stop, 1, memory_order_relaxed);
@@ -295,9 +362,12 @@ static void uuv_pcg_stream_close(uuv_pcg_stream* stream, uint64_t* pcg) {
   }
   pcg[0] = (uint64_t)(stream->state >> 64);
   pcg[1] = (uint64_t)stream->state;
-  pcg[4] = (uint64_t)stream->stolen;
-  free(stream->buffers[0]);
-  stream->buffers[0] = NULL;
+  pcg[4] = (uint64_t)stream->late;
+  free(stream->own);
+  free(stream->ring);
+  free(stream->claims);
+  stream->own = stream->ring = NULL;
+  stream->claims = NULL;
 }
 
 /* One IGWO move of the whole pack into `next` (restrict: lets the compiler vectorise over j). */

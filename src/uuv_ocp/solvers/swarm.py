@@ -174,7 +174,7 @@ def swarm_options(method: str) -> tuple[Option, ...]:
             "rng_thread",
             AUTO,
             "`True` or `False`",
-            "the all-C IGWO step draws 7/8 of its random numbers on a second thread (the same numbers)",
+            "the all-C IGWO step shares its random draws with a second thread (the same numbers)",
             meaning="`True` on a machine with 2 or more usable CPUs",
         ),
         Option(
@@ -399,9 +399,9 @@ class SwarmSolver:
         out each point that may enter the archive; k = 1 costs nothing.
         ``candidate_distance`` defaults per metric to :data:`CANDIDATE_DISTANCE`.
 
-        ``rng_thread``: the all-C IGWO step draws 7/8 of its random numbers on a second
-        thread, one iteration ahead — the same numbers; an iteration whose block the thread is
-        late with is drawn by the step itself, so a late thread never stalls the step; False
+        ``rng_thread``: the all-C IGWO step shares the drawing of its random numbers with a
+        second thread running up to four iterations ahead — the same numbers; the step draws
+        what the thread has not started itself, so a late thread never stalls the step; False
         keeps the step on one thread: better for the tail latency on a machine whose other
         CPUs are busy, e.g. inside a process pool, see docs/codegen.md.  ``compiled``: see
         docs/codegen.md; ``deadline``: see the module doc.
@@ -452,6 +452,7 @@ class SwarmSolver:
         self._rollout: BufferedFunction | None = None
         self._schedules: tuple[np.ndarray, np.ndarray] | None = None  # IGWO's a(t), w(t) for the C step
         self._full_search_seconds: float | None = None  # last search that used the whole budget
+        self._cold_center: tuple[bytes, np.ndarray] | None = None  # (previous control, its centre)
         self.fitness = self._fitness_function()
         # what evaluates the population (details["evaluation"] says per solve what really ran)
         self.evaluation = (
@@ -491,10 +492,16 @@ class SwarmSolver:
         spec = problem.spec()
         previous = problem.previous_scaled(p)
         if warm_start is not None:
-            plan = np.asarray(warm_start.scaled_controls, dtype=float)
-        else:
-            plan = np.tile(previous, (spec.horizon, 1))
-        return encode(spec, plan, previous)
+            return encode(spec, np.asarray(warm_start.scaled_controls, dtype=float), previous)
+        # a cold centre depends on the last control only: one cached entry saves ~30 µs of
+        # encode per solve at a fixed state (a benchmark, the repeated cold starts of a loop)
+        key, cached = previous.tobytes(), self._cold_center  # one read: solves may run in threads
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        center = encode(spec, np.tile(previous, (spec.horizon, 1)), previous)
+        center.setflags(write=False)  # shared between solves: read only
+        self._cold_center = (key, center)
+        return center
 
     @staticmethod
     def _initial_rows(initial: object, width: int) -> np.ndarray:
@@ -600,7 +607,7 @@ class SwarmSolver:
             solve_time=time.perf_counter() - start,
             iterations=outcome.iterations,
             evaluations=outcome.evaluations,
-            terminal_relaxed=problem.soft_terminal_available and kinds["terminal"] > tolerance,
+            terminal_relaxed=kinds["terminal"] > tolerance and problem.soft_terminal_available,
             iterate=iterate,
             history=outcome.history,
             details=SolveDetails.of(
@@ -670,9 +677,9 @@ class SwarmSolver:
         options = algorithm.options
         native = self.native
         assert native is not None, "only called where the all-C step was built"
-        out = native.run(
-            p, offset, lower, upper, positions, draws, a, w, options["c1"], options["c2"], self.rng_thread
-        )
+        # every array here is the solver's own, float64 and of the build's shapes: no re-checks
+        c1, c2, threads = options["c1"], options["c2"], int(self.rng_thread)
+        out = native._run(p, offset, lower, upper, positions, draws, a, w, c1, c2, threads)
         message = f"reached the iteration budget ({self.iterations}) in the compiled C step"
         if out["late_blocks"]:
             message += (

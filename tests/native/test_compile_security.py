@@ -561,7 +561,7 @@ def _compiled_fatrop(monkeypatch, tmp_path):
     from uuv_ocp.native import runtime
 
     monkeypatch.setenv("UUV_OCP_CACHE", str(tmp_path / "cache"))
-    monkeypatch.setattr(runtime, "NLP_FLAGS", runtime.NLP_LARGE_FLAGS)
+    monkeypatch.setattr(runtime, "NLP_FLAGS", ("-O0", "-fPIC", "-shared"))  # the quickest compile
     problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=3, terminal="none")
     x0 = uo.Reference.paper("s2").evaluate([0.0])[0]
     return problem, instance_parameters(problem, x0, 0.0), _counted_compiles(monkeypatch)

@@ -6,7 +6,8 @@ functions the plugin evaluates are generated into one C file (as
 one compile after the other; printed: C size, CasADi instructions, compiler wall and CPU time
 (children's user + system), and the load.
 
-Run: ``python -m benchmarks.bench_fatrop_build --horizons 20 --levels -O0 -O1``.
+Run: ``python -m benchmarks.bench_fatrop_build --horizons 20 --levels=-O0 -O1`` (``=``: argparse
+reads a bare ``-O0`` as an option).
 """
 
 from __future__ import annotations

@@ -6,8 +6,8 @@ functions the plugin evaluates are generated into one C file (as
 one compile after the other; printed: C size, CasADi instructions, compiler wall and CPU time
 (children's user + system), and the load.
 
-Run: ``python -m benchmarks.bench_fatrop_build --horizons 20 --levels=-O0 -O1`` (``=``: argparse
-reads a bare ``-O0`` as an option).
+Run: ``python -m benchmarks.bench_fatrop_build --horizons 20 --levels=-O0,-O1`` (comma separated,
+after ``=``: argparse reads a bare ``-O0`` as an option).
 """
 
 from __future__ import annotations
@@ -58,7 +58,7 @@ def children_cpu() -> float:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--horizons", type=int, nargs="+", default=[20, 40, 80])
-    parser.add_argument("--levels", nargs="+", default=["-O0", "-O1", "-O2"])
+    parser.add_argument("--levels", default="-O0,-O1,-O2", help="comma-separated, e.g. --levels=-O0,-O1")
     arguments = parser.parse_args(argv)
     print(f"load: {os.getloadavg()}", flush=True)
     with tempfile.TemporaryDirectory() as folder:
@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> None:
                 f"generated in {generated:.1f} s",
                 flush=True,
             )
-            for level in arguments.levels:
+            for level in arguments.levels.split(","):
                 library = Path(folder) / f"nlp{horizon}{level}.so"
                 cpu, begin = children_cpu(), time.perf_counter()
                 subprocess.run(

@@ -24,6 +24,7 @@ import uuv_ocp as uo
 from tests.conftest import needs_compiler
 from uuv_ocp import _version as uuv_version
 from uuv_ocp import codegen
+from uuv_ocp.judge import instance_parameters
 from uuv_ocp.native import compile as cg
 from uuv_ocp.native.compile import (
     HASH_SUFFIX,
@@ -34,6 +35,7 @@ from uuv_ocp.native.compile import (
     secure_directory,
     verify_library,
 )
+from uuv_ocp.solvers import new_solver
 
 FUNCTION = "x = ca.SX.sym('x', 5)\nf = ca.Function('sec', [x], [ca.sumsqr(ca.sin(x) * x)])\n"
 BUILD = (
@@ -534,10 +536,75 @@ def test_compiled_exact_solve_leaves_no_jit_files_in_the_working_directory(tmp_p
         solver = uo.get_solver(problem, "ipopt", {"compiled": True})
         result = uo.solve(problem, "ipopt", x0=x0, options={"compiled": True})
     assert solver.compiled and result.success
-    assert list(work.iterdir()) == [], "CasADi's JIT wrote into the working directory"
+    assert list(work.iterdir()) == [], "the compiled NLP's build wrote into the working directory"
     assert Path.cwd() == work
-    jit = tmp_path / "cache" / "jit"
-    assert stat.S_IMODE(jit.stat().st_mode) == 0o700
+    cache = tmp_path / "cache"
+    assert stat.S_IMODE(cache.stat().st_mode) == 0o700
+    assert list(cache.glob("uuv_ocp_nlp_ipopt_*.so")), "the NLP library is kept in the solvers' cache"
+
+
+def _counted_compiles(monkeypatch) -> list:
+    """Spy on the compiler runs of :mod:`uuv_ocp.native.compile` (one entry per compile)."""
+    calls: list = []
+    real = cg._compile
+
+    def spy(command, temporary, final):
+        calls.append(final)
+        return real(command, temporary, final)
+
+    monkeypatch.setattr(cg, "_compile", spy)
+    return calls
+
+
+def _compiled_fatrop(monkeypatch, tmp_path):
+    """Return a small problem, its instance parameters and the compiles counted (-O0: flags untested)."""
+    from uuv_ocp.native import runtime
+
+    monkeypatch.setenv("UUV_OCP_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setattr(runtime, "NLP_FLAGS", ("-O0", "-fPIC", "-shared"))  # the quickest compile
+    problem = uo.TrackingProblem(uo.Vehicle.rexrov(), uo.Reference.paper("s2"), horizon=3, terminal="none")
+    x0 = uo.Reference.paper("s2").evaluate([0.0])[0]
+    return problem, instance_parameters(problem, x0, 0.0), _counted_compiles(monkeypatch)
+
+
+def _fresh_fatrop(problem, p, compiled=True):
+    """Solve ``p`` with a new fatrop backend (nothing shared with an earlier one but the disk cache)."""
+    return new_solver(problem, "fatrop", {"compiled": compiled}).solve(p, None)
+
+
+@needs_compiler
+def test_compiled_nlp_is_built_once_and_reused_from_the_cache(tmp_path, monkeypatch):
+    problem, p, compiles = _compiled_fatrop(monkeypatch, tmp_path)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a fallback to the virtual machine would warn
+        first = _fresh_fatrop(problem, p)
+        built = len(compiles)
+        second = _fresh_fatrop(problem, p)
+    virtual = _fresh_fatrop(problem, p, compiled=False)
+    assert built >= 1 and len(compiles) == built, "the second solver compiled again"
+    assert first.success and second.success
+    np.testing.assert_allclose(second.controls, first.controls, rtol=0, atol=1e-12)
+    # the compiled functions are verified to 1e-12 against the virtual machine's: same iterates
+    np.testing.assert_allclose(first.controls, virtual.controls, rtol=1e-9, atol=1e-9)
+
+
+@needs_compiler
+def test_tampered_compiled_nlp_library_is_rejected_and_rebuilt(tmp_path, monkeypatch):
+    problem, p, compiles = _compiled_fatrop(monkeypatch, tmp_path)
+    first = _fresh_fatrop(problem, p)
+    libraries = sorted((tmp_path / "cache").glob("uuv_ocp_nlp_fatrop_*.so"))
+    assert libraries and len(compiles) == len(libraries)
+    for library in libraries:  # one byte changed in each: its sidecar's SHA-256 no longer matches
+        data = bytearray(library.read_bytes())
+        data[len(data) // 2] ^= 0xFF
+        library.write_bytes(bytes(data))
+        assert not cg.library_intact(library)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        again = _fresh_fatrop(problem, p)
+    assert len(compiles) == 2 * len(libraries), "a tampered library was loaded instead of rebuilt"
+    assert all(cg.library_intact(library) for library in libraries)
+    np.testing.assert_allclose(again.controls, first.controls, rtol=0, atol=1e-12)
 
 
 def test_jit_workspace_restores_the_working_directory_on_error(tmp_path, monkeypatch):

@@ -141,6 +141,7 @@ __all__ = [
     "NativeIgwo",
     "VerificationError",
     "compiled_build",
+    "compiled_nlpsol",
     "default_cache_directory",
     "find_c_compiler",
     "generate_c",
@@ -489,6 +490,70 @@ def jit_directory() -> contextlib.AbstractContextManager[str]:
     while CasADi writes its sources, so nothing lands in the user's current directory).
     """
     return jit_workspace(default_cache_directory() / "jit")
+
+
+#: flags of a compiled NLP's library below / from :data:`NLP_LARGE_INSTRUCTIONS`.  gcc's time on
+#: these fully unrolled NLPs grows steeply with the level (BlueROV2 survey, N = 20, 26.7 MB of C:
+#: 38 s CPU at -O0, 333 s at -O1), but -O0 code ran fatrop 1.74x slower than CasADi's VM and -O1
+#: 0.48-0.61x (docs/benchmarks.md, "Compiled fatrop"): -O1, built once and cached
+NLP_FLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off")
+NLP_LARGE_FLAGS = ("-O1", "-fPIC", "-shared", "-ffp-contract=off")
+#: CasADi instructions (summed over the NLP's functions) from which :data:`NLP_LARGE_FLAGS` apply
+NLP_LARGE_INSTRUCTIONS = 200_000
+
+
+def nlp_flags(functions: list[ca.Function]) -> tuple[str, ...]:
+    """Compiler flags of an NLP library of ``functions``: :data:`NLP_FLAGS`, or lighter ones when large."""
+    size = sum(function.n_instructions() for function in functions)
+    return NLP_LARGE_FLAGS if size >= NLP_LARGE_INSTRUCTIONS else NLP_FLAGS
+
+
+def compiled_nlpsol(name: str, plugin: str, nlp: dict, options: dict) -> tuple[ca.Function, CompiledLibrary]:
+    """``casadi.nlpsol`` on the NLP's functions compiled to C, built once per content in the solvers' cache.
+
+    CasADi's own JIT (``jit=True``) compiles the NLP afresh in every process; here the functions
+    the plugin uses (``nlp_f``, ``nlp_g``, ``nlp_grad_f``, ``nlp_jac_g``, ``nlp_hess_l``, … and
+    the oracle ``nlp``, read from the plugin built on the virtual machine) go through
+    :func:`~uuv_ocp.native.compile.compile_functions`: one content-addressed library in
+    :func:`default_cache_directory`, checksummed, owner- and mode-checked before loading,
+    verified against the virtual machine (1e-12 relative); the plugin is then built on that
+    library (CasADi's ``nlpsol`` from a compiled NLP, which takes every derivative from it).
+
+    Parameters
+    ----------
+    name, plugin : str
+        The ``nlpsol`` name (a C identifier: it names the library ``uuv_ocp_nlp_{name}``) and plugin.
+    nlp : dict
+        ``x``, ``p``, ``f``, ``g`` (SX or MX).
+    options : dict
+        The plugin's options (``expand`` and ``oracle_options`` apply to the first build only).
+
+    Returns
+    -------
+    solver : casadi.Function
+        The ``nlpsol`` on the compiled library.
+    library : CompiledLibrary
+        The build (``reused``: loaded from the cache without compiling).
+
+    Raises
+    ------
+    CodegenError
+        No compiler, the compile failed, the compiled code failed its verification, or the cache
+        folder is unsafe (:mod:`uuv_ocp.native.compile`); the caller falls back.
+    RuntimeError
+        CasADi could not build the plugin on the library.
+    """
+    plain = ca.nlpsol(name, plugin, nlp, options)
+    functions = [plain.get_function(entry) for entry in plain.get_function()]
+    functions.append(plain.oracle())  # "nlp": the compiled NLP's entry point
+    library = compile_functions(
+        functions, default_cache_directory(), name=f"uuv_ocp_nlp_{name}", flags=nlp_flags(functions)
+    )
+    assert library.path is not None, "compiled: a library was built or reused"
+    # the plugin reads "nlp" and its derivatives from the library, checked by compile_functions
+    # just before; "expand" (SX) and "oracle_options" (AD) have nothing to act on there
+    on_library = {key: value for key, value in options.items() if key not in ("expand", "oracle_options")}
+    return ca.nlpsol(name, plugin, str(library.path), on_library), library
 
 
 def compiled_build(problem: Transcribed, population: int) -> GeneratedCode | None:

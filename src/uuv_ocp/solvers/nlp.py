@@ -57,8 +57,8 @@ from uuv_ocp._concurrency import BUILD_LOCK
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import score_parameters
 from uuv_ocp.native.buffered import BufferedFunction
-from uuv_ocp.native.compile import CompilerNotFoundError, find_c_compiler
-from uuv_ocp.native.runtime import jit_directory
+from uuv_ocp.native.compile import CodegenError
+from uuv_ocp.native.runtime import compiled_nlpsol
 from uuv_ocp.solvers import watchdog
 from uuv_ocp.solvers.base import reraise_interrupt
 from uuv_ocp.solvers.options import (
@@ -668,18 +668,15 @@ class NlpSolver:
         return None
 
     def _compiled_nlpsol(self, name: str, plugin: str, nlp: dict, options: dict) -> ca.Function:
-        """NLP functions compiled to C by CasADi's JIT (system compiler); VM if that fails."""
+        """``nlpsol`` on the NLP functions compiled to C, cached by content; VM if that fails.
+
+        See :func:`uuv_ocp.native.runtime.compiled_nlpsol`: the library is built once per NLP
+        content (and compiler, flags, versions) in the solvers' cache, checksummed and verified;
+        later processes load it without compiling.
+        """
         try:
-            compiler = find_c_compiler()
-            jit: dict[str, Any] = {
-                "jit": True,
-                "compiler": "shell",
-                "jit_options": {"compiler": compiler, "flags": ["-O2"], "verbose": False},
-            }
-            with jit_directory() as directory:  # CasADi writes jit_tmp*.c to the working directory
-                jit["jit_options"]["directory"] = directory
-                return ca.nlpsol(name, plugin, nlp, {**options, **jit})
-        except (CompilerNotFoundError, RuntimeError) as error:
+            return compiled_nlpsol(name, plugin, nlp, options)[0]
+        except (CodegenError, OSError, RuntimeError) as error:
             warnings.warn(
                 f"compiled=True unavailable for {self.name} ({error}); using CasADi's virtual machine",
                 RuntimeWarning,

@@ -47,6 +47,9 @@ interleaved on the same states (a survey closed loop's), median ms, with the loa
 of a random sign, 25..75 % of the bound); another set of kinds draws other faults, so give it
 its own ``--out``.
 
+``--dither 5`` adds the null-space dither of that amplitude (N) to the ``ft`` row's thruster
+commands (``uo.DitherOptions``, :mod:`uuv_ocp.control.dither`); its records carry it.
+
 ``--tau 0.1`` gives the thrusters a first-order response of that time constant (s) in the
 plant and in the thruster rows' model and EKF (20 states: the delivered forces); not with
 ``pinv`` (it plans generalised forces); give it its own ``--out``.
@@ -100,8 +103,9 @@ def drawn(
 class Bench:
     """The problems, controllers and estimators of the benchmark (built once)."""
 
-    def __init__(self, horizon: int = 10, tau: float = 0.0) -> None:
+    def __init__(self, horizon: int = 10, tau: float = 0.0, dither: float = 0.0) -> None:
         reference = survey()
+        self.dither = uo.DitherOptions(amplitude=dither)
         self.boat = Vehicle6DOF.bluerov2_heavy(thrusters=True)
         if tau:  # thrusters with a first-order response, in the plant and every thruster row's model
             assert self.boat.thrusters is not None  # the preset with thrusters=True has them
@@ -138,7 +142,7 @@ class Bench:
         # fixed: a diverged QP left NaN in the C step's HPIPM memory (OcpQpStep.reset)
         controller, estimator = self.controller(self.in_thrusters), self.thruster_ekf
         if row == "ft":
-            options["fault_detector"] = uo.FaultDetectorOptions()
+            options["fault_detector"] = uo.FaultDetectorOptions(dither=self.dither)
         elif row == "oracle":
             options["health_known"] = True
         elif row == "pinv":
@@ -200,6 +204,8 @@ def scored(run: uo.ClosedLoopResult, faults: tuple[uo.ThrusterFault, ...]) -> di
         "observable": observable,  # type: ignore[dict-item]
         "varied": varied,  # type: ignore[dict-item]
         "kind_right": float(stuck_right),
+        # momentum theory: a thruster's power grows as |f|^1.5 (N^1.5, a proxy; the applied commands)
+        "power": float(np.mean(np.sum(np.abs(run.controls) ** 1.5, axis=1))),
         "alarm": float(alarms > 0),
     }
 
@@ -242,11 +248,12 @@ def main(
     out: Path,
     kinds: tuple[str, ...] = FAULTS.kinds,
     tau: float = 0.0,
+    dither: float = 0.0,
 ) -> None:
-    """Print the table of the module doc (``tau``: the thrusters' time constant, s)."""
+    """Print the table of the module doc (``tau``: the thrusters' time constant, s; ``dither``: N)."""
     if tau and "pinv" in rows:
         raise ValueError("--tau is for the thruster rows (naive, ft, oracle): pinv plans forces")
-    bench = Bench(tau=tau)
+    bench = Bench(tau=tau, dither=dither)
     out.mkdir(parents=True, exist_ok=True)
     figures: dict[tuple[str, int], list[dict]] = {}
     times: dict[tuple[str, int], list[np.ndarray]] = {}
@@ -268,6 +275,8 @@ def main(
                     config["detector"] = DETECTOR_VERSION
                 if tau:
                     config["tau"] = tau
+                if dither and row == "ft":
+                    config["dither"] = [dither, *bench.dither.frequencies]
                 path = out / f"{row}-{count}-{trial}.npz"
                 saved = read_record(path, config)
                 if saved is None:
@@ -302,6 +311,11 @@ def main(
                 f"{np.median([i['recover'] for i in items]):13.1f} "
                 f"{isolated if ft and count else '-':>9s} {detect if ft and count else '-':>16s} "
                 f"{alarms if ft else '-':>12s} {np.median(step):7.2f} {np.percentile(step, 90):7.2f}"
+            )
+            print(
+                f"        mean RMS {np.mean([i['rms'] for i in items]):.3f} m, mean thruster power proxy "
+                f"sum |f|^1.5 {np.mean([i['power'] for i in items]):.1f} N^1.5"
+                + (f", dither {dither:g} N" if ft and dither else "")
             )
             if ft and count and delays:
                 seen = np.array([d for item in items for d in item["observable"]], dtype=float)
@@ -339,6 +353,9 @@ if __name__ == "__main__":
     parser.add_argument(
         "--tau", type=float, default=0.0, help="thrusters' time constant (s), plant and model; not pinv"
     )
+    parser.add_argument(
+        "--dither", type=float, default=0.0, help="ft row: null-space dither amplitude (N); 0: none"
+    )
     parser.add_argument("--rti", action="store_true", help="the RTI step timing first")
     parser.add_argument("--rti-only", action="store_true", help="only the RTI step timing")
     arguments = parser.parse_args()
@@ -352,4 +369,6 @@ if __name__ == "__main__":
         counts = tuple(int(item) for item in arguments.faults.split(","))
         chosen = tuple(range(arguments.first, arguments.first + arguments.count))
         kinds = tuple(item for item in arguments.kinds.split(",") if item)
-        main(chosen, counts, arguments.duration, picked, arguments.out, kinds, arguments.tau)
+        main(
+            chosen, counts, arguments.duration, picked, arguments.out, kinds, arguments.tau, arguments.dither
+        )

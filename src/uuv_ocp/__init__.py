@@ -8,6 +8,7 @@ Importing the package has no side effects: nothing is built, compiled or plotted
 
 from uuv_ocp._version import __version__ as __version__
 from uuv_ocp.control.disturbances import Current, GaussMarkov, MeasurementNoise
+from uuv_ocp.control.dither import DitherOptions
 from uuv_ocp.control.faults import RandomFaults, ThrusterFault
 from uuv_ocp.control.guidance import GuidanceStep, LosGuidance, LosOptions
 from uuv_ocp.control.mpc import NMPC, StepOutput, StepRecord
@@ -59,6 +60,7 @@ __all__ = [
     "Estimate",
     "Estimator",
     "EstimatorOptions",
+    "DitherOptions",
     "FaultDetectorOptions",
     "GeneratedCode",
     "GaussMarkov",

@@ -25,6 +25,7 @@ import numpy as np
 
 from uuv_ocp import _validation as check
 from uuv_ocp.control.disturbances import Current, MeasurementNoise
+from uuv_ocp.control.dither import NullSpaceDither
 from uuv_ocp.control.faults import FaultSchedule, ThrusterFault, fault_schedule
 from uuv_ocp.control.metrics import position_errors, tracking_metrics
 from uuv_ocp.control.scenario import scenario
@@ -40,7 +41,7 @@ from uuv_ocp.solvers.base import reraise_interrupt
 #: plausibility bound (``_validation.PLAUSIBLE_MAGNITUDE``) past which the controller refuses a state.
 BLOW_UP = 1e8
 #: the fields of a run with faults, an allocation or a fault detector (saved only when filled)
-FAULT_FIELDS = ("thruster_health", "thruster_forces", "detections", "estimated_health")
+FAULT_FIELDS = ("thruster_health", "thruster_forces", "detections", "estimated_health", "dither")
 
 
 @runtime_checkable
@@ -213,6 +214,11 @@ class ClosedLoopResult:
     estimated_health : numpy.ndarray, shape (n, thrusters), optional
         Such a run's regression health ``1 − clip(ℓ)`` of every thruster per step (NaN until
         a full window); empty otherwise.
+    dither : numpy.ndarray, shape (n, thrusters), optional
+        A run with a null-space dither (``FaultDetectorOptions(dither=...)``,
+        :mod:`uuv_ocp.control.dither`): the dither added to each step's planned command (N);
+        ``controls`` are the applied commands, ``controls − dither`` the NMPC's plan.  Empty
+        otherwise.
     """
 
     t: np.ndarray
@@ -248,6 +254,7 @@ class ClosedLoopResult:
     thruster_forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
     detections: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
     estimated_health: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    dither: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     #: the fields of a run with an estimator (saved only when there was one)
     ESTIMATION_FIELDS: ClassVar[tuple[str, ...]] = (
@@ -507,7 +514,9 @@ def simulate(
         *estimated* health.  ``run.detections`` (rows ``time s, thruster, estimated health, stuck
         force N``) and
         ``run.estimated_health`` (the regression's health per step, NaN before a full window)
-        record it.
+        record it.  With ``FaultDetectorOptions(dither=DitherOptions(amplitude=...))`` the
+        thrusters get the plan plus a null-space dither (:mod:`uuv_ocp.control.dither`; the
+        controls recorded are the applied ones, ``run.dither`` the part added).
 
     Returns
     -------
@@ -546,6 +555,7 @@ def simulate(
         faults, problem, steps=steps, t0=run.t0, health_known=health_known, allocation=allocation
     )
     detector = _fault_detector(fault_detector, problem, estimator, health_known, allocation)
+    dither = _dither(detector, problem, dt, run.t0)
     loop = _Loop(
         controller=controller,
         run=run,
@@ -564,11 +574,14 @@ def simulate(
         estimated=_current_estimated(estimator, current_known, nc),
         schedule=schedule,
         detector=detector,
+        dither=dither,
     )
     log = _Log(x0, steps, spec.control_size, plant_substeps if record_substeps else 0, dt)
     if detector is not None:
         detector.reset()
         log.estimated_health = np.full((steps, detector.count), np.nan)
+    if dither is not None:
+        log.dither = np.zeros((steps, spec.control_size))
     if estimator is not None and sensors is not None:
         log.track_estimates(estimator, sensors)
         estimator.reset(x0[: estimator.model.nx])
@@ -586,7 +599,7 @@ def simulate(
             interrupt_handled()
     closed_loop = schedule.recorded(log.result(times, currents, run, controller.solver_name, interrupted))
     if detector is not None:
-        closed_loop = _detected(closed_loop, detector, log.estimated_health)
+        closed_loop = _detected(closed_loop, detector, log.estimated_health, log.dither)
     if interrupted:
         raise SimulationInterrupted(closed_loop)
     return closed_loop
@@ -620,16 +633,35 @@ def _fault_detector(
     return ThrusterFaultDetector(np.array(thrusters.allocation), options, bounds=thrusters.max_thrust)
 
 
+def _dither(
+    detector: ThrusterFaultDetector | None, problem: Any, dt: float, t0: float
+) -> NullSpaceDither | None:
+    """Return the run's null-space dither (``None`` without a detector or with amplitude 0)."""
+    if detector is None or not detector.options.dither.active:
+        return None
+    vehicle = problem.vehicle
+    return NullSpaceDither(
+        detector.allocation,
+        detector.options.dither,
+        bounds=vehicle.control_bound,
+        rate_bounds=vehicle.control_rate_bound,
+        dt=dt,
+        t0=t0,
+    )
+
+
 def _detected(
-    result: ClosedLoopResult, detector: ThrusterFaultDetector, health: np.ndarray
+    result: ClosedLoopResult, detector: ThrusterFaultDetector, health: np.ndarray, dither: np.ndarray
 ) -> ClosedLoopResult:
-    """Return ``result`` with the detector's detections and per-step estimated health."""
+    """Return ``result`` with the detector's detections, per-step estimated health and dither."""
     n = result.controls.shape[0]
     rows = [
         (item.time, item.thruster, item.health, item.offset) for item in detector.detections if item.step < n
     ]
     detections = np.array(rows, dtype=float).reshape(-1, 4)
-    return dataclasses.replace(result, detections=detections, estimated_health=health[:n].copy())
+    return dataclasses.replace(
+        result, detections=detections, estimated_health=health[:n].copy(), dither=dither[:n].copy()
+    )
 
 
 def _check_noise(noise: MeasurementNoise | None, state_dim: int) -> None:
@@ -690,6 +722,7 @@ class _Loop:
     estimated: bool
     schedule: FaultSchedule
     detector: ThrusterFaultDetector | None = None
+    dither: NullSpaceDither | None = None
 
     def warm_up(self, x0: np.ndarray, u_prev: np.ndarray) -> None:
         """Build what the controller's steps build (once per controller), or reset it if built."""
@@ -729,8 +762,25 @@ class _Loop:
         start = time.perf_counter()  # the controller's step alone, not the loop's bookkeeping
         output = self.controller.step(measured, self.clock[k], u_prev, told_k, **told)
         log.controller_step(k, output, time.perf_counter() - start)
+        if self.dither is not None:  # the thrusters get the plan plus the null-space dither
+            self.dithered(log, k, u_prev)
         plant_step = self.schedule.plant_step(self.run.plant_step, k)
         return log.plant_step(k, plant_step, self.currents[k], self.times)
+
+    def dithered(self, log: _Log, k: int, u_prev: np.ndarray) -> None:
+        """Add the null-space dither to step ``k``'s control (scaled within the box and rate bound).
+
+        ``u_prev`` is the last *applied* command: the NMPC's rate bound is around it, and so is the
+        dither's (:mod:`uuv_ocp.control.dither`); the estimator and the detector see the applied
+        commands too (what the plant got), the NMPC's plan is ``controls − dither``.
+        """
+        assert self.dither is not None
+        detector = self.detector
+        # reallocated around isolated faults: the null space of T diag(ĥ), so it stays wrench-free
+        health = detector.health.copy() if detector is not None and detector.detections else None
+        planned = log.controls[k].copy()
+        log.controls[k] = self.dither.applied(self.times[k], planned, u_prev, health)
+        log.dither[k] = log.controls[k] - planned
 
     def measure(self, log: _Log, k: int, u_prev: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """Return what the controller gets at step ``k``: the measured (or estimated) state and current."""
@@ -828,6 +878,7 @@ class _Log:
         self.fault: str | None = None
         self.estimation: dict[str, Any] = {}
         self.estimated_health = np.zeros((steps, 0))
+        self.dither = np.zeros((steps, 0))
 
     def track_estimates(self, estimator: Estimator, sensors: Sensors) -> None:
         """Make room for the estimates and measurements of every step."""

@@ -87,6 +87,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from uuv_ocp import _validation as check
+from uuv_ocp.control.dither import DitherOptions
 
 ISOLATIONS = ("single", "joint")
 
@@ -162,6 +163,12 @@ class FaultDetectorOptions:
         ``T`` (unit thruster authority per axis) before the regression.  Default True: roll and
         pitch (≈ 0.2 N·m per N on the BlueROV2) then weigh as much as heave, and they are what
         tell the four vertical thrusters apart (20/20 isolated against 17/20 on the tuning runs).
+    dither : DitherOptions
+        Persistent excitation the closed loop adds to the applied thruster commands, in the
+        null space of the health-weighted allocation matrix (:mod:`uuv_ocp.control.dither`):
+        no net wrench while the thrusters are healthy, but every thruster's command varies, so a
+        loss of a thruster held at a constant command shows within one window.  Default: amplitude
+        0, no dither (the loop bit for bit as without it).
     """
 
     window: int = 20
@@ -180,6 +187,7 @@ class FaultDetectorOptions:
     separation: float = 2.0
     settle: float = 2.0
     normalise: bool = True
+    dither: DitherOptions = DitherOptions()
 
     def __post_init__(self) -> None:
         """Check every field (``ValueError`` names it)."""
@@ -209,6 +217,8 @@ class FaultDetectorOptions:
         set_field(self, "separation", check.nonnegative_float("separation", self.separation))
         set_field(self, "settle", check.nonnegative_float("settle", self.settle))
         check.boolean("normalise", self.normalise)
+        if not isinstance(self.dither, DitherOptions):
+            raise ValueError(f"dither must be a uuv_ocp.DitherOptions, got {self.dither!r}")
 
 
 @dataclass(frozen=True)

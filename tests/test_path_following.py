@@ -478,6 +478,38 @@ def test_the_path_window_gives_the_whole_tables_point_and_tangent_wherever_a_pla
     assert np.max(np.abs(np.array(windowed(far, window.values(2.0))).ravel() - exact)) > 1.0
 
 
+def test_the_path_window_counts_the_piece_a_rounded_reach_meets() -> None:
+    """PathWindow.of counts rows per piece start, not through ``(start − reach) + reach``.
+
+    On these waypoints (found by a reviewer's random search, N = 8) that round trip came one
+    ulp short of a start: 3 rows where 4 are reached. Checked against the full table at the
+    keys a plan can reach from starts just behind that piece's start.
+    """
+    points = [[9.41351481464853, -10.271467107628443], [13.899936518312977, -4.699254686835168]]
+    points += [[22.344705453678763, 1.751065240234496], [28.516318289919575, 5.158541985356503]]
+    points += [[39.553527676598954, -6.83404305022914], [44.06724317509648, -11.944634865257555]]
+    reference = uo.Reference.waypoints(np.array(points), speed=0.5, turn_radius=1.0)
+    horizon, dt, speed = 8, 0.5, 1.0
+    problem = PathFollowingProblem(
+        uo.Vehicle.rexrov(), reference, speed=0.5, horizon=horizon, dt=dt, max_path_speed=speed
+    )
+    window = problem.window
+    assert window is not None and window.rows == (4,)
+    s, rows = ca.SX.sym("s"), ca.SX.sym("w", window.size)
+    windowed = ca.Function("windowed", [s, rows], [ca.vertcat(*window.geometry(s, rows))])
+    fine = np.linspace(reference.t_start, problem.path_end, 8001)
+    keys = np.array(window.keys.map(fine.size)(fine[None, :]))[0]
+    worst = 0.0
+    for s0 in fine[::20]:
+        values = window.values(s0)
+        key0 = float(window.keys(s0)[0])
+        ahead = (fine >= s0) & (keys <= key0 + horizon * dt * speed)
+        for t in fine[ahead][::3]:
+            exact = np.concatenate([np.array(part).ravel() for part in problem.geometry(t)])
+            worst = max(worst, float(np.max(np.abs(np.array(windowed(t, values)).ravel() - exact))))
+    assert worst < 1e-12
+
+
 def test_the_path_window_plans_as_the_whole_table(monkeypatch) -> None:
     """A plan with the window (rows from s_0) is the plan with the whole table, across a turn.
 

@@ -261,12 +261,13 @@ class PathWindow:
         rows = []
         for _, _, table in parts:
             starts = np.array([row[0] for row in table])
-            # the pieces [σ0 − BACK, σ0 + reach] meets: a step function of σ0, right-continuous,
-            # so its largest count is at one of the steps (σ0 − BACK or σ0 + reach at a start)
-            sigma0 = np.r_[starts + cls.BACK, starts - reach]
-            first = np.maximum(np.searchsorted(starts, sigma0 - cls.BACK, side="right") - 1, 0)
-            last = np.searchsorted(starts, sigma0 + reach, side="right") - 1
-            rows.append(int(np.max(last - first) + 1))
+            # the pieces [σ0 − BACK, σ0 + reach] meets: a step function of σ0, largest where the
+            # window's end just meets a start j; counted per j with no (start − reach) + reach
+            # round trip (one ulp short lost piece j) and a tolerance towards one row more
+            low = starts - reach - cls.BACK
+            low -= 1e-12 * np.maximum(1.0, np.abs(low))
+            first = np.maximum(np.searchsorted(starts, low, side="right") - 1, 0)
+            rows.append(int(np.max(np.arange(starts.size) - first + 1)))
         if all(count >= len(table) for count, (_, _, table) in zip(rows, parts, strict=True)):
             return None
         keys = ca.Function("path_window_keys", [time], [ca.vertcat(*[key for _, key, _ in parts])])

@@ -363,6 +363,7 @@ def test_follow_a_survey_with_ilos_prints_its_metrics(capsys):
         (["--current-std", "0.01,0,0.01"], "--current-std"),
         (["--current-filter", "-1"], "--current-filter"),
         (["--current-filter", "nan"], "--current-filter"),
+        (["--solver", "ilos", "--current-std", "0.05"], "--estimator"),  # unused without one
     ],
 )
 def test_follow_bad_input_is_one_line_and_exit_2(capsys, argv, named):

@@ -884,7 +884,10 @@ def _check_follow(args: argparse.Namespace) -> tuple[Any, Any]:
     ):
         raise _UsageError(f"--current-filter must be a finite number >= 0 (s), got {args.current_filter:g}")
     vehicle = _vehicle(args.vehicle)
+    given = args.current_std is not None or args.current_filter is not None
     args.current_std = _current_std(args.current_std, vehicle.layout.current_dim)
+    if args.estimator is None and given:
+        raise _UsageError("--current-std and --current-filter set the estimator: give --estimator too")
     path = _follow_path(args, vehicle)
     if args.duration is None:
         if not math.isfinite(path.t_end):

@@ -514,7 +514,7 @@ class Vehicle6DOF:
 
     @cached_property  # read on every parameters() call of a closed loop: built once
     def layout(self) -> VehicleLayout:
-        """State ``[x, y, z, φ, θ, ψ, u, v, w, p, q, r]``, the control's names, spatial references."""
+        """State ``[η, f_a, ν]`` (``f_a`` only with a thruster response), controls, spatial references."""
         nx = self.state_dim
         return VehicleLayout(
             state_names=self.state_names,

@@ -112,8 +112,8 @@ class ThrusterConfiguration:
         if not isinstance(self.name, str):
             raise ValueError(f"name must be a string, got {self.name!r}")
         constant = self.time_constant
-        if isinstance(constant, (int, float)) and not isinstance(constant, bool):
-            constant = (constant,) * count
+        if np.ndim(constant) == 0 and not isinstance(constant, (bool, np.bool_, str)):
+            constant = (constant,) * count  # any real scalar (numpy's too) applies to every thruster
         constants = check.vector("time_constant", constant, count, nonnegative=True)
         if any(constants) and not all(constants):
             raise ValueError(f"time_constant must be all 0 or all > 0 (s), got {constants!r}")

@@ -18,8 +18,10 @@ from uuv_ocp.estimation.ekf import ExtendedKalmanFilter
 from uuv_ocp.estimation.faults import (
     Detection,
     FaultDetectorOptions,
+    StepFit,
     ThrusterFaultDetector,
     loss_regression,
+    step_regression,
 )
 from uuv_ocp.estimation.mhe import MovingHorizonEstimator
 from uuv_ocp.estimation.sensors import Measurement, Sensor, Sensors
@@ -32,6 +34,8 @@ __all__ = [
     "FaultDetectorOptions",
     "ThrusterFaultDetector",
     "loss_regression",
+    "StepFit",
+    "step_regression",
     "Estimate",
     "Estimator",
     "EstimatorOptions",

@@ -494,9 +494,9 @@ def jit_directory() -> contextlib.AbstractContextManager[str]:
 
 
 #: flags of a compiled NLP's library below / from :data:`NLP_LARGE_INSTRUCTIONS`.  gcc's time on
-#: these fully unrolled NLPs grows steeply with the level (BlueROV2 survey, N = 20, 26.7 MB of C:
-#: 38 s CPU at -O0, 333 s at -O1), but -O0 code ran fatrop 1.74x slower than CasADi's VM and -O1
-#: 0.48-0.61x (docs/benchmarks.md, "Compiled fatrop"): -O1, built once and cached
+#: the fully unrolled NLPs grew steeply with the level (BlueROV2 survey, N = 20, 26.7 MB of C:
+#: 38 s CPU at -O0, 333 s at -O1); outlined (one Function per stage structure) they stay far
+#: below the limit at any horizon and get -O2 (docs/benchmarks.md, "Compiled fatrop")
 NLP_FLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off")
 NLP_LARGE_FLAGS = ("-O1", "-fPIC", "-shared", "-ffp-contract=off")
 #: CasADi instructions (summed over the NLP's functions) from which :data:`NLP_LARGE_FLAGS` apply

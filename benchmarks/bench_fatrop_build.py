@@ -7,7 +7,8 @@ one compile after the other; printed: C size, CasADi instructions, compiler wall
 (children's user + system), and the load.
 
 Run: ``python -m benchmarks.bench_fatrop_build --horizons 20 --levels=-O0,-O1`` (comma separated,
-after ``=``: argparse reads a bare ``-O0`` as an option).
+after ``=``: argparse reads a bare ``-O0`` as an option); ``--unrolled``: the unrolled SX NLP that
+``compiled=True`` built before the outlining (issue 29), for the before/after comparison.
 """
 
 from __future__ import annotations
@@ -23,15 +24,24 @@ from pathlib import Path
 import casadi as ca
 
 
-def nlp_functions(horizon: int) -> list[ca.Function]:
-    """Return the functions fatrop evaluates on the BlueROV2 survey's hard NLP at ``horizon``."""
+def nlp_functions(horizon: int, outlined: bool = True) -> list[ca.Function]:
+    """Return the functions fatrop evaluates on the BlueROV2 survey's hard NLP at ``horizon``.
+
+    ``outlined``: the NLP ``compiled=True`` builds (one Function per stage structure, called per
+    stage: :mod:`uuv_ocp.transcription.outline`); ``False``: the unrolled SX NLP (before).
+    """
     import uuv_ocp as uo
     from benchmarks.bench_rti import _bluerov2_survey
     from uuv_ocp.native import runtime
+    from uuv_ocp.transcription.outline import outline
 
     captured: list[ca.Function] = []
 
-    def capture(name: str, plugin: str, nlp: dict, options: dict) -> tuple[ca.Function, None]:
+    def capture(
+        name: str, plugin: str, nlp: dict, options: dict, stages: list | None = None, rows: list | None = None
+    ) -> tuple[ca.Function, None]:
+        if outlined and stages is not None:
+            nlp, options = outline(nlp, stages, rows).nlp, {**options, "expand": False}
         plain = ca.nlpsol(name, plugin, nlp, options)
         captured.extend(plain.get_function(entry) for entry in plain.get_function())
         captured.append(plain.oracle())
@@ -59,11 +69,12 @@ def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--horizons", type=int, nargs="+", default=[20, 40, 80])
     parser.add_argument("--levels", default="-O0,-O1,-O2", help="comma-separated, e.g. --levels=-O0,-O1")
+    parser.add_argument("--unrolled", action="store_true", help="the unrolled SX NLP (before outlining)")
     arguments = parser.parse_args(argv)
-    print(f"load: {os.getloadavg()}", flush=True)
+    print(f"load: {os.getloadavg()}, {'unrolled' if arguments.unrolled else 'outlined'}", flush=True)
     with tempfile.TemporaryDirectory() as folder:
         for horizon in arguments.horizons:
-            functions = nlp_functions(horizon)
+            functions = nlp_functions(horizon, outlined=not arguments.unrolled)
             instructions = sum(f.n_instructions() for f in functions)
             begin = time.perf_counter()
             generator = ca.CodeGenerator(f"nlp{horizon}.c")

@@ -67,6 +67,7 @@ from uuv_ocp.native.compile import (
 from uuv_ocp.native.hpipm import for_c_step, old_partial_condensing
 from uuv_ocp.native.simd import UnsupportedOperation, batch_kernel_source
 from uuv_ocp.transcription.condensed import batched_fitness, candidate_fitness
+from uuv_ocp.transcription.outline import check_outlined, outline
 
 #: ``-ffp-contract=off`` keeps compiled arithmetic identical to CasADi's virtual machine;
 #: Verification tolerance of the SIMD ``cost_batch`` (relative): its own ``sin``/``cos`` differ
@@ -493,9 +494,9 @@ def jit_directory() -> contextlib.AbstractContextManager[str]:
 
 
 #: flags of a compiled NLP's library below / from :data:`NLP_LARGE_INSTRUCTIONS`.  gcc's time on
-#: these fully unrolled NLPs grows steeply with the level (BlueROV2 survey, N = 20, 26.7 MB of C:
-#: 38 s CPU at -O0, 333 s at -O1), but -O0 code ran fatrop 1.74x slower than CasADi's VM and -O1
-#: 0.48-0.61x (docs/benchmarks.md, "Compiled fatrop"): -O1, built once and cached
+#: the fully unrolled NLPs grew steeply with the level (BlueROV2 survey, N = 20, 26.7 MB of C:
+#: 38 s CPU at -O0, 333 s at -O1); outlined (one Function per stage structure) they stay far
+#: below the limit at any horizon and get -O2 (docs/benchmarks.md, "Compiled fatrop")
 NLP_FLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off")
 NLP_LARGE_FLAGS = ("-O1", "-fPIC", "-shared", "-ffp-contract=off")
 #: CasADi instructions (summed over the NLP's functions) from which :data:`NLP_LARGE_FLAGS` apply
@@ -508,7 +509,14 @@ def nlp_flags(functions: list[ca.Function]) -> tuple[str, ...]:
     return NLP_LARGE_FLAGS if size >= NLP_LARGE_INSTRUCTIONS else NLP_FLAGS
 
 
-def compiled_nlpsol(name: str, plugin: str, nlp: dict, options: dict) -> tuple[ca.Function, CompiledLibrary]:
+def compiled_nlpsol(
+    name: str,
+    plugin: str,
+    nlp: dict,
+    options: dict,
+    stages: list[int | None] | None = None,
+    row_stages: list[int | None] | None = None,
+) -> tuple[ca.Function, CompiledLibrary]:
     """``casadi.nlpsol`` on the NLP's functions compiled to C, built once per content in the solvers' cache.
 
     CasADi's own JIT (``jit=True``) compiles the NLP afresh in every process; here the functions
@@ -527,6 +535,14 @@ def compiled_nlpsol(name: str, plugin: str, nlp: dict, options: dict) -> tuple[c
         ``x``, ``p``, ``f``, ``g`` (SX or MX).
     options : dict
         The plugin's options (``expand`` and ``oracle_options`` apply to the first build only).
+    stages : list of int or None, optional
+        The stage of each variable (``None``: unstaged).  Given, the SX NLP is *outlined*
+        (:func:`uuv_ocp.transcription.outline.outline`): one C function per distinct stage
+        structure plus one call per stage instead of the unrolled NLP, so the C grows with
+        one stage, not the horizon; checked against the SX NLP at random points (1e-12) and
+        built with ``expand=False`` (expanding would inline it again).  ``None``: the NLP as given.
+    row_stages : list of int or None, optional
+        The stage of each row of ``g`` by its key (see ``outline``; with ``stages`` only).
 
     Returns
     -------
@@ -543,6 +559,10 @@ def compiled_nlpsol(name: str, plugin: str, nlp: dict, options: dict) -> tuple[c
     RuntimeError
         CasADi could not build the plugin on the library.
     """
+    if stages is not None:
+        outlined = outline(nlp, stages, row_stages).nlp
+        check_outlined(nlp, outlined, np.random.default_rng(0))
+        nlp, options = outlined, {**options, "expand": False}
     plain = ca.nlpsol(name, plugin, nlp, options)
     functions = [plain.get_function(entry) for entry in plain.get_function()]
     functions.append(plain.oracle())  # "nlp": the compiled NLP's entry point

@@ -603,7 +603,8 @@ class NlpSolver:
                 # the watchdog reads the plugin's iteration lines as its progress report
                 options.update(self.progress_lines(plugin))
             if self.compiled:
-                solver = self._compiled_nlpsol(name, plugin, nlp, options)
+                stages = ([key[1] for key in data.variable_keys], [key[1] for key in data.constraint_keys])
+                solver = self._compiled_nlpsol(name, plugin, nlp, options, stages)
             else:
                 solver = ca.nlpsol(name, plugin, nlp, options)
             self._solvers[key] = BufferedFunction(solver)
@@ -667,15 +668,23 @@ class NlpSolver:
         """
         return None
 
-    def _compiled_nlpsol(self, name: str, plugin: str, nlp: dict, options: dict) -> ca.Function:
+    def _compiled_nlpsol(
+        self,
+        name: str,
+        plugin: str,
+        nlp: dict,
+        options: dict,
+        stages: tuple[list[int | None], list[int | None]],
+    ) -> ca.Function:
         """``nlpsol`` on the NLP functions compiled to C, cached by content; VM if that fails.
 
         See :func:`uuv_ocp.native.runtime.compiled_nlpsol`: the library is built once per NLP
         content (and compiler, flags, versions) in the solvers' cache, checksummed and verified;
-        later processes load it without compiling.
+        later processes load it without compiling.  ``stages``: the stage of every variable and
+        row (their keys'), by which the NLP is outlined (one C function per stage structure).
         """
         try:
-            return compiled_nlpsol(name, plugin, nlp, options)[0]
+            return compiled_nlpsol(name, plugin, nlp, options, *stages)[0]
         except (CodegenError, OSError, RuntimeError) as error:
             warnings.warn(
                 f"compiled=True unavailable for {self.name} ({error}); using CasADi's virtual machine",

@@ -236,7 +236,7 @@ def test_the_6dof_kernel_is_accepted_though_the_check_reaches_gimbal_lock(tmp_pa
 
 
 @needs_compiler
-@pytest.mark.parametrize("count", [1, 7, 9600, 288001])
+@pytest.mark.parametrize("count", [1, 7, 1000, 9600, 288001])  # 1000: segments of 63, a vector tail
 def test_c_pcg64_draws_numpys_numbers_and_advances_the_same(tmp_path, s2_problem, count):
     native = codegen.NativeIgwo(codegen.compiled_build(s2_problem, 20))
     generator = np.random.default_rng(count)
@@ -376,17 +376,22 @@ int main(void) {
 
 @needs_compiler
 @pytest.mark.parametrize("sanitizer", [None, "thread"])
-def test_c_step_draws_the_same_numbers_whoever_draws_them(tmp_path, sanitizer):
+@pytest.mark.parametrize("native", [False, True], ids=["portable", "march-native"])
+def test_c_step_draws_the_same_numbers_whoever_draws_them(tmp_path, sanitizer, native):
     """Every drawing mode of the C step gives the run of the numbers given (50 seeds).
 
     Modes: one thread, worker, worker never used, odd/even split; with ThreadSanitizer when the
-    compiler has it (a data race in the group claims or the ring fails the run).
+    compiler has it (a data race in the group claims or the ring fails the run).  Built
+    portable (the scalar PCG64) and for this processor (``-march=native``: the AVX-512 IFMA
+    draws where the processor has them), as the package builds it.
     """
     source = tmp_path / "harness.c"
     source.write_text(_STREAM_HARNESS)
     binary = tmp_path / "harness"
     igwo = runtime._IGWO_SOURCE
     flags = ["-O2", "-ffp-contract=off", "-D_GNU_SOURCE", f'-DIGWO_SOURCE="{igwo}"', "-pthread"]
+    if native:
+        flags.append("-march=native")
     if sanitizer:
         flags += [f"-fsanitize={sanitizer}", "-g"]
     command = [codegen_core.find_c_compiler(), *flags, str(source), "-o", str(binary), "-lm"]

@@ -286,6 +286,32 @@ def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
     np.testing.assert_array_equal(other.controls, reference.controls)
 
 
+def _cpu_flags() -> set[str]:
+    try:
+        with open("/proc/cpuinfo") as info:
+            return next((set(line.split(":")[1].split()) for line in info if line.startswith("flags")), set())
+    except OSError:
+        return set()
+
+
+@needs_compiler
+def test_auto_rng_thread_follows_the_draws_of_this_processor(s2_problem, monkeypatch):
+    """8-lane draws exactly where the processor has AVX-512 IFMA and DQ (-march=native), and the
+    random-number thread by default only with 2+ CPUs and the scalar draws."""
+    from uuv_ocp.solvers import swarm
+
+    native = codegen.NativeIgwo(codegen.compiled_build(s2_problem, 20))
+    flags = _cpu_flags()
+    if not flags:
+        pytest.skip("no /proc/cpuinfo flags to compare with")
+    assert native.draw_lanes == (8 if {"avx512ifma", "avx512dq"} <= flags else 1)
+    for cpus in (1, 2):
+        monkeypatch.setattr(swarm, "_usable_cpus", lambda: cpus)  # noqa: B023 - used at once
+        solver = uo.new_solver(s2_problem, "igwo", {"compiled": True})  # get_solver caches
+        assert solver.rng_thread == (cpus >= 2 and native.draw_lanes == 1)
+        assert uo.new_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": True}).rng_thread is True
+
+
 def test_bad_rng_thread_option_is_named(s2_problem):
     with pytest.raises(ValueError, match="rng_thread"):
         uo.get_solver(s2_problem, "igwo", {"rng_thread": "yes"})

@@ -227,6 +227,11 @@ static size_t uuv_pcg_jumps(uuv_u128 inc, size_t count, uuv_pcg_jump* jumps) {
   return segment;
 }
 
+/* Numbers per step of the PCG64 draws in this build: 8 with AVX-512 IFMA, else 1.  The solver
+ * keeps the step on one thread by default when 8: the draws then cost less than the worker's
+ * blocks take to cross to the step's core (docs/codegen.md). */
+CASADI_SYMBOL_EXPORT int uuv_ocp_pcg64_lanes(void) { return UUV_PCG_IFMA ? 8 : 1; }
+
 /* `count` draws of numpy's Generator(PCG64).random() from the state (hi, lo) and increment. */
 CASADI_SYMBOL_EXPORT void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state_lo, uint64_t inc_hi,
                                                uint64_t inc_lo, double* out, size_t count) {

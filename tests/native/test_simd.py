@@ -90,6 +90,25 @@ def test_other_operations_are_bit_identical_to_the_virtual_machine(tmp_path):
         np.testing.assert_array_equal(np.array(kernel(candidates, parameters)), expected)
 
 
+@needs_compiler
+def test_the_kernels_scheduling_attribute_leaves_every_bit_unchanged(tmp_path):
+    """GCC builds the kernel with pre-allocation scheduling (a function attribute, for speed);
+    the same source with GCC's default schedule (-DUUV_DEFAULT_SCHEDULE) gives identical bits."""
+    function = _attitude_rollout()
+    outputs = []
+    for index, flags in enumerate((codegen.DEFAULT_FLAGS, (*codegen.DEFAULT_FLAGS, "-DUUV_DEFAULT_SCHEDULE"))):
+        mapped = function.map(f"attitude{index}_exact", "serial", POPULATION, [1], [])
+        source = batch_kernel_source(function, f"attitude{index}_simd", POPULATION, mapped.name())
+        assert "schedule-insns" in source
+        twin = function.map(f"attitude{index}_simd", "serial", POPULATION, [1], [])
+        library = codegen_core.compile_functions(
+            [mapped], tmp_path / str(index), flags=flags, extra_source=source, external=[twin], verify=False
+        )
+        candidates = np.random.default_rng(7).uniform(-1, 1, (3 * STEPS, POPULATION))
+        outputs.append(np.array(library[f"attitude{index}_simd"](candidates, [0.1, 0.2, 0.3])))
+    np.testing.assert_array_equal(outputs[0], outputs[1])
+
+
 STEPS, RATE, DT = 20, 6.0, 0.1  # 20 steps of body rates up to 6 rad/s: some pass through ±90° pitch
 
 

@@ -143,6 +143,11 @@ def batch_kernel_source(function: ca.Function, name: str, population: int, refer
     return f"""
 /* ---- {name}: {function.name()} over {population} candidates, {{UUV_LANES}} lanes at a time ---- */
 {header}
+#if defined(__GNUC__) && !defined(__clang__) && !defined(UUV_DEFAULT_SCHEDULE)
+/* GCC: schedule before register allocation, minding the pressure: the long straight-line body
+ * spills less (~7 % faster on the s2 kernel, measured 2026-12-06); the arithmetic is unchanged */
+__attribute__((optimize("schedule-insns", "sched-pressure")))
+#endif
 CASADI_SYMBOL_EXPORT int {name}(const casadi_real** arg, casadi_real** res, casadi_int* iw,
                                 casadi_real* w, int mem) {{
   uuv_vd lanes[{candidate_size}];

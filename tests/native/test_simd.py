@@ -92,11 +92,14 @@ def test_other_operations_are_bit_identical_to_the_virtual_machine(tmp_path):
 
 @needs_compiler
 def test_the_kernels_scheduling_attribute_leaves_every_bit_unchanged(tmp_path):
-    """GCC builds the kernel with pre-allocation scheduling (a function attribute, for speed);
-    the same source with GCC's default schedule (-DUUV_DEFAULT_SCHEDULE) gives identical bits."""
+    """The scheduling attribute of the kernel (GCC, for speed) changes no bit of its results.
+
+    The same source built with GCC's default schedule (-DUUV_DEFAULT_SCHEDULE) is the reference.
+    """
     function = _attitude_rollout()
     outputs = []
-    for index, flags in enumerate((codegen.DEFAULT_FLAGS, (*codegen.DEFAULT_FLAGS, "-DUUV_DEFAULT_SCHEDULE"))):
+    plain = (*codegen.DEFAULT_FLAGS, "-DUUV_DEFAULT_SCHEDULE")
+    for index, flags in enumerate((codegen.DEFAULT_FLAGS, plain)):
         mapped = function.map(f"attitude{index}_exact", "serial", POPULATION, [1], [])
         source = batch_kernel_source(function, f"attitude{index}_simd", POPULATION, mapped.name())
         assert "schedule-insns" in source
@@ -315,8 +318,10 @@ def _cpu_flags() -> set[str]:
 
 @needs_compiler
 def test_auto_rng_thread_follows_the_draws_of_this_processor(s2_problem, monkeypatch):
-    """8-lane draws exactly where the processor has AVX-512 IFMA and DQ (-march=native), and the
-    random-number thread by default only with 2+ CPUs and the scalar draws."""
+    """8-lane draws exactly where the processor has AVX-512 IFMA and DQ (-march=native).
+
+    The random-number thread is the default only with 2+ CPUs and the scalar draws.
+    """
     from uuv_ocp.solvers import swarm
 
     native = codegen.NativeIgwo(codegen.compiled_build(s2_problem, 20))

@@ -435,7 +435,9 @@ def generate_c(
     )
 
 
-_EXPORTED = re.compile(r"\b(cost_batch\w*|uuv_ocp_igwo|uuv_ocp_igwo_pcg64|uuv_ocp_pcg64_random|uuv_ocp_pcg64_lanes)\b")
+_EXPORTED = re.compile(
+    r"\b(cost_batch\w*|uuv_ocp_igwo|uuv_ocp_igwo_pcg64|uuv_ocp_pcg64_random|uuv_ocp_pcg64_lanes)\b"
+)
 
 
 def _prefixed(source: str, prefix: str) -> str:

@@ -175,7 +175,10 @@ def swarm_options(method: str) -> tuple[Option, ...]:
             AUTO,
             "`True` or `False`",
             "the all-C IGWO step shares its random draws with a second thread (the same numbers)",
-            meaning="`True` on a machine with 2 or more usable CPUs, unless the build draws 8 numbers per step (AVX-512 IFMA)",
+            meaning=(
+                "`True` on a machine with 2 or more usable CPUs, unless the build draws 8 numbers per "
+                "step (AVX-512 IFMA)"
+            ),
         ),
         Option(
             "deadline",

@@ -112,6 +112,37 @@ def test_the_kernels_scheduling_attribute_leaves_every_bit_unchanged(tmp_path):
     np.testing.assert_array_equal(outputs[0], outputs[1])
 
 
+@needs_compiler
+@pytest.mark.parametrize("population", [20, 3, 12])
+def test_a_narrow_tail_gives_the_bits_of_the_wide_passes(tmp_path, population):
+    """A remainder of at most 4 candidates on 4-lane vectors gives the bits of the 8-lane passes.
+
+    20 = 2 x 8 + 4, 3 = one narrow pass, 12 = 8 + 4; the reference is a population of 5 (one
+    padded wide pass), candidate by candidate.
+    """
+    function = _attitude_rollout()
+    source = batch_kernel_source(function, "attitude_simd", population, "attitude_exact")
+    assert "attitude_simd_narrow(arg, res" in source
+    narrow = _compiled_kernel(function, tmp_path / "narrow", population)
+    wide = _compiled_kernel(function, tmp_path / "wide", POPULATION)  # 5 % 8 > 4: wide only
+    rng = np.random.default_rng(11)
+    candidates = rng.uniform(-1, 1, (3 * STEPS, POPULATION * population))
+    a0 = [0.1, -0.2, 0.3]
+    got = np.hstack(
+        [
+            np.array(narrow(candidates[:, k : k + population], a0))
+            for k in range(0, candidates.shape[1], population)
+        ]
+    )
+    want = np.hstack(
+        [
+            np.array(wide(candidates[:, k : k + POPULATION], a0))
+            for k in range(0, candidates.shape[1], POPULATION)
+        ]
+    )
+    np.testing.assert_array_equal(got, want)
+
+
 STEPS, RATE, DT = 20, 6.0, 0.1  # 20 steps of body rates up to 6 rad/s: some pass through ±90° pitch
 
 

@@ -90,6 +90,59 @@ def test_other_operations_are_bit_identical_to_the_virtual_machine(tmp_path):
         np.testing.assert_array_equal(np.array(kernel(candidates, parameters)), expected)
 
 
+@needs_compiler
+def test_the_kernels_scheduling_attribute_leaves_every_bit_unchanged(tmp_path):
+    """The scheduling attribute of the kernel (GCC, for speed) changes no bit of its results.
+
+    The same source built with GCC's default schedule (-DUUV_DEFAULT_SCHEDULE) is the reference.
+    """
+    function = _attitude_rollout()
+    outputs = []
+    plain = (*codegen.DEFAULT_FLAGS, "-DUUV_DEFAULT_SCHEDULE")
+    for index, flags in enumerate((codegen.DEFAULT_FLAGS, plain)):
+        mapped = function.map(f"attitude{index}_exact", "serial", POPULATION, [1], [])
+        source = batch_kernel_source(function, f"attitude{index}_simd", POPULATION, mapped.name())
+        assert "schedule-insns" in source
+        twin = function.map(f"attitude{index}_simd", "serial", POPULATION, [1], [])
+        library = codegen_core.compile_functions(
+            [mapped], tmp_path / str(index), flags=flags, extra_source=source, external=[twin], verify=False
+        )
+        candidates = np.random.default_rng(7).uniform(-1, 1, (3 * STEPS, POPULATION))
+        outputs.append(np.array(library[f"attitude{index}_simd"](candidates, [0.1, 0.2, 0.3])))
+    np.testing.assert_array_equal(outputs[0], outputs[1])
+
+
+@needs_compiler
+@pytest.mark.parametrize("population", [20, 3, 12])
+def test_a_narrow_tail_gives_the_bits_of_the_wide_passes(tmp_path, population):
+    """A remainder of at most 4 candidates on 4-lane vectors gives the bits of the 8-lane passes.
+
+    20 = 2 x 8 + 4, 3 = one narrow pass, 12 = 8 + 4; the reference is a population of 5 (one
+    padded wide pass), candidate by candidate.
+    """
+    function = _attitude_rollout()
+    source = batch_kernel_source(function, "attitude_simd", population, "attitude_exact")
+    assert "attitude_simd_narrow(arg, res" in source
+    narrow = _compiled_kernel(function, tmp_path / "narrow", population)
+    wide = _compiled_kernel(function, tmp_path / "wide", POPULATION)  # 5 % 8 > 4: wide only
+    rng = np.random.default_rng(11)
+    candidates = rng.uniform(-1, 1, (3 * STEPS, POPULATION * population))
+    a0 = [0.1, -0.2, 0.3]
+    got = np.hstack(
+        [
+            np.array(narrow(candidates[:, k : k + population], a0))
+            for k in range(0, candidates.shape[1], population)
+        ]
+    )
+    want = np.hstack(
+        [
+            np.array(wide(candidates[:, k : k + POPULATION], a0))
+            for k in range(0, candidates.shape[1], POPULATION)
+        ]
+    )
+    np.testing.assert_array_equal(got, want)
+
+
 STEPS, RATE, DT = 20, 6.0, 0.1  # 20 steps of body rates up to 6 rad/s: some pass through ±90° pitch
 
 
@@ -236,7 +289,7 @@ def test_the_6dof_kernel_is_accepted_though_the_check_reaches_gimbal_lock(tmp_pa
 
 
 @needs_compiler
-@pytest.mark.parametrize("count", [1, 7, 9600, 288001])
+@pytest.mark.parametrize("count", [1, 7, 1000, 9600, 288001])  # 1000: segments of 63, a vector tail
 def test_c_pcg64_draws_numpys_numbers_and_advances_the_same(tmp_path, s2_problem, count):
     native = codegen.NativeIgwo(codegen.compiled_build(s2_problem, 20))
     generator = np.random.default_rng(count)
@@ -284,6 +337,34 @@ def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
     other = native.solve(p, None, np.random.Generator(np.random.Philox(1)))
     reference = python.solve(p, None, np.random.Generator(np.random.Philox(1)))
     np.testing.assert_array_equal(other.controls, reference.controls)
+
+
+def _cpu_flags() -> set[str]:
+    try:
+        with open("/proc/cpuinfo") as info:
+            return next((set(line.split(":")[1].split()) for line in info if line.startswith("flags")), set())
+    except OSError:
+        return set()
+
+
+@needs_compiler
+def test_auto_rng_thread_follows_the_draws_of_this_processor(s2_problem, monkeypatch):
+    """8-lane draws exactly where the processor has AVX-512 IFMA and DQ (-march=native).
+
+    The random-number thread is the default only with 2+ CPUs and the scalar draws.
+    """
+    from uuv_ocp.solvers import swarm
+
+    native = codegen.NativeIgwo(codegen.compiled_build(s2_problem, 20))
+    flags = _cpu_flags()
+    if not flags:
+        pytest.skip("no /proc/cpuinfo flags to compare with")
+    assert native.draw_lanes == (8 if {"avx512ifma", "avx512dq"} <= flags else 1)
+    for cpus in (1, 2):
+        monkeypatch.setattr(swarm, "_usable_cpus", lambda: cpus)  # noqa: B023 - used at once
+        solver = uo.new_solver(s2_problem, "igwo", {"compiled": True})  # get_solver caches
+        assert solver.rng_thread == (cpus >= 2 and native.draw_lanes == 1)
+        assert uo.new_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": True}).rng_thread is True
 
 
 def test_bad_rng_thread_option_is_named(s2_problem):
@@ -376,17 +457,22 @@ int main(void) {
 
 @needs_compiler
 @pytest.mark.parametrize("sanitizer", [None, "thread"])
-def test_c_step_draws_the_same_numbers_whoever_draws_them(tmp_path, sanitizer):
+@pytest.mark.parametrize("native", [False, True], ids=["portable", "march-native"])
+def test_c_step_draws_the_same_numbers_whoever_draws_them(tmp_path, sanitizer, native):
     """Every drawing mode of the C step gives the run of the numbers given (50 seeds).
 
     Modes: one thread, worker, worker never used, odd/even split; with ThreadSanitizer when the
-    compiler has it (a data race in the group claims or the ring fails the run).
+    compiler has it (a data race in the group claims or the ring fails the run).  Built
+    portable (the scalar PCG64) and for this processor (``-march=native``: the AVX-512 IFMA
+    draws where the processor has them), as the package builds it.
     """
     source = tmp_path / "harness.c"
     source.write_text(_STREAM_HARNESS)
     binary = tmp_path / "harness"
     igwo = runtime._IGWO_SOURCE
     flags = ["-O2", "-ffp-contract=off", "-D_GNU_SOURCE", f'-DIGWO_SOURCE="{igwo}"', "-pthread"]
+    if native:
+        flags.append("-march=native")
     if sanitizer:
         flags += [f"-fsanitize={sanitizer}", "-g"]
     command = [codegen_core.find_c_compiler(), *flags, str(source), "-o", str(binary), "-lm"]

@@ -106,6 +106,7 @@ int uuv_ocp_igwo_pcg64(const double* p, const double* offset, const double* lowe
                        double* history, double* final_positions);
 void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state_lo, uint64_t inc_hi, uint64_t inc_lo,
                           double* out, size_t count);
+int uuv_ocp_pcg64_lanes(void);
 """
 
 #: ``UUV_OCP_COMPILED=0`` / ``1`` overrides ``compiled="auto"`` of the swarms and ``qpsol="auto"`` of sqp-rti
@@ -435,7 +436,9 @@ def generate_c(
     )
 
 
-_EXPORTED = re.compile(r"\b(cost_batch\w*|uuv_ocp_igwo|uuv_ocp_igwo_pcg64|uuv_ocp_pcg64_random)\b")
+_EXPORTED = re.compile(
+    r"\b(cost_batch\w*|uuv_ocp_igwo|uuv_ocp_igwo_pcg64|uuv_ocp_pcg64_random|uuv_ocp_pcg64_lanes)\b"
+)
 
 
 def _prefixed(source: str, prefix: str) -> str:
@@ -661,6 +664,11 @@ class NativeIgwo:
         self.random = getattr(self.library, f"{prefix}uuv_ocp_pcg64_random")
         self.random.argtypes = [ctypes.c_uint64] * 4 + [pointer, ctypes.c_size_t]
         self.random.restype = None
+        lanes = getattr(self.library, f"{prefix}uuv_ocp_pcg64_lanes")
+        lanes.argtypes, lanes.restype = [], ctypes.c_int
+        #: numbers per step of the C step's PCG64 draws: 8 with AVX-512 IFMA (then ~3x faster
+        #: than the scalar 1), which makes the random-number thread a loss (docs/codegen.md)
+        self.draw_lanes = int(lanes())
 
     def run(
         self,

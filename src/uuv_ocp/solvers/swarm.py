@@ -175,7 +175,10 @@ def swarm_options(method: str) -> tuple[Option, ...]:
             AUTO,
             "`True` or `False`",
             "the all-C IGWO step shares its random draws with a second thread (the same numbers)",
-            meaning="`True` on a machine with 2 or more usable CPUs",
+            meaning=(
+                "`True` on a machine with 2 or more usable CPUs, unless the build draws 8 numbers per "
+                "step (AVX-512 IFMA)"
+            ),
         ),
         Option(
             "deadline",
@@ -403,7 +406,9 @@ class SwarmSolver:
         second thread running up to four iterations ahead — the same numbers; the step draws
         what the thread has not started itself, so a late thread never stalls the step; False
         keeps the step on one thread: better for the tail latency on a machine whose other
-        CPUs are busy, e.g. inside a process pool, see docs/codegen.md.  ``compiled``: see
+        CPUs are busy, e.g. inside a process pool, see docs/codegen.md.  ``"auto"`` (default):
+        the thread with two or more usable CPUs, unless the build draws eight numbers per step
+        (AVX-512 IFMA, ``NativeIgwo.draw_lanes``), where the step alone is faster.  ``compiled``: see
         docs/codegen.md; ``deadline``: see the module doc.
     method : str
         ``"igwo"``, ``"gwo"``, ``"ssa"`` or ``"pso"``.
@@ -430,7 +435,6 @@ class SwarmSolver:
         self.seed_warm_start, self.parallelization = settings.seed_warm_start, settings.parallelization
         self.algorithm_options = settings.algorithm_options
         self.compiled = _compiled_default(settings.compiled)
-        self.rng_thread = _usable_cpus() >= 2 if settings.rng_thread is AUTO else settings.rng_thread
         self.deadline, self.candidates = settings.deadline, settings.candidates
         self.candidate_metric = settings.candidate_metric
         distance = settings.candidate_distance
@@ -454,6 +458,12 @@ class SwarmSolver:
         self._full_search_seconds: float | None = None  # last search that used the whole budget
         self._cold_center: tuple[bytes, np.ndarray] | None = None  # (previous control, its centre)
         self.fitness = self._fitness_function()
+        # auto: a second thread only where it pays, with two CPUs and the scalar draws (with the
+        # 8-lane IFMA draws the step alone is faster: the blocks' trip between cores costs more)
+        vector_draws = self.native is not None and self.native.draw_lanes > 1
+        self.rng_thread = (
+            _usable_cpus() >= 2 and not vector_draws if settings.rng_thread is AUTO else settings.rng_thread
+        )
         # what evaluates the population (details["evaluation"] says per solve what really ran)
         self.evaluation = (
             "compiled C step"

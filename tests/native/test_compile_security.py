@@ -36,6 +36,7 @@ from uuv_ocp.native.compile import (
     verify_library,
 )
 from uuv_ocp.solvers import new_solver
+from uuv_ocp.solvers.result import Stage
 
 FUNCTION = "x = ca.SX.sym('x', 5)\nf = ca.Function('sec', [x], [ca.sumsqr(ca.sin(x) * x)])\n"
 BUILD = (
@@ -586,6 +587,23 @@ def test_compiled_nlp_is_built_once_and_reused_from_the_cache(tmp_path, monkeypa
     np.testing.assert_allclose(second.controls, first.controls, rtol=0, atol=1e-12)
     # the compiled functions are verified to 1e-12 against the virtual machine's: same iterates
     np.testing.assert_allclose(first.controls, virtual.controls, rtol=1e-9, atol=1e-9)
+
+
+@needs_compiler
+def test_robust_retry_of_the_same_plugin_reuses_the_plain_attempts_library(tmp_path, monkeypatch):
+    problem, p, compiles = _compiled_fatrop(monkeypatch, tmp_path)
+    solver = new_solver(problem, "fatrop", {"compiled": True})
+    assert solver.robust_options() and "plugin" not in solver.robust_options(), "a same-plugin retry"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a fallback to the virtual machine would warn
+        variant = next(iter(solver.variants))
+        plain = solver._solver(variant, Stage.PLAIN, False)
+        built = len(compiles)
+        robust = solver._solver(variant, Stage.ROBUST, False)
+    assert built >= 1 and len(compiles) == built, "the robust retry compiled the plain attempt's again"
+    assert plain is not robust, "two solvers (their options differ), one library"
+    libraries = sorted((tmp_path / "cache").glob("uuv_ocp_nlp_fatrop_*.so"))
+    assert len(libraries) == built
 
 
 @needs_compiler

@@ -519,6 +519,7 @@ def compiled_nlpsol(
     options: dict,
     stages: list[int | None] | None = None,
     row_stages: list[int | None] | None = None,
+    library_name: str | None = None,
 ) -> tuple[ca.Function, CompiledLibrary]:
     """``casadi.nlpsol`` on the NLP's functions compiled to C, built once per content in the solvers' cache.
 
@@ -546,6 +547,11 @@ def compiled_nlpsol(
         built with ``expand=False`` (expanding would inline it again).  ``None``: the NLP as given.
     row_stages : list of int or None, optional
         The stage of each row of ``g`` by its key (see ``outline``; with ``stages`` only).
+    library_name : str, optional
+        Names the library ``uuv_ocp_nlp_{library_name}`` instead of ``uuv_ocp_nlp_{name}``.
+        Solvers of one plugin on one NLP whose options differ (a backend's plain attempt and
+        its robust retry) give the same one: their functions are the same, so the second
+        build finds the first's library instead of compiling it again.
 
     Returns
     -------
@@ -570,7 +576,10 @@ def compiled_nlpsol(
     functions = [plain.get_function(entry) for entry in plain.get_function()]
     functions.append(plain.oracle())  # "nlp": the compiled NLP's entry point
     library = compile_functions(
-        functions, default_cache_directory(), name=f"uuv_ocp_nlp_{name}", flags=nlp_flags(functions)
+        functions,
+        default_cache_directory(),
+        name=f"uuv_ocp_nlp_{library_name or name}",
+        flags=nlp_flags(functions),
     )
     assert library.path is not None, "compiled: a library was built or reused"
     # the plugin reads "nlp" and its derivatives from the library, checked by compile_functions

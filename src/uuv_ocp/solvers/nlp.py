@@ -593,7 +593,8 @@ class NlpSolver:
             nlp = self._still_water_nlp(data) if still_water else dict(data.nlp)
             nlp["f"] = nlp["f"] * self.objective_scale
             suffix = "" if stage is Stage.PLAIN else f"_{stage.value}"
-            name = f"{plugin}_{variant}{suffix}{'_still_water' if still_water else ''}"
+            water = "_still_water" if still_water else ""
+            name = f"{plugin}_{variant}{suffix}{water}"
             if self.deadline is not None and plugin in CALLBACK_PLUGINS:
                 sizes = (nlp["x"].numel(), nlp["g"].numel(), nlp["p"].numel())
                 callback = _DeadlineCallback(f"{name}_deadline", sizes, self._clock)
@@ -604,7 +605,10 @@ class NlpSolver:
                 options.update(self.progress_lines(plugin))
             if self.compiled:
                 stages = ([key[1] for key in data.variable_keys], [key[1] for key in data.constraint_keys])
-                solver = self._compiled_nlpsol(name, plugin, nlp, options, stages)
+                # one library per plugin and NLP: a robust retry of the same plugin differs
+                # only in options, so it loads the plain attempt's library (no second compile)
+                library = f"{plugin}_{variant}{water}"
+                solver = self._compiled_nlpsol(name, plugin, nlp, options, stages, library)
             else:
                 solver = ca.nlpsol(name, plugin, nlp, options)
             self._solvers[key] = BufferedFunction(solver)
@@ -675,16 +679,18 @@ class NlpSolver:
         nlp: dict,
         options: dict,
         stages: tuple[list[int | None], list[int | None]],
+        library_name: str | None = None,
     ) -> ca.Function:
         """``nlpsol`` on the NLP functions compiled to C, cached by content; VM if that fails.
 
         See :func:`uuv_ocp.native.runtime.compiled_nlpsol`: the library is built once per NLP
         content (and compiler, flags, versions) in the solvers' cache, checksummed and verified;
         later processes load it without compiling.  ``stages``: the stage of every variable and
-        row (their keys'), by which the NLP is outlined (one C function per stage structure).
+        row (their keys'), by which the NLP is outlined (one C function per stage structure);
+        ``library_name``: the library's name (``compiled_nlpsol``), ``name`` if not given.
         """
         try:
-            return compiled_nlpsol(name, plugin, nlp, options, *stages)[0]
+            return compiled_nlpsol(name, plugin, nlp, options, *stages, library_name=library_name)[0]
         except (CodegenError, OSError, RuntimeError) as error:
             warnings.warn(
                 f"compiled=True unavailable for {self.name} ({error}); using CasADi's virtual machine",

@@ -1052,10 +1052,10 @@ typedef struct {
 #define RTI_INFO_SIZE 10
 #define RTI_TWO_PI 6.283185307179586 /* 2.0 * math.pi, the same double */
 
-/* numpy's maximum and minimum on two scalars: NaN in the first operand propagates as in
- * numpy's loop (the applied control is finite whenever this entry's result is used) */
-static inline double rti_np_max(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
-static inline double rti_np_min(double a, double b) { return (a <= b || isnan(a)) ? a : b; }
+/* numpy's maximum and minimum of two doubles (numpy 2.4, every loop length): NaN in either
+ * propagates, and a tie (-0.0 against 0.0) gives the second operand */
+static inline double rti_np_max(double a, double b) { return (a > b || isnan(a)) ? a : b; }
+static inline double rti_np_min(double a, double b) { return (a < b || isnan(a)) ? a : b; }
 
 /* One closed-loop step of the common case (NMPC.step on a tracking problem with its resident
  * warm start; uuv_ocp.solvers.rti.ClosedLoopEntry): checks p[0 : nx + nu] against low/high

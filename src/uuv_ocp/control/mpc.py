@@ -397,7 +397,7 @@ class NMPC:
         :meth:`feedback`.
         """
         self._pending = self._prepared_p = None  # a step replaces a prepared one
-        if current is None and parameters is None and self._entry is not False:
+        if current is None and parameters is None and self._entry is not False and self._use_c_entry:
             record = self._entry_step(x, t, u_prev)
             if record is not None:
                 return record
@@ -445,8 +445,7 @@ class NMPC:
         """Return the controller's :class:`~uuv_ocp.solvers.rti.ClosedLoopEntry` (``False``: none applies)."""
         problem, backend = self.problem, self.backend
         if (
-            not self._use_c_entry
-            or not isinstance(problem, TrackingProblem)
+            not isinstance(problem, TrackingProblem)
             or not callable(getattr(backend, "resident_step", None))
             or getattr(backend, "mode", None) != "rti"
             or not backend.resident_available

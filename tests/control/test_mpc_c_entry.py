@@ -175,3 +175,26 @@ def test_the_c_entry_is_not_taken_where_the_general_path_decides(monkeypatch):
             control = record.control
         assert bool(calls) == expected, options
     assert record.fast_path == "resident C step"  # the last loop's steps: the entry's plans
+
+
+@needs_compiler
+def test_an_interrupt_inside_the_entrys_fallback_solve_propagates(monkeypatch):
+    """A QP the entry's C step refuses goes to ``solve``; Ctrl-C there reaches the caller."""
+    problem, start = _s2()
+    controller = uo.NMPC(problem, "sqp-rti", options=RTI)
+    control = np.zeros(3)
+    for k in range(3):
+        control = controller.step(start, k * problem.dt, control).control
+    assert isinstance(controller._entry, rti.ClosedLoopEntry)
+    controller.backend.qp_tolerance = 1e-300  # the resident step is refused in C
+
+    calls = []
+
+    def interrupted(*args, **kwargs):
+        calls.append(args)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(controller.backend, "solve", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        controller.step(start, 3 * problem.dt, control)
+    assert len(calls) == 1  # raised from the entry's own solve, not caught and taken again

@@ -80,6 +80,7 @@ backend's tolerance.
 from __future__ import annotations
 
 import functools
+import math
 import threading
 import time
 import warnings
@@ -98,7 +99,8 @@ from uuv_ocp.judge import FEASIBILITY_TOLERANCE, instance_parameters, score_term
 from uuv_ocp.solvers import REGISTRY, new_solver
 from uuv_ocp.solvers.base import DeferredPlan, Preparable, reraise_interrupt
 from uuv_ocp.solvers.result import Iterate, SolveResult
-from uuv_ocp.tracking import TrackingProblem
+from uuv_ocp.solvers.rti import ClosedLoopEntry, CStepPlan
+from uuv_ocp.tracking import SAMPLE_BLOCK, UNWRAP_STEP, TrackingProblem
 from uuv_ocp.transcription.multiple_shooting import parameter_blocks
 
 #: Linearisations of the steady control's least squares (the UUV models are affine in the
@@ -196,6 +198,7 @@ _FAST_DEFAULTS = {
     "fast_path": "",
 }
 _NEW, _SET = object.__new__, object.__setattr__
+_FLOAT = np.dtype(float)  # the dtype of the arrays the one-C-call step takes as they are
 
 
 _Method = TypeVar("_Method", bound=Callable[..., Any])
@@ -280,6 +283,9 @@ class NMPC:
         self._bounds: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None  # see _admissible
         self._path_constrained: bool | None = None  # whether fresh plans are judged (module doc)
         self._steady: tuple[ca.Function, np.ndarray] | None = None  # see _steady_control
+        #: whether :meth:`step` may take its one-C-call entry (:meth:`_entry_step`); a private
+        #: switch (tests compare the two paths bit for bit)
+        self._use_c_entry = True
         #: whether :meth:`warm_up` has run (what the steps build is built)
         self.warmed_up = False
         #: the record of the last deprecated :meth:`step_control` / :meth:`feedback_control`
@@ -296,6 +302,12 @@ class NMPC:
         # checked once here, not per step: a runtime protocol check costs tens of µs
         self._backend = backend
         self._preparable = isinstance(backend, Preparable)
+        # the one-C-call step of this backend (:meth:`_entry_step`): None until decided, False
+        # where it does not apply; its reference runs by sample block (first, last)
+        self._entry: ClosedLoopEntry | bool | None = None
+        self._entry_runs: dict[tuple[int, int], tuple[int, int, int, np.ndarray] | None] = {}
+        #: the problem, dt, the bounds of t and the reference's end (_window_address's)
+        self._entry_window: tuple[TrackingProblem, float, float, float, float] | None = None
 
     @_one_thread
     def reset(self) -> None:
@@ -385,8 +397,125 @@ class NMPC:
         :meth:`feedback`.
         """
         self._pending = self._prepared_p = None  # a step replaces a prepared one
+        if current is None and parameters is None and self._entry is not False and self._use_c_entry:
+            record = self._entry_step(x, t, u_prev)
+            if record is not None:
+                return record
         p = instance_parameters(self.problem, x, t, u_prev=u_prev, current=current, parameters=parameters)
         return self._solve_step(p, u_prev)
+
+    def _entry_step(self, x: object, t: object, u_prev: object) -> StepRecord | None:
+        """:meth:`step` in one C call (:class:`~uuv_ocp.solvers.rti.ClosedLoopEntry`), or ``None``.
+
+        The common case of a closed loop (docs/solvers.md): a tracking problem without hard path
+        constraints, ``sqp-rti`` with its C step in ``mode="rti"`` and no deadline, the last step's
+        resident plan as warm start, float64 arrays ``x`` and ``u_prev``, a float ``t`` on the
+        sampling grid whose window the cached reference samples hold, no current, no model
+        parameters.  The same numbers as the general path (the record, plan and warm start);
+        ``None`` (nothing run) for anything else, a value the general path refuses included.
+        """
+        warm = self._deferred
+        if type(warm) is not CStepPlan or not warm.all_finite or not self.use_warm_start:
+            return None
+        entry = self._entry
+        if entry is None:
+            entry = self._entry = self._build_entry()
+        if entry is False or type(x) is not np.ndarray or type(u_prev) is not np.ndarray:
+            return None
+        assert isinstance(entry, ClosedLoopEntry)
+        nx, nu, _, rows, _ = entry.layout
+        if x.dtype is not _FLOAT or u_prev.dtype is not _FLOAT or x.shape != (nx,) or u_prev.shape != (nu,):
+            return None
+        window = self._window_address(t, nx, rows)
+        if window is None:
+            return None
+        taken = entry.step(warm, x, u_prev, window)
+        if taken is None:
+            return None
+        plan, values = taken
+        if plan is None:  # not accepted: solve() from the shifted plan, as RtiSolver.feedback
+            backend = self.backend
+            return self._solve_step(values, u_prev, lambda: backend.solve(values, warm.iterate().shift()))
+        if not plan.all_finite:  # the general path's judgement of a plan with a non-finite number
+            return self._solve_step(plan.p, u_prev, lambda: plan)
+        self._deferred = plan
+        return StepRecord._of_fast_path(values.copy(), plan)
+
+    def _build_entry(self) -> ClosedLoopEntry | bool:
+        """Return the controller's :class:`~uuv_ocp.solvers.rti.ClosedLoopEntry` (``False``: none applies)."""
+        problem, backend = self.problem, self.backend
+        if (
+            not isinstance(problem, TrackingProblem)
+            or not callable(getattr(backend, "resident_step", None))
+            or getattr(backend, "mode", None) != "rti"
+            or not backend.resident_available
+            or self.path_constrained
+            or problem.dt > UNWRAP_STEP
+        ):
+            return False
+        plan = problem._closed_loop_plan  # the layout TrackingProblem's own fast instance writes
+        if plan is None:
+            return False
+        size, nx, nu, lows, highs, t_low, t_high, window_part, current_part, defaults, heading = plan
+        template = np.zeros(size)
+        template[current_part] = 0.0
+        for part, value in defaults:
+            template[part] = value
+        # the still-water choice must read only the template's entries (the current)
+        varying = np.zeros(size, dtype=bool)
+        varying[: nx + nu] = varying[window_part] = True
+        still_slice = getattr(backend, "_still_water_slice", None)
+        if still_slice is not None and varying[still_slice].any():
+            return False
+        self._entry_window = (problem, problem.dt, t_low, t_high, problem.reference.t_end)
+        if self._bounds is None:  # as _admissible gathers them
+            spec = problem.spec()
+            self._bounds = (spec.lower, spec.upper, spec.max_rate * spec.dt)
+        return ClosedLoopEntry(
+            backend,
+            template,
+            lows,
+            highs,
+            (nx, nu, window_part.start, problem.horizon + 1, heading),
+            self._bounds,
+        )
+
+    def _window_address(self, t: object, nx: int, rows: int) -> int | None:
+        """Address of the reference window at ``t`` in the problem's joined sample blocks, or ``None``.
+
+        The rows ``TrackingProblem._window_from_samples`` copies when it cuts the window from a
+        joined run (the same bounds on ``t``); ``None`` where it would not (its block loop or the
+        reference's evaluation then give the window, by the general path).  The runs are kept
+        here with their arrays, so that an address stays valid.
+        """
+        if not isinstance(t, float) or self._entry_window is None:
+            return None
+        problem, dt, t_low, t_high, t_end = self._entry_window
+        t0 = float(t)
+        if not (t_low <= t0 <= t_high and math.isfinite(t0)):
+            return None
+        first = round(t0 / dt)
+        last = first + rows - 1
+        if first * dt != t0 or last * dt > t_end:
+            return None
+        key = (first // SAMPLE_BLOCK, last // SAMPLE_BLOCK)
+        runs = self._entry_runs
+        if key not in runs:
+            joined = problem._joined_blocks(*key)
+            run = None
+            if joined is not None:
+                start_index, states = joined
+                usable = states.dtype is _FLOAT and states.ndim == 2 and states.flags.c_contiguous
+                if usable and states.shape[1] == nx:
+                    run = (start_index, states.shape[0], states.ctypes.data, states)
+            runs[key] = run
+        run = runs[key]
+        if run is None:
+            return None
+        start_index, count, address, _ = run
+        if not (start_index <= first and last - start_index < count):
+            return None
+        return address + 8 * nx * (first - start_index)
 
     @_one_thread
     def prepare(
@@ -448,12 +577,20 @@ class NMPC:
         self._pending = None
         return u_prev, p
 
-    def _solve_step(self, p: np.ndarray, u_prev: object | None) -> StepRecord:
-        """Solve instance ``p`` and pick the control: the fresh plan's, or the fallback's."""
+    def _solve_step(
+        self, p: np.ndarray, u_prev: object | None, solve: Callable[[], Any] | None = None
+    ) -> StepRecord:
+        """Solve instance ``p`` and pick the control: the fresh plan's, or the fallback's.
+
+        ``solve``: what gives the backend's outcome instead of its ``feedback`` or ``solve``
+        (:meth:`_entry_step`'s rest of a step it began), called where they would be.
+        """
         start = time.perf_counter()
         preparable = self._preparable
         try:
-            if preparable:
+            if solve is not None:
+                outcome = solve()
+            elif preparable:
                 # the last fast plan as it is (the backend shifts it: in C for sqp-rti's resident step)
                 warm = self._deferred if self._deferred is not None else self._iterate
                 outcome = self.backend.feedback(p, warm if self.use_warm_start else None)

@@ -1023,3 +1023,100 @@ int uuv_rti_resident_step(void* memory, const double* p, int max_iter, double to
   for (i = 0; i < RTI_NG; ++i) m->r_lam_g[i] = m->k_lam_g[rti_constraint_shift[i]];
   return 0;
 }
+
+/* What uuv_rti_closed_loop_step needs besides the step's memory: one controller's buffers and
+ * constants for one NLP variant (uuv_ocp.solvers.rti.ClosedLoopEntry fills it once and owns
+ * every array it points to).  Mirrored by the ctypes Structure rti_ocp.ClosedLoopSettings. */
+typedef struct {
+  double* p;                /* the instance: x0 at [0, nx), u_prev at [nx, nx + nu) (written by
+                               the caller), the window at [window, window + rows nx) (written
+                               here), every other entry a template written once */
+  const double* low;        /* bounds of p[0 : nx + nu] (x0's plausibility bound, u_prev's box) */
+  const double* high;
+  double* out;              /* [w, lam_x, lam_g, info (10), control (nu), applied (nu)] */
+  const int* index;         /* the first control's positions in w (nu) */
+  const double* lower;      /* its box (scaled), then the physical scale and centre */
+  const double* upper;
+  const double* scale;
+  const double* centre;
+  const double* box_lower;  /* the applied control's box (physical) and rate step around u_prev */
+  const double* box_upper;
+  const double* rate;
+  const int* slack;         /* the terminal slacks in w (nslack; 0: the hard NLP) */
+  double slack_tol;
+  double tol;
+  double qp_tol;
+  int nx, nu, heading, window, rows, nslack, max_iter;
+} rti_closed_loop;
+
+#define RTI_INFO_SIZE 10
+#define RTI_TWO_PI 6.283185307179586 /* 2.0 * math.pi, the same double */
+
+/* numpy's maximum and minimum of two doubles (numpy 2.4, every loop length): NaN in either
+ * propagates, and a tie (-0.0 against 0.0) gives the second operand */
+static inline double rti_np_max(double a, double b) { return (a > b || isnan(a)) ? a : b; }
+static inline double rti_np_min(double a, double b) { return (a < b || isnan(a)) ? a : b; }
+
+/* One closed-loop step of the common case (NMPC.step on a tracking problem with its resident
+ * warm start; uuv_ocp.solvers.rti.ClosedLoopEntry): checks p[0 : nx + nu] against low/high
+ * (NaN fails), writes the reference window (rows x nx, from `window`) into p and moves its
+ * heading column to the branch of x0's heading (tracking._move_heading_branch's operations),
+ * runs uuv_rti_resident_step in rti mode, and on success writes the first control (clipped to
+ * its scaled box, then scale * z + centre: RtiSolver._c_plan's operations) and the applied
+ * control (it projected on the box and the rate bound around u_prev: NMPC._admissible's).
+ * Returns -2 when a check fails (nothing written but nothing run: the caller's general path
+ * raises its ValueError), -1 with nothing resident, 1 when the step is not accepted (info
+ * written, as uuv_rti_resident_step), else 16 + (every number of w, lam_x, lam_g, info and
+ * control finite) + 2 (the plan needed the terminal relaxation: the largest slack above
+ * slack_tol, as NlpSolver.relaxed). */
+int uuv_rti_closed_loop_step(void* memory, const rti_closed_loop* s, const double* window) {
+  rti_memory* m = (rti_memory*)memory;
+  double* p = s->p;
+  double *w = s->out, *lam_x = w + RTI_NW, *lam_g = lam_x + RTI_NW, *info = lam_g + RTI_NG;
+  double *control = info + RTI_INFO_SIZE, *applied = control + s->nu, *column, turns, shift, v;
+  volatile double product; /* no fused multiply-add: the same rounding as numpy's two steps */
+  int i, n = s->nx + s->nu, finite = 1, relaxed = 0, nan_slack = 0;
+  double largest = -INFINITY;
+  if (!m->resident) return -1;
+  for (i = 0; i < n; ++i)
+    if (!(s->low[i] <= p[i] && p[i] <= s->high[i])) return -2;
+  memcpy(p + s->window, window, sizeof(double) * s->rows * s->nx);
+  /* _shift_heading: the multiple of 2 pi (Python's round: half to even) that brings the first
+   * heading closest to x0's; a non-finite quotient propagates as it did through np.round */
+  column = p + s->window + s->heading;
+  turns = (p[s->heading] - column[0]) / RTI_TWO_PI;
+  if (!isfinite(turns)) {
+    for (i = 0; i < s->rows; ++i) column[i * s->nx] += turns;
+  } else if ((turns = nearbyint(turns)) != 0.0) {
+    product = RTI_TWO_PI * turns;
+    shift = product;
+    for (i = 0; i < s->rows; ++i) column[i * s->nx] += shift;
+  }
+  if (uuv_rti_resident_step(memory, p, s->max_iter, s->tol, s->qp_tol, 0, w, lam_x, lam_g, info))
+    return 1;
+  for (i = 0; i < s->nu; ++i) {
+    v = w[s->index[i]];
+    v = rti_np_max(v, s->lower[i]);
+    v = rti_np_min(v, s->upper[i]);
+    product = s->scale[i] * v;
+    control[i] = s->centre[i] + product;
+  }
+  for (i = 0; i < 2 * RTI_NW + RTI_NG + RTI_INFO_SIZE + s->nu; ++i)
+    if (!isfinite(w[i])) { finite = 0; break; }
+  for (i = 0; i < s->nslack; ++i) {
+    v = w[s->slack[i]];
+    if (isnan(v)) nan_slack = 1;
+    else if (v > largest) largest = v;
+  }
+  relaxed = s->nslack > 0 && !nan_slack && largest > s->slack_tol;
+  /* NMPC._admissible with u_prev: low = max(lower, u_prev - step), high = max(low, min(upper,
+   * u_prev + step)), min(max(control, low), high) */
+  for (i = 0; i < s->nu; ++i) {
+    double previous = p[s->nx + i], low, high;
+    low = rti_np_max(s->box_lower[i], previous - s->rate[i]);
+    high = rti_np_min(s->box_upper[i], previous + s->rate[i]);
+    high = rti_np_max(low, high);
+    applied[i] = rti_np_min(rti_np_max(control[i], low), high);
+  }
+  return 16 + finite + 2 * relaxed;
+}

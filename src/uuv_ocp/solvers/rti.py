@@ -66,6 +66,7 @@ the variable and constraint order), ``"qrqp"`` and ``"osqp"``
 
 from __future__ import annotations
 
+import ctypes
 import dataclasses
 import math
 import time
@@ -104,13 +105,15 @@ from uuv_ocp.solvers.options import (
     positive_float,
     positive_int,
 )
-from uuv_ocp.solvers.result import Attempt, Iterate, SolveResult, Stage, Variant
+from uuv_ocp.solvers.result import HARD, Attempt, Iterate, SolveResult, Stage, Variant
 from uuv_ocp.solvers.rti_ocp import (
+    INFO_SIZE,
     OCP_QP_DEFAULTS,
     STOP_CONVERGED,
     STOP_DEADLINE,
     STOP_EVALUATION,
     STOP_INFEASIBLE,
+    ClosedLoopSettings,
     OcpQpStep,
     UnsupportedStructure,
     build_step,
@@ -235,7 +238,7 @@ class Preparation:
     duals: tuple[np.ndarray, np.ndarray] | None = None
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class CStepPlan(DeferredPlan):
     """The plan of a step the C step took alone: :meth:`RtiSolver.feedback`'s fast paths.
 
@@ -288,6 +291,17 @@ class CStepPlan(DeferredPlan):
     elapsed: float
     all_finite: bool = False
 
+    @classmethod
+    def _of_entry(cls, fields: dict[str, Any]) -> CStepPlan:
+        """Return the plan of ``fields`` (every field by name), built without its ``__init__``.
+
+        :class:`ClosedLoopEntry`'s step: the frozen ``__init__`` sets 13 fields one by one (2.4
+        against 0.7 µs timeit, on every step of a closed loop; a dict, not slots, for this).
+        """
+        plan = _NEW(cls)
+        _SET(plan, "__dict__", fields)
+        return plan
+
     def finite_control(self) -> bool:
         """Whether every entry of :attr:`control` is finite (known from the step's pass, if it was made)."""
         return self.all_finite or bool(np.isfinite(self.control).all())
@@ -312,6 +326,8 @@ class CStepPlan(DeferredPlan):
             self.p, final, [final], self.relaxed, self.elapsed, deadline_hit=False, c_time=c_time
         )
 
+
+_NEW, _SET = object.__new__, object.__setattr__
 
 #: the name of :class:`CStepPlan` before it also held the prepared step's plans
 ResidentPlan = CStepPlan
@@ -1056,6 +1072,180 @@ class RtiSolver(NlpSolver):
             qp_iterations=int(info[4]),
         )
         return record
+
+
+class ClosedLoopEntry:
+    """One controller's closed-loop step in one C call (``uuv_rti_closed_loop_step``).
+
+    The common case of :meth:`RtiSolver.feedback`'s resident step, taken by ``NMPC.step`` on a
+    tracking problem: ``mode="rti"``, no deadline, no preparation, the warm start the resident
+    :class:`CStepPlan` of the last step.  The instance ``p`` is a template held here (every entry
+    but the measured state, the last control and the reference window set once); the caller
+    writes the state and the last control into it, the C call checks them, writes the window
+    (from the caller's pointer into its cached reference samples), runs the resident step, and
+    writes the plan, its first control and the applied control into one buffer that is copied
+    once.  Every number is the one the general path gives (the same C step on the same ``p``,
+    then the same floating-point operations; tests/control/test_mpc_fast_paths.py compares the
+    two).  Not thread-safe: one controller's buffers (``NMPC`` owns one entry).
+
+    Parameters
+    ----------
+    backend : RtiSolver
+        The controller's backend (its C steps are used as built).
+    template : numpy.ndarray, shape (np,)
+        The instance's entries other than ``x0``, ``u_prev`` and the window (e.g. a zero current
+        and the model parameters' defaults).
+    low, high : sequence of float, length nx + nu
+        Bounds of ``[x0, u_prev]`` (``p[: nx + nu]``), those of the general path's checks; a
+        value outside them (NaN included) makes :meth:`step` return ``None`` before any step.
+    layout : tuple of int
+        ``(nx, nu, window, rows, heading)``: state and control sizes, the window's offset in
+        ``p``, its rows (N + 1; ``nx`` wide) and the heading's column.
+    admissible : tuple of numpy.ndarray
+        ``(lower, upper, step)``: the control box (physical) and the rate step of ``NMPC._admissible``.
+
+    The backend's options are read at every step (a changed one is written into the C
+    settings), as its own steps read them.
+    """
+
+    def __init__(
+        self,
+        backend: RtiSolver,
+        template: np.ndarray,
+        low: Any,
+        high: Any,
+        layout: tuple[int, int, int, int, int],
+        admissible: tuple[np.ndarray, np.ndarray, np.ndarray],
+    ) -> None:
+        self.backend = backend
+        self.template = np.array(template, dtype=float)
+        self.bounds = (np.array(low, dtype=float), np.array(high, dtype=float))
+        self.layout = layout
+        self.admissible = tuple(np.ascontiguousarray(a, dtype=float) for a in admissible)
+        # RtiSolver._uses_still_water's test of the current: on the template's entries only
+        part = backend._still_water_slice
+        self.zero_current = part is not None and not self.template[part].any()
+        # per NLP variant: the settings' address, the buffer, its views of x0 and u_prev, the
+        # slices of w, lam_x, lam_g, info, control, applied control and p; built on first use
+        self._variants: dict[str, tuple[Any, ...]] = {}
+        self._keep: dict[str, tuple[Any, ...]] = {}
+        self._options: dict[str, tuple[int, float, float, float]] = {}  # as last written (_set_options)
+
+    def _settings(self, variant: str, ocp: OcpQpStep) -> tuple[Any, ...]:
+        """Return the C settings of ``variant`` (built once): its struct's address, buffer and views."""
+        if variant not in self._variants:
+            backend = self.backend
+            nx, nu, window, rows, heading = self.layout
+            nw, ng, _ = ocp._args[1]
+            index, lower, upper, scale, centre = backend._first_control(variant)
+            slack = self.backend.variants[variant].terminal_slack_index if variant != HARD else ()
+            size = 2 * nw + ng + INFO_SIZE
+            # [w, lam_x, lam_g, info, control, applied, p]: one copy keeps a step's numbers
+            buffer = np.zeros(size + 2 * nu + self.template.size)
+            buffer[size + 2 * nu :] = self.template
+            arrays = (
+                *(np.ascontiguousarray(a, dtype=float) for a in (*self.bounds, lower, upper, scale, centre)),
+                *self.admissible,
+                np.ascontiguousarray(index, dtype=np.intc),
+                np.ascontiguousarray(slack, dtype=np.intc),
+                buffer,
+            )
+            low, high, lower, upper, scale, centre, box_lower, box_upper, rate, index, slack, buffer = arrays
+            address = buffer.ctypes.data
+            settings = ClosedLoopSettings(
+                address + 8 * (size + 2 * nu),
+                low.ctypes.data,
+                high.ctypes.data,
+                address,
+                index.ctypes.data,
+                *(a.ctypes.data for a in (lower, upper, scale, centre, box_lower, box_upper, rate, slack)),
+                math.nan,  # the options: _set_options
+                math.nan,
+                math.nan,
+                nx,
+                nu,
+                heading,
+                window,
+                rows,
+                slack.size,
+                0,
+            )
+            marks = (0, nw, 2 * nw, 2 * nw + ng, size, size + nu, size + 2 * nu, buffer.size)
+            views = tuple(slice(a, b) for a, b in zip(marks[:-1], marks[1:], strict=True))
+            p = buffer[views[-1]]
+            self._variants[variant] = (ctypes.addressof(settings), buffer, p[:nx], p[nx : nx + nu], views)
+            self._keep[variant] = (settings, arrays)  # what the settings point to
+            self._set_options(
+                variant, (backend.iterations, backend.tol, backend.qp_tolerance, backend.slack_tolerance)
+            )
+        return self._variants[variant]
+
+    def _set_options(self, variant: str, options: tuple[int, float, float, float]) -> None:
+        """Write the backend's ``(iterations, tol, qp_tolerance, slack_tolerance)`` into the settings."""
+        settings = self._keep[variant][0]
+        settings.max_iter, settings.tol, settings.qp_tol, settings.slack_tol = options
+        self._options[variant] = options
+
+    def step(
+        self, warm_start: CStepPlan, x0: np.ndarray, u_prev: np.ndarray, window: int
+    ) -> tuple[CStepPlan | None, np.ndarray] | None:
+        """Take the step at state ``x0`` from the resident ``warm_start`` (float64 arrays of their sizes).
+
+        ``window``: the address of the reference window's first sample (rows × nx, C order).
+        Returns ``None`` when the entry does not apply (another variant, a preparation, a warm
+        start not resident, a value the general path refuses): nothing ran, the caller takes
+        the general path.  ``(plan, applied)`` when the step is accepted: the plan
+        :meth:`RtiSolver.resident_step` returns on this instance, and the control
+        ``NMPC._admissible`` makes of its first one (a view of the plan's buffer).
+        ``(None, p)`` when it is not (the C step left as :meth:`RtiSolver.resident_step`
+        leaves it): the caller then solves ``p`` (a copy) by :meth:`RtiSolver.solve`.
+        """
+        backend = self.backend
+        if backend._prepared is not None or not backend.resident_available:
+            return None
+        variant = backend._first_variant(warm_start.variant, warm_start.relaxed)
+        still_water = self.zero_current and backend.still_water  # RtiSolver._uses_still_water
+        if variant != warm_start.variant or still_water != warm_start.still_water:
+            return None
+        ocp = backend._ocp_steps.get((variant, still_water))
+        if ocp is None or ocp.owner is not warm_start.primal or backend.mode != "rti":
+            return None
+        address, buffer, state, control, views = self._variants.get(variant) or self._settings(variant, ocp)
+        options = (backend.iterations, backend.tol, backend.qp_tolerance, backend.slack_tolerance)
+        if options != self._options[variant]:  # the backend's options changed since (a test's)
+            self._set_options(variant, options)
+        start = time.perf_counter()
+        state[:] = x0  # p[: nx] (the C call checks both)
+        control[:] = u_prev  # p[nx : nx + nu]
+        code = ocp.closed_loop_step(ocp.memory, address, window)
+        if code < 0:
+            return None
+        primal, lam_x, lam_g, info, first, applied, p = views
+        if code == 1:  # as RtiSolver.resident_step after a step not accepted
+            ocp.owner = None
+            if not math.isfinite(float(buffer[info.start + 1])):
+                ocp.reset()  # OcpQpStep._drop_non_finite
+            return None, buffer[p].copy()
+        kept = buffer.copy()  # the plan's arrays are views of it (RtiSolver.resident_step's kept)
+        ocp.owner = kept_primal = kept[primal]  # the resident point is this plan's
+        plan = CStepPlan._of_entry(
+            {
+                "variant": variant,
+                "still_water": still_water,
+                "primal": kept_primal,
+                "lam_x": kept[lam_x],
+                "lam_g": kept[lam_g],
+                "relaxed": code & 2 != 0,
+                "control": kept[first],
+                "path": "resident C step",
+                "backend": backend,
+                "p": kept[p],
+                "info": kept[info],
+                "elapsed": time.perf_counter() - start,
+                "all_finite": code & 1 != 0,
+            }
+        )
+        return plan, kept[applied]
 
 
 def finite_warm_start(warm_start: Iterate | DeferredPlan) -> bool:

@@ -709,7 +709,23 @@ int uuv_rti_iterate(void* memory, double* w, const double* p, int prepared, int 
 void uuv_rti_seed(void* memory, const double* w, const double* lam_x, const double* lam_g);
 int uuv_rti_resident_step(void* memory, const double* p, int max_iter, double tol, double qp_tol,
                           int converged_only, double* w, double* lam_x, double* lam_g, double* info);
+int uuv_rti_closed_loop_step(void* memory, const void* settings, const double* window);
 """
+
+
+class ClosedLoopSettings(ctypes.Structure):
+    """``rti_closed_loop`` of ``native/rti_hpipm.c``: what ``uuv_rti_closed_loop_step`` reads.
+
+    Pointers to arrays the owner (:class:`~uuv_ocp.solvers.rti.ClosedLoopEntry`) keeps alive;
+    the order and types of the C struct (ctypes lays it out as the compiler does).
+    """
+
+    _fields_ = [
+        *((name, ctypes.c_void_p) for name in ("p", "low", "high", "out", "index", "lower", "upper")),
+        *((name, ctypes.c_void_p) for name in ("scale", "centre", "box_lower", "box_upper", "rate", "slack")),
+        *((name, ctypes.c_double) for name in ("slack_tol", "tol", "qp_tol")),
+        *((name, ctypes.c_int) for name in ("nx", "nu", "heading", "window", "rows", "nslack", "max_iter")),
+    ]
 
 
 class OcpQpStep:
@@ -753,6 +769,8 @@ class OcpQpStep:
         self._resident_step = bind(
             "uuv_rti_resident_step", integer, pointer, pointer, integer, real, real, integer, *[pointer] * 4
         )
+        #: ``uuv_rti_closed_loop_step(memory, settings, window)`` (:class:`ClosedLoopSettings`)
+        self.closed_loop_step = bind("uuv_rti_closed_loop_step", integer, pointer, pointer, pointer)
         #: a mark of whose point the resident warm start is (:meth:`seed`'s ``owner``;
         #: ``RtiSolver.resident_step`` sets it to the primal of the plan that left it there)
         self.owner: object | None = None

@@ -291,6 +291,93 @@ def test_the_step_regression_is_lstsq_with_the_step_column_added(boat):
     np.testing.assert_allclose(fit.separation(7 - margin, 1, [6]), expected, rtol=1e-8)
 
 
+@pytest.mark.parametrize("losses", [True, False])
+def test_the_increment_test_is_weighted_lstsq_on_differenced_equations(boat, losses):
+    """``whiten=1`` and ``scale``: lstsq on a design differenced and weighted here entry by entry.
+
+    Row (k, j), k = 1 .. W − 1, of every column (the losses, the intercept, the ramp, the step
+    column) is ``s_kj (x_kj − x_(k−1)j)``; the ridge rows stay as they are.  ``losses=False``
+    leaves the eight loss columns (and their ridge rows) out of the null model.
+    """
+    rng = np.random.default_rng(23)
+    T = np.array(boat.thrusters.allocation)
+    W, ridge, margin = 10, 4.0, 2
+    forces = rng.normal(0.0, 20.0, (W, 8))
+    bias = np.cumsum(rng.normal(0.0, 2.0, (W, 6)), axis=0)
+    scale = rng.uniform(0.5, 20.0, (W - 1, 6))
+    ramp = np.linspace(-1.0, 1.0, W)
+
+    def entry(column, k, j):  # column(k, j): the undifferenced equation's coefficient
+        return scale[k - 1, j] * (column(k, j) - column(k - 1, j))
+
+    null_columns = [(lambda k, j, i=i: -T[j, i] * forces[k, i]) for i in range(8)] if losses else []
+    null_columns += [(lambda k, j, a=a: 1.0 if j == a else 0.0) for a in range(6)]
+    null_columns += [(lambda k, j, a=a: ramp[k] if j == a else 0.0) for a in range(6)]
+    rows = [[entry(c, k, j) for c in null_columns] for k in range(1, W) for j in range(6)]
+    count = 8 if losses else 0
+    rows += [[ridge if m == i else 0.0 for m in range(len(null_columns))] for i in range(count)]
+    null = np.array(rows)
+    target = np.concatenate(
+        [
+            [scale[k - 1, j] * (bias[k, j] - bias[k - 1, j]) for k in range(1, W) for j in range(6)],
+            np.zeros(count),
+        ]
+    )
+    fitted, _, rank, _ = np.linalg.lstsq(null, target, rcond=None)
+    residual = (target - null @ fitted)[: 6 * (W - 1)]
+    sigma = np.sqrt(residual @ residual / (6 * (W - 1) - rank))
+    fit = step_regression(
+        T,
+        forces,
+        bias,
+        margin=margin,
+        ridge=ridge,
+        intercept=True,
+        trend=True,
+        losses=losses,
+        whiten=1.0,
+        scale=scale,
+    )
+    np.testing.assert_allclose(fit.residual_std, sigma, rtol=1e-8)
+    for p, i in [(2, 0), (4, 5), (8, 3)]:
+        step = [
+            entry(lambda k, j, i=i, p=p: -T[j, i] * forces[k, i] if k >= p else 0.0, k, j)
+            for k in range(1, W)
+            for j in range(6)
+        ]
+        design = np.column_stack([null, np.concatenate([step, np.zeros(count)])])
+        coefficients, *_ = np.linalg.lstsq(design, target, rcond=None)
+        np.testing.assert_allclose(fit.change[p - margin, i], coefficients[-1], rtol=1e-7, atol=1e-10)
+        # Frisch–Waugh on the rank-deficient null (the differenced intercept is zero): the step
+        # column's norm once residualised on what the null spans
+        basis = np.linalg.svd(null, full_matrices=False)[0][:, : int(rank)]
+        column = design[:, -1] - basis @ (basis.T @ design[:, -1])
+        np.testing.assert_allclose(
+            fit.standard_error[p - margin, i], sigma / np.linalg.norm(column), rtol=1e-7
+        )
+
+
+def test_the_null_models_ramp_absorbs_a_drift_a_step_column_would_fit(boat):
+    """A bias drifting linearly (a survey turn) is no change with the ramp; without it, it reads as one.
+
+    Thruster 2 held at 25 N: its step column is a step along T_2, which a ramp along T_2 fits
+    in part (the step at the window's middle).  The ramp is in the null model's span, so with
+    ``trend=True`` every change of every thruster is 0 up to the noise; without it the drift
+    reads as a large, significant loss change of thruster 2.
+    """
+    rng = np.random.default_rng(5)
+    T = np.array(boat.thrusters.allocation)
+    W = 20
+    forces = rng.normal(0.0, 10.0, (W, 8))
+    forces[:, 2] = 25.0
+    drift = -np.linspace(0.0, 20.0, W)[:, None] * T[:, 2][None, :]  # 20 N along T_2 over 2 s
+    bias = drift + rng.normal(0.0, 0.05, (W, 6))
+    with_ramp = step_regression(T, forces, bias, margin=3, ridge=10.0, intercept=True, trend=True)
+    without = step_regression(T, forces, bias, margin=3, ridge=10.0, intercept=True, trend=False)
+    assert np.max(np.abs(with_ramp.change[:, 2])) < 0.02, with_ramp.change[:, 2]
+    assert np.max(without.change[:, 2]) > 0.3 and np.max(without.statistic[:, 2]) > 4.0
+
+
 def _constant_command_loss(boat, options, seed):
     """Synthetic bias: thruster 3 held at 30 N loses 50 % at step 60 (the benchmark's saturated case).
 

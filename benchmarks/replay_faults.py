@@ -259,8 +259,8 @@ def bound(out: Path, windows: tuple[int, ...], trials: tuple[int, ...] | None = 
                     worst = max(float(nulls[owners == o].max()) for o in np.unique(owners))
                     for level, threshold in (("1%", float(np.quantile(nulls, 0.99))), ("0/N", worst)):
                         key = f"{name} {level}"
-                        if value > threshold and key not in found:
-                            found[key] = float(t[k] - t0)
+                        if value > threshold:  # the earliest over the windows
+                            found[key] = min(found.get(key, np.inf), float(t[k] - t0))
                     if name == "ols" and k == last:
                         # the force estimate's noise: the loss estimate's times the command
                         noise_force = min(noise_force, float(np.std(nulls)) * rms)
@@ -276,8 +276,8 @@ def bound(out: Path, windows: tuple[int, ...], trials: tuple[int, ...] | None = 
                 worst = max(float(nulls[owner[same] == o].max()) for o in np.unique(owner[same]))
                 for level, threshold in (("1%", float(np.quantile(nulls, 0.99))), ("0/N", worst)):
                     key = f"inc {level}"
-                    if value > threshold and key not in found:
-                        found[key] = float(t[k] - t0)
+                    if value > threshold:
+                        found[key] = min(found.get(key, np.inf), float(t[k] - t0))
         row = {
             "trial": trial,
             "thruster": i,

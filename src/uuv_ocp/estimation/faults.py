@@ -715,6 +715,9 @@ class ThrusterFaultDetector:
         self.offset = np.zeros(self.count)  # told constant force of a stuck thruster (N)
         self.estimate = np.full(self.count, np.nan)  # the last window's 1 − clip(ℓ), all thrusters
         self.detections: list[Detection] = []
+        # diagnostics of the last change-point tests (the replays' false-alarm margins): the
+        # largest statistic over its test's significance among separated candidates, its thruster
+        self.step_statistic, self.step_candidate = -np.inf, -1
 
     @property
     def baseline(self) -> np.ndarray | None:

@@ -161,7 +161,7 @@ def replay(
 
 RESPONSE = np.array([0.6, 0.72, 0.8, 0.87, 0.9, 0.93, 0.95, 0.97])
 """The estimator's bias along a thruster after a step loss, per step from the first it shows in
-(a fraction of the step; median of the benchmark's failures and losses of >= 8 N, trials 0–39)."""
+(a fraction of the step, read off the responses of the benchmark's faults of >= 8 N on trials 0–39)."""
 ARM = 5.0  # s: the detector's arming time (FaultDetectorOptions.arm_time), the null windows' start
 
 

@@ -81,7 +81,7 @@ DEADLINE = 0.1  # s: the controller's step, dt
 ROWS = ("naive", "ft", "oracle", "pinv")
 FAULTS = uo.RandomFaults(count=1, window=(5.0, 10.0), kinds=("failed", "loss"), effectiveness=0.5)
 VERSION = 3  # 3: a new controller per run (a shared one stayed degraded after a run diverged)
-DETECTOR_VERSION = 9  # 9: a change point under a steady command is told a loss; 8: the change-point test
+DETECTOR_VERSION = 10  # 10: the increment test; 9: a steady-command change point told a loss
 OBSERVABLE = 10.0  # N: a command from which a 50 % loss removes 5 N (the detection clock's "observable")
 VARIED = 5.0  # N: command std over a 2-s window after the fault (what the per-window intercept leaves)
 

@@ -190,14 +190,16 @@ def test_amplitude_zero_is_the_loop_without_dither_bit_for_bit(bench):
 def test_a_constant_command_loss_is_detected_within_2_s_with_the_dither_only(bench):
     """Trial 33: without the dither the saturated thruster's loss is not seen for > 2 s; with it, it is.
 
-    The regression alone (``step_significance=0``): the change-point test, which also sees it
-    within 2 s without a dither, is the next test.
+    The regression alone (``step_significance=0, increment_period=0``): the change-point test,
+    which also sees it within 2 s without a dither, is the next test.
     """
     limit = 2.0
-    regression = uo.FaultDetectorOptions(step_significance=0.0)
+    regression = uo.FaultDetectorOptions(step_significance=0.0, increment_period=0)
     plain, fault = _trial_run(bench, regression, fault_time := 5.88 + limit + 0.5)
     assert not any(row[0] <= fault.time + limit and int(row[1]) == fault.thruster for row in plain.detections)
-    options = uo.FaultDetectorOptions(dither=DitherOptions(amplitude=5.0), step_significance=0.0)
+    options = uo.FaultDetectorOptions(
+        dither=DitherOptions(amplitude=5.0), step_significance=0.0, increment_period=0
+    )
     dithered, _ = _trial_run(bench, options, fault_time)
     first = dithered.detections[0]
     assert int(first[1]) == fault.thruster and fault.time <= first[0] <= fault.time + limit

@@ -313,15 +313,16 @@ def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
     # test modes of the C step: 2 never uses the worker's blocks, 3 uses only its even ones
     monkeypatch.setattr(native, "rng_thread", rng_thread)
     runs = []
-    run = native.native._run  # what the solver calls (run() without the re-checks)
-    monkeypatch.setattr(native.native, "_run", lambda *args, **kw: runs.append(run(*args, **kw)) or runs[-1])
+    assert native._setup is not None  # the whole solve in one C call, what the solver calls
+    call = native.native.solve_pcg64
+    monkeypatch.setattr(native.native, "solve_pcg64", lambda *args: runs.append(call(*args)) or runs[-1])
     python = uo.new_solver(s2_problem, "igwo", {"compiled": True})
     python.native = None  # the Python loop over the same compiled kernel
     for seed in (1, 2):
         in_c, in_python = np.random.default_rng(seed), np.random.default_rng(seed)
         actual = native.solve(p, None, in_c)
         expected = python.solve(p, None, in_python)
-        late = runs[-1]["late_blocks"]  # of blocks 1..29, those the step drew itself
+        late = int(runs[-1][native._setup.late])  # of blocks 1..29, those the step drew itself
         expected_late = {False: 0, 2: native.iterations - 1, 3: native.iterations // 2}
         assert late == expected_late.get(rng_thread, late)
         assert 0 <= late <= native.iterations - 1
@@ -337,6 +338,84 @@ def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
     other = native.solve(p, None, np.random.Generator(np.random.Philox(1)))
     reference = python.solve(p, None, np.random.Generator(np.random.Philox(1)))
     np.testing.assert_array_equal(other.controls, reference.controls)
+
+
+def _solve_outputs(result, generator) -> dict:
+    """Everything a swarm solve returns that must not change by a bit, and the Generator after it."""
+    details = result.details
+    return {
+        "x": result.iterate.scaled_controls,
+        "controls": result.controls,
+        "states": result.states,
+        "history": result.history,
+        "numbers": np.array(
+            [result.cost, result.max_violation, details["fitness"], *details["violations"].values()]
+        ),
+        "flags": (
+            result.success,
+            result.terminal_relaxed,
+            result.iterations,
+            result.evaluations,
+            details["evaluation"],
+            details["deadline_hit"],
+            tuple(details["violations"]),
+            result.status.split("; the random")[0],  # a late worker is timing, not output
+        ),
+        "generator": generator.bit_generator.state,
+    }
+
+
+@needs_compiler
+@pytest.mark.parametrize("rng_thread", [False, True], ids=["one-thread", "worker"])
+def test_the_one_call_solve_gives_the_bits_of_the_python_around_the_step(
+    s2_problem, feasible_start, rng_thread
+):
+    """Seeds 0..99 cold and warm (from the cold plan), a few with initial rows and without a generator.
+
+    Reference: the same solver with the C step called from Python and everything around it in
+    numpy and CasADi (the path of other bit generators, and of every solve before 2026-12-06).
+    """
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0)
+    options = {"compiled": True, "rng_thread": rng_thread}
+    one_call, around = (uo.new_solver(s2_problem, "igwo", options) for _ in range(2))
+    assert one_call._setup is not None and one_call.native.finishes
+    around._setup = None
+    rows = np.random.default_rng(7).uniform(-1.2, 1.2, (3, s2_problem.control_dim))
+    calls = []
+    for seed in range(100):
+        cold = one_call.solve(p, None, np.random.default_rng(seed))
+        calls += [(seed, None, None), (seed, cold.iterate, None)]
+        if seed < 4:
+            calls.append((seed, None, rows[: seed + 1]))
+    for seed, warm, initial in calls:
+        generators = np.random.default_rng(seed), np.random.default_rng(seed)
+        actual = _solve_outputs(one_call.solve(p, warm, generators[0], initial=initial), generators[0])
+        expected = _solve_outputs(around.solve(p, warm, generators[1], initial=initial), generators[1])
+        for name, value in expected.items():
+            if isinstance(value, np.ndarray):
+                np.testing.assert_array_equal(actual[name], value, err_msg=f"{name}, seed {seed}")
+                assert actual[name].shape == value.shape
+            else:
+                assert actual[name] == value, (name, seed)
+    # no generator: the seed option's; a state that no draw depends on stays as it was
+    no_rng = one_call.solve(p), around.solve(p)
+    np.testing.assert_array_equal(no_rng[0].controls, no_rng[1].controls)
+
+
+def test_the_c_solve_reads_numpys_pcg64_state_where_numpy_keeps_it():
+    """The layout check of the Generator's in-place state: true for this numpy, and it moves with it."""
+    from uuv_ocp.native.runtime import _capsule_pointer, _pcg64_layout_matches
+
+    assert _pcg64_layout_matches()
+    generator = np.random.default_rng(11)
+    generator.random(5)
+    state = generator.bit_generator.state["state"]
+    bitgen = _capsule_pointer(generator.bit_generator.capsule, b"BitGenerator")
+    pcg = ctypes.c_void_p.from_address(ctypes.c_void_p.from_address(bitgen).value).value
+    words = list((ctypes.c_uint64 * 4).from_address(pcg))
+    assert words[0] | words[1] << 64 == state["state"]
+    assert words[2] | words[3] << 64 == state["inc"]
 
 
 def _cpu_flags() -> set[str]:

@@ -771,18 +771,18 @@ done:
   return status;
 }
 
-/* One solve: seeds (seeded rows, already clipped into [lower, upper]) then uniform wolves in
- * the box drawn from the Generator behind `bitgen` (its bitgen_t, from the capsule), the step
- * with the same Generator, and the finish.  `out`: best x (dim), its fitness, the history
+/* One solve: `box` = offset, lower, upper, width (dim each) then `seeded` initial rows (already
+ * clipped into [lower, upper]); then uniform wolves in the box drawn from the Generator behind
+ * `bitgen` (its bitgen_t, from the capsule), the step with the same Generator, and the finish.  `out`: best x (dim), its fitness, the history
  * (iterations + 1), the late blocks, then with a finish the scaled plan (dim), the states and
  * the five score_terms outputs.  The Generator's state moves only when the whole call succeeds
  * (status 0; 1: an evaluation failed, 2: out of memory); the caller holds its lock. */
 CASADI_SYMBOL_EXPORT int uuv_ocp_igwo_solve(const uuv_ocp_igwo_setup* s, const double* p,
-                                            const double* offset, const double* lower,
-                                            const double* upper, const double* width,
-                                            const double* seeds, int seeded, void* bitgen,
+                                            const double* box, int seeded, void* bitgen,
                                             int rng_thread, double* out) {
   const int n = s->n, dim = s->dim, iterations = s->iterations;
+  const double *offset = box, *lower = box + dim, *upper = box + 2 * dim, *width = box + 3 * dim;
+  const double* seeds = box + 4 * dim;
   const size_t drawn = (size_t)(n - seeded) * (size_t)dim;
   double* positions = (double*)malloc(sizeof(double) * (size_t)n * (size_t)dim);
   double* late = out + dim + 2 + iterations;

@@ -681,7 +681,7 @@ class NativeIgwo:
         # the whole solve in one call (solve_pcg64): a Generator's state read and moved in
         # place (its layout checked here once: the state dict's round trip costs ~5 µs a call)
         self._solve = getattr(self.library, f"{prefix}uuv_ocp_igwo_solve")
-        self._solve.argtypes = [address] * 7 + [ctypes.c_int, address, ctypes.c_int, address]
+        self._solve.argtypes = [address, address, address, ctypes.c_int, address, ctypes.c_int, address]
         self._solve.restype = ctypes.c_int
         #: whether :meth:`solve_pcg64` may run here: numpy keeps PCG64's state where the C reads it
         self.direct_pcg64 = _pcg64_layout_matches()
@@ -742,20 +742,35 @@ class NativeIgwo:
         return IgwoSetup(self, a, w, c1, c2, box, iterations, functions, states, score)
 
     def search_box(
-        self, offset: np.ndarray, lower: np.ndarray, upper: np.ndarray, width: np.ndarray, seeds: np.ndarray
+        self, offset: np.ndarray, box_lower: np.ndarray, box_upper: np.ndarray, seeds: np.ndarray
     ) -> SearchBox:
-        """One search box of :meth:`solve_pcg64` (shapes checked): ``seeds`` (k, dim), k < population."""
+        """Return the search box of one solve (:meth:`solve_pcg64`), as the swarm solver computes it.
+
+        ``lower = box_lower - offset``, ``upper = box_upper - offset``, ``width = upper - lower``
+        and the initial ``seeds (k, dim)`` (k <= population) clipped into ``[lower, upper]``,
+        numpy's operations written into one array: one address for the C call.
+        """
         dim = self.dim
-        offset, lower, upper, width = (
-            _float_array(name, value, (dim,))
-            for name, value in (("offset", offset), ("lower", lower), ("upper", upper), ("width", width))
+        offset, box_lower, box_upper = (
+            value
+            if type(value) is np.ndarray and value.dtype == _FLOAT and value.shape == (dim,)
+            else _float_array(name, value, (dim,))
+            for name, value in (("offset", offset), ("box_lower", box_lower), ("box_upper", box_upper))
         )
         rows = np.shape(seeds)[0] if np.ndim(seeds) == 2 else -1
-        if not 0 <= rows < self.population:
+        if not 0 <= rows <= self.population:
             raise ValueError(
-                f"seeds must have shape (k, {dim}) with k < {self.population}, got {check.shown(seeds)}"
+                f"seeds must have shape (k, {dim}) with k <= {self.population}, got {check.shown(seeds)}"
             )
-        return SearchBox(offset, lower, upper, width, _float_array("seeds", seeds, (rows, dim)))
+        seeds = _float_array("seeds", seeds, (rows, dim)) if rows else np.empty((0, dim))
+        data = np.empty((4 + rows) * dim)
+        parts = data[: 4 * dim].reshape(4, dim)  # offset, lower, upper, width
+        parts[0] = offset
+        np.subtract(box_lower, offset, out=parts[1])
+        np.subtract(box_upper, offset, out=parts[2])
+        np.subtract(parts[2], parts[1], out=parts[3])
+        np.clip(seeds, parts[1], parts[2], out=data[4 * dim :].reshape(rows, dim))
+        return SearchBox(data, rows)
 
     def solve_pcg64(
         self,
@@ -785,7 +800,7 @@ class NativeIgwo:
         with bit_generator.lock:  # the state is read and written in place
             state = _capsule_pointer(bit_generator.capsule, b"BitGenerator")
             status = self._solve(
-                setup.address, p.ctypes.data, *box.addresses, state, rng_thread, out.ctypes.data
+                setup.address, p.ctypes.data, box.address, box.seeded, state, rng_thread, out.ctypes.data
             )
         if status != 0:
             reason = "the fitness evaluation failed" if status == 1 else "out of memory"
@@ -992,20 +1007,18 @@ class IgwoSetup:
 
 
 class SearchBox:
-    """The per-solve arrays of :meth:`NativeIgwo.solve_pcg64` (checked by :meth:`NativeIgwo.search_box`).
+    """The per-solve arrays of :meth:`NativeIgwo.solve_pcg64` (:meth:`NativeIgwo.search_box` makes it).
 
-    ``offset``, ``lower``, ``upper``, ``width (dim,)`` and the initial ``seeds (k, dim)``, with
-    their addresses taken once: a solver keeps the box of a cold start between its solves.
+    ``data``: ``offset``, ``lower``, ``upper``, ``width (dim)`` and the ``seeded`` initial rows
+    ``(seeded, dim)``, one after the other; its address taken once (a solver keeps the box of a
+    cold start between its solves).
     """
 
-    __slots__ = ("addresses", "lower", "offset", "seeds", "upper", "width")
+    __slots__ = ("address", "data", "seeded")
 
-    def __init__(
-        self, offset: np.ndarray, lower: np.ndarray, upper: np.ndarray, width: np.ndarray, seeds: np.ndarray
-    ) -> None:
-        self.offset, self.lower, self.upper, self.width, self.seeds = offset, lower, upper, width, seeds
-        addresses = [v.ctypes.data for v in (offset, lower, upper, width, seeds)]
-        self.addresses = (*addresses, seeds.shape[0])
+    def __init__(self, data: np.ndarray, seeded: int) -> None:
+        self.data, self.seeded = data, seeded
+        self.address = data.ctypes.data
 
 
 _FLOAT = np.dtype(float)

@@ -676,7 +676,6 @@ class SwarmSolver:
                 return cached[1]
         center = self._center(p, warm_start)
         offset = center if self.search == "deviation" else np.zeros_like(center)
-        lower, upper = self._lower - offset, self._upper - offset
         seeds = np.empty((0, center.size))
         if self.seed_warm_start and (warm_start is not None or self.search == "deviation"):
             seeds = (center - offset)[None, :]
@@ -690,8 +689,7 @@ class SwarmSolver:
                     f"plan, got {len(rows)} rows"
                 )
         assert self.native is not None, "only called where the all-C step was built"
-        # the same arrays as the Python path's: ImprovedGreyWolf's width, the clipped seeds
-        box = self.native.search_box(offset, lower, upper, upper - lower, np.clip(seeds, lower, upper))
+        box = self.native.search_box(offset, self._lower, self._upper, seeds)
         if cold:
             self._cold_box = (key, box)
         return box

@@ -385,9 +385,17 @@ def test_the_one_call_solve_gives_the_bits_of_the_python_around_the_step(
     calls = []
     for seed in range(100):
         cold = one_call.solve(p, None, np.random.default_rng(seed))
-        calls += [(seed, None, None), (seed, cold.iterate, None)]
+        calls += [(seed, None, None), (seed, cold.iterate, None), (seed, cold.iterate.shift(), None)]
         if seed < 4:
             calls.append((seed, None, rows[: seed + 1]))
+    _assert_same_solves(one_call, around, p, calls)
+    # no generator: the seed option's
+    no_rng = one_call.solve(p), around.solve(p)
+    np.testing.assert_array_equal(no_rng[0].controls, no_rng[1].controls)
+
+
+def _assert_same_solves(one_call, around, p, calls) -> None:
+    """Every ``(seed, warm start, initial rows)`` solved by both solvers: the same bits."""
     for seed, warm, initial in calls:
         generators = np.random.default_rng(seed), np.random.default_rng(seed)
         actual = _solve_outputs(one_call.solve(p, warm, generators[0], initial=initial), generators[0])
@@ -398,9 +406,60 @@ def test_the_one_call_solve_gives_the_bits_of_the_python_around_the_step(
                 assert actual[name].shape == value.shape
             else:
                 assert actual[name] == value, (name, seed)
-    # no generator: the seed option's; a state that no draw depends on stays as it was
-    no_rng = one_call.solve(p), around.solve(p)
-    np.testing.assert_array_equal(no_rng[0].controls, no_rng[1].controls)
+
+
+def _warm_plans(problem, solver, p):
+    """Warm starts of every branch of encode: inside both bounds (a plan, shifted), outside, NaN."""
+    cold = solver.solve(p, None, np.random.default_rng(0)).iterate
+    shape = cold.scaled_controls.shape
+    outside = np.random.default_rng(3).uniform(-1.4, 1.4, shape)  # breaks the rate bound: projected
+    with_nan = cold.scaled_controls.copy()
+    with_nan[2, 0] = np.nan
+    plans = [cold.scaled_controls, cold.shift().scaled_controls, outside, with_nan]
+    return [uo.Iterate(scaled_controls=plan, states=cold.states) for plan in plans]
+
+
+@needs_compiler
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},
+        {"search": "absolute"},
+        {"seed_warm_start": False},
+        {"search": "absolute", "seed_warm_start": False},
+    ],
+    ids=["deviation", "absolute", "unseeded", "absolute-unseeded"],
+)
+def test_a_warm_box_made_in_c_gives_the_bits_of_numpys(s2_problem, feasible_start, options):
+    """The warm start's centre plan and box in C (encode's two branches, NaN kept) against numpy's."""
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0, u_prev=np.array([0.3, -0.2, 0.1]) * 2000.0)
+    one_call, around = (uo.new_solver(s2_problem, "igwo", {"compiled": True, **options}) for _ in range(2))
+    assert one_call._setup.warm
+    around._setup = None
+    plans = _warm_plans(s2_problem, one_call, p)
+    _assert_same_solves(one_call, around, p, [(seed, warm, None) for seed in range(5) for warm in plans])
+
+
+@needs_compiler
+def test_a_warm_box_made_in_c_on_an_off_centre_box_without_rate_bound(tmp_path, monkeypatch):
+    """Controls in [0.2, 1.8] (scaled about 1.0), no rate bound: encode copies, the scaling shows."""
+    monkeypatch.setenv("UUV_OCP_CACHE", str(tmp_path))
+    ocp = uo.Ocp(horizon=6, dt=0.2)
+    pos, vel = ocp.state("pos"), ocp.state("vel")
+    push = ocp.control("push", lower=0.2, upper=1.8)
+    ocp.set_der(pos, vel)
+    ocp.set_der(vel, push - 1.0 - 0.1 * vel)
+    ocp.add_stage_cost(residual=ca.vertcat(pos - 0.5, 0.3 * (push - 1.0)))
+    problem = ocp
+    one_call, around = (uo.new_solver(problem, "igwo", {"compiled": True}) for _ in range(2))
+    assert one_call._setup is not None and one_call._setup.warm
+    assert not one_call._setup._encoding.rate_bounded
+    around._setup = None
+    p = problem.parameters([0.0, 0.1], u_prev=[1.5])
+    plans = _warm_plans(problem, one_call, p)
+    calls = [(seed, warm, None) for seed in range(5) for warm in [None, *plans]]
+    _assert_same_solves(one_call, around, p, calls)
 
 
 def test_the_c_solve_reads_numpys_pcg64_state_where_numpy_keeps_it():

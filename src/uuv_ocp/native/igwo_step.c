@@ -708,6 +708,11 @@ typedef struct {
   int score_sizes[5]; /* nonzeros of score_terms' five outputs */
   uuv_ocp_eval decode, score_terms, rollout; /* NULL decode: no finish */
   uuv_ocp_work decode_work, score_terms_work, rollout_work;
+  /* the search box of a warm start (uuv_ocp_igwo_solve_warm), as SwarmSolver and encode make it */
+  int horizon, nu, u_prev;    /* N, controls per interval, where u_prev starts in p */
+  int rate_bounded;           /* spec.lifted and a finite rate bound: encode projects */
+  int deviation, seed_warm;   /* search="deviation"; seed_warm_start */
+  const double *centre, *scale, *scaled_lower, *scaled_upper, *rate; /* nu each */
 } uuv_ocp_igwo_setup;
 
 /* numpy's bitgen_t (numpy/random/bitgen.h, public) starts with `void* state`; PCG64's state
@@ -777,6 +782,60 @@ done:
  * (iterations + 1), the late blocks, then with a finish the scaled plan (dim), the states and
  * the five score_terms outputs.  The Generator's state moves only when the whole call succeeds
  * (status 0; 1: an evaluation failed, 2: out of memory); the caller holds its lock. */
+/* numpy's maximum/minimum (NaN propagates) and Python's max/min of two floats (the first
+ * unless the second is strictly beyond it): encode uses both, in its two branches. */
+static inline double uuv_np_max(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
+static inline double uuv_np_min(double a, double b) { return (a <= b || isnan(a)) ? a : b; }
+static inline double uuv_py_max(double a, double b) { return b > a ? b : a; }
+static inline double uuv_py_min(double a, double b) { return b < a ? b : a; }
+
+/* uuv_ocp.transcription.condensed.encode(spec, plan, previous) into `w` (horizon * nu): the
+ * same operations in the same order in both of its branches (a plan inside both bounds, which
+ * projects onto itself, and the stage-by-stage projection). */
+static void uuv_ocp_encode(const uuv_ocp_igwo_setup* s, const double* plan, const double* previous,
+                           double* w) {
+  const int n = s->horizon, nu = s->nu;
+  int k, i, inside = 1;
+  double prior[64];
+  if (!s->rate_bounded) {
+    for (k = 0; k < n * nu; ++k) w[k] = plan[k];
+    return;
+  }
+  for (k = 0; k < n && inside; ++k) {
+    for (i = 0; i < nu; ++i) {
+      const double before = k == 0 ? previous[i] : plan[(k - 1) * nu + i], value = plan[k * nu + i];
+      const double low = uuv_np_max(s->scaled_lower[i], before - s->rate[i]);
+      const double high = uuv_np_min(s->scaled_upper[i], before + s->rate[i]);
+      if (!(value >= low && value <= high)) inside = 0;
+    }
+  }
+  if (inside) {
+    for (k = 0; k < n; ++k) {
+      for (i = 0; i < nu; ++i) {
+        const double before = k == 0 ? previous[i] : plan[(k - 1) * nu + i], value = plan[k * nu + i];
+        const double low = uuv_np_max(s->scaled_lower[i], before - s->rate[i]);
+        const double high = uuv_np_min(s->scaled_upper[i], before + s->rate[i]);
+        const double width = high - low;
+        w[k * nu + i] = uuv_clip(width > 0 ? 2.0 * (value - low) / width - 1.0 : 0.0, -1.0, 1.0);
+      }
+    }
+    return;
+  }
+  for (i = 0; i < nu; ++i) prior[i] = previous[i];
+  for (k = 0; k < n; ++k) {
+    for (i = 0; i < nu; ++i) {
+      const double value = plan[k * nu + i];
+      const double low = uuv_py_max(s->scaled_lower[i], prior[i] - s->rate[i]);
+      const double high = uuv_py_min(s->scaled_upper[i], prior[i] + s->rate[i]);
+      const double z = value == value ? uuv_py_min(uuv_py_max(value, low), high) : value;
+      const double width = high - low;
+      const double coordinate = width > 0 ? 2.0 * (z - low) / width - 1.0 : 0.0;
+      w[k * nu + i] = coordinate == coordinate ? uuv_py_min(uuv_py_max(coordinate, -1.0), 1.0) : coordinate;
+      prior[i] = z;
+    }
+  }
+}
+
 CASADI_SYMBOL_EXPORT int uuv_ocp_igwo_solve(const uuv_ocp_igwo_setup* s, const double* p,
                                             const double* box, int seeded, void* bitgen,
                                             int rng_thread, double* out) {
@@ -819,5 +878,39 @@ CASADI_SYMBOL_EXPORT int uuv_ocp_igwo_solve(const uuv_ocp_igwo_setup* s, const d
     memcpy(numpy_state, &state, sizeof state);
     *late = (double)pcg[4];
   }
+  return status;
+}
+
+/* uuv_ocp_igwo_solve from a warm plan (scaled controls, horizon x nu): its search box made here
+ * as SwarmSolver._search_box makes it (previous = np.clip((u_prev - centre) / scale, scaled
+ * box), centre plan = encode(plan, previous), offset, seeds, lower, upper, width), ~1 us
+ * instead of ~50 us of numpy.  nu <= 64 (else status 2: the solver keeps the numpy box). */
+CASADI_SYMBOL_EXPORT int uuv_ocp_igwo_solve_warm(const uuv_ocp_igwo_setup* s, const double* p,
+                                                 const double* plan, void* bitgen, int rng_thread,
+                                                 double* out) {
+  const int dim = s->dim, nu = s->nu;
+  double previous[64];
+  double* box;
+  double *offset, *lower, *upper, *width, *seeds;
+  int i, j, seeded = s->seed_warm, status;
+  if (nu > 64 || s->horizon * nu != dim) return 2;
+  box = (double*)malloc(sizeof(double) * (size_t)(5 * dim));
+  if (!box) return 2;
+  offset = box, lower = box + dim, upper = box + 2 * dim, width = box + 3 * dim, seeds = box + 4 * dim;
+  for (i = 0; i < nu; ++i)
+    previous[i] = uuv_clip((p[s->u_prev + i] - s->centre[i]) / s->scale[i], s->scaled_lower[i],
+                           s->scaled_upper[i]);
+  uuv_ocp_encode(s, plan, previous, seeds); /* the centre plan */
+  for (j = 0; j < dim; ++j) {
+    const double center = seeds[j];
+    offset[j] = s->deviation ? center : 0.0;
+    seeds[j] = center - offset[j];
+    lower[j] = s->box_lower[j] - offset[j];
+    upper[j] = s->box_upper[j] - offset[j];
+    width[j] = upper[j] - lower[j];
+    seeds[j] = uuv_clip(seeds[j], lower[j], upper[j]);
+  }
+  status = uuv_ocp_igwo_solve(s, p, box, seeded, bitgen, rng_thread, out);
+  free(box);
   return status;
 }

@@ -144,6 +144,7 @@ __all__ = [
     "GeneratedCode",
     "IntegrityError",
     "NativeIgwo",
+    "WarmEncoding",
     "VerificationError",
     "compiled_build",
     "compiled_nlpsol",
@@ -442,7 +443,8 @@ def generate_c(
 
 
 _EXPORTED = re.compile(
-    r"\b(cost_batch\w*|uuv_ocp_igwo|uuv_ocp_igwo_pcg64|uuv_ocp_igwo_solve|uuv_ocp_pcg64_random"
+    r"\b(cost_batch\w*|uuv_ocp_igwo|uuv_ocp_igwo_pcg64|uuv_ocp_igwo_solve|uuv_ocp_igwo_solve_warm"
+    r"|uuv_ocp_pcg64_random"
     r"|uuv_ocp_pcg64_lanes)\b"
 )
 
@@ -683,6 +685,9 @@ class NativeIgwo:
         self._solve = getattr(self.library, f"{prefix}uuv_ocp_igwo_solve")
         self._solve.argtypes = [address, address, address, ctypes.c_int, address, ctypes.c_int, address]
         self._solve.restype = ctypes.c_int
+        self._solve_warm = getattr(self.library, f"{prefix}uuv_ocp_igwo_solve_warm")
+        self._solve_warm.argtypes = [address, address, address, address, ctypes.c_int, address]
+        self._solve_warm.restype = ctypes.c_int
         #: whether :meth:`solve_pcg64` may run here: numpy keeps PCG64's state where the C reads it
         self.direct_pcg64 = _pcg64_layout_matches()
         #: whether :meth:`setup` can finish a solve in C: the build has decode, score_terms, rollout
@@ -721,12 +726,14 @@ class NativeIgwo:
         c2: float,
         box_lower: np.ndarray,
         box_upper: np.ndarray,
+        encoding: WarmEncoding | None = None,
     ) -> IgwoSetup:
         """Return the constants of a solver's :meth:`solve_pcg64` calls, checked once.
 
         ``a``, ``w (iterations,)``: the schedules; ``c1``, ``c2``: the learning factors;
         ``box_lower``, ``box_upper (dim,)``: the box of the decode coordinates the best point
-        (plus the offset) is clipped into before the finish.
+        (plus the offset) is clipped into before the finish; ``encoding``: what
+        :meth:`solve_pcg64_warm` makes a warm plan's search box with (``None``: not available).
         """
         iterations = self._iterations(a)
         a, w = (_float_array(name, v, (iterations,)) for name, v in (("a", a), ("w", w)))
@@ -739,7 +746,15 @@ class NativeIgwo:
         score = (
             [int(self.build.functions["score_terms"].nnz_out(k)) for k in range(5)] if functions else [0] * 5
         )
-        return IgwoSetup(self, a, w, c1, c2, box, iterations, functions, states, score)
+        if encoding is not None and (
+            encoding.horizon * encoding.centre.size != self.dim
+            or encoding.u_prev + encoding.centre.size > self.parameter_dim
+        ):
+            raise ValueError(
+                f"encoding must describe {self.dim} coordinates of p ({self.parameter_dim}), got "
+                f"horizon {encoding.horizon} x {encoding.centre.size} controls at p[{encoding.u_prev}]"
+            )
+        return IgwoSetup(self, a, w, c1, c2, box, iterations, functions, states, score, encoding)
 
     def search_box(
         self, offset: np.ndarray, box_lower: np.ndarray, box_upper: np.ndarray, seeds: np.ndarray
@@ -791,10 +806,7 @@ class NativeIgwo:
         as ``Generator.random`` would, under its lock, and only when the call succeeds.
         ``rng_thread`` is one of 0..3 (see :meth:`run`).
         """
-        if not (type(p) is np.ndarray and p.dtype == _FLOAT and p.shape == (self.parameter_dim,)):
-            p = _float_array("p", p, (self.parameter_dim,))  # the caller's own: always checked
-        elif not p.flags.c_contiguous:
-            p = np.ascontiguousarray(p)
+        p = self._parameters(p)
         out = np.empty(setup.size)
         bit_generator = generator.bit_generator
         with bit_generator.lock:  # the state is read and written in place
@@ -805,6 +817,46 @@ class NativeIgwo:
         if status != 0:
             reason = "the fitness evaluation failed" if status == 1 else "out of memory"
             raise RuntimeError(f"uuv_ocp_igwo_solve returned status {status}: {reason}")
+        return out
+
+    def _parameters(self, p: object) -> np.ndarray:
+        """``p`` as a C-contiguous float64 vector of the build's length (``ValueError`` names it)."""
+        if not (type(p) is np.ndarray and p.dtype == _FLOAT and p.shape == (self.parameter_dim,)):
+            return _float_array("p", p, (self.parameter_dim,))  # the caller's own: always checked
+        return p if p.flags.c_contiguous else np.ascontiguousarray(p)
+
+    def solve_pcg64_warm(
+        self,
+        setup: IgwoSetup,
+        p: np.ndarray,
+        plan: np.ndarray,
+        generator: np.random.Generator,
+        rng_thread: int,
+    ) -> np.ndarray:
+        """Run :meth:`solve_pcg64` from a warm ``plan`` (scaled controls, ``horizon x nu``).
+
+        The search box is made in C from ``p`` and ``plan`` with ``setup``'s encoding, as the
+        swarm solver makes it in numpy (the centre plan ``encode(plan, previous control)``,
+        the offset and the seed of its ``search`` and ``seed_warm_start``): the same record.
+        """
+        if not setup.warm:
+            raise ValueError(
+                "setup must have an encoding (NativeIgwo.setup(..., encoding=...)) for a warm plan"
+            )
+        p = self._parameters(p)
+        plan = np.ascontiguousarray(plan, dtype=float)
+        if plan.size != self.dim:
+            raise ValueError(f"plan must hold {self.dim} scaled controls, got shape {plan.shape}")
+        out = np.empty(setup.size)
+        bit_generator = generator.bit_generator
+        with bit_generator.lock:  # the state is read and written in place
+            state = _capsule_pointer(bit_generator.capsule, b"BitGenerator")
+            status = self._solve_warm(
+                setup.address, p.ctypes.data, plan.ctypes.data, state, rng_thread, out.ctypes.data
+            )
+        if status != 0:
+            reason = "the fitness evaluation failed" if status == 1 else "out of memory"
+            raise RuntimeError(f"uuv_ocp_igwo_solve_warm returned status {status}: {reason}")
         return out
 
     def run(
@@ -950,7 +1002,67 @@ class _SetupStruct(ctypes.Structure):
         ("decode_work", ctypes.c_void_p),
         ("score_terms_work", ctypes.c_void_p),
         ("rollout_work", ctypes.c_void_p),
+        ("horizon", ctypes.c_int),
+        ("nu", ctypes.c_int),
+        ("u_prev", ctypes.c_int),
+        ("rate_bounded", ctypes.c_int),
+        ("deviation", ctypes.c_int),
+        ("seed_warm", ctypes.c_int),
+        ("centre", ctypes.c_void_p),
+        ("scale", ctypes.c_void_p),
+        ("scaled_lower", ctypes.c_void_p),
+        ("scaled_upper", ctypes.c_void_p),
+        ("rate", ctypes.c_void_p),
     ]
+
+
+@dataclass(frozen=True)
+class WarmEncoding:
+    """How a warm plan becomes the search box (:meth:`NativeIgwo.solve_pcg64_warm`).
+
+    Parameters
+    ----------
+    horizon : int
+        Intervals N of the plan.
+    u_prev : int
+        Index in ``p`` of the last applied control (physical units, ``nu`` values).
+    centre, scale : numpy.ndarray, shape (nu,)
+        The control scaling ``u = centre + scale * z`` (physical units).
+    scaled_lower, scaled_upper : numpy.ndarray, shape (nu,)
+        The box of the scaled control ``z`` (dimensionless).
+    rate : numpy.ndarray, shape (nu,)
+        Largest change of ``z`` per interval (inf where unbounded; dimensionless).
+    rate_bounded : bool
+        Whether the coordinates project on the rate bound (``spec.lifted`` and a finite rate).
+    deviation : bool
+        ``search="deviation"``: the swarm searches the deviation from the centre plan.
+    seed_warm : bool
+        ``seed_warm_start``: the centre plan is the first wolf.
+    """
+
+    horizon: int
+    u_prev: int
+    centre: np.ndarray
+    scale: np.ndarray
+    scaled_lower: np.ndarray
+    scaled_upper: np.ndarray
+    rate: np.ndarray
+    rate_bounded: bool
+    deviation: bool
+    seed_warm: bool
+
+    def __post_init__(self) -> None:
+        """Check every field: ``ValueError`` naming it."""
+        check.positive_int("horizon", self.horizon)
+        check.positive_int("u_prev", self.u_prev, minimum=0)
+        nu = np.size(self.centre)
+        if not 1 <= nu <= 64:  # the C keeps a control in a 64-entry array
+            raise ValueError(f"centre must hold 1 to 64 controls, got {check.shown(self.centre)}")
+        for name in ("centre", "scale", "scaled_lower", "scaled_upper", "rate"):
+            value = _float_array(name, getattr(self, name), (nu,))
+            object.__setattr__(self, name, value)
+        for name in ("rate_bounded", "deviation", "seed_warm"):
+            check.boolean(name, getattr(self, name))
 
 
 class IgwoSetup:
@@ -976,6 +1088,7 @@ class IgwoSetup:
         functions: dict[str, tuple[int, int]] | None,
         states: int,
         score: list[int],
+        encoding: WarmEncoding | None = None,
     ) -> None:
         self._arrays = (a, w, *box)  # what the struct points to: kept alive with it
         struct = _SetupStruct()
@@ -989,6 +1102,17 @@ class IgwoSetup:
             struct.decode, struct.decode_work = functions["decode"]
             struct.score_terms, struct.score_terms_work = functions["score_terms"]
             struct.rollout, struct.rollout_work = functions["rollout"]
+        #: whether :meth:`NativeIgwo.solve_pcg64_warm` may run (the setup has an encoding)
+        self.warm = encoding is not None
+        if encoding is not None:
+            self._encoding = encoding  # its arrays, pointed to by the struct
+            struct.horizon, struct.nu, struct.u_prev = encoding.horizon, encoding.centre.size, encoding.u_prev
+            struct.rate_bounded, struct.deviation = encoding.rate_bounded, encoding.deviation
+            struct.seed_warm = encoding.seed_warm
+            struct.centre, struct.scale = encoding.centre.ctypes.data, encoding.scale.ctypes.data
+            struct.scaled_lower = encoding.scaled_lower.ctypes.data
+            struct.scaled_upper = encoding.scaled_upper.ctypes.data
+            struct.rate = encoding.rate.ctypes.data
         self._struct = struct
         self.address = ctypes.addressof(struct)
         #: whether a call also decodes, scores and rolls out the best point

@@ -55,6 +55,7 @@ from uuv_ocp.native.runtime import (
     IgwoSetup,
     NativeIgwo,
     SearchBox,
+    WarmEncoding,
     compiled_build,
     compiled_by_default,
     uses_pcg64,
@@ -481,7 +482,27 @@ class SwarmSolver:
                 np.array([steps._w(t) for t in range(self.iterations)]),
             )
             c1, c2 = steps.options["c1"], steps.options["c2"]
-            self._setup = self.native.setup(*self._schedules, c1, c2, self._lower, self._upper)
+            rate = spec.rate_step_bound
+            start = spec.layout.u_prev.start or 0
+            encoding = (
+                WarmEncoding(
+                    horizon=spec.horizon,
+                    u_prev=start,
+                    centre=spec.control_centre,
+                    scale=spec.control_scale,
+                    scaled_lower=spec.scaled_lower,
+                    scaled_upper=spec.scaled_upper,
+                    rate=rate,
+                    rate_bounded=bool(spec.lifted and np.any(np.isfinite(rate))),
+                    deviation=self.search == "deviation",
+                    seed_warm=self.seed_warm_start,
+                )
+                # a warm plan's box in C needs u_prev as one run of p (a slice of step 1)
+                if spec.layout.u_prev.step in (None, 1)
+                and spec.layout.u_prev.stop - start == spec.control_size
+                else None
+            )
+            self._setup = self.native.setup(*self._schedules, c1, c2, self._lower, self._upper, encoding)
         # auto: a second thread only where it pays, with two CPUs and the scalar draws (with the
         # 8-lane IFMA draws the step alone is faster: the blocks' trip between cores costs more)
         vector_draws = self.native is not None and self.native.draw_lanes > 1
@@ -710,9 +731,14 @@ class SwarmSolver:
         """
         native, setup = self.native, self._setup
         assert native is not None and setup is not None, "only called where the C solve was set up"
-        box = self._search_box(p, warm_start, initial)
         generator = rng if rng is not None else np.random.default_rng(self.seed)
-        record = native.solve_pcg64(setup, p, box, generator, int(self.rng_thread))
+        plan = None if warm_start is None or initial is not None else warm_start.scaled_controls
+        if plan is not None and setup.warm and np.size(plan) == native.dim:
+            # the centre plan and the box made in C: encode's numpy costs ~40 us a solve
+            record = native.solve_pcg64_warm(setup, p, plan, generator, int(self.rng_thread))
+        else:
+            box = self._search_box(p, warm_start, initial)
+            record = native.solve_pcg64(setup, p, box, generator, int(self.rng_thread))
         searched = time.perf_counter() - start
         self._full_search_seconds = searched
         fun = float(record[setup.fun])

@@ -697,7 +697,7 @@ typedef int (*uuv_ocp_work)(casadi_int* sz_arg, casadi_int* sz_res, casadi_int* 
                             casadi_int* sz_w);
 
 /* A solver's constants (NativeIgwo's IgwoSetup mirrors it field by field). */
-typedef struct {
+typedef struct uuv_ocp_igwo_setup {
   const double* a_schedule; /* a(t), w(t): iterations each */
   const double* w_schedule;
   const double* box_lower; /* the decode box the best point + offset is clipped into (dim) */

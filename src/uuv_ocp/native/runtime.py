@@ -110,6 +110,11 @@ int uuv_ocp_igwo_pcg64(const double* p, const double* offset, const double* lowe
 void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state_lo, uint64_t inc_hi, uint64_t inc_lo,
                           double* out, size_t count);
 int uuv_ocp_pcg64_lanes(void);
+struct uuv_ocp_igwo_setup; /* filled by uuv_ocp.native.runtime.NativeIgwo.setup (igwo_step.c) */
+int uuv_ocp_igwo_solve(const struct uuv_ocp_igwo_setup* setup, const double* p, const double* box,
+                       int seeded, void* bitgen, int rng_thread, double* out);
+int uuv_ocp_igwo_solve_warm(const struct uuv_ocp_igwo_setup* setup, const double* p,
+                            const double* plan, void* bitgen, int rng_thread, double* out);
 """
 
 #: ``UUV_OCP_COMPILED=0`` / ``1`` overrides ``compiled="auto"`` of the swarms and ``qpsol="auto"`` of sqp-rti

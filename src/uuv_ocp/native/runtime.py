@@ -12,7 +12,10 @@
   :func:`uuv_ocp.score` judges,
 * ``uuv_ocp_igwo(...)`` / ``uuv_ocp_igwo_pcg64(...)``: the whole IGWO step of the paper as a C
   loop around ``cost_batch``, its random draws given or drawn in C from numpy's PCG64 state
-  (the same numbers, so the same seed gives the same result as the Python IGWO),
+  (the same numbers, so the same seed gives the same result as the Python IGWO), and
+  ``uuv_ocp_igwo_solve(...)`` / ``uuv_ocp_igwo_solve_warm(...)``: the swarm solver's whole
+  default solve around it (initial wolves, the run, the best plan decoded with ``decode``,
+  scored and rolled out; the Generator moved in place) in one call,
 
 compiles it with the system C compiler into a shared library, loads the CasADi functions back
 with ``casadi.external`` and checks every one against its symbolic twin on random inputs
@@ -640,7 +643,8 @@ class NativeIgwo:
     ``rng_thread`` (the same numbers: most of the 288 k uniform draws of a 20 × 30 step then
     cost no time on the step's own thread).
     Inputs are float64 arrays; every length and shape is checked against the build (the C code
-    trusts them).
+    trusts them).  :meth:`setup` and :meth:`solve_pcg64` / :meth:`solve_pcg64_warm` run the
+    swarm solver's whole default solve in one call (:attr:`finishes`, :attr:`direct_pcg64`).
 
     Raises
     ------

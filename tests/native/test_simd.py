@@ -462,6 +462,37 @@ def test_a_warm_box_made_in_c_on_an_off_centre_box_without_rate_bound(tmp_path, 
     _assert_same_solves(one_call, around, p, calls)
 
 
+@needs_compiler
+def test_one_solver_called_from_two_threads_at_once_gives_the_sequential_results(s2_problem, feasible_start):
+    """Each one-call solve owns its record and scratch (the cached box and setup are read only)."""
+    import threading
+
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0)
+    solver = uo.new_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": False})
+    assert solver._setup is not None
+    warm = solver.solve(p, None, np.random.default_rng(0)).iterate
+    jobs = [(seed, None if seed % 2 else warm) for seed in range(40)]
+    expected = {job[0]: solver.solve(p, job[1], np.random.default_rng(job[0])) for job in jobs}
+    results: dict = {}
+    start = threading.Barrier(2)
+
+    def work(share):
+        start.wait()
+        for seed, plan in share:
+            results[seed] = solver.solve(p, plan, np.random.default_rng(seed))
+
+    threads = [threading.Thread(target=work, args=(jobs[k::2],)) for k in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for seed, result in expected.items():
+        np.testing.assert_array_equal(results[seed].controls, result.controls, err_msg=f"seed {seed}")
+        np.testing.assert_array_equal(results[seed].states, result.states)
+        np.testing.assert_array_equal(results[seed].history, result.history)
+
+
 def test_the_c_solve_reads_numpys_pcg64_state_where_numpy_keeps_it():
     """The layout check of the Generator's in-place state: true for this numpy, and it moves with it."""
     from uuv_ocp.native.runtime import _capsule_pointer, _pcg64_layout_matches

@@ -313,15 +313,16 @@ def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
     # test modes of the C step: 2 never uses the worker's blocks, 3 uses only its even ones
     monkeypatch.setattr(native, "rng_thread", rng_thread)
     runs = []
-    run = native.native._run  # what the solver calls (run() without the re-checks)
-    monkeypatch.setattr(native.native, "_run", lambda *args, **kw: runs.append(run(*args, **kw)) or runs[-1])
+    assert native._setup is not None  # the whole solve in one C call, what the solver calls
+    call = native.native.solve_pcg64
+    monkeypatch.setattr(native.native, "solve_pcg64", lambda *args: runs.append(call(*args)) or runs[-1])
     python = uo.new_solver(s2_problem, "igwo", {"compiled": True})
     python.native = None  # the Python loop over the same compiled kernel
     for seed in (1, 2):
         in_c, in_python = np.random.default_rng(seed), np.random.default_rng(seed)
         actual = native.solve(p, None, in_c)
         expected = python.solve(p, None, in_python)
-        late = runs[-1]["late_blocks"]  # of blocks 1..29, those the step drew itself
+        late = int(runs[-1][native._setup.late])  # of blocks 1..29, those the step drew itself
         expected_late = {False: 0, 2: native.iterations - 1, 3: native.iterations // 2}
         assert late == expected_late.get(rng_thread, late)
         assert 0 <= late <= native.iterations - 1
@@ -337,6 +338,174 @@ def test_all_c_step_draws_like_numpy_and_leaves_the_generator_where_numpy_would(
     other = native.solve(p, None, np.random.Generator(np.random.Philox(1)))
     reference = python.solve(p, None, np.random.Generator(np.random.Philox(1)))
     np.testing.assert_array_equal(other.controls, reference.controls)
+
+
+def _solve_outputs(result, generator) -> dict:
+    """Everything a swarm solve returns that must not change by a bit, and the Generator after it."""
+    details = result.details
+    return {
+        "x": result.iterate.scaled_controls,
+        "controls": result.controls,
+        "states": result.states,
+        "history": result.history,
+        "numbers": np.array(
+            [result.cost, result.max_violation, details["fitness"], *details["violations"].values()]
+        ),
+        "flags": (
+            result.success,
+            result.terminal_relaxed,
+            result.iterations,
+            result.evaluations,
+            details["evaluation"],
+            details["deadline_hit"],
+            tuple(details["violations"]),
+            result.status.split("; the random")[0],  # a late worker is timing, not output
+        ),
+        "generator": generator.bit_generator.state,
+    }
+
+
+@needs_compiler
+@pytest.mark.parametrize("rng_thread", [False, True], ids=["one-thread", "worker"])
+def test_the_one_call_solve_gives_the_bits_of_the_python_around_the_step(
+    s2_problem, feasible_start, rng_thread
+):
+    """Seeds 0..99 cold and warm (from the cold plan), a few with initial rows and without a generator.
+
+    Reference: the same solver with the C step called from Python and everything around it in
+    numpy and CasADi (the path of other bit generators, and of every solve before 2026-12-06).
+    """
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0)
+    options = {"compiled": True, "rng_thread": rng_thread}
+    one_call, around = (uo.new_solver(s2_problem, "igwo", options) for _ in range(2))
+    assert one_call._setup is not None and one_call.native.finishes
+    around._setup = None
+    rows = np.random.default_rng(7).uniform(-1.2, 1.2, (3, s2_problem.control_dim))
+    calls = []
+    for seed in range(100):
+        cold = one_call.solve(p, None, np.random.default_rng(seed))
+        calls += [(seed, None, None), (seed, cold.iterate, None), (seed, cold.iterate.shift(), None)]
+        if seed < 4:
+            calls.append((seed, None, rows[: seed + 1]))
+    _assert_same_solves(one_call, around, p, calls)
+    # no generator: the seed option's
+    no_rng = one_call.solve(p), around.solve(p)
+    np.testing.assert_array_equal(no_rng[0].controls, no_rng[1].controls)
+
+
+def _assert_same_solves(one_call, around, p, calls) -> None:
+    """Every ``(seed, warm start, initial rows)`` solved by both solvers: the same bits."""
+    for seed, warm, initial in calls:
+        generators = np.random.default_rng(seed), np.random.default_rng(seed)
+        actual = _solve_outputs(one_call.solve(p, warm, generators[0], initial=initial), generators[0])
+        expected = _solve_outputs(around.solve(p, warm, generators[1], initial=initial), generators[1])
+        for name, value in expected.items():
+            if isinstance(value, np.ndarray):
+                np.testing.assert_array_equal(actual[name], value, err_msg=f"{name}, seed {seed}")
+                assert actual[name].shape == value.shape
+            else:
+                assert actual[name] == value, (name, seed)
+
+
+def _warm_plans(problem, solver, p):
+    """Warm starts of every branch of encode: inside both bounds (a plan, shifted), outside, NaN."""
+    cold = solver.solve(p, None, np.random.default_rng(0)).iterate
+    shape = cold.scaled_controls.shape
+    outside = np.random.default_rng(3).uniform(-1.4, 1.4, shape)  # breaks the rate bound: projected
+    with_nan = cold.scaled_controls.copy()
+    with_nan[2, 0] = np.nan
+    plans = [cold.scaled_controls, cold.shift().scaled_controls, outside, with_nan]
+    return [uo.Iterate(scaled_controls=plan, states=cold.states) for plan in plans]
+
+
+@needs_compiler
+@pytest.mark.parametrize(
+    "options",
+    [
+        {},
+        {"search": "absolute"},
+        {"seed_warm_start": False},
+        {"search": "absolute", "seed_warm_start": False},
+    ],
+    ids=["deviation", "absolute", "unseeded", "absolute-unseeded"],
+)
+def test_a_warm_box_made_in_c_gives_the_bits_of_numpys(s2_problem, feasible_start, options):
+    """The warm start's centre plan and box in C (encode's two branches, NaN kept) against numpy's."""
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0, u_prev=np.array([0.3, -0.2, 0.1]) * 2000.0)
+    one_call, around = (uo.new_solver(s2_problem, "igwo", {"compiled": True, **options}) for _ in range(2))
+    assert one_call._setup.warm
+    around._setup = None
+    plans = _warm_plans(s2_problem, one_call, p)
+    _assert_same_solves(one_call, around, p, [(seed, warm, None) for seed in range(5) for warm in plans])
+
+
+@needs_compiler
+def test_a_warm_box_made_in_c_on_an_off_centre_box_without_rate_bound(tmp_path, monkeypatch):
+    """Controls in [0.2, 1.8] (scaled about 1.0), no rate bound: encode copies, the scaling shows."""
+    monkeypatch.setenv("UUV_OCP_CACHE", str(tmp_path))
+    ocp = uo.Ocp(horizon=6, dt=0.2)
+    pos, vel = ocp.state("pos"), ocp.state("vel")
+    push = ocp.control("push", lower=0.2, upper=1.8)
+    ocp.set_der(pos, vel)
+    ocp.set_der(vel, push - 1.0 - 0.1 * vel)
+    ocp.add_stage_cost(residual=ca.vertcat(pos - 0.5, 0.3 * (push - 1.0)))
+    problem = ocp
+    one_call, around = (uo.new_solver(problem, "igwo", {"compiled": True}) for _ in range(2))
+    assert one_call._setup is not None and one_call._setup.warm
+    assert not one_call._setup._encoding.rate_bounded
+    around._setup = None
+    p = problem.parameters([0.0, 0.1], u_prev=[1.5])
+    plans = _warm_plans(problem, one_call, p)
+    calls = [(seed, warm, None) for seed in range(5) for warm in [None, *plans]]
+    _assert_same_solves(one_call, around, p, calls)
+
+
+@needs_compiler
+def test_one_solver_called_from_two_threads_at_once_gives_the_sequential_results(s2_problem, feasible_start):
+    """Each one-call solve owns its record and scratch (the cached box and setup are read only)."""
+    import threading
+
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0)
+    solver = uo.new_solver(s2_problem, "igwo", {"compiled": True, "rng_thread": False})
+    assert solver._setup is not None
+    warm = solver.solve(p, None, np.random.default_rng(0)).iterate
+    jobs = [(seed, None if seed % 2 else warm) for seed in range(40)]
+    expected = {job[0]: solver.solve(p, job[1], np.random.default_rng(job[0])) for job in jobs}
+    results: dict = {}
+    start = threading.Barrier(2)
+
+    def work(share):
+        start.wait()
+        for seed, plan in share:
+            results[seed] = solver.solve(p, plan, np.random.default_rng(seed))
+
+    threads = [threading.Thread(target=work, args=(jobs[k::2],)) for k in range(2)]
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    for seed, result in expected.items():
+        np.testing.assert_array_equal(results[seed].controls, result.controls, err_msg=f"seed {seed}")
+        np.testing.assert_array_equal(results[seed].states, result.states)
+        np.testing.assert_array_equal(results[seed].history, result.history)
+
+
+def test_the_c_solve_reads_numpys_pcg64_state_where_numpy_keeps_it():
+    """The layout check of the Generator's in-place state: true for this numpy, and it moves with it."""
+    from uuv_ocp.native.runtime import _capsule_pointer, _pcg64_layout_matches
+
+    assert _pcg64_layout_matches()
+    generator = np.random.default_rng(11)
+    generator.random(5)
+    state = generator.bit_generator.state["state"]
+    bitgen = _capsule_pointer(generator.bit_generator.capsule, b"BitGenerator")
+    pcg = ctypes.c_void_p.from_address(ctypes.c_void_p.from_address(bitgen).value).value
+    words = list((ctypes.c_uint64 * 4).from_address(pcg))
+    assert words[0] | words[1] << 64 == state["state"]
+    assert words[2] | words[3] << 64 == state["inc"]
 
 
 def _cpu_flags() -> set[str]:

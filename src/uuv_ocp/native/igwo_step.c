@@ -25,6 +25,7 @@
 #include <stdatomic.h>
 #include <stdint.h>
 #include <stdlib.h>
+#include <string.h>
 #include <time.h>
 #if defined(__AVX512IFMA__) && defined(__AVX512DQ__) && defined(__x86_64__)
 #include <immintrin.h>
@@ -646,7 +647,8 @@ static int uuv_ocp_igwo_core(const double* p, const double* offset, const double
     }
     history[t + 1] = *best_f;
   }
-  for (i = 0; i < n * dim; ++i) final_positions[i] = positions[i];
+  if (final_positions)
+    for (i = 0; i < n * dim; ++i) final_positions[i] = positions[i];
 
 cleanup:
   if (drawing) uuv_pcg_stream_close(&stream, pcg);
@@ -681,4 +683,234 @@ CASADI_SYMBOL_EXPORT int uuv_ocp_igwo_pcg64(const double* p, const double* offse
   return uuv_ocp_igwo_core(p, offset, lower, upper, positions0, NULL, pcg, rng_thread, a_schedule,
                            w_schedule, c1, c2, n, dim, iterations, best_x, best_f, history,
                            final_positions);
+}
+
+/* ---- The whole default solve in one call: uuv_ocp_igwo_solve ----------------------------
+ * What SwarmSolver.solve does around the step, for a numpy Generator on PCG64: the uniform
+ * initial wolves (Generator.random((n - seeded, dim)) then lower + u * width), the step, and
+ * the finish of the best point (np.clip(x + offset, box) -> decode -> score_terms, rollout),
+ * each as the Python path computes it (the same generated functions, the same operations),
+ * so the outputs are bit for bit those of the Python around the step, at ~1/5 of its time. */
+typedef int (*uuv_ocp_eval)(const casadi_real** arg, casadi_real** res, casadi_int* iw,
+                            casadi_real* w, int mem);
+typedef int (*uuv_ocp_work)(casadi_int* sz_arg, casadi_int* sz_res, casadi_int* sz_iw,
+                            casadi_int* sz_w);
+
+/* A solver's constants (NativeIgwo's IgwoSetup mirrors it field by field). */
+typedef struct uuv_ocp_igwo_setup {
+  const double* a_schedule; /* a(t), w(t): iterations each */
+  const double* w_schedule;
+  const double* box_lower; /* the decode box the best point + offset is clipped into (dim) */
+  const double* box_upper;
+  double c1, c2;
+  int n, dim, iterations;
+  int states_size;    /* nonzeros of rollout's output */
+  int score_sizes[5]; /* nonzeros of score_terms' five outputs */
+  uuv_ocp_eval decode, score_terms, rollout; /* NULL decode: no finish */
+  uuv_ocp_work decode_work, score_terms_work, rollout_work;
+  /* the search box of a warm start (uuv_ocp_igwo_solve_warm), as SwarmSolver and encode make it */
+  int horizon, nu, u_prev;    /* N, controls per interval, where u_prev starts in p */
+  int rate_bounded;           /* spec.lifted and a finite rate bound: encode projects */
+  int deviation, seed_warm;   /* search="deviation"; seed_warm_start */
+  const double *centre, *scale, *scaled_lower, *scaled_upper, *rate; /* nu each */
+} uuv_ocp_igwo_setup;
+
+/* numpy's bitgen_t (numpy/random/bitgen.h, public) starts with `void* state`; PCG64's state
+ * struct starts with a pointer to {state, inc}, two native 128-bit integers.  NativeIgwo checks
+ * this layout against Generator.bit_generator.state before it passes a generator here. */
+static void* uuv_numpy_pcg64(void* bitgen) { return *(void**)(*(void**)bitgen); }
+
+/* np.clip(value, low, high) on one double: numpy's _NPY_CLIP, NaN kept. */
+static inline double uuv_clip(double value, double low, double high) {
+  value = isnan(value) ? value : (value > low ? value : low);
+  return isnan(value) ? value : (value < high ? value : high);
+}
+
+static int uuv_ocp_finish(const uuv_ocp_igwo_setup* s, const double* p, const double* offset,
+                          const double* best_x, double* scaled, double* states, double* score) {
+  const uuv_ocp_work works[3] = {s->decode_work, s->score_terms_work, s->rollout_work};
+  casadi_int sz_arg = 2, sz_res = 5, sz_iw = 1, sz_w = 1, a, r, iw_size, w_size;
+  const casadi_real** arg;
+  casadi_real** res;
+  casadi_int* iw;
+  casadi_real* w;
+  double* clipped;
+  int k, j, status = 0;
+  for (k = 0; k < 3; ++k) {
+    if (works[k](&a, &r, &iw_size, &w_size)) return 1;
+    sz_arg = a > sz_arg ? a : sz_arg;
+    sz_res = r > sz_res ? r : sz_res;
+    sz_iw = iw_size > sz_iw ? iw_size : sz_iw;
+    sz_w = w_size > sz_w ? w_size : sz_w;
+  }
+  arg = (const casadi_real**)malloc(sizeof(casadi_real*) * (size_t)sz_arg);
+  res = (casadi_real**)malloc(sizeof(casadi_real*) * (size_t)sz_res);
+  iw = (casadi_int*)malloc(sizeof(casadi_int) * (size_t)sz_iw);
+  w = (casadi_real*)malloc(sizeof(casadi_real) * (size_t)sz_w);
+  clipped = (double*)malloc(sizeof(double) * (size_t)s->dim);
+  if (!arg || !res || !iw || !w || !clipped) {
+    status = 2;
+    goto done;
+  }
+  for (j = 0; j < s->dim; ++j) clipped[j] = uuv_clip(best_x[j] + offset[j], s->box_lower[j], s->box_upper[j]);
+  arg[0] = clipped;
+  arg[1] = p;
+  res[0] = scaled;
+  if (s->decode(arg, res, iw, w, 0)) {
+    status = 1;
+    goto done;
+  }
+  arg[0] = scaled;
+  for (k = 0; k < 5; ++k) {
+    res[k] = score;
+    score += s->score_sizes[k];
+  }
+  if (s->score_terms(arg, res, iw, w, 0)) {
+    status = 1;
+    goto done;
+  }
+  res[0] = states;
+  if (s->rollout(arg, res, iw, w, 0)) status = 1;
+done:
+  free(arg); free(res); free(iw); free(w); free(clipped);
+  return status;
+}
+
+/* One solve: `box` = offset, lower, upper, width (dim each) then `seeded` initial rows (already
+ * clipped into [lower, upper]); then uniform wolves in the box drawn from the Generator behind
+ * `bitgen` (its bitgen_t, from the capsule), the step with the same Generator, and the finish.  `out`: best x (dim), its fitness, the history
+ * (iterations + 1), the late blocks, then with a finish the scaled plan (dim), the states and
+ * the five score_terms outputs.  The Generator's state moves only when the whole call succeeds
+ * (status 0; 1: an evaluation failed, 2: out of memory); the caller holds its lock. */
+/* numpy's maximum/minimum (NaN propagates) and Python's max/min of two floats (the first
+ * unless the second is strictly beyond it): encode uses both, in its two branches. */
+static inline double uuv_np_max(double a, double b) { return (a >= b || isnan(a)) ? a : b; }
+static inline double uuv_np_min(double a, double b) { return (a <= b || isnan(a)) ? a : b; }
+static inline double uuv_py_max(double a, double b) { return b > a ? b : a; }
+static inline double uuv_py_min(double a, double b) { return b < a ? b : a; }
+
+/* uuv_ocp.transcription.condensed.encode(spec, plan, previous) into `w` (horizon * nu): the
+ * same operations in the same order in both of its branches (a plan inside both bounds, which
+ * projects onto itself, and the stage-by-stage projection). */
+static void uuv_ocp_encode(const uuv_ocp_igwo_setup* s, const double* plan, const double* previous,
+                           double* w) {
+  const int n = s->horizon, nu = s->nu;
+  int k, i, inside = 1;
+  double prior[64];
+  if (!s->rate_bounded) {
+    for (k = 0; k < n * nu; ++k) w[k] = plan[k];
+    return;
+  }
+  for (k = 0; k < n && inside; ++k) {
+    for (i = 0; i < nu; ++i) {
+      const double before = k == 0 ? previous[i] : plan[(k - 1) * nu + i], value = plan[k * nu + i];
+      const double low = uuv_np_max(s->scaled_lower[i], before - s->rate[i]);
+      const double high = uuv_np_min(s->scaled_upper[i], before + s->rate[i]);
+      if (!(value >= low && value <= high)) inside = 0;
+    }
+  }
+  if (inside) {
+    for (k = 0; k < n; ++k) {
+      for (i = 0; i < nu; ++i) {
+        const double before = k == 0 ? previous[i] : plan[(k - 1) * nu + i], value = plan[k * nu + i];
+        const double low = uuv_np_max(s->scaled_lower[i], before - s->rate[i]);
+        const double high = uuv_np_min(s->scaled_upper[i], before + s->rate[i]);
+        const double width = high - low;
+        w[k * nu + i] = uuv_clip(width > 0 ? 2.0 * (value - low) / width - 1.0 : 0.0, -1.0, 1.0);
+      }
+    }
+    return;
+  }
+  for (i = 0; i < nu; ++i) prior[i] = previous[i];
+  for (k = 0; k < n; ++k) {
+    for (i = 0; i < nu; ++i) {
+      const double value = plan[k * nu + i];
+      const double low = uuv_py_max(s->scaled_lower[i], prior[i] - s->rate[i]);
+      const double high = uuv_py_min(s->scaled_upper[i], prior[i] + s->rate[i]);
+      const double z = value == value ? uuv_py_min(uuv_py_max(value, low), high) : value;
+      const double width = high - low;
+      const double coordinate = width > 0 ? 2.0 * (z - low) / width - 1.0 : 0.0;
+      w[k * nu + i] = coordinate == coordinate ? uuv_py_min(uuv_py_max(coordinate, -1.0), 1.0) : coordinate;
+      prior[i] = z;
+    }
+  }
+}
+
+CASADI_SYMBOL_EXPORT int uuv_ocp_igwo_solve(const uuv_ocp_igwo_setup* s, const double* p,
+                                            const double* box, int seeded, void* bitgen,
+                                            int rng_thread, double* out) {
+  const int n = s->n, dim = s->dim, iterations = s->iterations;
+  const double *offset = box, *lower = box + dim, *upper = box + 2 * dim, *width = box + 3 * dim;
+  const double* seeds = box + 4 * dim;
+  const size_t drawn = (size_t)(n - seeded) * (size_t)dim;
+  double* positions = (double*)malloc(sizeof(double) * (size_t)n * (size_t)dim);
+  double* late = out + dim + 2 + iterations;
+  unsigned char* numpy_state = (unsigned char*)uuv_numpy_pcg64(bitgen);
+  uuv_u128 state, inc;
+  uint64_t pcg[5];
+  size_t i;
+  int status;
+  if (!positions) return 2;
+  memcpy(&state, numpy_state, sizeof state);
+  memcpy(&inc, numpy_state + sizeof state, sizeof inc);
+  for (i = 0; i < (size_t)seeded * (size_t)dim; ++i) positions[i] = seeds[i];
+  if (drawn > 0) {
+    uuv_pcg_jump jumps[UUV_PCG_SEGMENTS + 2];
+    double* uniform = positions + (size_t)seeded * dim;
+    const size_t segment = uuv_pcg_jumps(inc, drawn, jumps);
+    uuv_pcg_fill(state, inc, jumps, segment, uniform, drawn, 0, UUV_PCG_SEGMENTS);
+    for (i = 0; i < drawn; ++i) uniform[i] = lower[i % dim] + uniform[i] * width[i % dim];
+    state = uuv_pcg_apply(jumps[UUV_PCG_SEGMENTS], state);
+  }
+  pcg[0] = (uint64_t)(state >> 64);
+  pcg[1] = (uint64_t)state;
+  pcg[2] = (uint64_t)(inc >> 64);
+  pcg[3] = (uint64_t)inc;
+  pcg[4] = 0;
+  status = uuv_ocp_igwo_core(p, offset, lower, upper, positions, NULL, pcg, rng_thread,
+                             s->a_schedule, s->w_schedule, s->c1, s->c2, n, dim, iterations, out,
+                             out + dim, out + dim + 1, NULL);
+  free(positions);
+  if (status == 0 && s->decode)
+    status = uuv_ocp_finish(s, p, offset, out, late + 1, late + 1 + dim, late + 1 + dim + s->states_size);
+  if (status == 0) {
+    state = ((uuv_u128)pcg[0] << 64) | pcg[1];
+    memcpy(numpy_state, &state, sizeof state);
+    *late = (double)pcg[4];
+  }
+  return status;
+}
+
+/* uuv_ocp_igwo_solve from a warm plan (scaled controls, horizon x nu): its search box made here
+ * as SwarmSolver._search_box makes it (previous = np.clip((u_prev - centre) / scale, scaled
+ * box), centre plan = encode(plan, previous), offset, seeds, lower, upper, width), ~1 us
+ * instead of ~50 us of numpy.  nu <= 64 (else status 2: the solver keeps the numpy box). */
+CASADI_SYMBOL_EXPORT int uuv_ocp_igwo_solve_warm(const uuv_ocp_igwo_setup* s, const double* p,
+                                                 const double* plan, void* bitgen, int rng_thread,
+                                                 double* out) {
+  const int dim = s->dim, nu = s->nu;
+  double previous[64];
+  double* box;
+  double *offset, *lower, *upper, *width, *seeds;
+  int i, j, seeded = s->seed_warm, status;
+  if (nu > 64 || s->horizon * nu != dim) return 2;
+  box = (double*)malloc(sizeof(double) * (size_t)(5 * dim));
+  if (!box) return 2;
+  offset = box, lower = box + dim, upper = box + 2 * dim, width = box + 3 * dim, seeds = box + 4 * dim;
+  for (i = 0; i < nu; ++i)
+    previous[i] = uuv_clip((p[s->u_prev + i] - s->centre[i]) / s->scale[i], s->scaled_lower[i],
+                           s->scaled_upper[i]);
+  uuv_ocp_encode(s, plan, previous, seeds); /* the centre plan */
+  for (j = 0; j < dim; ++j) {
+    const double center = seeds[j];
+    offset[j] = s->deviation ? center : 0.0;
+    seeds[j] = center - offset[j];
+    lower[j] = s->box_lower[j] - offset[j];
+    upper[j] = s->box_upper[j] - offset[j];
+    width[j] = upper[j] - lower[j];
+    seeds[j] = uuv_clip(seeds[j], lower[j], upper[j]);
+  }
+  status = uuv_ocp_igwo_solve(s, p, box, seeded, bitgen, rng_thread, out);
+  free(box);
+  return status;
 }

@@ -12,7 +12,10 @@
   :func:`uuv_ocp.score` judges,
 * ``uuv_ocp_igwo(...)`` / ``uuv_ocp_igwo_pcg64(...)``: the whole IGWO step of the paper as a C
   loop around ``cost_batch``, its random draws given or drawn in C from numpy's PCG64 state
-  (the same numbers, so the same seed gives the same result as the Python IGWO),
+  (the same numbers, so the same seed gives the same result as the Python IGWO), and
+  ``uuv_ocp_igwo_solve(...)`` / ``uuv_ocp_igwo_solve_warm(...)``: the swarm solver's whole
+  default solve around it (initial wolves, the run, the best plan decoded with ``decode``,
+  scored and rolled out; the Generator moved in place) in one call,
 
 compiles it with the system C compiler into a shared library, loads the CasADi functions back
 with ``casadi.external`` and checks every one against its symbolic twin on random inputs
@@ -82,10 +85,13 @@ SIMD_TOLERANCE = 1e-10
 #: step place its random-number thread on another CPU (Linux).
 DEFAULT_FLAGS = (*CORE_FLAGS, "-ffp-contract=off", "-march=native", "-D_GNU_SOURCE")
 FUNCTION_NAMES = ("cost", "cost_batch", "dynamics", "model_step", "rollout", "score_terms")
+#: generated on request only (not by default): ``decode(W, p) -> U``, the swarm coordinates to
+#: scaled controls, which the IGWO solve finishes with in C (:meth:`NativeIgwo.solve_pcg64`)
+OPTIONAL_NAMES = ("decode",)
 #: generated on request only, by a builder from above (:func:`uuv_ocp.solvers.rti_export.generate_c`):
 #: the exact NMPC step (one real-time iteration on HPIPM)
 NMPC_STEP = "nmpc_step"
-ACCEPTED_NAMES = (*FUNCTION_NAMES, NMPC_STEP)
+ACCEPTED_NAMES = (*FUNCTION_NAMES, *OPTIONAL_NAMES, NMPC_STEP)
 #: generated along with ``cost_batch``: CasADi's own (scalar, mapped) code of the same fitness
 EXACT_BATCH = "cost_batch_exact"
 #: smallest population of the IGWO step (three leaders and at least one other wolf)
@@ -107,6 +113,11 @@ int uuv_ocp_igwo_pcg64(const double* p, const double* offset, const double* lowe
 void uuv_ocp_pcg64_random(uint64_t state_hi, uint64_t state_lo, uint64_t inc_hi, uint64_t inc_lo,
                           double* out, size_t count);
 int uuv_ocp_pcg64_lanes(void);
+struct uuv_ocp_igwo_setup; /* filled by uuv_ocp.native.runtime.NativeIgwo.setup (igwo_step.c) */
+int uuv_ocp_igwo_solve(const struct uuv_ocp_igwo_setup* setup, const double* p, const double* box,
+                       int seeded, void* bitgen, int rng_thread, double* out);
+int uuv_ocp_igwo_solve_warm(const struct uuv_ocp_igwo_setup* setup, const double* p,
+                            const double* plan, void* bitgen, int rng_thread, double* out);
 """
 
 #: ``UUV_OCP_COMPILED=0`` / ``1`` overrides ``compiled="auto"`` of the swarms and ``qpsol="auto"`` of sqp-rti
@@ -141,6 +152,7 @@ __all__ = [
     "GeneratedCode",
     "IntegrityError",
     "NativeIgwo",
+    "WarmEncoding",
     "VerificationError",
     "compiled_build",
     "compiled_nlpsol",
@@ -219,6 +231,7 @@ def symbolic_functions(problem: Transcribed, population: int = 20) -> dict[str, 
         "model_step": _renamed(built.step, "model_step"),
         "rollout": built.rollout,
         "score_terms": built.score_terms,
+        "decode": built.decode,
     }
 
 
@@ -270,7 +283,7 @@ def _checked_arguments(
         raise ValueError(
             f"functions must be a tuple of names from {list(FUNCTION_NAMES)}, got {check.shown(functions)}"
         )
-    accepted = ACCEPTED_NAMES if nmpc_builder is not None else FUNCTION_NAMES
+    accepted = ACCEPTED_NAMES if nmpc_builder is not None else (*FUNCTION_NAMES, *OPTIONAL_NAMES)
     unknown = [name for name in functions if name not in accepted]
     if unknown or not functions:
         raise ValueError(
@@ -311,8 +324,9 @@ def generate_c(
         Output folder (created).
     functions : tuple of str
         Any of ``"cost"``, ``"cost_batch"``, ``"dynamics"``, ``"model_step"``, ``"rollout"``,
-        ``"score_terms"`` (what :func:`uuv_ocp.score` evaluates); the IGWO step is
-        added whenever ``"cost_batch"`` is present.
+        ``"score_terms"`` (what :func:`uuv_ocp.score` evaluates), and on request ``"decode"``
+        (the swarm's coordinates to scaled controls); the IGWO step is added whenever
+        ``"cost_batch"`` is present.
     population : int
         Population size of ``cost_batch`` and the IGWO step (>= 4 with ``"cost_batch"``, which
         brings the IGWO step; else >= 1).
@@ -358,7 +372,7 @@ def generate_c(
     prefix = _prefix(problem, prefix)
     directory = Path(directory)
     symbolic = symbolic_functions(problem, population)
-    chosen = [symbolic[name] for name in FUNCTION_NAMES if name in functions]
+    chosen = [symbolic[name] for name in (*FUNCTION_NAMES, *OPTIONAL_NAMES) if name in functions]
     external = []
     extra = header = ""
     simd = False
@@ -437,7 +451,9 @@ def generate_c(
 
 
 _EXPORTED = re.compile(
-    r"\b(cost_batch\w*|uuv_ocp_igwo|uuv_ocp_igwo_pcg64|uuv_ocp_pcg64_random|uuv_ocp_pcg64_lanes)\b"
+    r"\b(cost_batch\w*|uuv_ocp_igwo|uuv_ocp_igwo_pcg64|uuv_ocp_igwo_solve|uuv_ocp_igwo_solve_warm"
+    r"|uuv_ocp_pcg64_random"
+    r"|uuv_ocp_pcg64_lanes)\b"
 )
 
 
@@ -591,7 +607,7 @@ def compiled_nlpsol(
 def compiled_build(problem: Transcribed, population: int) -> GeneratedCode | None:
     """Build (once per problem content, population and cache folder) what ``compiled=True`` runs on.
 
-    Returns the compiled ``cost_batch`` + IGWO step, ``rollout`` and ``score_terms`` of
+    Returns the compiled ``cost_batch`` + IGWO step, ``rollout``, ``score_terms`` and ``decode`` of
     ``problem``, or ``None`` with one warning when the compiled path is unavailable: no
     compiler works, the compiled code fails its verification, or the cache folder cannot be
     used (unsafe or not writable: the warning names it and the fix).
@@ -601,7 +617,10 @@ def compiled_build(problem: Transcribed, population: int) -> GeneratedCode | Non
     def build() -> GeneratedCode | None:
         try:
             return generate_c(
-                problem, directory, functions=("cost_batch", "rollout", "score_terms"), population=population
+                problem,
+                directory,
+                functions=("cost_batch", "rollout", "score_terms", "decode"),
+                population=population,
             )
         except (CodegenError, OSError) as error:
             warnings.warn(
@@ -633,7 +652,8 @@ class NativeIgwo:
     ``rng_thread`` (the same numbers: most of the 288 k uniform draws of a 20 × 30 step then
     cost no time on the step's own thread).
     Inputs are float64 arrays; every length and shape is checked against the build (the C code
-    trusts them).
+    trusts them).  :meth:`setup` and :meth:`solve_pcg64` / :meth:`solve_pcg64_warm` run the
+    swarm solver's whole default solve in one call (:attr:`finishes`, :attr:`direct_pcg64`).
 
     Raises
     ------
@@ -678,6 +698,184 @@ class NativeIgwo:
         #: numbers per step of the C step's PCG64 draws: 8 with AVX-512 IFMA (then ~3x faster
         #: than the scalar 1), which makes the random-number thread a loss (docs/codegen.md)
         self.draw_lanes = int(lanes())
+        # the whole solve in one call (solve_pcg64): a Generator's state read and moved in
+        # place (its layout checked here once: the state dict's round trip costs ~5 µs a call)
+        self._solve = getattr(self.library, f"{prefix}uuv_ocp_igwo_solve")
+        self._solve.argtypes = [address, address, address, ctypes.c_int, address, ctypes.c_int, address]
+        self._solve.restype = ctypes.c_int
+        self._solve_warm = getattr(self.library, f"{prefix}uuv_ocp_igwo_solve_warm")
+        self._solve_warm.argtypes = [address, address, address, address, ctypes.c_int, address]
+        self._solve_warm.restype = ctypes.c_int
+        #: whether :meth:`solve_pcg64` may run here: numpy keeps PCG64's state where the C reads it
+        self.direct_pcg64 = _pcg64_layout_matches()
+        #: whether :meth:`setup` can finish a solve in C: the build has decode, score_terms, rollout
+        self.finishes = self._finish_functions() is not None
+
+    def _finish_functions(self) -> dict[str, tuple[int, int]] | None:
+        """Addresses ``(function, its _work)`` of decode, score_terms, rollout, if built to fit."""
+        functions = self.build.functions
+        if not all(name in functions for name in ("decode", "score_terms", "rollout")):
+            return None
+        decode, score, rollout = functions["decode"], functions["score_terms"], functions["rollout"]
+        dim, parameters = self.dim, self.parameter_dim
+        fits = (
+            decode.nnz_in(0) == dim
+            and decode.nnz_out(0) == dim
+            and score.n_out() == 5
+            and all(f.nnz_in(0) == dim and f.nnz_in(1) == parameters for f in (decode, score, rollout))
+        )
+        if not fits:
+            return None
+
+        def address(symbol: str) -> int:
+            return int(
+                ctypes.cast(getattr(self.library, self.build.prefix + symbol), ctypes.c_void_p).value or 0
+            )
+
+        return {
+            name: (address(name), address(f"{name}_work")) for name in ("decode", "score_terms", "rollout")
+        }
+
+    def setup(
+        self,
+        a: np.ndarray,
+        w: np.ndarray,
+        c1: float,
+        c2: float,
+        box_lower: np.ndarray,
+        box_upper: np.ndarray,
+        encoding: WarmEncoding | None = None,
+    ) -> IgwoSetup:
+        """Return the constants of a solver's :meth:`solve_pcg64` calls, checked once.
+
+        ``a``, ``w (iterations,)``: the schedules; ``c1``, ``c2``: the learning factors;
+        ``box_lower``, ``box_upper (dim,)``: the box of the decode coordinates the best point
+        (plus the offset) is clipped into before the finish; ``encoding``: what
+        :meth:`solve_pcg64_warm` makes a warm plan's search box with (``None``: not available).
+        """
+        iterations = self._iterations(a)
+        a, w = (_float_array(name, v, (iterations,)) for name, v in (("a", a), ("w", w)))
+        box = [
+            _float_array(n, v, (self.dim,)) for n, v in (("box_lower", box_lower), ("box_upper", box_upper))
+        ]
+        c1, c2 = check.finite_float("c1", c1), check.finite_float("c2", c2)
+        functions = self._finish_functions()
+        states = int(self.build.functions["rollout"].nnz_out(0)) if functions else 0
+        score = (
+            [int(self.build.functions["score_terms"].nnz_out(k)) for k in range(5)] if functions else [0] * 5
+        )
+        if encoding is not None and (
+            encoding.horizon * encoding.centre.size != self.dim
+            or encoding.u_prev + encoding.centre.size > self.parameter_dim
+        ):
+            raise ValueError(
+                f"encoding must describe {self.dim} coordinates of p ({self.parameter_dim}), got "
+                f"horizon {encoding.horizon} x {encoding.centre.size} controls at p[{encoding.u_prev}]"
+            )
+        return IgwoSetup(self, a, w, c1, c2, box, iterations, functions, states, score, encoding)
+
+    def search_box(
+        self, offset: np.ndarray, box_lower: np.ndarray, box_upper: np.ndarray, seeds: np.ndarray
+    ) -> SearchBox:
+        """Return the search box of one solve (:meth:`solve_pcg64`), as the swarm solver computes it.
+
+        ``lower = box_lower - offset``, ``upper = box_upper - offset``, ``width = upper - lower``
+        and the initial ``seeds (k, dim)`` (k <= population) clipped into ``[lower, upper]``,
+        numpy's operations written into one array: one address for the C call.
+        """
+        dim = self.dim
+        offset, box_lower, box_upper = (
+            value
+            if type(value) is np.ndarray and value.dtype == _FLOAT and value.shape == (dim,)
+            else _float_array(name, value, (dim,))
+            for name, value in (("offset", offset), ("box_lower", box_lower), ("box_upper", box_upper))
+        )
+        rows = np.shape(seeds)[0] if np.ndim(seeds) == 2 else -1
+        if not 0 <= rows <= self.population:
+            raise ValueError(
+                f"seeds must have shape (k, {dim}) with k <= {self.population}, got {check.shown(seeds)}"
+            )
+        seeds = _float_array("seeds", seeds, (rows, dim)) if rows else np.empty((0, dim))
+        data = np.empty((4 + rows) * dim)
+        parts = data[: 4 * dim].reshape(4, dim)  # offset, lower, upper, width
+        parts[0] = offset
+        np.subtract(box_lower, offset, out=parts[1])
+        np.subtract(box_upper, offset, out=parts[2])
+        np.subtract(parts[2], parts[1], out=parts[3])
+        np.clip(seeds, parts[1], parts[2], out=data[4 * dim :].reshape(rows, dim))
+        return SearchBox(data, rows)
+
+    def solve_pcg64(
+        self,
+        setup: IgwoSetup,
+        p: np.ndarray,
+        box: SearchBox,
+        generator: np.random.Generator,
+        rng_thread: int,
+    ) -> np.ndarray:
+        """Run the whole solve in one C call; return the flat record laid out as ``setup`` says.
+
+        The ``seeds`` rows of ``box`` then ``population - k`` uniform wolves
+        ``lower + Generator.random((population - k, dim)) * width``, the IGWO run on
+        ``generator``'s numbers (as :meth:`run` draws them), and with a finish
+        (``setup.finish``) the best point's ``np.clip(x + offset, box)``, ``decode``,
+        ``score_terms`` and ``rollout``: bit for bit what the solver computes around
+        :meth:`run`.  ``generator`` must run on PCG64 and :attr:`direct_pcg64` hold; it moves
+        as ``Generator.random`` would, under its lock, and only when the call succeeds.
+        ``rng_thread`` is one of 0..3 (see :meth:`run`).
+        """
+        p = self._parameters(p)
+        out = np.empty(setup.size)
+        bit_generator = generator.bit_generator
+        with bit_generator.lock:  # the state is read and written in place
+            state = _capsule_pointer(bit_generator.capsule, b"BitGenerator")
+            status = self._solve(
+                setup.address, p.ctypes.data, box.address, box.seeded, state, rng_thread, out.ctypes.data
+            )
+        if status != 0:
+            reason = "the fitness evaluation failed" if status == 1 else "out of memory"
+            raise RuntimeError(f"uuv_ocp_igwo_solve returned status {status}: {reason}")
+        return out
+
+    def _parameters(self, p: object) -> np.ndarray:
+        """``p`` as a C-contiguous float64 vector of the build's length (``ValueError`` names it)."""
+        if not (type(p) is np.ndarray and p.dtype == _FLOAT and p.shape == (self.parameter_dim,)):
+            return _float_array("p", p, (self.parameter_dim,))  # the caller's own: always checked
+        return p if p.flags.c_contiguous else np.ascontiguousarray(p)
+
+    def solve_pcg64_warm(
+        self,
+        setup: IgwoSetup,
+        p: np.ndarray,
+        plan: np.ndarray,
+        generator: np.random.Generator,
+        rng_thread: int,
+    ) -> np.ndarray:
+        """Run :meth:`solve_pcg64` from a warm ``plan`` (scaled controls, ``horizon x nu``).
+
+        The search box is made in C from ``p`` and ``plan`` with ``setup``'s encoding, as the
+        swarm solver makes it in numpy (the centre plan ``encode(plan, previous control)``,
+        the offset and the seed of its ``search`` and ``seed_warm_start``): the same record.
+        """
+        if not setup.warm:
+            raise ValueError(
+                "setup must have an encoding (NativeIgwo.setup(..., encoding=...)) for a warm plan"
+            )
+        p = self._parameters(p)
+        plan = np.ascontiguousarray(plan, dtype=float)
+        if plan.size != self.dim:
+            raise ValueError(f"plan must hold {self.dim} scaled controls, got shape {plan.shape}")
+        out = np.empty(setup.size)
+        bit_generator = generator.bit_generator
+        with bit_generator.lock:  # the state is read and written in place
+            state = _capsule_pointer(bit_generator.capsule, b"BitGenerator")
+            status = self._solve_warm(
+                setup.address, p.ctypes.data, plan.ctypes.data, state, rng_thread, out.ctypes.data
+            )
+        if status != 0:
+            reason = "the fitness evaluation failed" if status == 1 else "out of memory"
+            raise RuntimeError(f"uuv_ocp_igwo_solve_warm returned status {status}: {reason}")
+        return out
 
     def run(
         self,
@@ -799,6 +997,197 @@ class NativeIgwo:
         if shape is None or len(shape) != 1:
             raise ValueError(f"a must be a 1-D array (one value per iteration), got {check.shown(a)}")
         return int(shape[0])
+
+
+class _SetupStruct(ctypes.Structure):
+    """``uuv_ocp_igwo_setup`` of igwo_step.c, field by field."""
+
+    _fields_ = [
+        ("a_schedule", ctypes.c_void_p),
+        ("w_schedule", ctypes.c_void_p),
+        ("box_lower", ctypes.c_void_p),
+        ("box_upper", ctypes.c_void_p),
+        ("c1", ctypes.c_double),
+        ("c2", ctypes.c_double),
+        ("n", ctypes.c_int),
+        ("dim", ctypes.c_int),
+        ("iterations", ctypes.c_int),
+        ("states_size", ctypes.c_int),
+        ("score_sizes", ctypes.c_int * 5),
+        ("decode", ctypes.c_void_p),
+        ("score_terms", ctypes.c_void_p),
+        ("rollout", ctypes.c_void_p),
+        ("decode_work", ctypes.c_void_p),
+        ("score_terms_work", ctypes.c_void_p),
+        ("rollout_work", ctypes.c_void_p),
+        ("horizon", ctypes.c_int),
+        ("nu", ctypes.c_int),
+        ("u_prev", ctypes.c_int),
+        ("rate_bounded", ctypes.c_int),
+        ("deviation", ctypes.c_int),
+        ("seed_warm", ctypes.c_int),
+        ("centre", ctypes.c_void_p),
+        ("scale", ctypes.c_void_p),
+        ("scaled_lower", ctypes.c_void_p),
+        ("scaled_upper", ctypes.c_void_p),
+        ("rate", ctypes.c_void_p),
+    ]
+
+
+@dataclass(frozen=True)
+class WarmEncoding:
+    """How a warm plan becomes the search box (:meth:`NativeIgwo.solve_pcg64_warm`).
+
+    Parameters
+    ----------
+    horizon : int
+        Intervals N of the plan.
+    u_prev : int
+        Index in ``p`` of the last applied control (physical units, ``nu`` values).
+    centre, scale : numpy.ndarray, shape (nu,)
+        The control scaling ``u = centre + scale * z`` (physical units).
+    scaled_lower, scaled_upper : numpy.ndarray, shape (nu,)
+        The box of the scaled control ``z`` (dimensionless).
+    rate : numpy.ndarray, shape (nu,)
+        Largest change of ``z`` per interval (inf where unbounded; dimensionless).
+    rate_bounded : bool
+        Whether the coordinates project on the rate bound (``spec.lifted`` and a finite rate).
+    deviation : bool
+        ``search="deviation"``: the swarm searches the deviation from the centre plan.
+    seed_warm : bool
+        ``seed_warm_start``: the centre plan is the first wolf.
+    """
+
+    horizon: int
+    u_prev: int
+    centre: np.ndarray
+    scale: np.ndarray
+    scaled_lower: np.ndarray
+    scaled_upper: np.ndarray
+    rate: np.ndarray
+    rate_bounded: bool
+    deviation: bool
+    seed_warm: bool
+
+    def __post_init__(self) -> None:
+        """Check every field: ``ValueError`` naming it."""
+        check.positive_int("horizon", self.horizon)
+        check.positive_int("u_prev", self.u_prev, minimum=0)
+        nu = np.size(self.centre)
+        if not 1 <= nu <= 64:  # the C keeps a control in a 64-entry array
+            raise ValueError(f"centre must hold 1 to 64 controls, got {check.shown(self.centre)}")
+        for name in ("centre", "scale", "scaled_lower", "scaled_upper", "rate"):
+            value = _float_array(name, getattr(self, name), (nu,))
+            object.__setattr__(self, name, value)
+        for name in ("rate_bounded", "deviation", "seed_warm"):
+            check.boolean(name, getattr(self, name))
+
+
+class IgwoSetup:
+    """A solver's constants for :meth:`NativeIgwo.solve_pcg64` (:meth:`NativeIgwo.setup` makes it).
+
+    Holds the C struct and the arrays it points to (alive as long as this object), and where
+    each output lies in the flat record a call returns: ``x`` (the best point in search
+    coordinates), ``fun`` (its fitness), ``history`` (best fitness after each iteration),
+    ``late`` (blocks the random-number thread was late with), and with :attr:`finish`
+    ``scaled`` (the decoded plan, scaled controls), ``states`` (rollout, column-major
+    ``(nx, N + 1)``) and ``score`` (the five ``score_terms`` outputs, in order).
+    """
+
+    def __init__(
+        self,
+        native: NativeIgwo,
+        a: np.ndarray,
+        w: np.ndarray,
+        c1: float,
+        c2: float,
+        box: list[np.ndarray],
+        iterations: int,
+        functions: dict[str, tuple[int, int]] | None,
+        states: int,
+        score: list[int],
+        encoding: WarmEncoding | None = None,
+    ) -> None:
+        self._arrays = (a, w, *box)  # what the struct points to: kept alive with it
+        struct = _SetupStruct()
+        struct.a_schedule, struct.w_schedule = a.ctypes.data, w.ctypes.data
+        struct.box_lower, struct.box_upper = box[0].ctypes.data, box[1].ctypes.data
+        struct.c1, struct.c2 = c1, c2
+        struct.n, struct.dim, struct.iterations = native.population, native.dim, iterations
+        struct.states_size = states
+        struct.score_sizes[:] = score
+        if functions is not None:
+            struct.decode, struct.decode_work = functions["decode"]
+            struct.score_terms, struct.score_terms_work = functions["score_terms"]
+            struct.rollout, struct.rollout_work = functions["rollout"]
+        #: whether :meth:`NativeIgwo.solve_pcg64_warm` may run (the setup has an encoding)
+        self.warm = encoding is not None
+        if encoding is not None:
+            self._encoding = encoding  # its arrays, pointed to by the struct
+            struct.horizon, struct.nu, struct.u_prev = encoding.horizon, encoding.centre.size, encoding.u_prev
+            struct.rate_bounded, struct.deviation = encoding.rate_bounded, encoding.deviation
+            struct.seed_warm = encoding.seed_warm
+            struct.centre, struct.scale = encoding.centre.ctypes.data, encoding.scale.ctypes.data
+            struct.scaled_lower = encoding.scaled_lower.ctypes.data
+            struct.scaled_upper = encoding.scaled_upper.ctypes.data
+            struct.rate = encoding.rate.ctypes.data
+        self._struct = struct
+        self.address = ctypes.addressof(struct)
+        #: whether a call also decodes, scores and rolls out the best point
+        self.finish = functions is not None
+        dim = native.dim
+        self.x = slice(0, dim)
+        self.fun = dim
+        self.history = slice(dim + 1, dim + 2 + iterations)
+        self.late = dim + 2 + iterations
+        start = self.late + 1
+        self.scaled = slice(start, start + dim if self.finish else start)
+        self.states = slice(self.scaled.stop, self.scaled.stop + states)
+        bounds = np.cumsum([self.states.stop, *score]).tolist()
+        self.score = tuple(slice(begin, end) for begin, end in zip(bounds[:-1], bounds[1:], strict=True))
+        self.size = bounds[-1]
+
+
+class SearchBox:
+    """The per-solve arrays of :meth:`NativeIgwo.solve_pcg64` (:meth:`NativeIgwo.search_box` makes it).
+
+    ``data``: ``offset``, ``lower``, ``upper``, ``width (dim)`` and the ``seeded`` initial rows
+    ``(seeded, dim)``, one after the other; its address taken once (a solver keeps the box of a
+    cold start between its solves).
+    """
+
+    __slots__ = ("address", "data", "seeded")
+
+    def __init__(self, data: np.ndarray, seeded: int) -> None:
+        self.data, self.seeded = data, seeded
+        self.address = data.ctypes.data
+
+
+_FLOAT = np.dtype(float)
+#: PyCapsule_GetPointer with a prototype of its own (ctypes.pythonapi's is shared)
+_capsule_pointer = ctypes.PYFUNCTYPE(ctypes.c_void_p, ctypes.py_object, ctypes.c_char_p)(
+    ("PyCapsule_GetPointer", ctypes.pythonapi)
+)
+
+
+def _pcg64_layout_matches() -> bool:
+    """Whether numpy keeps a PCG64's ``{state, inc}`` where ``uuv_ocp_igwo_solve`` reads them.
+
+    ``bitgen_t`` (numpy's public C API) starts with a pointer to the state struct, whose first
+    member points to the two native 128-bit integers: checked on a known state.
+    """
+    generator = np.random.PCG64(20261206)
+    try:
+        bitgen = _capsule_pointer(generator.capsule, b"BitGenerator")
+        state = ctypes.c_void_p.from_address(bitgen).value
+        pcg = ctypes.c_void_p.from_address(state).value if state else None
+        if not pcg or pcg % 8:
+            return False
+        words = list((ctypes.c_uint64 * 4).from_address(pcg))
+    except (AttributeError, ValueError, TypeError):
+        return False
+    expected = generator.state["state"]
+    return words == [*reversed(_split(expected["state"])), *reversed(_split(expected["inc"]))]
 
 
 def _float_array(name: str, value: object, shape: tuple[int, ...]) -> np.ndarray:

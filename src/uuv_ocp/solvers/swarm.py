@@ -37,6 +37,7 @@ finishes its budget after the deadline also reports ``deadline_hit``.
 from __future__ import annotations
 
 import functools
+import math
 import os
 import time
 from collections.abc import Callable
@@ -49,7 +50,16 @@ from uuv_ocp import _validation as check
 from uuv_ocp.build import Transcribed
 from uuv_ocp.judge import FEASIBILITY_TOLERANCE, score_terms
 from uuv_ocp.native.buffered import BufferedFunction
-from uuv_ocp.native.runtime import COMPILED_ENV, NativeIgwo, compiled_build, compiled_by_default, uses_pcg64
+from uuv_ocp.native.runtime import (
+    COMPILED_ENV,
+    IgwoSetup,
+    NativeIgwo,
+    SearchBox,
+    WarmEncoding,
+    compiled_build,
+    compiled_by_default,
+    uses_pcg64,
+)
 from uuv_ocp.optimize import ALGORITHMS, ImprovedGreyWolf, MinimizeResult, minimize
 from uuv_ocp.solvers.options import (
     AUTO,
@@ -457,7 +467,42 @@ class SwarmSolver:
         self._schedules: tuple[np.ndarray, np.ndarray] | None = None  # IGWO's a(t), w(t) for the C step
         self._full_search_seconds: float | None = None  # last search that used the whole budget
         self._cold_center: tuple[bytes, np.ndarray] | None = None  # (previous control, its centre)
+        self._cold_box: tuple[bytes, SearchBox] | None = None  # (raw u_prev, the C solve's box)
+        self._u_prev = spec.layout.u_prev
+        self._soft_terminal = problem.soft_terminal_available  # fixed once built: ~5 µs a read
         self.fitness = self._fitness_function()
+        # the whole default solve in one C call (solve_pcg64) where the build finishes in C
+        self._setup: IgwoSetup | None = None
+        if self.native is not None and self.native.finishes and self.native.direct_pcg64:
+            steps = ImprovedGreyWolf(
+                self._lower, self._upper, self.population, self.iterations, self.algorithm_options
+            )
+            self._schedules = (
+                np.array([steps._a(t) for t in range(self.iterations)]),
+                np.array([steps._w(t) for t in range(self.iterations)]),
+            )
+            c1, c2 = steps.options["c1"], steps.options["c2"]
+            rate = spec.rate_step_bound
+            start = spec.layout.u_prev.start or 0
+            encoding = (
+                WarmEncoding(
+                    horizon=spec.horizon,
+                    u_prev=start,
+                    centre=spec.control_centre,
+                    scale=spec.control_scale,
+                    scaled_lower=spec.scaled_lower,
+                    scaled_upper=spec.scaled_upper,
+                    rate=rate,
+                    rate_bounded=bool(spec.lifted and np.any(np.isfinite(rate))),
+                    deviation=self.search == "deviation",
+                    seed_warm=self.seed_warm_start,
+                )
+                # a warm plan's box in C needs u_prev as one run of p (a slice of step 1)
+                if spec.layout.u_prev.step in (None, 1)
+                and spec.layout.u_prev.stop - start == spec.control_size
+                else None
+            )
+            self._setup = self.native.setup(*self._schedules, c1, c2, self._lower, self._upper, encoding)
         # auto: a second thread only where it pays, with two CPUs and the scalar draws (with the
         # 8-lane IFMA draws the step alone is faster: the blocks' trip between cores costs more)
         vector_draws = self.native is not None and self.native.draw_lanes > 1
@@ -537,6 +582,14 @@ class SwarmSolver:
         """
         start = time.perf_counter()
         limit = self.deadline if time_limit is None else check.positive_float("time_limit", time_limit)
+        if (
+            self._setup is not None
+            and self.native is not None  # a test may take the C step away: the Python loop runs
+            and self.candidates == 1
+            and (rng is None or uses_pcg64(rng))
+            and self._native_fits(limit, start)
+        ):
+            return self._solve_in_c(p, warm_start, rng, initial, start, limit)
         problem = self.problem
         center = self._center(p, warm_start)
         offset = center if self.search == "deviation" else np.zeros_like(center)
@@ -628,6 +681,107 @@ class SwarmSolver:
                     "evaluation": evaluation,
                     **self._candidate_details(archive, outcome, offset, p),
                 }
+            ),
+        )
+
+    def _search_box(self, p: np.ndarray, warm_start: Iterate | None, initial: np.ndarray | None) -> SearchBox:
+        """Return the C solve's box: what :meth:`solve` computes before the step, kept for cold starts.
+
+        A cold start's box depends only on the last applied control in ``p`` (its raw bytes
+        are the key: one read of the cache, solves may run in threads).
+        """
+        cold = warm_start is None and initial is None
+        if cold:
+            key, cached = p[self._u_prev].tobytes(), self._cold_box
+            if cached is not None and cached[0] == key:
+                return cached[1]
+        center = self._center(p, warm_start)
+        offset = center if self.search == "deviation" else np.zeros_like(center)
+        seeds = np.empty((0, center.size))
+        if self.seed_warm_start and (warm_start is not None or self.search == "deviation"):
+            seeds = (center - offset)[None, :]
+        rows = None if initial is None else self._initial_rows(initial, center.size)
+        if rows is not None and len(rows):
+            # checked before the clip: a clip broadcasts a wrong width and keeps NaN rows
+            seeds = np.vstack([seeds, np.clip(rows, self._lower, self._upper) - offset])
+            if seeds.shape[0] > self.population:
+                raise ValueError(
+                    f"initial must leave room in the population ({self.population}) beside the centre "
+                    f"plan, got {len(rows)} rows"
+                )
+        assert self.native is not None, "only called where the all-C step was built"
+        box = self.native.search_box(offset, self._lower, self._upper, seeds)
+        if cold:
+            self._cold_box = (key, box)
+        return box
+
+    def _solve_in_c(
+        self,
+        p: np.ndarray,
+        warm_start: Iterate | None,
+        rng: np.random.Generator | None,
+        initial: np.ndarray | None,
+        start: float,
+        limit: float | None,
+    ) -> SolveResult:
+        """:meth:`solve` as one C call (:meth:`NativeIgwo.solve_pcg64`): the same result, bit for bit.
+
+        The initial wolves, the step, the decode, score and rollout of the best plan run in C;
+        here only the result is assembled from the call's record (views of one array).
+        """
+        native, setup = self.native, self._setup
+        assert native is not None and setup is not None, "only called where the C solve was set up"
+        generator = rng if rng is not None else np.random.default_rng(self.seed)
+        plan = None if warm_start is None or initial is not None else warm_start.scaled_controls
+        if plan is not None and setup.warm and np.size(plan) == native.dim:
+            # the centre plan and the box made in C: encode's numpy costs ~40 us a solve
+            record = native.solve_pcg64_warm(setup, p, plan, generator, int(self.rng_thread))
+        else:
+            box = self._search_box(p, warm_start, initial)
+            record = native.solve_pcg64(setup, p, box, generator, int(self.rng_thread))
+        searched = time.perf_counter() - start
+        self._full_search_seconds = searched
+        fun = float(record[setup.fun])
+        objective, terminal, rate, bound, other = (record[part] for part in setup.score)
+        # ndarray methods, as judge.score_terms: the same maxima (NaN included)
+        kinds = {
+            "terminal": float(np.abs(terminal).max()),
+            "rate": float(rate.max()),
+            "bound": float(bound.max()),
+            "constraint": float(other.max()),
+        }
+        problem = self.problem
+        scaled = record[setup.scaled]
+        horizon = scaled.size // problem.control_size
+        states = record[setup.states].reshape(horizon + 1, -1)
+        message = f"reached the iteration budget ({self.iterations}) in the compiled C step"
+        late_blocks = int(record[setup.late])
+        if late_blocks:
+            message += (
+                f"; the random-number thread was late with {late_blocks} of "
+                f"{self.iterations - 1} blocks, drawn by the step itself"
+            )
+        if limit is not None and searched > limit:
+            message = f"deadline: {limit:g} s exceeded by the full budget; {message}"
+        tolerance = FEASIBILITY_TOLERANCE
+        feasible = max(kinds["bound"], kinds["rate"], kinds["constraint"]) <= tolerance
+        return SolveResult(
+            solver=self.name,
+            controls=problem.controls_from_scaled(scaled),
+            states=states,
+            cost=float(objective[0]),
+            max_violation=max(kinds.values()),
+            success=math.isfinite(fun) and feasible,
+            status=message,
+            solve_time=time.perf_counter() - start,
+            iterations=self.iterations,
+            evaluations=self.population * (self.iterations + 1),
+            terminal_relaxed=kinds["terminal"] > tolerance and self._soft_terminal,
+            iterate=Iterate(scaled_controls=scaled.reshape(horizon, -1), states=states),
+            history=record[setup.history],
+            details=SolveDetails(
+                deadline_hit=limit is not None and searched > limit,
+                extra={"fitness": fun, "violations": kinds, "evaluation": "compiled C step"},
             ),
         )
 

@@ -654,3 +654,52 @@ def test_c_step_draws_the_same_numbers_whoever_draws_them(tmp_path, sanitizer, n
     ran = subprocess.run([str(binary)], capture_output=True, text=True, env=env, timeout=120)
     assert ran.returncode == 0, ran.stdout[-2000:] + ran.stderr[-2000:]
     assert "mismatches 0" in ran.stdout
+
+
+@needs_compiler
+def test_a_failed_evaluation_in_the_one_call_solve_is_reported_and_moves_no_generator(
+    s2_problem, feasible_start
+):
+    """The C solve's failure path: a CasADi function returning nonzero inside the C call.
+
+    The struct's ``rollout`` is replaced by a C-callable that fails, so the real C code runs the
+    swarm, reaches the finish, and must return status 1 without writing the generator back; the
+    solver raises a ``RuntimeError`` that names it and a closed loop falls back instead of crashing.
+    """
+    x0, t0 = feasible_start
+    p = s2_problem.parameters(x0, t0)
+    nmpc = uo.NMPC(s2_problem, solver="igwo", options={"compiled": True, "rng_thread": False})
+    solver = nmpc.backend
+    assert solver._setup is not None and solver._setup.finish
+    signature = ctypes.CFUNCTYPE(
+        ctypes.c_int, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_int
+    )
+    calls = []
+
+    def failing(*_arguments):
+        calls.append(1)
+        return 1
+
+    failing_rollout = signature(failing)
+    healthy = solver._setup._struct.rollout
+    solver._setup._struct.rollout = ctypes.cast(failing_rollout, ctypes.c_void_p).value
+    try:
+        generator = np.random.default_rng(5)
+        before = generator.bit_generator.state
+        with pytest.raises(RuntimeError, match=r"status 1: the fitness evaluation failed"):
+            solver.solve(p, None, generator)
+        assert calls, "the failing rollout was not reached: the test does not exercise the C path"
+        assert generator.bit_generator.state == before  # moved only when the call succeeds
+        warm = uo.Iterate(scaled_controls=np.zeros((s2_problem.horizon, 3)), states=None)
+        with pytest.raises(RuntimeError, match=r"solve_warm returned status 1"):
+            solver.solve(p, warm, generator)
+        assert generator.bit_generator.state == before
+        record = nmpc.step(x0, t0)  # the closed loop survives the backend's failure
+        assert record.fallback and "RuntimeError" in record.message
+        assert np.all(np.isfinite(record.control))
+    finally:
+        solver._setup._struct.rollout = healthy
+    # restored: the same solve succeeds and moves the generator
+    generator = np.random.default_rng(5)
+    assert solver.solve(p, None, generator).success
+    assert generator.bit_generator.state != before

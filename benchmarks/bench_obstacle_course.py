@@ -60,6 +60,7 @@ def run_one(course_name: str, solver: str, tolerance: float | str) -> dict:
         course.x0,
         duration=DURATION[course_name],
         record_substeps=True,
+        progress=True,  # a bar where bars are drawn (a terminal, UUV_OCP_PROGRESS=always): runs last minutes
     )
     return {
         "course": course_name,
